@@ -1,0 +1,152 @@
+"""Atomic file I/O for images, arrays and metadata.
+
+Every writer writes to a temporary name in the destination folder and renames it into place (`os.replace`), so a
+crash never leaves a half-written file under the final name. EXR goes through the OpenEXR bindings as float32
+(`np.ascontiguousarray` first: the bindings silently write garbage from strided arrays); PNG through Pillow.
+"""
+from __future__ import annotations
+
+import io as _io
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+class FileFormatError(ValueError):
+    """A file exists but its content is not what the clip contract says (the message names file and field)."""
+
+
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _atomic_tmp(path: Path, suffix: str) -> str:
+    """A temporary file name beside `path` (for writers that need a file name rather than bytes)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    return tmp
+
+
+def write_json(path, obj: Any) -> None:
+    _atomic_write_bytes(Path(path), (json.dumps(obj, indent=2, sort_keys=False) + "\n").encode())
+
+
+def read_json(path) -> Any:
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise
+    except json.JSONDecodeError as e:
+        raise FileFormatError(f"{path}: not valid JSON ({e})") from e
+
+
+def write_npz(path, compressed: bool = True, **arrays) -> None:
+    buf = _io.BytesIO()
+    (np.savez_compressed if compressed else np.savez)(buf, **{k: np.ascontiguousarray(v) for k, v in arrays.items()})
+    _atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def read_npz(path) -> dict:
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise
+    except Exception as e:  # zipfile / pickle errors
+        raise FileFormatError(f"{path}: not a readable .npz archive ({e})") from e
+
+
+def write_exr(path, image: np.ndarray) -> None:
+    """Write a float32 EXR: [H, W] as channel 'Z', [H, W, 3] as 'RGB', [H, W, C] as channels C0..C{C-1}."""
+    import OpenEXR
+
+    path = Path(path)
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim == 2:
+        channels = {"Z": np.ascontiguousarray(img)}
+    elif img.ndim == 3 and img.shape[2] == 3:
+        channels = {"RGB": np.ascontiguousarray(img)}
+    elif img.ndim == 3:
+        channels = {f"C{i}": np.ascontiguousarray(img[..., i]) for i in range(img.shape[2])}
+    else:
+        raise ValueError(f"write_exr({path}): expected [H, W] or [H, W, C], got shape {img.shape}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    tmp = _atomic_tmp(path, ".exr")
+    try:
+        OpenEXR.File(header, channels).write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def read_exr(path) -> np.ndarray:
+    """Read an EXR written by `write_exr` (or any RGB / single-channel EXR) as float32 [H, W] or [H, W, C]."""
+    import OpenEXR
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: file missing")
+    try:
+        ch = OpenEXR.File(str(path)).channels()
+    except Exception as e:
+        raise FileFormatError(f"{path}: not a readable EXR ({e})") from e
+    if "RGB" in ch:
+        arr = ch["RGB"].pixels
+    elif "RGBA" in ch:
+        arr = ch["RGBA"].pixels[..., :3]
+    elif "Z" in ch:
+        arr = ch["Z"].pixels
+    elif len(ch) == 1:
+        arr = next(iter(ch.values())).pixels
+    elif all(f"C{i}" in ch for i in range(len(ch))):
+        arr = np.stack([ch[f"C{i}"].pixels for i in range(len(ch))], axis=-1)
+    else:
+        raise FileFormatError(f"{path}: unexpected EXR channels {sorted(ch)}")
+    return np.asarray(arr, dtype=np.float32)
+
+
+def write_png(path, image: np.ndarray) -> None:
+    """Write an 8-bit PNG from uint8 [H, W] / [H, W, 3] (floats in [0, 1] are quantised with rounding)."""
+    from PIL import Image
+
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        img = np.clip(np.round(img.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
+    buf = _io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(img)).save(buf, format="PNG")
+    _atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def read_png(path) -> np.ndarray:
+    """Read an 8-bit PNG as uint8 [H, W] or [H, W, 3]."""
+    from PIL import Image
+
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: file missing")
+    try:
+        with Image.open(path) as im:
+            if im.mode not in ("L", "RGB"):
+                im = im.convert("RGB")
+            return np.asarray(im).copy()
+    except Exception as e:
+        raise FileFormatError(f"{path}: not a readable PNG ({e})") from e
