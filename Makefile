@@ -1,0 +1,26 @@
+# Two commands do everything on a fresh machine (see README.md):
+#   make demo   set up, then generate the tiny suite, train every variant of it, score the runs, print the table
+#   make test   set up, then run the test suite (what CI runs)
+SHELL := /bin/bash
+export OMP_WAIT_POLICY ?= PASSIVE
+export DRJIT_LIBLLVM_PATH ?= $(firstword $(wildcard /usr/lib/x86_64-linux-gnu/libLLVM.so.19*))
+VENV := .venv/bin
+OUT ?= out
+
+.PHONY: setup demo test test-slow clean
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	$(VENV)/m4dgs-eval run tiny --preset tiny --out $(OUT)
+	$(VENV)/m4dgs-eval table $(OUT)/runs/tiny
+
+test: setup
+	$(VENV)/python -m pytest
+
+test-slow: setup
+	$(VENV)/python -m pytest -m slow
+
+clean:
+	rm -rf $(OUT) .pytest_cache
