@@ -1,0 +1,148 @@
+"""Temporal stability of rendered HDR video: HDR-TAE (paper appendix "Evaluation Metrics"), HDR_T_std, DIS flow.
+
+HDR-TAE convention (the authors' compute_HDR_TAE; shared/notes/metric-conventions.md):
+- H_{t+1->t} = W(H_{t+1}, F_{t->t+1}): backward warp, bilinear, border padding, align_corners=True (m4dgs.warp).
+- per pixel, the SUM over RGB of |H_t - H_{t+1->t}| / (H_t + H_{t+1->t} + 1e-10), times the visibility V_{t->t+1},
+  summed and divided by the COUNT of visible pixels (so 3x the per-channel mean);
+- the same for t+1 with H_{t->t+1} = W(H_t, F_{t+1->t}) and V_{t+1->t}; per pair (fwd + bwd) / 2; mean over pairs.
+- visibility: given masks (exact from ground truth) or forward-backward consistency
+  |f + b(x + f)| < 0.5 (|f| + |b(x + f)|) + 0.5 (m4dgs.warp.fb_consistency).
+A direction with no visible pixel is skipped (a pair with none in both directions too); all empty -> NaN.
+
+Flow for real clips (no learned model without weights): OpenCV DIS optical flow, preset MEDIUM, on 8-bit grey
+images of the mu-law tone-mapped HDR pair, both frames divided by the SAME scale (max over the two frames), so the
+tone curve does not change between the frames.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from m4dgs.warp import backward_warp, fb_consistency
+
+from ._util import as_mask, as_tensor
+from .hdr import MU
+
+TAE_EPS = 1e-10
+
+CONVENTIONS = {
+    "hdr_tae": "HDR-TAE: channel SUM convention (3x per-channel mean), as in the authors' code; bilinear backward "
+               "warp with border padding; mean over visible pixels, both directions, consecutive pairs",
+    "hdr_tae_gt_flow": "HDR-TAE flow: exact ground-truth flow and visibility",
+    "hdr_tae_dis_flow": "HDR-TAE flow: OpenCV DIS (preset medium) on 8-bit mu-law tone-mapped HDR, visibility from "
+                        "forward-backward consistency",
+    "hdr_t_std": "HDR_T_std: population std over frames of each frame's mean HDR value, divided by the global mean",
+}
+
+
+def _tae_direction(h_a: torch.Tensor, h_b: torch.Tensor, flow_ab: torch.Tensor, vis_a: torch.Tensor):
+    """Sum over visible pixels of frame a of sum_c |H_a - W(H_b, F_ab)| / (H_a + W + eps), and the visible count."""
+    hw = backward_warp(h_b, flow_ab, padding_mode="border")
+    rel = ((h_a - hw).abs() / (h_a + hw + TAE_EPS)).sum(dim=-1)  # [H, W] channel sum
+    n = int(vis_a.sum())
+    return float((rel * vis_a.to(rel.dtype)).sum()), n
+
+
+def hdr_tae_pairs(frames, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> list[float]:
+    """Per-pair HDR-TAE values (see module docstring).
+
+    Args:
+        frames: [T, H, W, 3] linear HDR frames (list or array, numpy or torch).
+        flow_fwd: [T-1, H, W, 2] F_{t->t+1} on frame t's grid (pixels).
+        flow_bwd: [T-1, H, W, 2] F_{t+1->t} on frame t+1's grid.
+        vis_fwd: optional [T-1, H, W] bool, pixels of frame t visible in t+1 (V_{t->t+1}).
+        vis_bwd: optional [T-1, H, W] bool, pixels of frame t+1 visible in t (V_{t+1->t}).
+            Masks missing -> forward-backward consistency of the two flows.
+    Returns:
+        list of T-1 floats (NaN for a pair with no visible pixel in either direction).
+    """
+    if isinstance(frames, (list, tuple)):
+        frames = torch.stack([as_tensor(f) for f in frames]) if len(frames) else torch.zeros(0)
+    h = as_tensor(frames, uint8_scale=False)
+    if h.dim() != 4:
+        raise ValueError(f"hdr_tae: frames must be [T, H, W, C], got {tuple(h.shape)}")
+    t_len = h.shape[0]
+    ff = as_tensor(flow_fwd, device=h.device, uint8_scale=False)
+    fb = as_tensor(flow_bwd, device=h.device, uint8_scale=False)
+    expect = (t_len - 1, h.shape[1], h.shape[2], 2)
+    if tuple(ff.shape) != expect or tuple(fb.shape) != expect:
+        raise ValueError(f"hdr_tae: flows must be {expect}, got {tuple(ff.shape)} and {tuple(fb.shape)}")
+    vf = as_mask(vis_fwd, h) if vis_fwd is not None else None
+    vb = as_mask(vis_bwd, h) if vis_bwd is not None else None
+    out = []
+    for t in range(t_len - 1):
+        va = vf[t] if vf is not None else fb_consistency(ff[t], fb[t])
+        vb_t = vb[t] if vb is not None else fb_consistency(fb[t], ff[t])
+        s1, n1 = _tae_direction(h[t], h[t + 1], ff[t], va)
+        s2, n2 = _tae_direction(h[t + 1], h[t], fb[t], vb_t)
+        terms = [s / n for s, n in ((s1, n1), (s2, n2)) if n > 0]
+        out.append(float(np.mean(terms)) if terms else math.nan)
+    return out
+
+
+def hdr_tae(frames, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> float:
+    """HDR-TAE (lower is better): mean over consecutive pairs of the two-direction average (module docstring)."""
+    vals = [v for v in hdr_tae_pairs(frames, flow_fwd, flow_bwd, vis_fwd, vis_bwd) if not math.isnan(v)]
+    return float(np.mean(vals)) if vals else math.nan
+
+
+def hdr_t_std(frames) -> float:
+    """HDR_T_std: std over frames (population, ddof=0) of each frame's mean value, divided by the global mean.
+
+    frames: [T, H, W, C] linear HDR (list or array). The frame mean is over pixels and channels.
+    """
+    if isinstance(frames, (list, tuple)):
+        frames = torch.stack([as_tensor(f, uint8_scale=False) for f in frames])
+    h = as_tensor(frames, uint8_scale=False)
+    means = h.reshape(h.shape[0], -1).mean(dim=1)
+    return float(means.std(correction=0) / h.mean())
+
+
+def tonemap_8bit(hdr, scale: float | None = None, mu: float = MU) -> np.ndarray:
+    """8-bit grey image for flow estimation: round(255 * mu_law(clip(H / scale, 0, 1))), Rec.709 luma of RGB.
+
+    hdr: [H, W, 3] or [H, W] linear HDR; scale defaults to the image's max.
+    """
+    h = as_tensor(hdr, uint8_scale=False).cpu().numpy()
+    if h.ndim == 3:
+        h = h[..., 0] * 0.2126 + h[..., 1] * 0.7152 + h[..., 2] * 0.0722 if h.shape[-1] == 3 else h[..., 0]
+    s = float(h.max()) if scale is None else float(scale)
+    x = np.clip(h / max(s, 1e-12), 0.0, 1.0)
+    t = np.log1p(mu * x) / np.log1p(mu)
+    return np.round(t * 255.0).astype(np.uint8)
+
+
+def dis_flow(img_a, img_b, *, hdr: bool | None = None) -> np.ndarray:
+    """Optical flow F_{a->b} [H, W, 2] (float32 numpy, pixels) by OpenCV DIS, preset MEDIUM.
+
+    img_a, img_b: [H, W, 3] (or [H, W]) images. uint8 inputs are used as they are (converted to grey); float inputs
+    are treated as linear HDR (`hdr=None` auto-detects from the dtype) and tone-mapped to 8-bit with the mu-law curve
+    on H / max(H_a, H_b) (same scale for both frames).
+    """
+    import cv2
+
+    a_np = img_a.detach().cpu().numpy() if isinstance(img_a, torch.Tensor) else np.asarray(img_a)
+    b_np = img_b.detach().cpu().numpy() if isinstance(img_b, torch.Tensor) else np.asarray(img_b)
+    if hdr is None:
+        hdr = a_np.dtype != np.uint8
+    if hdr:
+        s = max(float(a_np.max()), float(b_np.max()))
+        ga, gb = tonemap_8bit(a_np, s), tonemap_8bit(b_np, s)
+    else:
+        def grey(x):
+            x = x if x.dtype == np.uint8 else np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)
+            return cv2.cvtColor(x, cv2.COLOR_RGB2GRAY) if x.ndim == 3 and x.shape[-1] == 3 else x.reshape(x.shape[:2])
+        ga, gb = grey(a_np), grey(b_np)
+    dis = cv2.DISOpticalFlow_create(cv2.DISOpticalFlow_PRESET_MEDIUM)
+    flow = dis.calc(np.ascontiguousarray(ga), np.ascontiguousarray(gb), None)
+    return flow.astype(np.float32)
+
+
+def dis_flow_sequence(frames) -> tuple[np.ndarray, np.ndarray]:
+    """Forward and backward DIS flows of consecutive frames: ([T-1, H, W, 2] F_{t->t+1}, [T-1, H, W, 2] F_{t+1->t})."""
+    fr = [f.detach().cpu().numpy() if isinstance(f, torch.Tensor) else np.asarray(f) for f in frames]
+    fwd = [dis_flow(fr[t], fr[t + 1]) for t in range(len(fr) - 1)]
+    bwd = [dis_flow(fr[t + 1], fr[t]) for t in range(len(fr) - 1)]
+    return np.stack(fwd), np.stack(bwd)

@@ -1,0 +1,104 @@
+"""The run folder (DESIGN.md "Runs"): resolved config, JSON-lines log, checkpoints, status; all writes atomic.
+
+    <run>/
+      config.yaml            fully resolved configuration (written once; a resumed run must match it)
+      status.json            {"stage": "stage1" | "v2w" | "stage2" | "done", "step": int, ...}
+      log.jsonl              one JSON object per logged step (losses, Gaussian counts, timings)
+      model/ckpt.pt          the latest resumable checkpoint (overwritten atomically)
+      model/stage1.pt        final stage-1 model;  model/final.pt  final model
+      cameras.json           estimated cameras (BA, then refined)
+      renders/...            written by m4dgs.render
+"""
+from __future__ import annotations
+
+import io as _io
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any, Dict, Optional
+
+import torch
+import yaml
+
+from . import io as mio
+
+
+def save_torch(path, obj: Any) -> None:
+    """torch.save to a temporary file, then rename: a crash never leaves a truncated checkpoint."""
+    buf = _io.BytesIO()
+    torch.save(obj, buf)
+    mio._atomic_write_bytes(Path(path), buf.getvalue())
+
+
+def load_torch(path, map_location="cpu") -> Any:
+    return torch.load(path, map_location=map_location, weights_only=False)
+
+
+class RunDir:
+    def __init__(self, root):
+        self.root = Path(root)
+
+    # -- layout ----------------------------------------------------------------------------------------------------
+    def path(self, *parts) -> Path:
+        return self.root.joinpath(*parts)
+
+    @property
+    def config_path(self) -> Path:
+        return self.root / "config.yaml"
+
+    @property
+    def ckpt_path(self) -> Path:
+        return self.root / "model" / "ckpt.pt"
+
+    # -- config ----------------------------------------------------------------------------------------------------
+    def write_config(self, cfg: Dict[str, Any]) -> None:
+        mio._atomic_write_bytes(self.config_path, yaml.safe_dump(cfg, sort_keys=False).encode())
+
+    def read_config(self) -> Optional[Dict[str, Any]]:
+        if not self.config_path.exists():
+            return None
+        return yaml.safe_load(self.config_path.read_text())
+
+    # -- status ----------------------------------------------------------------------------------------------------
+    def status(self) -> Dict[str, Any]:
+        p = self.root / "status.json"
+        return mio.read_json(p) if p.exists() else {"stage": "new", "step": 0}
+
+    def set_status(self, **kw) -> None:
+        s = self.status()
+        s.update(kw)
+        s["updated"] = time.strftime("%Y-%m-%dT%H:%M:%S")
+        mio.write_json(self.root / "status.json", s)
+
+    @property
+    def done(self) -> bool:
+        return self.status().get("stage") == "done"
+
+    # -- log -------------------------------------------------------------------------------------------------------
+    def log(self, record: Dict[str, Any]) -> None:
+        """Append one JSON line (flushed and fsynced: the log survives a kill)."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        with open(self.root / "log.jsonl", "a") as f:
+            f.write(json.dumps(record) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+
+    def read_log(self):
+        p = self.root / "log.jsonl"
+        if not p.exists():
+            return []
+        out = []
+        for line in p.read_text().splitlines():
+            line = line.strip()
+            if line:
+                try:
+                    out.append(json.loads(line))
+                except json.JSONDecodeError:  # a torn last line after a hard kill
+                    continue
+        return out
+
+    def truncate_log(self, stage: str, step: int) -> None:
+        """Drop log lines past a checkpoint (the resumed run will write them again)."""
+        recs = [r for r in self.read_log() if not (r.get("stage") == stage and r.get("step", -1) > step)]
+        mio._atomic_write_bytes(self.root / "log.jsonl", "".join(json.dumps(r) + "\n" for r in recs).encode())
