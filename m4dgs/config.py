@@ -1,0 +1,444 @@
+"""Training configuration: dataclasses carrying the paper's defaults, presets, YAML round trip and overrides.
+
+Sections (each group cites the paper section its defaults come from; "authors' code" marks choices the paper leaves
+open, filled from shared/notes/authors-implementation.md):
+
+    TrainConfig
+      model      ModelConfig        Gaussian representation (N_s, features, scale activations, rotation init)
+      stage1     Stage1Config       video Gaussians: iterations, densification, learning rates, loss weights, init
+      v2w        V2WConfig          video-to-world transform
+      stage2     Stage2Config       world Gaussians + cameras
+      tonemap    ToneMapConfig      tone mapper / colour MLP sizes and pre-training
+      exposure   ExposureConfig     clip-derived values (N_e, unit-exposure target) and the exposure-perturbation study
+      ablation   AblationConfig     the paper's ablation switches
+      camera_init, epipolar         priors-side configs owned by m4dgs.camera_init / m4dgs.epipolar
+
+Presets: `tiny` (unit tests: tens of iterations, tiny images), `small` (CPU, 216x120), `paper` (864x480, 4K + 11K
+iterations). `to_dict` / `from_dict` round-trip through YAML (`from_dict` names an unknown key with its full dotted
+path); `apply_overrides(cfg, {"stage1.lambda_tlr": 0, "model.control_every": 8})` builds a variant.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import os
+import tempfile
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, Mapping, Optional, Tuple
+
+import yaml
+
+from m4dgs.camera_init import CameraInitConfig
+from m4dgs.densify import DensifyConfig
+from m4dgs.epipolar import EpipolarConfig
+from m4dgs.gaussians import ModelConfig, VideoInitConfig
+
+PRESETS = ("tiny", "small", "paper")
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# sections
+# ---------------------------------------------------------------------------------------------------------------------
+@dataclass
+class LRConfig:
+    """Learning rates (appendix "Implementation Details": static attributes as 3DGS, dynamic ones and cameras as
+    MoSca, MLPs 5e-4; values from the authors' code)."""
+
+    position_init: float = 1.6e-4  # exponential decay from init to final over the stage (3DGS)
+    position_final: float = 1.6e-6
+    position_delay_mult: float = 1.0  # 3DGS warm-up multiplier (1.0 = none)
+    rotation: float = 1e-3
+    scale: float = 5e-3
+    opacity: float = 5e-2
+    features: float = 2.5e-3
+    mlp: float = 5e-4  # tone-mapper and colour MLPs (paper)
+    adam_eps: float = 1e-15
+    camera_rotation: float = 3e-5  # stage 2 (authors' code)
+    camera_translation: float = 3e-5
+    camera_focal: float = 0.0  # focal frozen in stage 2 (authors' code)
+
+    def position_lr(self, step: int, max_steps: int) -> float:
+        """3DGS exponential decay: log-linear from position_init (step 0) to position_final (step max_steps), with
+        the optional warm-up multiplier position_delay_mult ramping up over the first 1% of the steps."""
+        if max_steps <= 0:
+            return self.position_init
+        u = min(max(step / max_steps, 0.0), 1.0)
+        lr = math.exp((1.0 - u) * math.log(self.position_init) + u * math.log(self.position_final))
+        if self.position_delay_mult < 1.0:
+            delay = max(int(0.01 * max_steps), 1)
+            lr *= self.position_delay_mult + (1.0 - self.position_delay_mult) * math.sin(
+                0.5 * math.pi * min(step / delay, 1.0)
+            )
+        return lr
+
+
+def _stage1_densify() -> DensifyConfig:
+    # appendix "Implementation Details": 3K densification iterations, every 200 steps, opacity reset every 1K
+    return DensifyConfig(start_iter=500, stop_iter=3_000, every=200, reset_every=1_000)
+
+
+@dataclass
+class Stage1Config:
+    """Video Gaussians (sec. 3.3.1, 3.3.3; weights and schedule from appendix "Implementation Details")."""
+
+    iterations: int = 4_000
+    densify: DensifyConfig = field(default_factory=_stage1_densify)
+    lr: LRConfig = field(default_factory=LRConfig)
+    init: VideoInitConfig = field(default_factory=VideoInitConfig)
+    # loss weights (appendix "Implementation Details"; lambda_d of the RGB loss from appendix "LDR RGB Loss")
+    lambda_rgb: float = 1.0
+    lambda_dssim: float = 0.2  # lambda_d: L_rgb = lambda_d DSSIM + (1 - lambda_d) L1
+    lambda_ue: float = 10.0
+    lambda_dep: float = 1.0
+    lambda_track: float = 0.01
+    lambda_arap: float = 0.01
+    lambda_vel: float = 10.0
+    lambda_acc: float = 10.0
+    lambda_tlr: float = 0.1  # authors' synthetic configs: 0.01
+    # extra terms of the authors' code, off by default (paper does not list them): opacity -> 1 (authors 1.0),
+    # scale standard deviation (authors 10.0)
+    lambda_opacity: float = 0.0
+    lambda_scale_std: float = 0.0
+    # loss details
+    arap_k: int = 5  # k nearest neighbours of the ARAP loss (appendix "Rigidity Constraint")
+    flow_prob: float = 0.5  # per-iteration probability of flow (vs track) supervision (appendix "Flow/Track Loss")
+    track_clamp_px: float = 100.0  # authors' code: track L2 pixel distance clamped at 100
+    smooth_window: int = 1  # velocity/acceleration over +-1 frame (paper); authors' code: 2
+    tlr_start: Optional[int] = None  # TLR after densification ends (sec. 3.3.3); None = densify.stop_iter
+    tlr_occlusion_ratio: float = 1.1  # authors' code: depth-order occlusion test at 1.1x depth
+
+    def tlr_start_step(self) -> int:
+        """First step with the TLR loss: tlr_start, or the end of densification."""
+        return self.densify.stop_iter if self.tlr_start is None else self.tlr_start
+
+
+@dataclass
+class V2WConfig:
+    """Video-to-world transform (sec. 3.3.2; details from the authors' code)."""
+
+    dynamic_ratio: float = 0.1  # N_d / N_f above this: dynamic in world space (paper)
+    static_std_fallback: float = 0.02  # authors' fallback without masks: world position std < 0.02 -> static
+    scale_refit_steps: int = 1_000  # 2D-covariance invariance refit (paper: "within 1000 iterations")
+    scale_refit_lr: float = 0.1  # authors' code
+    rotation_refit_lr: float = 1e-3  # authors' code
+    fov_clamp: float = 1.3  # authors' code: EWA tan-fov clamp factor
+    resample: str = "lstsq"  # control points from the world trajectory: "lstsq" | "sample"
+    rotation_refine_steps: int = 200  # 1 - |<q, q*>| refinement after the least-squares polynomial refit
+    seed: int = 0
+
+
+def _stage2_static_densify() -> DensifyConfig:
+    # appendix "Implementation Details": 8K densification iterations; static every 400, reset every 2K
+    return DensifyConfig(start_iter=500, stop_iter=8_000, every=400, reset_every=2_000)
+
+
+def _stage2_dynamic_densify() -> DensifyConfig:
+    # dynamic every 200, reset every 2K
+    return DensifyConfig(start_iter=500, stop_iter=8_000, every=200, reset_every=2_000)
+
+
+@dataclass
+class Stage2Config:
+    """World Gaussians + cameras (sec. 3.3.3, appendix "Implementation Details" and "Gaussian Densification")."""
+
+    iterations: int = 11_000
+    densify_static: DensifyConfig = field(default_factory=_stage2_static_densify)
+    densify_dynamic: DensifyConfig = field(default_factory=_stage2_dynamic_densify)
+    dynamic_removal_every: int = 2_000  # remove mistakenly densified dynamic Gaussians (appendix)
+    lr: LRConfig = field(default_factory=LRConfig)
+    lambda_rgb: float = 1.0
+    lambda_dssim: float = 0.2
+    lambda_ue: float = 10.0
+    lambda_dep: float = 1.0
+    lambda_track: float = 0.01
+    lambda_arap: float = 0.01
+    lambda_vel: float = 10.0
+    lambda_acc: float = 10.0
+    lambda_tlr: float = 0.1
+    lambda_pr: float = 1.0  # HDR photometric reprojection (stage 2 only)
+    lambda_opacity: float = 0.0
+    lambda_scale_std: float = 0.0
+    arap_k: int = 5
+    flow_prob: float = 0.5
+    track_clamp_px: float = 100.0
+    smooth_window: int = 1
+    tlr_start: Optional[int] = None  # None = the later of the two densification stops
+    tlr_occlusion_ratio: float = 1.1
+    pr_offsets: Tuple[int, ...] = (1, 2)  # t' in {t +- 1, t +- 2} (appendix "HDR Photometric Reprojection Loss")
+    pr_steps: Optional[int] = None  # paper: whole stage; authors' code: first 3,000 steps only
+    optimize_cameras: bool = True
+
+    def tlr_start_step(self) -> int:
+        """First step with the TLR loss: tlr_start, or the end of both densifications."""
+        if self.tlr_start is not None:
+            return self.tlr_start
+        return max(self.densify_static.stop_iter, self.densify_dynamic.stop_iter)
+
+
+@dataclass
+class ToneMapConfig:
+    """Tone mapper and colour MLP (appendix "Implementation Details"; pre-training from the authors' code)."""
+
+    tonemap_hidden: int = 128
+    color_hidden: int = 36
+    pretrain_steps: int = 1_000
+    pretrain_monotonic_weight: float = 10.0  # ReLU of the negative slope over ln x in [-10, 10]
+    lambda_monotonic: float = 0.0  # authors' code adds it during stage 1 with weight 10; paper does not
+    # pre-training target (paper silent; authors: "an equal-RGB CRF"). "auto": the generic Reinhard + gamma-2.2 curve
+    # (x / (x + k))^(1/2.2) with k chosen so that f(1) equals the unit-exposure target C_0; for C_0 = 0.73 this is
+    # the HDR-NeRF curve itself (the synthetic CRF), for real clips (C_0 = 0.5) a flatter one. Any registered
+    # m4dgs.crf name ("gamma", "srgb", ...) is accepted too.
+    pretrain_crf: str = "auto"
+    learn_background: bool = True  # learnable constant HDR background behind the Gaussians (paper silent)
+
+
+@dataclass
+class ExposureConfig:
+    """Exposure-related values. None means "from the clip" (clip.json)."""
+
+    num_exposures: Optional[int] = None  # N_e: flow pairs t +- N_e (appendix "Flow/Track Loss")
+    unit_exposure_value: Optional[float] = None  # C_0: 0.73 synthetic, 0.5 real (appendix "Unit Exposure Loss")
+    perturb_ev: float = 0.0  # exposure-perturbation study: uniform noise in [-r, r] EV on the input exposures
+    perturb_seed: int = 0
+
+
+@dataclass
+class AblationConfig:
+    """Switches of the paper's ablations (sec. 4.4 and appendix "More Ablation Results"); all True = full model.
+    The control-point interval N_s is `model.control_every`."""
+
+    use_video_init: bool = True  # (a) stage 1 + V2W; False: world Gaussians initialised from track/depth priors
+    occlusion_handling: bool = True  # (b) occlusion test in the dynamic/static identification
+    cov_invariance: bool = True  # (c) 2D covariance scale refit; False: inherit video scales
+    reproj_loss: bool = True  # (d) HDR photometric reprojection loss in stage 2
+    tlr: bool = True  # (e) temporal luminance regularisation
+    depth_loss: bool = True  # prior ablation: depth loss
+    track_loss: bool = True  # prior ablation: flow/track loss
+
+
+@dataclass
+class TrainConfig:
+    preset: str = "paper"
+    seed: int = 0
+    width: int = 864  # processing resolution (paper: original 864x480)
+    height: int = 480
+    device: str = "auto"
+    raster_backend: str = "auto"
+    model: ModelConfig = field(default_factory=ModelConfig)
+    stage1: Stage1Config = field(default_factory=Stage1Config)
+    v2w: V2WConfig = field(default_factory=V2WConfig)
+    stage2: Stage2Config = field(default_factory=Stage2Config)
+    tonemap: ToneMapConfig = field(default_factory=ToneMapConfig)
+    exposure: ExposureConfig = field(default_factory=ExposureConfig)
+    ablation: AblationConfig = field(default_factory=AblationConfig)
+    camera_init: CameraInitConfig = field(default_factory=CameraInitConfig)
+    epipolar: EpipolarConfig = field(default_factory=EpipolarConfig)
+
+    def to_dict(self) -> Dict[str, Any]:
+        return to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "TrainConfig":
+        return from_dict(cls, data)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# presets
+# ---------------------------------------------------------------------------------------------------------------------
+def _scale_densify(d: DensifyConfig, f: float, max_gaussians: int) -> DensifyConfig:
+    return dataclasses.replace(
+        d,
+        start_iter=max(int(d.start_iter * f), 1),
+        stop_iter=max(int(d.stop_iter * f), 2),
+        every=max(int(d.every * f), 1),
+        reset_every=max(int(d.reset_every * f), 1),
+        max_gaussians=max_gaussians,
+    )
+
+
+def preset(name: str) -> TrainConfig:
+    """`tiny` (tests), `small` (CPU, 216x120) or `paper` (864x480, 4K + 11K iterations)."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; expected one of {PRESETS}")
+    cfg = TrainConfig(preset=name)
+    if name == "paper":
+        return cfg
+    if name == "small":
+        f, width, height, cap, tracks, tm_steps, v2w_steps = 0.25, 216, 120, 40_000, 8_192, 300, 300
+    else:  # tiny
+        f, width, height, cap, tracks, tm_steps, v2w_steps = 0.02, 64, 36, 2_000, 512, 50, 30
+    cfg.width, cfg.height = width, height
+    s1, s2 = cfg.stage1, cfg.stage2
+    s1.iterations = max(int(s1.iterations * f), 20)
+    s2.iterations = max(int(s2.iterations * f), 30)
+    s1.densify = _scale_densify(s1.densify, f, cap)
+    s2.densify_static = _scale_densify(s2.densify_static, f, cap)
+    s2.densify_dynamic = _scale_densify(s2.densify_dynamic, f, cap)
+    s2.dynamic_removal_every = max(int(s2.dynamic_removal_every * f), 1)
+    if s2.pr_steps is not None:
+        s2.pr_steps = max(int(s2.pr_steps * f), 1)
+    s1.init.max_gaussians = tracks
+    cfg.tonemap.pretrain_steps = tm_steps
+    cfg.v2w.scale_refit_steps = v2w_steps
+    cfg.v2w.rotation_refine_steps = max(v2w_steps // 5, 5)
+    cfg.camera_init = CameraInitConfig.for_preset(name)
+    return cfg
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# dict / YAML round trip and overrides
+# ---------------------------------------------------------------------------------------------------------------------
+def to_dict(cfg: Any) -> Dict[str, Any]:
+    """Nested plain dict (tuples as lists) of a config dataclass, ready for yaml.safe_dump."""
+
+    def conv(v):
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, (list, tuple)):
+            return [conv(x) for x in v]
+        if isinstance(v, dict):
+            return {k: conv(x) for k, x in v.items()}
+        return v
+
+    return conv(cfg)
+
+
+def _strip_optional(tp):
+    origin = typing.get_origin(tp)
+    if origin is typing.Union:
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1:
+            return args[0], True
+    return tp, False
+
+
+def _coerce(value: Any, tp: Any, key: str) -> Any:
+    """Convert a YAML / CLI value to the annotated field type, with an error naming the key."""
+    base, optional = _strip_optional(tp)
+    if isinstance(value, str) and base is not str:
+        value = yaml.safe_load(value) if value.strip() else value
+    if value is None:
+        if optional or base is Any:
+            return None
+        raise TypeError(f"config key '{key}' may not be null")
+    if dataclasses.is_dataclass(base):
+        if not isinstance(value, Mapping):
+            raise TypeError(f"config key '{key}' expects a mapping, got {type(value).__name__}")
+        return _from_dict(base, value, key + ".")
+    origin = typing.get_origin(base)
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            value = [value]
+        args = typing.get_args(base)
+        elem = args[0] if args else Any
+        items = [_coerce(v, elem, f"{key}[{i}]") for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if base is bool:
+        if isinstance(value, bool):
+            return value
+        raise TypeError(f"config key '{key}' expects true/false, got {value!r}")
+    if base is int:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or float(value) != int(value):
+            raise TypeError(f"config key '{key}' expects an integer, got {value!r}")
+        return int(value)
+    if base is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise TypeError(f"config key '{key}' expects a number, got {value!r}")
+        return float(value)
+    if base is str:
+        if not isinstance(value, str):
+            raise TypeError(f"config key '{key}' expects a string, got {value!r}")
+        return value
+    return value
+
+
+def _from_dict(cls, data: Mapping[str, Any], prefix: str = ""):
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = [k for k in data if k not in names]
+    if unknown:
+        raise KeyError(
+            f"unknown config key '{prefix}{unknown[0]}' (valid keys under '{prefix or '<root>'}': {sorted(names)})"
+        )
+    kwargs = {k: _coerce(v, hints[k], prefix + k) for k, v in data.items()}
+    return cls(**kwargs)
+
+
+def from_dict(cls, data: Mapping[str, Any]):
+    """Build a config dataclass from a (partial) nested dict; missing keys keep their defaults.
+
+    Raises KeyError naming the full dotted path of an unknown key, TypeError for a value of the wrong type.
+    For TrainConfig, a "preset" key selects the defaults the other keys are applied to.
+    """
+    if cls is TrainConfig and "preset" in data:
+        base = preset(data["preset"])
+        rest = {k: v for k, v in data.items() if k != "preset"}
+        return apply_overrides(base, _flatten(rest))
+    return _from_dict(cls, data)
+
+
+def _flatten(d: Mapping[str, Any], prefix: str = "") -> Dict[str, Any]:
+    out: Dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, Mapping):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[prefix + k] = v
+    return out
+
+
+def apply_overrides(cfg: Any, overrides: Mapping[str, Any]) -> Any:
+    """A copy of `cfg` with dotted-path overrides applied, e.g. {"stage1.lambda_tlr": 0, "ablation.tlr": False}.
+
+    Values are coerced to the field type (strings are parsed as YAML scalars, so CLI values work); a mapping value
+    overrides the nested fields it names. Unknown paths raise KeyError naming the path.
+    """
+    out = copy.deepcopy(cfg)
+    for path, value in overrides.items():
+        parts = path.split(".")
+        obj = out
+        for i, part in enumerate(parts[:-1]):
+            if not dataclasses.is_dataclass(obj) or part not in {f.name for f in dataclasses.fields(obj)}:
+                raise KeyError(f"unknown config key '{'.'.join(parts[: i + 1])}' in override '{path}'")
+            obj = getattr(obj, part)
+        last = parts[-1]
+        if not dataclasses.is_dataclass(obj) or last not in {f.name for f in dataclasses.fields(obj)}:
+            raise KeyError(f"unknown config key '{path}'")
+        tp = typing.get_type_hints(type(obj))[last]
+        base, _ = _strip_optional(tp)
+        if dataclasses.is_dataclass(base) and isinstance(value, Mapping):
+            setattr(obj, last, apply_overrides(getattr(obj, last), _flatten(value)))
+        else:
+            setattr(obj, last, _coerce(value, tp, path))
+    return out
+
+
+def to_yaml(cfg: Any) -> str:
+    return yaml.safe_dump(to_dict(cfg), sort_keys=False)
+
+
+def from_yaml(text: str, cls=TrainConfig):
+    data = yaml.safe_load(text) or {}
+    return from_dict(cls, data)
+
+
+def save_yaml(cfg: Any, path) -> None:
+    """Write the config as YAML atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(to_yaml(cfg))
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def load_yaml(path, cls=TrainConfig):
+    return from_yaml(Path(path).read_text(), cls)

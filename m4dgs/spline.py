@@ -1,0 +1,264 @@
+"""Cubic Hermite spline trajectories for Gaussian positions (paper, appendix "Cubic Hermite Spline Interpolation").
+
+For control points p_k at knot times t_k (k = 0..K-1) and t in [t_k, t_{k+1}]:
+
+    mu(t) = h00(s) p_k + h10(s) (t_{k+1} - t_k) m_k + h01(s) p_{k+1} + h11(s) (t_{k+1} - t_k) m_{k+1},
+    s = (t - t_k) / (t_{k+1} - t_k),
+    m_k = 1/2 ((p_{k+1} - p_k) / (t_{k+1} - t_k) + (p_k - p_{k-1}) / (t_k - t_{k-1}))   (Catmull-Rom tangent),
+
+with h00 = 2s^3 - 3s^2 + 1, h10 = s^3 - 2s^2 + s, h01 = -2s^3 + 3s^2, h11 = s^3 - s^2. At the two ends the tangent is
+the one-sided slope (m_0 = (p_1 - p_0) / (t_1 - t_0), m_{K-1} likewise), as in the authors' code.
+
+Time is measured in training-frame indices (0..T-1; test frames sit at fractional times i + 0.5). Control points are
+placed every N_s frames (paper default 4, section "Implementation Details"), plus a final knot at the last frame when
+T - 1 is not a multiple of N_s. Times outside [t_0, t_{K-1}] are clamped to the ends.
+
+The spline is linear in its control points, mu(t) = sum_k B[t, k] p_k, so fitting control points to a trajectory is a
+(regularised, masked) linear least-squares problem per Gaussian (`fit_control_points`).
+"""
+from __future__ import annotations
+
+from typing import Optional, Union
+
+import torch
+
+Tensor = torch.Tensor
+
+
+def make_knots(num_frames: int, every: int = 4, *, dtype=torch.float32, device=None) -> Tensor:
+    """Knot times 0, N_s, 2 N_s, ... over frames 0..num_frames-1, plus the last frame if it is not on the grid.
+
+    Args:
+        num_frames: number of training frames T (>= 1).
+        every: control-point spacing N_s in frames (>= 1).
+    Returns:
+        [K] increasing knot times (K = 1 when T == 1).
+    """
+    if num_frames < 1:
+        raise ValueError(f"num_frames must be >= 1, got {num_frames}")
+    if every < 1:
+        raise ValueError(f"control-point spacing must be >= 1, got {every}")
+    last = num_frames - 1
+    knots = list(range(0, last + 1, every))
+    if knots[-1] != last:
+        knots.append(last)
+    return torch.tensor(knots, dtype=dtype, device=device)
+
+
+def hermite_basis(s: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Hermite basis functions (h00, h10, h01, h11) at local parameter s in [0, 1] (same shape as s)."""
+    s2 = s * s
+    s3 = s2 * s
+    h00 = 2.0 * s3 - 3.0 * s2 + 1.0
+    h10 = s3 - 2.0 * s2 + s
+    h01 = -2.0 * s3 + 3.0 * s2
+    h11 = s3 - s2
+    return h00, h10, h01, h11
+
+
+def tangents(ctrl: Tensor, knots: Tensor) -> Tensor:
+    """Catmull-Rom tangents m_k: mean of the adjacent slopes, one-sided slope at the two ends.
+
+    Args:
+        ctrl: [..., K, D] control points.
+        knots: [K] knot times.
+    Returns:
+        [..., K, D] tangents (zeros when K == 1).
+    """
+    k = ctrl.shape[-2]
+    if k == 1:
+        return torch.zeros_like(ctrl)
+    dt = (knots[1:] - knots[:-1]).to(ctrl.dtype)  # [K-1]
+    slopes = (ctrl[..., 1:, :] - ctrl[..., :-1, :]) / dt[:, None]  # [..., K-1, D]
+    inner = 0.5 * (slopes[..., 1:, :] + slopes[..., :-1, :])  # [..., K-2, D]
+    return torch.cat([slopes[..., :1, :], inner, slopes[..., -1:, :]], dim=-2)
+
+
+def _as_times(t: Union[Tensor, float, int], like: Tensor) -> tuple[Tensor, bool]:
+    scalar = not torch.is_tensor(t) or t.dim() == 0
+    tt = torch.as_tensor(t, dtype=like.dtype, device=like.device).reshape(-1)
+    return tt, scalar
+
+
+def evaluate(ctrl: Tensor, knots: Tensor, t: Union[Tensor, float, int]) -> Tensor:
+    """Evaluate the spline of each Gaussian at times t (differentiable wrt ctrl).
+
+    Args:
+        ctrl: [N, K, D] control points.
+        knots: [K] increasing knot times.
+        t: [T] times, or a scalar time (clamped to [knots[0], knots[-1]]).
+    Returns:
+        [N, T, D] positions, or [N, D] for a scalar t.
+    """
+    n, k, d = ctrl.shape
+    tt, scalar = _as_times(t, ctrl)
+    knots = knots.to(device=ctrl.device, dtype=ctrl.dtype)
+    if k == 1:
+        out = ctrl[:, :1, :].expand(n, tt.numel(), d)
+        return out[:, 0] if scalar else out
+    tt = tt.clamp(knots[0], knots[-1])
+    # segment index i with knots[i] <= t <= knots[i+1]; t == knots[-1] goes to the last segment
+    seg = torch.searchsorted(knots, tt, right=True) - 1
+    seg = seg.clamp(0, k - 2)
+    t0 = knots[seg]
+    t1 = knots[seg + 1]
+    h = t1 - t0  # [T]
+    s = (tt - t0) / h
+    h00, h10, h01, h11 = hermite_basis(s)
+    m = tangents(ctrl, knots)  # [N, K, D]
+    p0 = ctrl[:, seg]  # [N, T, D]
+    p1 = ctrl[:, seg + 1]
+    m0 = m[:, seg]
+    m1 = m[:, seg + 1]
+    out = (
+        h00[None, :, None] * p0
+        + (h10 * h)[None, :, None] * m0
+        + h01[None, :, None] * p1
+        + (h11 * h)[None, :, None] * m1
+    )
+    return out[:, 0] if scalar else out
+
+
+def basis_matrix(knots: Tensor, t: Union[Tensor, float, int]) -> Tensor:
+    """Linear map from control points to positions: evaluate(ctrl, knots, t)[n] == B @ ctrl[n].
+
+    Args:
+        knots: [K] knot times (float dtype).
+        t: [T] times (or scalar -> T = 1).
+    Returns:
+        [T, K] basis matrix (rows sum to 1).
+    """
+    k = knots.numel()
+    eye = torch.eye(k, dtype=knots.dtype, device=knots.device)[None]  # [1, K, K]: D = K
+    tt, _ = _as_times(t, knots)
+    return evaluate(eye, knots, tt)[0]  # [T, K]
+
+
+def second_difference_matrix(knots: Tensor) -> Tensor:
+    """Divided second differences of the control points, [K-2, K] (empty for K < 3).
+
+    Row k gives (p_{k+1} - p_k) / (t_{k+1} - t_k) - (p_k - p_{k-1}) / (t_k - t_{k-1}); it vanishes for control points
+    on a straight line in time, so the smoothness term never biases linear motion.
+    """
+    k = knots.numel()
+    d2 = torch.zeros(max(k - 2, 0), k, dtype=knots.dtype, device=knots.device)
+    for i in range(1, k - 1):
+        a = 1.0 / (knots[i] - knots[i - 1])
+        b = 1.0 / (knots[i + 1] - knots[i])
+        d2[i - 1, i - 1] = a
+        d2[i - 1, i] = -a - b
+        d2[i - 1, i + 1] = b
+    return d2
+
+
+def first_difference_matrix(knots: Tensor) -> Tensor:
+    """Divided first differences (p_{k+1} - p_k) / (t_{k+1} - t_k), [K-1, K]."""
+    k = knots.numel()
+    d1 = torch.zeros(max(k - 1, 0), k, dtype=knots.dtype, device=knots.device)
+    for i in range(k - 1):
+        inv = 1.0 / (knots[i + 1] - knots[i])
+        d1[i, i] = -inv
+        d1[i, i + 1] = inv
+    return d1
+
+
+def fit_control_points(
+    traj: Tensor,
+    valid: Optional[Tensor],
+    times: Tensor,
+    knots: Tensor,
+    *,
+    smooth: float = 1e-3,
+    damping: float = 1e-6,
+    chunk: int = 16384,
+) -> Tensor:
+    """Least-squares control points of a spline that follows each trajectory on its valid frames.
+
+    Solves per Gaussian n:  min_c  sum_t v_nt |B_t c - y_nt|^2 + smooth * |D2 c|^2 + damping * |D1 c|^2,
+    with B the [T, K] basis matrix, D2 / D1 the divided second / first differences of the control points times the
+    mean knot spacing h (h^2 for D2), so that on uniform knots they are the plain differences of the control points. The second-difference term lets the spline
+    itself fill invisible spans (linear continuation) and makes points with few visible frames well-posed; the tiny
+    first-difference term fixes the remaining slope when a Gaussian has a single visible frame (then it stays
+    constant). A Gaussian with no valid frame gets all-zero control points (filter those before).
+
+    Args:
+        traj: [N, T, D] trajectories (values on invalid frames are ignored; they may be NaN).
+        valid: [N, T] bool mask, or None for all frames valid.
+        times: [T] frame times of the trajectory samples.
+        knots: [K] knot times.
+        smooth: weight of the second-difference (acceleration) term.
+        damping: weight of the first-difference term.
+        chunk: Gaussians solved per batch (memory bound).
+    Returns:
+        [N, K, D] control points (same dtype/device as traj). Exact when the trajectory is itself a spline on these
+        knots observed on enough frames, up to the (small) smoothness bias.
+    """
+    n, t_count, d = traj.shape
+    dtype = traj.dtype
+    work = torch.float64  # K x K normal equations: solved in double precision (cheap, and well-conditioned)
+    knots = knots.to(device=traj.device, dtype=work)
+    times = times.to(device=traj.device, dtype=work)
+    k = knots.numel()
+    if valid is None:
+        valid = torch.ones(n, t_count, dtype=torch.bool, device=traj.device)
+    basis = basis_matrix(knots, times)  # [T, K]
+    # divided differences rescaled by the mean knot spacing: on uniform knots these are the plain differences
+    # p_{k+1} - 2 p_k + p_{k-1} and p_{k+1} - p_k (units of the trajectory)
+    spacing = float(knots[-1] - knots[0]) / (k - 1) if k > 1 else 1.0
+    reg = torch.zeros(k, k, dtype=work, device=traj.device)
+    if k >= 3 and smooth > 0:
+        d2 = second_difference_matrix(knots) * spacing**2
+        reg = reg + smooth * d2.T @ d2
+    if k >= 2 and damping > 0:
+        d1 = first_difference_matrix(knots) * spacing
+        reg = reg + damping * d1.T @ d1
+    if k == 1 or (smooth <= 0 and damping <= 0):
+        reg = reg + 1e-12 * torch.eye(k, dtype=work, device=traj.device)
+    out = torch.zeros(n, k, d, dtype=work, device=traj.device)
+    outer = basis[:, :, None] * basis[:, None, :]  # [T, K, K]
+    for start in range(0, n, chunk):
+        sl = slice(start, min(start + chunk, n))
+        w = valid[sl].to(work)  # [n, T]
+        y = torch.where(valid[sl, :, None], traj[sl].to(work), torch.zeros((), dtype=work, device=traj.device))
+        lhs = torch.einsum("nt,tij->nij", w, outer) + reg  # [n, K, K]
+        rhs = torch.einsum("nt,tk,ntd->nkd", w, basis, y)  # [n, K, D]
+        has = valid[sl].any(dim=1)
+        # Gaussians with no valid frame: solve the identity instead (-> zeros) to keep the batch well-posed
+        eye = torch.eye(k, dtype=work, device=traj.device)
+        lhs = torch.where(has[:, None, None], lhs, eye)
+        out[sl] = torch.linalg.solve(lhs, rhs)
+    return out.to(dtype)
+
+
+def resample_control_points(
+    traj: Tensor,
+    times: Tensor,
+    knots: Tensor,
+    *,
+    valid: Optional[Tensor] = None,
+    method: str = "lstsq",
+    smooth: float = 1e-4,
+) -> Tensor:
+    """Control points for a dense trajectory (video-to-world transform, paper sec. 3.3.2).
+
+    Args:
+        traj: [N, T, D] dense trajectory at `times` [T].
+        knots: [K] knot times.
+        valid: optional [N, T] mask (lstsq only).
+        method: "lstsq" (least-squares spline fit of all samples, default) or "sample" (the spline interpolates its
+            control points, so take the trajectory at the knot times, linearly interpolated between samples).
+    Returns:
+        [N, K, D] control points.
+    """
+    if method == "lstsq":
+        return fit_control_points(traj, valid, times, knots, smooth=smooth)
+    if method == "sample":
+        times = times.to(device=traj.device, dtype=traj.dtype)
+        kn = knots.to(device=traj.device, dtype=traj.dtype).clamp(times[0], times[-1])
+        idx = (torch.searchsorted(times, kn, right=True) - 1).clamp(0, max(times.numel() - 2, 0))
+        if times.numel() == 1:
+            return traj[:, :1].expand(-1, kn.numel(), -1).clone()
+        ta, tb = times[idx], times[idx + 1]
+        wgt = ((kn - ta) / (tb - ta)).clamp(0, 1)[None, :, None]
+        return traj[:, idx] * (1 - wgt) + traj[:, idx + 1] * wgt
+    raise ValueError(f"unknown resample method {method!r} (expected 'lstsq' or 'sample')")
