@@ -222,7 +222,12 @@ class AblationConfig:
 @dataclass
 class TrainConfig:
     preset: str = "paper"
+    # "mono4dgs" (the method) or an adapted baseline of the paper's comparisons (m4dgs.variants):
+    # "static-hdr" (static HDR Gaussians with the BA cameras), "world-only" (world Gaussians from lifted priors),
+    # "ldr-reproj" (world-only + an LDR photometric reprojection loss on the cameras)
+    method: str = "mono4dgs"
     seed: int = 0
+    checkpoint_every: int = 500  # iterations between resumable checkpoints (model/ckpt.pt)
     width: int = 864  # processing resolution (paper: original 864x480)
     height: int = 480
     device: str = "auto"

@@ -1,0 +1,273 @@
+"""Make one clip (and suites of clips): render, exact ground truth, exposure, tone mapping, degraded priors.
+
+Pipeline of `make_clip` (each step resumable; every file write is atomic; clip.json is written last, so a folder
+without clip.json is an unfinished clip and is resumed, and a finished clip is skipped unless `force`):
+
+1. HDR scale: frames 0, G/2 and G-1 are rendered at low spp and `choose_hdr_scale` picks one global scale so that
+   the longest observed level saturates some pixels and the shortest leaves some black. Light transport is linear in
+   the emitters, so the scale is applied exactly by multiplying every emitter (area lights, sun, environment).
+2. Ground truth (`benchgen.render.render_clip_gt`): HDR of every frame, z-depth, dynamic masks, cameras, exact flow
+   between consecutive training frames, point tracks over all frames; measured render noise and HDR-TAE floor.
+3. Exposure: training exposure times from the schedule; input LDR = CRF(H dt) in 8 bits; test frames at every
+   observed and novel level under gt/ldr.
+4. Priors through the profile (benchgen.priors): depth (with emitter/glossy masks from pixel-centre ray casts),
+   tracks (from the ground-truth tracks on the training frames), flow between training frames (t, t +- N_e).
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence
+
+import numpy as np
+
+from m4dgs import io as mio
+from m4dgs.clip import Clip, ClipMeta, ClipWriter, Exposures, FlowSet, Split, TrackSet, frame_name, load_trackset
+from m4dgs.crf import get_crf, tonemap_ldr
+
+from .exposure import ExposureSettings, choose_hdr_scale, exposure_gap_ev, schedule_train_dt, test_levels
+from .priors import degrade_depth, degrade_flow, degrade_tracks, flow_pairs, get_profile, make_rng, priors_metadata
+from .scene import load_scene
+
+GENERATOR_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Preset:
+    """Clip size of a preset: resolution, frame cap, render settings (benchgen.render.RENDER_PRESETS)."""
+
+    width: int
+    height: int
+    max_frames: int
+    render: str
+    scale_probe_spp: int = 8
+
+
+PRESETS: Dict[str, Preset] = {
+    "tiny": Preset(72, 40, 17, "tiny", 4),  # tests: seconds per clip
+    "small": Preset(216, 120, 101, "small", 8),  # the CPU default (DESIGN.md)
+    "paper": Preset(864, 480, 101, "paper", 16),  # the paper's resolution, for a big machine
+}
+
+
+def get_preset(name: str) -> Preset:
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
+    return PRESETS[name]
+
+
+class ScaledScene:
+    """A scene whose emitters are all multiplied by `scale` (the clip's HDR scale): radiance scales exactly."""
+
+    def __init__(self, scene, scale: float):
+        self._scene = scene
+        self.scale = float(scale)
+        self.name = scene.name
+        self.num_frames = scene.num_frames
+        self.fps = scene.fps
+
+    def frame(self, g: int, width: int, height: int):
+        st = self._scene.frame(g, width, height)
+        s = self.scale
+        meshes = []
+        for m in st.meshes:
+            if m.material.kind == "emitter" and m.material.radiance is not None:
+                mat = dataclasses.replace(m.material, radiance=tuple(s * float(x) for x in m.material.radiance))
+                m = dataclasses.replace(m, material=mat)
+            meshes.append(m)
+        lit = st.lighting
+        lit = dataclasses.replace(
+            lit,
+            env_radiance=tuple(s * float(x) for x in lit.env_radiance),
+            sun_irradiance=None if lit.sun_irradiance is None else tuple(s * float(x) for x in lit.sun_irradiance),
+        )
+        return dataclasses.replace(st, meshes=meshes, lighting=lit)
+
+
+def _probe_frames(num_frames: int) -> List[int]:
+    return sorted({0, num_frames // 2, num_frames - 1})
+
+
+def _material_masks(cast, state):
+    """Emitter and glossy pixel masks [H, W] from a ray cast and its frame state."""
+    kinds = np.array(["none"] + [m.material.kind for m in state.meshes])
+    k = kinds[cast.mesh + 1]
+    return k == "emitter", k == "glossy"
+
+
+def _generator_settings(scene_path, preset: str, settings: ExposureSettings, profile: str, seed: int) -> dict:
+    return {
+        "tool": "benchgen", "version": GENERATOR_VERSION, "scene_spec": Path(scene_path).name, "preset": preset,
+        "seed": int(seed), "observed": list(settings.observed), "novel": list(settings.novel),
+        "schedule": settings.schedule, "priors": profile,
+    }
+
+
+def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[ExposureSettings] = None,
+              priors: str = "realistic", seed: int = 0, crf: str = "hdrnerf", force: bool = False,
+              progress: bool = True, max_frames: Optional[int] = None) -> Path:
+    """Generate one clip folder from a scene spec; returns the clip folder. Resumes an unfinished clip."""
+    from .render import Renderer, render_clip_gt
+
+    t_start = time.perf_counter()
+    settings = settings or ExposureSettings()
+    pr = get_preset(preset)
+    scene = load_scene(scene_path)
+    out = Path(out_dir)
+    W, H = pr.width, pr.height
+    G = min(scene.num_frames, pr.max_frames if max_frames is None else max_frames)
+    if G < 3:
+        raise ValueError(f"{scene_path}: a clip needs at least 3 frames, the spec gives {scene.num_frames}")
+    gen = _generator_settings(scene_path, preset, settings, priors, seed)
+    if (out / "clip.json").exists() and not force:
+        old = Clip.open(out).meta.generator
+        if {k: old.get(k) for k in gen} == gen:
+            return out  # finished with the same settings
+        raise FileExistsError(f"{out}: a finished clip with other settings exists (generator {old}); pass force")
+    if force and (out / "clip.json").exists():
+        (out / "clip.json").unlink()
+    state_path = out / ".benchgen" / "state.json"
+    state = mio.read_json(state_path) if state_path.exists() else {}
+    if state.get("generator") not in (None, gen):
+        raise FileExistsError(f"{out}: an unfinished clip with other settings is here; remove it or pick another --out")
+    state["generator"] = gen
+
+    frames = list(range(G))
+    train, test = frames[0::2], frames[1::2]
+    crf_fn = get_crf(crf)
+
+    # 1. one global HDR scale for the clip ------------------------------------------------------------------------
+    if "hdr_scale" not in state:
+        probe = Renderer(scene.frame(0, W, H), W, H, {"spp": pr.scale_probe_spp, "max_depth": 3, "sampler": "multijitter", "seed": seed})
+        sample = []
+        for g in _probe_frames(G):
+            probe.update(scene.frame(g, W, H))
+            sample.append(probe.render_hdr())
+        scale, report = choose_hdr_scale(np.stack(sample), settings, crf_fn)
+        state["hdr_scale"], state["hdr_scale_report"] = float(scale), report
+        mio.write_json(state_path, state)
+    scale = float(state["hdr_scale"])
+    sscene = ScaledScene(scene, scale)
+
+    # 2. ground truth -----------------------------------------------------------------------------------------------
+    train_dt = schedule_train_dt(len(train), settings, seed)
+    meta = ClipMeta(
+        name=scene.name, width=W, height=H, fps=float(scene.fps), frames=frames, split=Split(train, test),
+        exposures=Exposures(train_dt=[float(v) for v in train_dt], observed=list(settings.observed),
+                            novel=list(settings.novel), schedule=settings.schedule),
+        crf=crf_fn.name, unit_exposure_value=float(crf_fn(np.float64(1.0))), hdr_scale=scale, generator=gen,
+    )
+    writer = ClipWriter(out, meta)
+    if "gt_notes" not in state:
+        notes = render_clip_gt(sscene, W, H, frames, pr.render, writer, progress=progress)
+        state["gt_notes"] = notes
+        mio.write_json(state_path, state)
+    meta.gt.update(state["gt_notes"])
+    meta.gt["hdr_scale_report"] = state.get("hdr_scale_report")
+
+    # 3. exposures: input LDR and test LDR at every level ---------------------------------------------------------------
+    hdr_train = {}
+    for g, dt in zip(train, train_dt):
+        hdr_train[g] = mio.read_exr(out / "gt/hdr" / frame_name(g, "exr"))
+        if not writer.exists("input", "ldr", frame_name(g, "png")):
+            writer.write_input_ldr(g, tonemap_ldr(hdr_train[g], float(dt), crf_fn))
+    levels = test_levels(settings)
+    for g in test:
+        h = None
+        for lv in levels:
+            if not writer.exists("gt", "ldr", f"{float(lv):g}", frame_name(g, "png")):
+                h = mio.read_exr(out / "gt/hdr" / frame_name(g, "exr")) if h is None else h
+                writer.write_gt_ldr(lv, g, tonemap_ldr(h, float(lv), crf_fn))
+
+    # 4. priors -----------------------------------------------------------------------------------------------------
+    profile = get_profile(priors)
+    clip_key = scene.name
+    depth_gt = np.stack([mio.read_exr(out / "gt/depth" / frame_name(g, "exr")) for g in train])
+    pairs = flow_pairs(train, train_dt, len(settings.observed))
+    need = sorted({g for p in pairs for g in p})
+    caster = Renderer(sscene.frame(0, W, H), W, H, pr.render)
+    casts, states = {}, {}
+    emit, gloss = np.zeros(depth_gt.shape, bool), np.zeros(depth_gt.shape, bool)
+    for i, g in enumerate(train):
+        st = sscene.frame(g, W, H)
+        caster.update(st)
+        c = caster.cast_rays()
+        emit[i], gloss[i] = _material_masks(c, st)
+        if g in need:
+            casts[g], states[g] = c, st
+    depth_prior = degrade_depth(depth_gt, emit, gloss, profile, make_rng(seed, clip_key, "depth"))
+    for i, g in enumerate(train):
+        writer.write_prior_depth(g, depth_prior[i])
+
+    gt_tracks = load_trackset(out / "gt/tracks.npz")
+    cols = [list(gt_tracks.frames).index(g) for g in train]
+    gt_train = TrackSet(tracks=gt_tracks.tracks[:, cols], visible=gt_tracks.visible[:, cols],
+                        frames=np.array(train, np.int64), dynamic=gt_tracks.dynamic)
+    writer.write_prior_tracks(degrade_tracks(gt_train, depth_gt, W, H, profile, make_rng(seed, clip_key, "tracks")))
+
+    from .groundtruth import flow_between
+
+    dt_of = dict(zip(train, train_dt))
+    ldr_of = {g: mio.read_png(out / "input/ldr" / frame_name(g, "png")) for g in need}
+    flows, valids = [], []
+    for k, (a, b) in enumerate(pairs):
+        f, v = flow_between(casts[a], states[b], states[b], casts[b].depth, casts[b].instance, cam_a=states[a])
+        f2, v2 = degrade_flow(f, v, ldr_of[a], ldr_of[b], exposure_gap_ev(dt_of[a], dt_of[b]), profile,
+                              make_rng(seed, clip_key, "flow", k))
+        flows.append(f2)
+        valids.append(v2)
+    if pairs:
+        writer.write_prior_flow(FlowSet(np.array(pairs, np.int64), np.stack(flows), np.stack(valids)))
+
+    meta.priors = priors_metadata(profile, seed)
+    meta.gt["dynamic_fraction"] = float(np.mean([
+        (mio.read_png(out / "gt/masks/dynamic" / frame_name(g, "png")) > 127).mean() for g in frames]))
+    stops = _dynamic_range_stops(hdr_train)
+    meta.gt["dynamic_range_stops"] = stops
+    meta.generator["seconds"] = round(time.perf_counter() - t_start, 2)
+    writer.meta = meta
+    writer.finalize()
+    return out
+
+
+def _dynamic_range_stops(hdr_frames: Dict[int, np.ndarray]) -> float:
+    """log2 of the ratio between the 99.99th and 0.01th percentiles of positive luminance over the training frames."""
+    lum = np.concatenate([(0.2126 * h[..., 0] + 0.7152 * h[..., 1] + 0.0722 * h[..., 2]).ravel() for h in hdr_frames.values()])
+    lum = lum[lum > 0]
+    if lum.size == 0:
+        return 0.0
+    lo, hi = np.percentile(lum, [0.01, 99.99])
+    return float(np.log2(hi / max(lo, 1e-12)))
+
+
+def make_suite(suite, out_root, preset: str = "small", scenes: Optional[Sequence[str]] = None, priors: str = "realistic",
+               schedule: Optional[str] = None, num_exposures: Optional[int] = None, observed=None, novel=None,
+               seed: int = 0, jobs: int = 1, force: bool = False, progress: bool = True) -> List[Path]:
+    """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in parallel processes."""
+    from .exposure import exposure_preset
+    from .suite import load_suite
+
+    s = load_suite(suite)
+    if num_exposures is not None or observed is not None or novel is not None or schedule is not None:
+        settings = exposure_preset(num_exposures or len(s.observed), schedule or s.schedule,
+                                   observed=observed if observed is not None else (None if num_exposures else s.observed),
+                                   novel=novel if novel is not None else (None if num_exposures else s.novel))
+    else:
+        settings = ExposureSettings(tuple(s.observed), tuple(s.novel), s.schedule)
+    paths = [p for p in s.scenes if scenes is None or p.stem in scenes]
+    if scenes is not None:
+        missing = sorted(set(scenes) - {p.stem for p in paths})
+        if missing:
+            raise ValueError(f"suite {s.name!r} has no scene(s) {missing} (it has {s.scene_names})")
+    root = Path(out_root) / s.name
+    jobs_list = [(p, root / p.stem) for p in paths]
+    if jobs <= 1:
+        return [make_clip(p, o, preset, settings, priors, seed, force=force, progress=progress) for p, o in jobs_list]
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=jobs) as ex:
+        futs = [ex.submit(make_clip, p, o, preset, settings, priors, seed, "hdrnerf", force, False) for p, o in jobs_list]
+        return [f.result() for f in futs]
