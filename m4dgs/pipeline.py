@@ -326,7 +326,9 @@ def _transform_with_scale(transform, video, ci, masks, depth, cfg, d):
     scaled = VideoGaussians(ctrl, video.params["rot"].detach(), video.params["scales"].detach(),
                             video.params["opacities"].detach(), video.params["features"].detach(), video.knots,
                             video.num_frames, video.scale_kind, video.scale_max)
-    return transform(scaled, ci["K"], ci["c2w"], masks, depth * s[:, None, None], cfg.v2w, cfg.ablation, d.width, d.height)
+    return transform(scaled, ci["K"], ci["c2w"], masks, depth * s[:, None, None], cfg.v2w, cfg.ablation, d.width,
+                     d.height, world_scale_kind=cfg.model.world_scale_activation,
+                     world_scale_max=cfg.model.world_scale_max)
 
 
 def train(clip_dir, run_dir, preset: str = "small", variant: str = "full", overrides: Optional[Dict[str, Any]] = None,

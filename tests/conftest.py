@@ -1,0 +1,28 @@
+"""Shared fixtures: tiny clips rendered once per test session with the real generator (benchgen)."""
+from __future__ import annotations
+
+import os
+
+import pytest
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
+def _make(tmp_path_factory, scene: str, priors: str):
+    from benchgen.make import make_clip
+    from benchgen.suite import builtin_scenes_dir
+
+    out = tmp_path_factory.mktemp(f"clip-{scene}-{priors}") / scene
+    return make_clip(builtin_scenes_dir() / f"{scene}.yaml", out, preset="tiny", priors=priors, seed=0, progress=False)
+
+
+@pytest.fixture(scope="session")
+def tiny_clip_oracle(tmp_path_factory):
+    """tiny-flag-arm (waving flag, articulated arm, orbiting camera) with exact priors, 72x40, 9 frames."""
+    return _make(tmp_path_factory, "tiny-flag-arm", "oracle")
+
+
+@pytest.fixture(scope="session")
+def tiny_clip_realistic(tmp_path_factory):
+    """tiny-flag-arm with the realistic prior profile."""
+    return _make(tmp_path_factory, "tiny-flag-arm", "realistic")
