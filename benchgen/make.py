@@ -110,7 +110,7 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
               priors: str = "realistic", seed: int = 0, crf: str = "hdrnerf", force: bool = False,
               progress: bool = True, max_frames: Optional[int] = None) -> Path:
     """Generate one clip folder from a scene spec; returns the clip folder. Resumes an unfinished clip."""
-    from .render import Renderer, render_clip_gt
+    from .render import Renderer, RenderSettings, render_clip_gt
 
     t_start = time.perf_counter()
     settings = settings or ExposureSettings()
@@ -141,7 +141,8 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
 
     # 1. one global HDR scale for the clip ------------------------------------------------------------------------
     if "hdr_scale" not in state:
-        probe = Renderer(scene.frame(0, W, H), W, H, {"spp": pr.scale_probe_spp, "max_depth": 3, "sampler": "multijitter", "seed": seed})
+        probe_settings = dataclasses.replace(RenderSettings.resolve(pr.render), spp=pr.scale_probe_spp, seed=seed)
+        probe = Renderer(scene.frame(0, W, H), W, H, probe_settings)
         sample = []
         for g in _probe_frames(G):
             probe.update(scene.frame(g, W, H))
