@@ -1,0 +1,261 @@
+"""`eval` (also `m4dgs-eval`, `python -m eval`): score runs, run experiment suites, print paper-style tables.
+
+    eval score RUN                          write RUN/metrics.json (renders what is missing through m4dgs)
+    eval suites                             the shipped experiment suites and their rows
+    eval run tiny --preset tiny             make clips, train and score every (scene, row) of a suite (resumable)
+    eval run paper-main --list-jobs         the job list as JSON lines (one `python -m eval job ...` per line)
+    eval job paper-main --scene S --row R   run ONE job (for cluster fan-out: docs/cluster.md)
+    eval table tiny                         the suite's tables (Markdown; --format latex|csv) and figures
+
+Details: docs/eval.md.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import click
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+DEFAULT_OUT = "experiments"
+FORMATS = {"md": "markdown", "markdown": "markdown", "latex": "latex", "csv": "csv"}
+
+
+def _scenes(text):
+    return None if not text else [s.strip() for s in text.split(",") if s.strip()]
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+def main():
+    """Evaluation of Mono4DGS-HDR runs: metrics, experiment suites, paper-style tables and figures."""
+
+
+# ----------------------------------------------------------------------------------------------------------------
+@main.command()
+@click.argument("run", type=click.Path(exists=True, file_okay=False))
+@click.option("--clip", "clip_dir", default=None, type=click.Path(exists=True, file_okay=False),
+              help="Clip folder to score against (default: the 'clip' entry of RUN/run.json).")
+@click.option("--lpips-weights", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="LPIPS weights file (AlexNet + linear heads, docs/metrics.md); without it LPIPS is n/a.")
+@click.option("--roundtrip", type=click.Choice(["none", "png", "jpeg"]), default="none", show_default=True,
+              help="8-bit round trip of the LDR renders before scoring (jpeg: as the authors scored).")
+@click.option("--flip", is_flag=True, help="Also compute HDR-FLIP on the test frames (slow).")
+@click.option("--tae-train-test", is_flag=True, help="Also HDR-TAE over all frames (train + test, DIS flow).")
+@click.option("--no-fps", is_flag=True, help="Skip the render-speed measurement.")
+@click.option("--no-model", is_flag=True, help="Do not load the trained model (no tracks, CRF curve or FPS).")
+@click.option("--device", default="auto", show_default=True, help="Device for the model: auto, cpu or cuda.")
+@click.option("--force", is_flag=True, help="Recompute metrics.json even if it exists.")
+def score(run, clip_dir, lpips_weights, roundtrip, flip, tae_train_test, no_fps, no_model, device, force):
+    """Score one run folder and write RUN/metrics.json; prints the headline metrics as JSON."""
+    from m4dgs import io as mio
+
+    from .score import score_run
+
+    mpath = Path(run) / "metrics.json"
+    if mpath.exists() and not force:
+        m = mio.read_json(mpath)
+        click.echo(f"{mpath} exists (use --force to recompute)", err=True)
+    else:
+        m = score_run(run, clip=clip_dir, lpips_weights=lpips_weights, roundtrip=None if roundtrip == "none" else
+                      roundtrip, flip=flip, fps=not no_fps, tae_train_test=tae_train_test, device=device,
+                      model=not no_model)
+    head = {k: m.get(k) for k in ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_ssim", "hdr_tae", "ate",
+                                  "depth_absrel", "fps")}
+    click.echo(json.dumps(head))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+@main.command()
+def suites():
+    """List the shipped experiment suites, their rows (name: variant + overrides, clip setting) and tables."""
+    from .suite import builtin_suites, check_variants, load_eval_suite
+
+    for name in builtin_suites():
+        s = load_eval_suite(name)
+        click.echo(f"{s.name}: {s.description}  [scenes: {s.scenes}]")
+        for r in s.rows:
+            ov = f" {r.overrides}" if r.overrides else ""
+            click.echo(f"  - {r.name}: variant {r.variant}{ov}, clip {r.clip}  ({r.label})")
+        bad = check_variants(s)
+        if bad:
+            click.echo(f"  ! variants unknown to m4dgs.variants: {bad}")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+_out_opt = click.option("--out", "--root", "out", default=DEFAULT_OUT, show_default=True,
+                        type=click.Path(file_okay=False),
+                        help="Experiment root: clips in OUT/clips/<setting>/<scene>, runs in "
+                             "OUT/runs/<suite>/<scene>/<row>, figures in OUT/figures/<suite>. One OUT per preset.")
+_preset_opt = click.option("--preset", type=click.Choice(["tiny", "small", "paper"]), default="small",
+                           show_default=True, help="Clip preset AND training preset (tiny: tests and the demo).")
+_lpips_opt = click.option("--lpips-weights", default=None, type=click.Path(exists=True, dir_okay=False),
+                          help="LPIPS weights file passed to the scoring (LPIPS is n/a without it).")
+_device_opt = click.option("--device", default="auto", show_default=True,
+                           help="Training / scoring device: auto, cpu or cuda.")
+
+
+@main.command()
+@click.argument("suite")
+@_out_opt
+@_preset_opt
+@click.option("--jobs", default=1, show_default=True, type=int, help="Local worker processes.")
+@click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
+@click.option("--force", is_flag=True, help="Recompute metrics.json of finished runs (never retrains).")
+@click.option("--list-jobs", is_flag=True,
+              help="Print the job list as JSON lines (with each job's `python -m eval job` command) and exit.")
+@click.option("--clips-only", is_flag=True, help="Only make the missing clips.")
+@_lpips_opt
+@_device_opt
+def run(suite, out, preset, jobs, scenes, force, list_jobs, clips_only, lpips_weights, device):
+    """Make missing clips, train missing runs and score missing metrics of SUITE (name or YAML path); resumable."""
+    from .runner import list_jobs_jsonl, run_suite
+
+    if list_jobs:
+        click.echo(list_jobs_jsonl(suite, out, preset, _scenes(scenes), lpips_weights=lpips_weights,
+                                   device=None if device == "auto" else device), nl=False)
+        return
+    res = run_suite(suite, out, preset, jobs=jobs, scenes=_scenes(scenes), force=force, lpips_weights=lpips_weights,
+                    device=device, clips_only=clips_only, log=lambda s: click.echo(s, err=True))
+    for r in res:
+        click.echo(json.dumps(r))
+
+
+@main.command()
+@click.argument("suite")
+@click.option("--scene", required=True, help="Scene name of the job.")
+@click.option("--row", required=True, help="Row name of the job (see `eval suites`).")
+@_out_opt
+@_preset_opt
+@click.option("--clip-only", is_flag=True, help="Only make the job's clip (run this once per clip before fan-out).")
+@click.option("--force", is_flag=True, help="Recompute metrics.json even if it exists.")
+@_lpips_opt
+@_device_opt
+def job(suite, scene, row, out, preset, clip_only, force, lpips_weights, device):
+    """Run ONE job of SUITE: make its clip if missing, train (resumes), score. Prints a JSON result line."""
+    from .runner import find_job, run_job
+
+    j = find_job(suite, out, preset, scene, row)
+    click.echo(json.dumps(run_job(j, force=force, lpips_weights=lpips_weights, device=device, clip_only=clip_only)))
+
+
+# ----------------------------------------------------------------------------------------------------------------
+def collect_suite(suite, out, scenes=None, preset: str = "small") -> list:
+    """Entries {"scene", "row", "label", "run_dir", "clip_dir", "metrics" (dict or None)} of a suite's jobs."""
+    from m4dgs import io as mio
+
+    from .runner import job_list
+
+    entries = []
+    for j in job_list(suite, out, preset, scenes):
+        mp = Path(j.run_dir) / "metrics.json"
+        entries.append({"scene": j.scene, "row": j.row, "label": j.label, "run_dir": j.run_dir,
+                        "clip_dir": j.clip_dir, "metrics": mio.read_json(mp) if mp.exists() else None})
+    return entries
+
+
+def collect_runs_dir(runs_dir) -> list:
+    """Entries of every run under RUNS_DIR with a metrics.json; rows = the variant names (run.json / metrics.json),
+    or the run folder names where two runs of one scene share a variant."""
+    from m4dgs import io as mio
+
+    from .score import read_run_info
+
+    entries = []
+    for mp in sorted(Path(runs_dir).rglob("metrics.json")):
+        rd = mp.parent
+        m = mio.read_json(mp)
+        run_meta = m.get("run") or {}
+        info = read_run_info(rd)
+        variant = run_meta.get("variant") or info.get("variant") or rd.name
+        scene = run_meta.get("clip_name") or rd.parent.name
+        entries.append({"scene": scene, "row": rd.name, "label": variant, "run_dir": str(rd),
+                        "clip_dir": run_meta.get("clip"), "metrics": m})
+    seen = {}
+    for e in entries:
+        seen.setdefault((e["scene"], e["label"]), []).append(e)
+    if any(len(v) > 1 for v in seen.values()):
+        for e in entries:
+            e["label"] = e["row"]
+    return entries
+
+
+def build_tables(entries: list, table_defs: list, fmt: str = "markdown") -> str:
+    """Render every table of a suite from collected entries (means over scenes, best in bold, footnotes)."""
+    from eval.tables import render
+
+    from .score import PSNR_CAP_DB, all_conventions
+    from .suite import table_spec
+
+    present = [e for e in entries if e["metrics"]]
+    methods = list(dict.fromkeys(e["label"] for e in entries))
+    rows = []
+    for e in entries:  # a run without metrics.json counts as a scene without values: its row's means are n/a
+        r = {"method": e["label"], "scene": e["scene"]}
+        if e["metrics"]:
+            r.update({k: v for k, v in e["metrics"].items() if isinstance(v, (int, float)) or v is None})
+        rows.append(r)
+    lp = any(r.get(k) is not None for r in rows for k in r if k.endswith("_lpips"))
+    convs = {e["metrics"].get("ldr_convention", "ldr_png") for e in present}
+    ldr_conv = convs.pop() if len(convs) == 1 else "LDR scored with mixed conventions across runs (see metrics.json)"
+    conventions = all_conventions()
+    parts = []
+    for td in table_defs:
+        spec = table_spec(td, lpips_available=lp, ldr_convention=ldr_conv, methods=methods)
+        if any(r.get(c.key) == PSNR_CAP_DB for r in rows for c in spec.columns if "psnr" in c.key):
+            spec.conventions = list(spec.conventions) + ["psnr_cap"]
+        parts.append(render(rows, spec, FORMATS[fmt], conventions=conventions,
+                            **({"notes": True} if FORMATS[fmt] == "csv" else {})))
+    missing = [e for e in entries if not e["metrics"]]
+    if missing:
+        note = f"{len(missing)} of {len(entries)} runs have no metrics.json yet (e.g. {missing[0]['run_dir']})"
+        parts.append(("% " if FORMATS[fmt] == "latex" else "# " if FORMATS[fmt] == "csv" else "> ") + note + "\n")
+    return "\n".join(parts)
+
+
+@main.command()
+@click.argument("target")
+@click.option("--root", "out", default=DEFAULT_OUT, show_default=True, type=click.Path(file_okay=False),
+              help="Experiment root of a suite (runs in ROOT/runs/<suite>, figures to ROOT/figures/<suite>).")
+@click.option("--format", "fmt", type=click.Choice(["md", "latex", "csv"]), default="md", show_default=True,
+              help="Table format (Markdown with bold best values; LaTeX booktabs; CSV without bold).")
+@click.option("--out", "out_file", default=None, type=click.Path(dir_okay=False),
+              help="Write the tables to this file (atomically) instead of stdout.")
+@click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
+@click.option("--no-figures", is_flag=True, help="Do not write the figures (CRF curves, loss curves, image grids).")
+@click.option("--figures-dir", default=None, type=click.Path(file_okay=False),
+              help="Folder for the figures (default ROOT/figures/<suite>, or <runs dir>/../figures/<name>).")
+def table(target, out, fmt, out_file, scenes, no_figures, figures_dir):
+    """Print the paper-style tables of TARGET: a suite (name or YAML; runs under OUT) or a folder of runs."""
+    from m4dgs import io as mio
+
+    from .suite import TableDef, load_eval_suite
+
+    if Path(target).is_dir():
+        entries = collect_runs_dir(target)
+        defs = [TableDef(f"Runs under {target}", "paper"), TableDef("Training frames", "train"),
+                TableDef("Geometry", "geometry"), TableDef("Cost", "cost")]
+        fig_dir = Path(figures_dir) if figures_dir else Path(target).resolve().parent / "figures" / Path(target).name
+    else:
+        s = load_eval_suite(target)
+        entries = collect_suite(target, out, _scenes(scenes))
+        defs = s.tables
+        fig_dir = Path(figures_dir) if figures_dir else Path(out) / "figures" / s.name
+    if not any(e["metrics"] for e in entries):
+        raise click.ClickException(f"no metrics.json found for {target} (run `eval run` / `eval score` first)")
+    text = build_tables(entries, defs, fmt)
+    if out_file:
+        mio._atomic_write_bytes(Path(out_file), text.encode())
+        click.echo(f"wrote {out_file}", err=True)
+    else:
+        click.echo(text, nl=False)
+    if not no_figures:
+        from .figures import suite_figures
+
+        paths = suite_figures([e for e in entries if e["metrics"]], fig_dir)
+        click.echo(f"wrote {len(paths)} figure(s) to {fig_dir}", err=True)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,256 @@
+"""Run an experiment suite: make missing clips, train missing runs, score missing metrics (resumable).
+
+The job list of a suite is (clip setting, scene, row) (eval.suite). `run_suite` works through it locally, with a
+process pool for `jobs > 1`; `job_list` / `run_job` are the same work one job at a time, which is how the list is
+fanned out to a cluster (`eval run SUITE --list-jobs` prints one JSON line per job with its `python -m eval job ...`
+command line; docs/cluster.md).
+
+Concurrency: making a clip and training a run each hold an exclusive `fcntl.flock` on a lock file beside the
+folder (`<folder>.lock`), so two workers given the same clip or run wait for each other instead of writing the
+same files (the second one then finds the work done). Locks need a file system with working flock (local disks,
+most NFS v4 set-ups).
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shlex
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence
+
+from m4dgs import io as mio
+
+from .suite import EvalSuite, load_eval_suite, scene_suite_names
+
+PRESETS = ("tiny", "small", "paper")
+
+
+@dataclass
+class Job:
+    """One (clip setting, scene, row) of a suite, with its folders and the command that runs it."""
+
+    suite: str  # suite name or path, as given to `eval`
+    suite_name: str
+    setting: str  # clip setting key
+    setting_id: str  # folder name under OUT/clips
+    scene: str
+    row: str
+    label: str
+    variant: str
+    overrides: Dict
+    clip_dir: str
+    run_dir: str
+    preset: str
+    out: str
+
+    @property
+    def id(self) -> str:
+        return f"{self.suite_name}/{self.scene}/{self.row}"
+
+    @property
+    def clip_key(self) -> str:
+        return f"{self.setting_id}/{self.scene}"
+
+    def command(self, lpips_weights: Optional[str] = None, device: Optional[str] = None) -> List[str]:
+        cmd = ["python", "-m", "eval", "job", self.suite, "--out", self.out,
+               "--preset", self.preset, "--scene", self.scene, "--row", self.row]
+        if lpips_weights:
+            cmd += ["--lpips-weights", str(lpips_weights)]
+        if device:
+            cmd += ["--device", device]
+        return cmd
+
+    def to_json(self, **cmd_kw) -> dict:
+        d = asdict(self)
+        d["id"], d["clip_key"] = self.id, self.clip_key
+        d["cmd"] = shlex.join(self.command(**cmd_kw))
+        return d
+
+
+def _suite_ref(suite) -> tuple:
+    """(EvalSuite, the reference to put on job command lines: the built-in name, or the file's absolute path)."""
+    s = suite if isinstance(suite, EvalSuite) else load_eval_suite(suite)
+    from .suite import suites_dir
+
+    builtin = s.path.resolve().parent == suites_dir().resolve()
+    return s, (s.name if builtin else str(s.path.resolve()))
+
+
+def job_list(suite, out, preset: str = "small", scenes: Optional[Sequence[str]] = None) -> List[Job]:
+    """Every job of a suite, ordered by clip setting, scene, row."""
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r} (known: {PRESETS})")
+    s, ref = _suite_ref(suite)
+    out = Path(out).resolve()
+    names = scene_suite_names(s)
+    if scenes is not None:
+        unknown = sorted(set(scenes) - set(names))
+        if unknown:
+            raise ValueError(f"suite {s.name!r} has no scene(s) {unknown} (it has {names})")
+        names = [n for n in names if n in scenes]
+    jobs = []
+    for key, setting in s.clips.items():
+        sid = setting.setting_id(s.scenes)
+        for scene in names:
+            for r in s.rows:
+                if r.clip != key:
+                    continue
+                jobs.append(Job(ref, s.name, key, sid, scene, r.name, r.label, r.variant, dict(r.overrides),
+                                str(out / "clips" / sid / scene), str(out / "runs" / s.name / scene / r.name),
+                                preset, str(out)))
+    return jobs
+
+
+@contextlib.contextmanager
+def folder_lock(folder: Path):
+    """Exclusive flock on <folder>.lock for the duration of the block."""
+    import fcntl
+
+    folder = Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    with open(folder.parent / f".{folder.name}.lock", "a+") as f:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+
+
+def make_job_clip(job: Job, progress: bool = False) -> Path:
+    """Make the job's clip when clip.json is missing (benchgen.make.make_clip; resumes an unfinished one)."""
+    clip_dir = Path(job.clip_dir)
+    if (clip_dir / "clip.json").exists():
+        return clip_dir
+    from benchgen.exposure import ExposureSettings
+    from benchgen.make import make_clip
+    from benchgen.suite import load_suite
+
+    s = load_eval_suite(job.suite)
+    setting = s.clips[job.setting]
+    bs = load_suite(s.scenes)
+    scene_path = {p.stem: p for p in bs.scenes}[job.scene]
+    ex = ExposureSettings(setting.observed if setting.observed is not None else tuple(bs.observed),
+                          setting.novel if setting.novel is not None else tuple(bs.novel),
+                          setting.schedule or bs.schedule)
+    with folder_lock(clip_dir):
+        if not (clip_dir / "clip.json").exists():
+            make_clip(scene_path, clip_dir, preset=job.preset, settings=ex, priors=setting.priors, seed=setting.seed,
+                      progress=progress)
+    return clip_dir
+
+
+def train_job(job: Job, device: str = "auto", progress: bool = False) -> Path:
+    """Train the job's run (m4dgs.pipeline.train resumes an interrupted run and returns at once when done)."""
+    from m4dgs.pipeline import train
+
+    run_dir = Path(job.run_dir)
+    with folder_lock(run_dir):
+        return Path(train(job.clip_dir, run_dir, preset=job.preset, variant=job.variant,
+                          overrides=dict(job.overrides) or None, device=device, progress=progress))
+
+
+def run_job(job: Job, *, force: bool = False, lpips_weights=None, device: str = "auto", clip_only: bool = False,
+            progress: bool = False, score_kw: Optional[dict] = None) -> dict:
+    """Make the clip, train and score ONE job; each step is skipped when its output exists.
+
+    force: recompute metrics.json even if it exists (never retrains: delete the run folder for that).
+    Returns {"id", "clip", "run", "metrics" (path or None), "seconds", "steps": [what was done]}.
+    """
+    t0 = time.perf_counter()
+    steps = []
+    if not (Path(job.clip_dir) / "clip.json").exists():
+        make_job_clip(job, progress=progress)
+        steps.append("clip")
+    res = {"id": job.id, "clip": job.clip_dir, "run": job.run_dir, "metrics": None}
+    if clip_only:
+        res.update(seconds=round(time.perf_counter() - t0, 2), steps=steps)
+        return res
+    run_dir = Path(job.run_dir)
+    status = run_dir / "status.json"
+    if not (status.exists() and mio.read_json(status).get("stage") == "done"):
+        train_job(job, device=device, progress=progress)
+        steps.append("train")
+    mpath = run_dir / "metrics.json"
+    if force or not mpath.exists():
+        from .score import score_run
+
+        score_run(run_dir, clip=job.clip_dir, lpips_weights=lpips_weights, device=device, **(score_kw or {}))
+        steps.append("score")
+    res.update(metrics=str(mpath), seconds=round(time.perf_counter() - t0, 2), steps=steps)
+    return res
+
+
+def _worker_init(threads: int) -> None:
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    try:
+        import torch
+
+        torch.set_num_threads(max(1, threads))
+    except ImportError:  # pragma: no cover
+        pass
+
+
+def _run_job_kw(job: Job, kw: dict) -> dict:
+    return run_job(job, **kw)
+
+
+def run_suite(suite, out, preset: str = "small", jobs: int = 1, scenes: Optional[Sequence[str]] = None,
+              force: bool = False, *, lpips_weights=None, device: str = "auto", progress: bool = True,
+              clips_only: bool = False, score_kw: Optional[dict] = None, log=None) -> List[dict]:
+    """Make every missing clip, then train and score every (scene, row) of a suite; resumable.
+
+    jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool of `jobs`
+    workers, each with cpu_count / jobs torch threads. Returns the per-job results (run_job) in job order.
+    """
+    jl = job_list(suite, out, preset, scenes)
+    say = log or (lambda msg: print(msg, file=sys.stderr))
+    firsts: Dict[str, Job] = {}
+    for j in jl:
+        firsts.setdefault(j.clip_key, j)
+    todo = [j for j in firsts.values() if not (Path(j.clip_dir) / "clip.json").exists()]
+    say(f"[eval run] {len(jl)} jobs, {len(firsts)} clips ({len(todo)} to make), preset {preset}, jobs {jobs}")
+    kw = dict(force=force, lpips_weights=lpips_weights, device=device, score_kw=score_kw)
+    if jobs <= 1:
+        for j in todo:
+            say(f"[eval run] clip {j.clip_key}")
+            make_job_clip(j, progress=progress)
+        if clips_only:
+            return [{"id": j.id, "clip": j.clip_dir} for j in jl]
+        results = []
+        for i, j in enumerate(jl):
+            say(f"[eval run] {i + 1}/{len(jl)} {j.id}")
+            results.append(run_job(j, progress=progress, **kw))
+        return results
+    from concurrent.futures import ProcessPoolExecutor
+
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init, initargs=(threads,)) as ex:
+        for f in [ex.submit(make_job_clip, j, False) for j in todo]:
+            f.result()
+        if clips_only:
+            return [{"id": j.id, "clip": j.clip_dir} for j in jl]
+        futs = [ex.submit(_run_job_kw, j, dict(kw, progress=False)) for j in jl]
+        results = []
+        for j, f in zip(jl, futs):
+            r = f.result()
+            say(f"[eval run] done {j.id} ({', '.join(r['steps']) or 'nothing to do'}, {r['seconds']} s)")
+            results.append(r)
+        return results
+
+
+def list_jobs_jsonl(suite, out, preset: str = "small", scenes=None, lpips_weights=None, device=None) -> str:
+    """The job list as JSON lines (one job per line, with its `python -m eval job ...` command)."""
+    return "".join(json.dumps(j.to_json(lpips_weights=lpips_weights, device=device)) + "\n"
+                   for j in job_list(suite, out, preset, scenes))
+
+
+def find_job(suite, out, preset: str, scene: str, row: str) -> Job:
+    for j in job_list(suite, out, preset, [scene]):
+        if j.row == row:
+            return j
+    s, _ = _suite_ref(suite)
+    raise KeyError(f"suite {s.name!r} has no row {row!r} (rows: {[r.name for r in s.rows]})")

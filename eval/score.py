@@ -1,0 +1,546 @@
+"""Score one run against its clip: `score_run(run_dir) -> dict`, written to <run>/metrics.json (docs/eval.md).
+
+What is scored (keys of metrics.json; None where a metric cannot be computed: no ground truth, no LPIPS weights,
+no model, no file):
+
+- LDR test frames at every OBSERVED level (ldr_oe_*) and every NOVEL level (ldr_ne_*): psnr, ssim, lpips; the mean
+  over frames then over levels (equal frame counts, so the mean over all images); `per_level` has each level.
+- LDR training frames against the input video (ldr_train_*; the paper's GFlow comparison).
+- HDR test frames: hdr_psnr / hdr_ssim / hdr_lpips (mu-law, GT-max), hdr_psnr_ownmax (labelled extra),
+  pu21_psnr, hdr_flip (only with flip=True: slow); HDR training frames: hdr_train_psnr / hdr_train_ssim.
+- HDR-TAE on the rendered TRAINING frames with the exact ground-truth flow and visibility between consecutive
+  training frames (gt/flow.npz); without it (real clips) DIS flow on the tone-mapped renders. hdr_tae_train_test
+  (all frames, DIS flow; optional), hdr_t_std.
+- Cameras (cameras.json and cameras_ba.json vs gt/cameras.json, Sim(3) over all common frames): ate, rpe_trans,
+  rpe_rot, ate_ba, rpe_trans_ba, rpe_rot_ba.
+- depth_absrel: rendered test depth vs gt depth, ONE median scale over all test frames (the reconstruction has one
+  global scale).
+- track_epe / track_epe_median / track_delta_avg: model.track_2d from the first frame vs gt tracks (<= 256 gt
+  tracks visible at the first frame, seeded sample).
+- dyn_ldr_psnr (observed levels) / dyn_hdr_psnr (mu-law): PSNR over the gt dynamic-mask pixels of the test frames.
+- crf_rmse and crf_curve: the learned tone curve (model.tonemap_curve) vs the clip's true CRF.
+- train_seconds / train_minutes, num_gaussians, peak_memory_mib (run.json); fps at the clip resolution and
+  fps_864x480 (model.render timed with eval.metrics.measure_fps).
+- conventions (key -> sentence of every convention used) and options (roundtrip, LPIPS weights, ...).
+
+PSNR of identical images is +inf; every PSNR is capped at PSNR_CAP_DB = 100 dB per image before averaging (so a
+perfect render reads 100.00 and JSON stays standard). NaN is stored as None.
+
+LDR renders are read from the 8-bit PNG files written by m4dgs.render, so LDR is scored on 8-bit renders (the PNG
+round-trip convention; `roundtrip="jpeg"` adds a JPEG round trip to compare with the authors' numbers).
+"""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Dict, Iterable, List, Optional
+
+import numpy as np
+
+from m4dgs import io as mio
+from m4dgs.clip import Cameras, Clip, frame_name, level_name
+
+PSNR_CAP_DB = 100.0
+CHUNK = 8  # frames per batch when scoring (bounds memory at 864x480)
+TRACK_SAMPLES = 256
+CRF_LOG2_RANGE = (-10.0, 10.0)  # the tone mapper's input axis range used by the authors' monotonicity penalty
+CRF_SAMPLES = 81
+FPS_SIZE = (864, 480)
+
+SCORE_CONVENTIONS = {
+    "psnr_cap": f"PSNR capped at {PSNR_CAP_DB:g} dB per image (identical images) before averaging",
+    "depth_absrel_clip": "Depth AbsRel: rendered test z-depth vs GT, one median scale over all test frames, mean "
+                         "|s d - gt| / gt over gt > 0",
+    "crf_rmse": f"CRF RMSE: learned tone curve vs the true CRF, RMSE over RGB and {CRF_SAMPLES} log2 exposures in "
+                f"[{CRF_LOG2_RANGE[0]:g}, {CRF_LOG2_RANGE[1]:g}]",
+    "track_first_frame": f"Tracks: up to {TRACK_SAMPLES} GT tracks visible at the first frame (seed 0), induced by "
+                         "the dynamic Gaussians' motion (model.track_2d)",
+    "cameras_all_frames": "Cameras: Sim(3) alignment over every frame present in both trajectories",
+    "hdr_tae_train": "HDR-TAE on the rendered training frames",
+}
+
+
+def all_conventions() -> Dict[str, str]:
+    """eval.metrics.CONVENTIONS plus the scoring conventions of this module."""
+    from eval.metrics import CONVENTIONS
+
+    return {**CONVENTIONS, **SCORE_CONVENTIONS}
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# small helpers
+# ----------------------------------------------------------------------------------------------------------------
+def _clean(v):
+    """JSON-safe number: NaN -> None, +-inf -> +-PSNR_CAP_DB (only PSNRs can be infinite)."""
+    if v is None:
+        return None
+    v = float(v)
+    if math.isnan(v):
+        return None
+    if math.isinf(v):
+        return PSNR_CAP_DB if v > 0 else -PSNR_CAP_DB
+    return v
+
+
+def _capped_mean(vals: Iterable[float]) -> Optional[float]:
+    vals = [min(float(v), PSNR_CAP_DB) for v in vals if v is not None and not math.isnan(float(v))]
+    return float(np.mean(vals)) if vals else None
+
+
+def _mean(vals: Iterable[Optional[float]]) -> Optional[float]:
+    vals = [v for v in vals if v is not None and not math.isnan(v)]
+    return float(np.mean(vals)) if vals else None
+
+
+def _weighted(pairs: List[tuple]) -> Optional[float]:
+    """Mean of chunk means weighted by chunk sizes; None if any chunk gave None."""
+    if not pairs or any(v is None for v, _ in pairs):
+        return None
+    n = sum(w for _, w in pairs)
+    return float(sum(v * w for v, w in pairs) / n)
+
+
+def _chunks(seq: List, n: int = CHUNK):
+    for i in range(0, len(seq), n):
+        yield seq[i:i + n]
+
+
+def read_run_info(run_dir) -> dict:
+    p = Path(run_dir) / "run.json"
+    return mio.read_json(p) if p.exists() else {}
+
+
+def resolve_clip_dir(run_dir, clip=None) -> Path:
+    """The run's clip folder: `clip` if given, else run.json "clip" (absolute, relative to the run, or to the cwd)."""
+    if clip is not None:
+        return Path(clip)
+    info = read_run_info(run_dir)
+    if "clip" not in info:
+        raise FileNotFoundError(f"{Path(run_dir) / 'run.json'}: no 'clip' entry; pass the clip folder explicitly")
+    p = Path(info["clip"])
+    if p.is_absolute():
+        return p
+    for cand in (Path(run_dir) / p, Path(info.get("clip_abs", p)), Path.cwd() / p):
+        if (cand / "clip.json").exists():
+            return cand
+    return Path(run_dir) / p
+
+
+def render_paths(run_dir, clip: Clip) -> Dict[str, List[Path]]:
+    """The render files scoring needs (m4dgs.render layout), grouped."""
+    r = Path(run_dir) / "renders"
+    ex = clip.meta.exposures
+    out = {
+        "train_hdr": [r / "train/hdr" / frame_name(g, "exr") for g in clip.train_frames],
+        "train_ldr": [r / "train/ldr" / frame_name(g, "png") for g in clip.train_frames],
+    }
+    if clip.test_frames:
+        out["test_hdr"] = [r / "test/hdr" / frame_name(g, "exr") for g in clip.test_frames]
+        for lv in list(ex.observed) + list(ex.novel):
+            out[f"test_ldr_{level_name(lv)}"] = [r / "test/ldr" / level_name(lv) / frame_name(g, "png")
+                                                 for g in clip.test_frames]
+    return out
+
+
+def missing_renders(run_dir, clip: Clip) -> List[Path]:
+    return [p for ps in render_paths(run_dir, clip).values() for p in ps if not p.exists()]
+
+
+def ensure_renders(run_dir, clip: Clip, progress: bool = False, device: str = "cpu") -> bool:
+    """Render what is missing through m4dgs.render.render_run; returns True when it had to render."""
+    if not missing_renders(run_dir, clip):
+        return False
+    from m4dgs.render import render_run
+
+    render_run(run_dir, overwrite=False, progress=progress, **({"device": device} if device != "cpu" else {}))
+    still = missing_renders(run_dir, clip)
+    if still:
+        raise FileNotFoundError(f"{run_dir}: render_run left {len(still)} render(s) missing, e.g. {still[0]}")
+    return True
+
+
+def _ldr_pred(path: Path, rt):
+    from eval.metrics import roundtrip
+
+    return roundtrip(mio.read_png(path), rt)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# metric groups
+# ----------------------------------------------------------------------------------------------------------------
+def _score_ldr_set(preds: List[Path], gts: List, rt, lpips_w) -> dict:
+    """PSNR (capped per image) / SSIM / LPIPS of rendered PNGs vs gt images (paths or arrays), chunked."""
+    from eval.metrics import lpips_metric, psnr_per_image, ssim
+
+    ps, ss, ls = [], [], []
+    for idx in _chunks(list(range(len(preds)))):
+        p = np.stack([mio.read_png(preds[i]) for i in idx])
+        g = np.stack([gts[i]() if callable(gts[i]) else gts[i] for i in idx])
+        ps += psnr_per_image(p, g, roundtrip_mode=rt)
+        ss.append((ssim(p, g, roundtrip=rt), len(idx)))
+        if lpips_w is not None:
+            from eval.metrics import roundtrip
+
+            ls.append((lpips_metric(roundtrip(p, rt), g, lpips_w), len(idx)))
+    return {"psnr": _capped_mean(ps), "ssim": _weighted(ss), "lpips": _weighted(ls) if lpips_w is not None else None,
+            "frames": len(preds)}
+
+
+def _score_hdr_set(preds: List[Path], gt_fn, frames: List[int], lpips_w, flip: bool, full: bool) -> dict:
+    """mu-law PSNR/SSIM/LPIPS (GT-max), own-max PSNR, PU21, FLIP over HDR frames, chunked."""
+    from eval.metrics import hdr_flip, hdr_ssim, hdr_tonemap_pair, lpips_metric, psnr_per_image, pu21_psnr
+
+    ps, po, ss, ls, pu, fl = [], [], [], [], [], []
+    for idx in _chunks(list(range(len(preds)))):
+        p = np.stack([mio.read_exr(preds[i]) for i in idx])
+        g = np.stack([gt_fn(frames[i]) for i in idx])
+        tp, tg = hdr_tonemap_pair(p, g, norm="gt")
+        ps += psnr_per_image(tp, tg)
+        ss.append((hdr_ssim(p, g), len(idx)))
+        if full:
+            op, og = hdr_tonemap_pair(p, g, norm="own")
+            po += psnr_per_image(op, og)
+            pu.append((min(pu21_psnr(p, g), PSNR_CAP_DB), len(idx)))
+            if lpips_w is not None:
+                ls.append((lpips_metric(tp, tg, lpips_w), len(idx)))
+            if flip:
+                fl.append((hdr_flip(p, g), len(idx)))
+    out = {"psnr": _capped_mean(ps), "ssim": _weighted(ss)}
+    if full:
+        out.update(psnr_ownmax=_capped_mean(po), pu21_psnr=_weighted(pu),
+                   lpips=_weighted(ls) if lpips_w is not None else None, flip=_weighted(fl) if flip else None)
+    return out
+
+
+def _tae_pairwise(frames: List[int], load, flow_fn) -> Optional[float]:
+    """HDR-TAE over consecutive frames, one pair in memory at a time. flow_fn(a, b, Ha, Hb) -> (ff, fb, vf, vb)."""
+    from eval.metrics import hdr_tae_pairs
+
+    vals, prev = [], None
+    for a, b in zip(frames[:-1], frames[1:]):
+        ha = prev if prev is not None else load(a)
+        hb = load(b)
+        ff, fb, vf, vb = flow_fn(a, b, ha, hb)
+        v = hdr_tae_pairs(np.stack([ha, hb]), ff[None], fb[None],
+                          None if vf is None else vf[None], None if vb is None else vb[None])[0]
+        if not math.isnan(v):
+            vals.append(v)
+        prev = hb
+    return float(np.mean(vals)) if vals else None
+
+
+def _dis_flows(a, b, ha, hb):
+    from eval.metrics import dis_flow
+
+    return dis_flow(ha, hb), dis_flow(hb, ha), None, None
+
+
+def _cameras(run_dir: Path, clip: Clip, name: str) -> Dict[str, Optional[float]]:
+    from eval.metrics import ate, rpe
+
+    p = run_dir / name
+    if not p.exists() or not clip.has_gt or not (clip.root / "gt/cameras.json").exists():
+        return {"ate": None, "rpe_trans": None, "rpe_rot": None}
+    est = Cameras.from_json(mio.read_json(p), p)
+    gt = clip.load_gt_cameras()
+    common = [int(g) for g in est.frames if int(g) in set(gt.frames.tolist())]
+    if len(common) < 3:
+        return {"ate": None, "rpe_trans": None, "rpe_rot": None}
+    ie = [est.frames.tolist().index(g) for g in common]
+    ig = [gt.frames.tolist().index(g) for g in common]
+    ce, cg = est.c2w[ie], gt.c2w[ig]
+    r = rpe(ce, cg)
+    return {"ate": ate(ce, cg), "rpe_trans": r["rpe_trans"], "rpe_rot": r["rpe_rot"]}
+
+
+def _to_numpy(x) -> np.ndarray:
+    if hasattr(x, "detach"):
+        x = x.detach().cpu().numpy()
+    return np.asarray(x, dtype=np.float64)
+
+
+def _load_model(run_dir: Path, device: str):
+    """(model, None) or (None, reason) when the trained model cannot be loaded (module or checkpoint missing)."""
+    try:
+        from m4dgs.model import load_model
+    except ImportError as e:
+        return None, f"m4dgs.model unavailable ({e})"
+    try:
+        return load_model(run_dir, device=device), None
+    except FileNotFoundError as e:
+        return None, f"no trained model ({e})"
+
+
+def _resolve_device(device: str) -> str:
+    if device != "auto":
+        return device
+    import torch
+
+    return "cuda" if torch.cuda.is_available() else "cpu"
+
+
+def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
+    """Track error, learned CRF and render FPS from a loaded TrainedModel."""
+    import torch
+
+    from eval.metrics import measure_fps, track_error
+    from m4dgs.crf import get_crf
+
+    out: dict = {}
+    # learned CRF vs the true one
+    z = np.linspace(*CRF_LOG2_RANGE, CRF_SAMPLES)
+    with torch.no_grad():
+        learned = _to_numpy(model.tonemap_curve(torch.tensor(z, dtype=torch.float32)))
+    learned = learned.reshape(len(z), -1)
+    true = None
+    if clip.meta.crf:
+        true = np.asarray(get_crf(clip.meta.crf)(np.exp2(z)), np.float64)
+        out["crf_rmse"] = float(np.sqrt(np.mean((learned - true[:, None]) ** 2)))
+    out["crf_curve"] = {"log2_x": z.tolist(), "learned": learned.tolist(),
+                        "true": None if true is None else true.tolist(), "crf": clip.meta.crf}
+    # induced 2D tracks vs gt tracks
+    if hasattr(model, "track_2d") and clip.has_gt and (clip.root / "gt/tracks.npz").exists():
+        ts = clip.load_gt_tracks()
+        cand = np.nonzero(ts.visible[:, 0])[0]
+        if cand.size:
+            rng = np.random.default_rng(0)
+            idx = np.sort(rng.choice(cand, size=min(TRACK_SAMPLES, cand.size), replace=False))
+            uv = torch.tensor(ts.tracks[idx, 0], dtype=torch.float32)
+            with torch.no_grad():
+                pred = _to_numpy(model.track_2d(uv, int(ts.frames[0]), [int(g) for g in ts.frames]))
+            gt_tr, vis = ts.tracks[idx].astype(np.float64), ts.visible[idx]
+            te = track_error(pred, gt_tr, vis)
+            out["track_epe"], out["track_delta_avg"] = te["epe"], te["delta_avg"]
+            err = np.linalg.norm(pred - gt_tr, axis=-1)[vis]  # robust companion of the mean EPE
+            out["track_epe_median"] = float(np.median(err)) if err.size else None
+            out["track_points"] = int(idx.size)
+    # render speed
+    if fps:
+        g = clip.meta.frames[len(clip.meta.frames) // 2]
+        t = model.time_of(g)
+        K, c2w = model.camera(g)
+        K = np.asarray(K, np.float64)
+        W, H = clip.width, clip.height
+
+        def at(w, h):
+            Ks = K.copy()
+            Ks[0] *= w / W
+            Ks[1] *= h / H
+            return lambda: model.render(t, c2w, Ks, w, h)
+
+        dev = getattr(model, "device", device)
+        out["fps"] = measure_fps(at(W, H), warmup=2, iters=10, device=dev)["fps"]
+        out["fps_864x480"] = measure_fps(at(*FPS_SIZE), warmup=2, iters=5, device=dev)["fps"]
+        out["fps_device"] = str(dev)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# the entry point
+# ----------------------------------------------------------------------------------------------------------------
+METRIC_KEYS = [
+    "ldr_oe_psnr", "ldr_oe_ssim", "ldr_oe_lpips", "ldr_ne_psnr", "ldr_ne_ssim", "ldr_ne_lpips",
+    "ldr_train_psnr", "ldr_train_ssim", "ldr_train_lpips",
+    "hdr_psnr", "hdr_ssim", "hdr_lpips", "hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_train_psnr",
+    "hdr_train_ssim", "hdr_tae", "hdr_tae_train_test", "hdr_t_std",
+    "ate", "rpe_trans", "rpe_rot", "ate_ba", "rpe_trans_ba", "rpe_rot_ba", "depth_absrel",
+    "track_epe", "track_epe_median", "track_delta_avg", "dyn_ldr_psnr", "dyn_hdr_psnr", "crf_rmse",
+    "train_seconds", "train_minutes", "fps", "fps_864x480", "num_gaussians", "peak_memory_mib",
+]
+
+
+def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool = False, fps: bool = True, *,
+              tae_train_test: bool = False, device: str = "auto", model: bool = True, write: bool = True,
+              progress: bool = False) -> dict:
+    """Score a run folder against its clip and write <run>/metrics.json (atomic). Returns the metrics dict.
+
+    Args:
+        run_dir: the run folder (DESIGN.md "Runs").
+        clip: clip folder (default: run.json "clip").
+        lpips_weights: path of the LPIPS weights file (eval.metrics.lpips); None -> every *_lpips is None.
+        roundtrip: None | "png" | "jpeg": 8-bit round trip of the LDR predictions (renders are PNG already).
+        flip: also compute HDR-FLIP (slow: ~1 s per 864x480 frame).
+        fps: time model.render at the clip resolution and at 864x480.
+        tae_train_test: also HDR-TAE over all frames (train + test, DIS flow on the renders).
+        device: "auto" | "cpu" | "cuda" for loading the model (tracks, CRF, FPS).
+        model: load the trained model at all (tracks, CRF curve, FPS); False skips those metrics.
+        write: write metrics.json.
+    """
+    t0 = time.perf_counter()
+    run_dir = Path(run_dir)
+    if roundtrip in ("none", ""):
+        roundtrip = None
+    if roundtrip not in (None, "png", "jpeg"):
+        raise ValueError(f"roundtrip must be None, 'png' or 'jpeg', got {roundtrip!r}")
+    clip_obj = clip if isinstance(clip, Clip) else Clip.open(resolve_clip_dir(run_dir, clip))
+    rendered = ensure_renders(run_dir, clip_obj, progress=progress, device=_resolve_device(device))
+    lp_w = None
+    if lpips_weights is not None:
+        from eval.metrics import load_lpips_weights
+
+        lp_w = load_lpips_weights(lpips_weights)
+    conv_keys = ["psnr", "psnr_cap", "ssim", "ldr_jpeg" if roundtrip == "jpeg" else "ldr_png",
+                 "lpips" if lp_w is not None else "lpips_na"]
+    m: Dict[str, object] = {k: None for k in METRIC_KEYS}
+    ex = clip_obj.meta.exposures
+    R = run_dir / "renders"
+    has_gt = clip_obj.has_gt
+    test = clip_obj.test_frames
+    train = clip_obj.train_frames
+
+    # LDR test frames per level -------------------------------------------------------------------------------
+    per_level = {}
+    if has_gt and test:
+        for kind, levels in (("observed", ex.observed), ("novel", ex.novel)):
+            for lv in levels:
+                preds = [R / "test/ldr" / level_name(lv) / frame_name(g, "png") for g in test]
+                gts = [(lambda g=g, lv=lv: clip_obj.load_gt_ldr(lv, g)) for g in test]
+                res = _score_ldr_set(preds, gts, roundtrip, lp_w)
+                res["kind"] = kind
+                per_level[level_name(lv)] = res
+        for pre, kind in (("ldr_oe", "observed"), ("ldr_ne", "novel")):
+            lv = [v for v in per_level.values() if v["kind"] == kind]
+            if lv:
+                m[f"{pre}_psnr"] = _mean(v["psnr"] for v in lv)
+                m[f"{pre}_ssim"] = _mean(v["ssim"] for v in lv)
+                m[f"{pre}_lpips"] = _mean(v["lpips"] for v in lv) if lp_w is not None else None
+    # LDR training frames vs the input video -------------------------------------------------------------------
+    tr = _score_ldr_set([R / "train/ldr" / frame_name(g, "png") for g in train],
+                        [(lambda g=g: clip_obj.load_ldr(g)) for g in train], roundtrip, lp_w)
+    m["ldr_train_psnr"], m["ldr_train_ssim"], m["ldr_train_lpips"] = tr["psnr"], tr["ssim"], tr["lpips"]
+
+    # HDR -------------------------------------------------------------------------------------------------------
+    if has_gt:
+        conv_keys += ["hdr_mu_law", "hdr_mu_law_own", "pu21"]
+        if test:
+            h = _score_hdr_set([R / "test/hdr" / frame_name(g, "exr") for g in test], clip_obj.load_gt_hdr, test,
+                               lp_w, flip, full=True)
+            m.update(hdr_psnr=h["psnr"], hdr_ssim=h["ssim"], hdr_lpips=h["lpips"], hdr_psnr_ownmax=h["psnr_ownmax"],
+                     pu21_psnr=h["pu21_psnr"], hdr_flip=h["flip"])
+            if flip:
+                conv_keys.append("hdr_flip")
+        h = _score_hdr_set([R / "train/hdr" / frame_name(g, "exr") for g in train], clip_obj.load_gt_hdr, train,
+                           None, False, full=False)
+        m["hdr_train_psnr"], m["hdr_train_ssim"] = h["psnr"], h["ssim"]
+
+    # temporal ------------------------------------------------------------------------------------------------------
+    def load_train(g):
+        return mio.read_exr(R / "train/hdr" / frame_name(g, "exr"))
+
+    gt_flow = has_gt and (clip_obj.root / "gt/flow.npz").exists()
+    if gt_flow:
+        fs = clip_obj.load_gt_flow()
+
+        def flows(a, b, ha, hb):
+            fab, vab = fs.get(a, b)
+            fba, vba = fs.get(b, a)
+            return fab, fba, vab, vba
+
+        m["hdr_tae"] = _tae_pairwise(train, load_train, flows)
+        conv_keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_gt_flow"]
+    else:
+        m["hdr_tae"] = _tae_pairwise(train, load_train, _dis_flows)
+        conv_keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_dis_flow"]
+    if tae_train_test:
+        def load_any(g):
+            sub = "train" if g in set(train) else "test"
+            return mio.read_exr(R / sub / "hdr" / frame_name(g, "exr"))
+
+        allf = sorted(set(train) | set(test))
+        m["hdr_tae_train_test"] = _tae_pairwise(allf, load_any, _dis_flows)
+        conv_keys.append("hdr_tae_dis_flow")
+    from eval.metrics import hdr_t_std
+
+    means = np.array([float(load_train(g).mean()) for g in train])
+    m["hdr_t_std"] = hdr_t_std(means.reshape(-1, 1, 1, 1))
+    conv_keys.append("hdr_t_std")
+
+    # cameras --------------------------------------------------------------------------------------------------
+    cam = _cameras(run_dir, clip_obj, "cameras.json")
+    m.update(cam)
+    cba = _cameras(run_dir, clip_obj, "cameras_ba.json")
+    m.update(ate_ba=cba["ate"], rpe_trans_ba=cba["rpe_trans"], rpe_rot_ba=cba["rpe_rot"])
+    if m["ate"] is not None or m["ate_ba"] is not None:
+        conv_keys += ["ate", "rpe", "cameras_all_frames"]
+
+    # depth and dynamic regions --------------------------------------------------------------------------------
+    if has_gt and test:
+        dpaths = [R / "test/depth" / frame_name(g, "exr") for g in test]
+        if all(p.exists() for p in dpaths):
+            from eval.metrics import depth_absrel
+
+            m["depth_absrel"] = depth_absrel(np.stack([mio.read_exr(p) for p in dpaths]),
+                                             np.stack([clip_obj.load_gt_depth(g) for g in test]))
+            conv_keys.append("depth_absrel_clip")
+        if (clip_obj.root / "gt/masks/dynamic").is_dir():
+            from eval.metrics import hdr_tonemap_pair, masked_psnr
+
+            masks = {g: clip_obj.load_gt_dynamic_mask(g) for g in test}
+            if any(mk.any() for mk in masks.values()):
+                dl = []
+                for lv in ex.observed:
+                    for g in test:
+                        if masks[g].any():
+                            p = _ldr_pred(R / "test/ldr" / level_name(lv) / frame_name(g, "png"), roundtrip)
+                            dl.append(masked_psnr(p, clip_obj.load_gt_ldr(lv, g), masks[g]))
+                m["dyn_ldr_psnr"] = _capped_mean(dl)
+                dh = []
+                for g in test:
+                    if masks[g].any():
+                        tp, tg = hdr_tonemap_pair(mio.read_exr(R / "test/hdr" / frame_name(g, "exr")),
+                                                  clip_obj.load_gt_hdr(g))
+                        dh.append(masked_psnr(tp, tg, masks[g]))
+                m["dyn_hdr_psnr"] = _capped_mean(dh)
+                conv_keys.append("masked")
+
+    # run.json ---------------------------------------------------------------------------------------------------
+    info = read_run_info(run_dir)
+    if info.get("train_seconds") is not None:
+        m["train_seconds"] = float(info["train_seconds"])
+        m["train_minutes"] = float(info["train_seconds"]) / 60.0
+    for k in ("num_gaussians", "peak_memory_mib"):
+        if info.get(k) is not None:
+            m[k] = float(info[k])
+    if info.get("peak_memory_mib") is not None:
+        conv_keys.append("peak_mem")
+
+    # model-based metrics ----------------------------------------------------------------------------------------
+    model_note = "not loaded (model=False)"
+    if model:
+        dev = _resolve_device(device)
+        mdl, why = _load_model(run_dir, dev)
+        if mdl is None:
+            model_note = why
+        else:
+            model_note = "loaded"
+            mm = _model_metrics(mdl, clip_obj, fps, dev)
+            if m["num_gaussians"] is None and getattr(mdl, "num_gaussians", None) is not None:
+                m["num_gaussians"] = float(mdl.num_gaussians)
+            m["crf_curve"] = mm.pop("crf_curve")
+            m.update(mm)
+            conv_keys.append("crf_rmse")
+            if mm.get("track_epe") is not None:
+                conv_keys += ["track", "track_first_frame"]
+            if fps:
+                conv_keys.append("fps")
+
+    # finish -------------------------------------------------------------------------------------------------------
+    for k in METRIC_KEYS:
+        m[k] = _clean(m[k])
+    m["per_level"] = {k: {kk: (_clean(vv) if kk not in ("kind", "frames") else vv) for kk, vv in v.items()}
+                      for k, v in per_level.items()}
+    allc = all_conventions()
+    m["conventions"] = {k: allc[k] for k in dict.fromkeys(conv_keys)}
+    m["ldr_convention"] = "ldr_jpeg" if roundtrip == "jpeg" else "ldr_png"
+    m["options"] = {
+        "roundtrip": roundtrip, "lpips_weights": None if lpips_weights is None else str(Path(lpips_weights).resolve()),
+        "flip": bool(flip), "fps": bool(fps), "tae_train_test": bool(tae_train_test), "model": model_note,
+        "rendered_missing": rendered, "psnr_cap_db": PSNR_CAP_DB,
+    }
+    m["run"] = {"variant": info.get("variant"), "preset": info.get("preset"), "clip": str(clip_obj.root),
+                "clip_name": clip_obj.meta.name, "has_gt": has_gt}
+    m["score_seconds"] = round(time.perf_counter() - t0, 3)
+    if write:
+        mio.write_json(run_dir / "metrics.json", m)
+    return m

@@ -1,0 +1,332 @@
+"""Experiment suites (eval/suites/<name>.yaml): which clips, which trained variants, which tables.
+
+A suite file names
+
+- ``scenes``: the benchgen scene suite (``syn-exp-3``, ``tiny``, or a path to a benchgen suite YAML);
+- ``clips``: named clip settings (optional; default one setting ``default`` = the scene suite as it is). A setting may
+  change the exposure ``schedule`` (alternating | random-order | random-values), the prior ``priors`` profile
+  (oracle | realistic | harsh), the ``observed`` / ``novel`` levels and the ``seed``;
+- ``rows``: the table rows, each ``{name, label, variant, overrides, clip}``: ``name`` is the run folder
+  (default: the variant), ``label`` the text in the table (default: the name), ``variant`` a name of
+  ``m4dgs.variants.VARIANTS`` (default ``full``), ``overrides`` extra dotted config overrides
+  (e.g. ``{"exposure.perturb_ev": 0.5}``), ``clip`` the clip setting (default ``default``);
+- ``tables``: each ``{title, columns}`` with ``columns`` a layout name of ``LAYOUTS`` (``paper`` is
+  ``eval.tables.paper_table_spec``) or a list of metric keys of ``metric_columns()``.
+
+The job list is (clip setting, scene, row). Clips are made once per distinct clip setting:
+``OUT/clips/<setting id>/<scene>`` where the setting id is the scene suite's name, followed by the non-default
+values (``syn-exp-3``, ``syn-exp-3-random-order``, ``syn-exp-3-priors-oracle``), so suites that use the same clips
+share them. Runs go to ``OUT/runs/<suite>/<scene>/<row name>``. Use one OUT per preset.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Dict, List, Optional
+
+import yaml
+
+SCHEDULES = ("alternating", "random-order", "random-values")
+PRIOR_PROFILES = ("oracle", "realistic", "harsh")
+DEFAULT_PRIORS = "realistic"
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+
+
+class SuiteError(ValueError):
+    """A malformed eval suite file; the message names the file and the key."""
+
+    def __init__(self, path, key: str, problem: str):
+        super().__init__(f"{path}: '{key}': {problem}")
+
+
+@dataclass(frozen=True)
+class ClipSetting:
+    """How the clips of one setting are made (None = the scene suite's value)."""
+
+    key: str
+    schedule: Optional[str] = None
+    priors: str = DEFAULT_PRIORS
+    observed: Optional[tuple] = None
+    novel: Optional[tuple] = None
+    seed: int = 0
+
+    def setting_id(self, scene_suite: str) -> str:
+        """Folder name under OUT/clips: the scene suite plus every non-default value (shared across suites)."""
+        parts = [Path(scene_suite).stem]
+        if self.schedule not in (None, "alternating"):
+            parts.append(self.schedule)
+        if self.priors != DEFAULT_PRIORS:
+            parts.append(f"priors-{self.priors}")
+        if self.observed is not None:
+            parts.append("obs-" + "_".join(f"{v:g}" for v in self.observed))
+        if self.novel is not None:
+            parts.append("novel-" + ("_".join(f"{v:g}" for v in self.novel) or "none"))
+        if self.seed != 0:
+            parts.append(f"seed-{self.seed}")
+        return "-".join(parts)
+
+
+@dataclass(frozen=True)
+class Row:
+    """One table row = one trained variant on one clip setting."""
+
+    name: str
+    label: str
+    variant: str = "full"
+    overrides: Dict[str, Any] = field(default_factory=dict)
+    clip: str = "default"
+
+
+@dataclass
+class TableDef:
+    title: str
+    columns: Any  # layout name (str) or list of metric keys
+
+
+@dataclass
+class EvalSuite:
+    name: str
+    description: str
+    scenes: str  # benchgen scene suite name or path
+    clips: Dict[str, ClipSetting]
+    rows: List[Row]
+    tables: List[TableDef]
+    path: Path = Path()
+
+    def row(self, name: str) -> Row:
+        for r in self.rows:
+            if r.name == name:
+                return r
+        raise KeyError(f"suite {self.name!r} has no row {name!r} (rows: {[r.name for r in self.rows]})")
+
+    @property
+    def variants(self) -> List[str]:
+        return sorted({r.variant for r in self.rows})
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# table columns
+# ----------------------------------------------------------------------------------------------------------------
+def metric_columns() -> Dict[str, "Column"]:  # noqa: F821
+    """Every metrics.json key a table may show -> eval.tables.Column (header, direction, format, group, convention).
+
+    The paper's main-table columns come from eval.tables.paper_table_spec (one definition for both)."""
+    from eval.tables import Column, paper_table_spec
+
+    cols = {c.key: c for c in paper_table_spec().columns}
+    extra = [
+        Column("ldr_train_psnr", "PSNR", True, ".2f", "LDR-OE (train)", "psnr"),
+        Column("ldr_train_ssim", "SSIM", True, ".4f", "LDR-OE (train)", "ssim"),
+        Column("ldr_train_lpips", "LPIPS", False, ".4f", "LDR-OE (train)", None),
+        Column("hdr_train_psnr", "PSNR", True, ".2f", "HDR (train)", "hdr_mu_law"),
+        Column("hdr_train_ssim", "SSIM", True, ".4f", "HDR (train)", "ssim"),
+        Column("hdr_psnr_ownmax", "PSNR own-max", True, ".2f", "HDR", "hdr_mu_law_own"),
+        Column("pu21_psnr", "PU21-PSNR", True, ".2f", "HDR", "pu21"),
+        Column("hdr_flip", "FLIP", False, ".4f", "HDR", "hdr_flip"),
+        Column("hdr_t_std", "T-std", False, ".4f", "HDR", "hdr_t_std"),
+        Column("hdr_tae_train_test", "TAE (train+test)", False, ".4f", "HDR", "hdr_tae_dis_flow"),
+        Column("dyn_ldr_psnr", "PSNR", True, ".2f", "Dynamic LDR-OE", "masked"),
+        Column("dyn_hdr_psnr", "PSNR", True, ".2f", "Dynamic HDR", "masked"),
+        Column("crf_rmse", "CRF RMSE", False, ".4f", None, "crf_rmse"),
+        Column("ate", "ATE", False, ".4f", "Cameras", "ate"),
+        Column("rpe_trans", "RPE-t", False, ".4f", "Cameras", "rpe"),
+        Column("rpe_rot", "RPE-r (deg)", False, ".3f", "Cameras", "rpe"),
+        Column("ate_ba", "ATE (BA)", False, ".4f", "Cameras", "ate"),
+        Column("depth_absrel", "Depth AbsRel", False, ".4f", None, "depth_absrel_clip"),
+        Column("track_epe", "EPE (px)", False, ".2f", "Tracks", "track"),
+        Column("track_epe_median", "median EPE (px)", False, ".2f", "Tracks", "track"),
+        Column("track_delta_avg", "<delta avg", True, ".3f", "Tracks", "track"),
+        Column("train_minutes", "Train (min)", False, ".1f", None, None),
+        Column("fps", "FPS", True, ".1f", None, "fps"),
+        Column("fps_864x480", "FPS@864x480", True, ".1f", None, "fps"),
+        Column("num_gaussians", "#Gaussians", False, ".0f", None, None),
+        Column("peak_memory_mib", "Peak MiB", False, ".0f", None, "peak_mem"),
+    ]
+    cols.update({c.key: c for c in extra})
+    return cols
+
+
+LAYOUTS: Dict[str, List[str]] = {
+    # the paper's main synthetic table (Table 1 / appendix exposure tables): eval.tables.paper_table_spec
+    "paper": ["ldr_oe_psnr", "ldr_oe_ssim", "ldr_oe_lpips", "ldr_ne_psnr", "ldr_ne_ssim", "ldr_ne_lpips",
+              "hdr_psnr", "hdr_ssim", "hdr_lpips", "hdr_tae"],
+    # the paper's ablation tables (rows a-f, control points): "all metrics PSNR except HDR-TAE"
+    "ablation": ["ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae"],
+    # exposure studies (schedules / perturbation): the ablation layout plus the learned-CRF error
+    "exposure": ["ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "crf_rmse"],
+    # the GFlow comparison (appendix): training frames
+    "train": ["ldr_train_psnr", "ldr_train_ssim", "ldr_train_lpips", "hdr_train_psnr", "hdr_train_ssim", "hdr_tae"],
+    # beyond the paper
+    "geometry": ["ate", "rpe_trans", "rpe_rot", "ate_ba", "depth_absrel", "track_epe", "track_epe_median",
+                 "track_delta_avg"],
+    "hdr-extra": ["hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_t_std", "dyn_ldr_psnr", "dyn_hdr_psnr", "crf_rmse"],
+    "cost": ["train_minutes", "fps", "fps_864x480", "num_gaussians", "peak_memory_mib"],
+}
+
+
+def table_spec(table: TableDef, *, lpips_available: bool = True, ldr_convention: str = "ldr_float",
+               methods: Optional[List[str]] = None):
+    """eval.tables.TableSpec of a suite table (the `paper` layout is paper_table_spec itself)."""
+    import dataclasses
+
+    from eval.tables import TableSpec, paper_table_spec
+
+    lp_key = "lpips" if lpips_available else "lpips_na"
+    if table.columns == "paper":
+        spec = paper_table_spec(table.title, ldr_convention=ldr_convention, lpips_available=lpips_available)
+        spec.methods = methods
+        return spec
+    keys = LAYOUTS[table.columns] if isinstance(table.columns, str) else list(table.columns)
+    reg = metric_columns()
+    cols = []
+    for k in keys:
+        c = reg[k]
+        if k.endswith("_lpips"):
+            c = dataclasses.replace(c, convention=lp_key)
+        cols.append(c)
+    conv = [ldr_convention] if any(k.startswith(("ldr_", "dyn_ldr")) for k in keys) else []
+    return TableSpec(columns=cols, title=table.title, conventions=conv, methods=methods)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# loading
+# ----------------------------------------------------------------------------------------------------------------
+def suites_dir() -> Path:
+    """Folder of the shipped eval suites (package data of `eval`)."""
+    return Path(str(resources.files("eval"))) / "suites"
+
+
+def builtin_suites() -> List[str]:
+    return sorted(p.stem for p in suites_dir().glob("*.yaml"))
+
+
+def find_suite(name_or_path) -> Path:
+    p = Path(str(name_or_path))
+    if p.suffix in (".yaml", ".yml") and p.exists():
+        return p
+    cand = suites_dir() / f"{name_or_path}.yaml"
+    if cand.exists():
+        return cand
+    raise SuiteError(name_or_path, "<suite>", f"not a suite file nor a built-in suite {builtin_suites()}")
+
+
+def _levels(v, path, key):
+    if v is None:
+        return None
+    if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in v):
+        raise SuiteError(path, key, f"expected a list of positive numbers, got {v!r}")
+    return tuple(float(x) for x in v)
+
+
+def _parse_clip(key: str, d: Any, path) -> ClipSetting:
+    if d is None:
+        d = {}
+    if not isinstance(d, dict):
+        raise SuiteError(path, f"clips.{key}", "expected a mapping")
+    unknown = sorted(set(d) - {"schedule", "priors", "observed", "novel", "seed"})
+    if unknown:
+        raise SuiteError(path, f"clips.{key}.{unknown[0]}", "unknown key (schedule, priors, observed, novel, seed)")
+    sched = d.get("schedule")
+    if sched is not None and sched not in SCHEDULES:
+        raise SuiteError(path, f"clips.{key}.schedule", f"expected one of {SCHEDULES}, got {sched!r}")
+    pri = d.get("priors", DEFAULT_PRIORS)
+    if pri not in PRIOR_PROFILES:
+        raise SuiteError(path, f"clips.{key}.priors", f"expected one of {PRIOR_PROFILES}, got {pri!r}")
+    seed = d.get("seed", 0)
+    if not isinstance(seed, int) or isinstance(seed, bool):
+        raise SuiteError(path, f"clips.{key}.seed", f"expected an integer, got {seed!r}")
+    return ClipSetting(key, sched, pri, _levels(d.get("observed"), path, f"clips.{key}.observed"),
+                       _levels(d.get("novel"), path, f"clips.{key}.novel"), seed)
+
+
+def parse_suite(d: dict, path="<suite>") -> EvalSuite:
+    """Validate a suite mapping (as read from YAML) -> EvalSuite. Raises SuiteError naming the key."""
+    if not isinstance(d, dict):
+        raise SuiteError(path, "<root>", "expected a mapping")
+    unknown = sorted(set(d) - {"name", "description", "scenes", "clips", "rows", "tables"})
+    if unknown:
+        raise SuiteError(path, unknown[0], "unknown key")
+    for k in ("name", "scenes", "rows"):
+        if k not in d:
+            raise SuiteError(path, k, "missing")
+    name = str(d["name"])
+    if not _NAME_RE.match(name):
+        raise SuiteError(path, "name", f"expected a folder-safe name, got {name!r}")
+    clips_d = d.get("clips") or {"default": {}}
+    if not isinstance(clips_d, dict):
+        raise SuiteError(path, "clips", "expected a mapping of setting name -> settings")
+    clips = {str(k): _parse_clip(str(k), v, path) for k, v in clips_d.items()}
+    if not isinstance(d["rows"], list) or not d["rows"]:
+        raise SuiteError(path, "rows", "expected a non-empty list")
+    rows, seen = [], set()
+    for i, r in enumerate(d["rows"]):
+        if not isinstance(r, dict):
+            raise SuiteError(path, f"rows[{i}]", "expected a mapping")
+        bad = sorted(set(r) - {"name", "label", "variant", "overrides", "clip"})
+        if bad:
+            raise SuiteError(path, f"rows[{i}].{bad[0]}", "unknown key (name, label, variant, overrides, clip)")
+        variant = str(r.get("variant", "full"))
+        rname = str(r.get("name", variant))
+        if not _NAME_RE.match(rname):
+            raise SuiteError(path, f"rows[{i}].name", f"expected a folder-safe name, got {rname!r}")
+        if rname in seen:
+            raise SuiteError(path, f"rows[{i}].name", f"duplicate row name {rname!r}")
+        seen.add(rname)
+        ov = r.get("overrides") or {}
+        if not isinstance(ov, dict):
+            raise SuiteError(path, f"rows[{i}].overrides", "expected a mapping of dotted config keys -> values")
+        clip = str(r.get("clip", "default"))
+        if clip not in clips:
+            raise SuiteError(path, f"rows[{i}].clip", f"unknown clip setting {clip!r} (have {sorted(clips)})")
+        rows.append(Row(rname, str(r.get("label", rname)), variant, dict(ov), clip))
+    tables = []
+    for i, t in enumerate(d.get("tables") or [{"title": d.get("description", name), "columns": "paper"}]):
+        if not isinstance(t, dict) or "columns" not in t:
+            raise SuiteError(path, f"tables[{i}]", "expected {title, columns}")
+        cols = t["columns"]
+        if isinstance(cols, str):
+            if cols not in LAYOUTS:
+                raise SuiteError(path, f"tables[{i}].columns", f"unknown layout {cols!r} (have {sorted(LAYOUTS)})")
+        elif isinstance(cols, list):
+            reg = metric_columns()
+            for k in cols:
+                if k not in reg:
+                    raise SuiteError(path, f"tables[{i}].columns", f"unknown metric column {k!r}")
+        else:
+            raise SuiteError(path, f"tables[{i}].columns", "expected a layout name or a list of metric keys")
+        tables.append(TableDef(str(t.get("title", name)), cols))
+    return EvalSuite(name, str(d.get("description", "")), str(d["scenes"]), clips, rows, tables, Path(str(path)))
+
+
+def load_eval_suite(name_or_path) -> EvalSuite:
+    """Load a built-in suite by name (eval/suites/<name>.yaml) or any suite file by path."""
+    path = find_suite(name_or_path)
+    with open(path, "r", encoding="utf-8") as f:
+        d = yaml.safe_load(f)
+    return parse_suite(d, path)
+
+
+def scene_suite_names(suite: EvalSuite) -> List[str]:
+    """Scene names of the suite's benchgen scene suite."""
+    from benchgen.suite import load_suite
+
+    return load_suite(suite.scenes).scene_names
+
+
+def known_variants() -> Optional[List[str]]:
+    """Names in m4dgs.variants.VARIANTS, or None while that module does not exist yet."""
+    try:
+        from m4dgs.variants import VARIANTS
+    except ImportError:
+        return None
+    return sorted(VARIANTS)
+
+
+def check_variants(suite: EvalSuite) -> List[str]:
+    """Variant names of the suite unknown to m4dgs.variants ([] when all are known or the module is missing)."""
+    known = known_variants()
+    if known is None:
+        return []
+    return [v for v in suite.variants if v not in known]
