@@ -310,6 +310,10 @@ def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
             with torch.no_grad():
                 pred = _to_numpy(model.track_2d(uv, int(ts.frames[0]), [int(g) for g in ts.frames]))
             gt_tr, vis = ts.tracks[idx].astype(np.float64), ts.visible[idx]
+            ok = np.isfinite(pred).all(-1)  # NaN: the model has no surface at the query (or it went behind the camera)
+            out["track_coverage"] = float((ok & vis).sum() / max(int(vis.sum()), 1))
+            vis = vis & ok
+            pred = np.where(ok[..., None], pred, 0.0)
             te = track_error(pred, gt_tr, vis)
             out["track_epe"], out["track_delta_avg"] = te["epe"], te["delta_avg"]
             err = np.linalg.norm(pred - gt_tr, axis=-1)[vis]  # robust companion of the mean EPE

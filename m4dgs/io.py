@@ -20,6 +20,23 @@ class FileFormatError(ValueError):
     """A file exists but its content is not what the clip contract says (the message names file and field)."""
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _publish(tmp: str, path: Path) -> None:
+    """Give the temporary file normal permissions (mkstemp makes it 0600) and rename it into place."""
+    os.chmod(tmp, 0o666 & ~_umask())
+    os.replace(tmp, path)
+
+
+def write_bytes_atomic(path, data: bytes) -> None:
+    """Write bytes to `path` atomically (temporary file in the same folder, then rename)."""
+    _atomic_write_bytes(Path(path), data)
+
+
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -27,7 +44,7 @@ def _atomic_write_bytes(path: Path, data: bytes) -> None:
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
-        os.replace(tmp, path)
+        _publish(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -91,7 +108,7 @@ def write_exr(path, image: np.ndarray) -> None:
     tmp = _atomic_tmp(path, ".exr")
     try:
         OpenEXR.File(header, channels).write(tmp)
-        os.replace(tmp, path)
+        _publish(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)

@@ -103,9 +103,12 @@ class TrainedModel:
         return self.tm(torch.exp2(z)[:, None].expand(-1, 3).contiguous(), torch.tensor(0.0, device=self.device))
 
     @torch.no_grad()
-    def track_2d(self, uv, g0: int, frames: Sequence[int]) -> torch.Tensor:
+    def track_2d(self, uv, g0: int, frames: Sequence[int], min_alpha: float = 0.5) -> torch.Tensor:
         """Induced 2D tracks [N, F, 2]: query pixels uv [N, 2] of frame g0 followed to each frame through the
-        Gaussians' motion (alpha-blended destination positions at the query pixels, projected in the target camera)."""
+        Gaussians' motion (alpha-blended destination positions at the query pixels, projected in the target camera).
+
+        Queries on which the model has no surface (alpha < min_alpha at g0) or whose point falls behind the target
+        camera are NaN."""
         uv = torch.as_tensor(np.asarray(uv), dtype=torch.float32, device=self.device)
         K0, c2w0 = self.camera(g0)
         t0 = self.time_of(g0)
@@ -117,8 +120,12 @@ class TrainedModel:
                              self.backend, dest_times=[self.time_of(g)])
             dest = r.dest[0] / r.alpha.clamp_min(1e-6)[..., None]
             p = sample_map(dest, uv)  # [N, 3] world positions at time g
+            a = sample_map(r.alpha[..., None], uv)[:, 0]
             w2c = cam.invert_rigid(torch.as_tensor(c2w, dtype=torch.float32, device=self.device))
-            out.append(cam.project_pinhole(cam.transform_points(w2c, p), self.K))
+            pc = cam.transform_points(w2c, p)
+            q = cam.project_pinhole(pc, self.K)
+            bad = (a < min_alpha) | (pc[:, 2] <= 1e-6)
+            out.append(torch.where(bad[:, None], torch.full_like(q, float("nan")), q))
         return torch.stack(out, 1)
 
 
