@@ -45,7 +45,7 @@ class TrainedModel:
         self.color = ColorMLP(feature_dim=sd.get("feature_dim", 36), hidden=cfg["tonemap"]["color_hidden"],
                               view_dependent=False).to(self.device)
         self.color.load_state_dict(sd["color"])
-        self.tm = ToneMapper(hidden=cfg["tonemap"]["tonemap_hidden"]).to(self.device)
+        self.tm = ToneMapper(hidden=cfg["tonemap"]["tonemap_hidden"], lut_size=cfg["tonemap"].get("lut_size", 2048)).to(self.device)
         self.tm.load_state_dict(sd["tonemap"])
         self.bg = Background().to(self.device)
         self.bg.load_state_dict(sd["background"])

@@ -37,11 +37,15 @@ def ssim_map(img1: torch.Tensor, img2: torch.Tensor, data_range: float = 1.0) ->
     h, w, c = img1.shape[-3:]
     a = img1.reshape(-1, h, w, c).permute(0, 3, 1, 2)
     b = img2.reshape(-1, h, w, c).permute(0, 3, 1, 2)
-    win = gaussian_window(dtype=a.dtype, device=a.device).expand(c, 1, WINDOW_SIZE, WINDOW_SIZE).contiguous()
+    g1 = gaussian_window(dtype=a.dtype, device=a.device)
+    g1 = g1.sum(dim=1)  # the 1-D factor of the separable window
+    wv = g1.reshape(1, 1, WINDOW_SIZE, 1).expand(c, 1, WINDOW_SIZE, 1).contiguous()
+    wh = g1.reshape(1, 1, 1, WINDOW_SIZE).expand(c, 1, 1, WINDOW_SIZE).contiguous()
     pad = WINDOW_SIZE // 2
 
     def filt(x):
-        return F.conv2d(x, win, padding=pad, groups=c)
+        # separable 11x11 Gaussian with zero padding: identical to the 2-D convolution, about 5x cheaper
+        return F.conv2d(F.conv2d(x, wh, padding=(0, pad), groups=c), wv, padding=(pad, 0), groups=c)
 
     mu1, mu2 = filt(a), filt(b)
     s11 = filt(a * a) - mu1 * mu1

@@ -42,7 +42,7 @@ GAUSSIAN_KEYS = ("ctrl", "rot", "scales", "opacities", "features")
 def build_appearance(cfg: TrainConfig, c0: float, device, pretrain: bool = True) -> tuple:
     """Colour MLP (36 -> 36 -> 3, 2^x output) and the per-channel tone mapper, pre-trained on a generic curve."""
     color = ColorMLP(feature_dim=cfg.model.feature_dim, hidden=cfg.tonemap.color_hidden, view_dependent=False).to(device)
-    tm = ToneMapper(hidden=cfg.tonemap.tonemap_hidden).to(device)
+    tm = ToneMapper(hidden=cfg.tonemap.tonemap_hidden, lut_size=cfg.tonemap.lut_size).to(device)
     if pretrain and cfg.tonemap.pretrain_steps > 0:
         pretrain_tonemapper(tm, pretrain_curve(cfg.tonemap.pretrain_crf, c0), iters=cfg.tonemap.pretrain_steps,
                             mono_weight=cfg.tonemap.pretrain_monotonic_weight, c0=c0)
