@@ -15,7 +15,6 @@ without clip.json is an unfinished clip and is resumed, and a finished clip is s
 """
 from __future__ import annotations
 
-import copy
 import dataclasses
 import time
 from dataclasses import dataclass

@@ -373,49 +373,21 @@ def sample_depth(depth: Tensor, tracks: Tensor, width: int, height: int) -> Tens
     return z[:, 0, :, 0].T.reshape(tracks.shape[0], t_count)
 
 
-def knn(points: Tensor, k: int, backend: str = "auto", chunk: int = 1024) -> Tuple[Tensor, Tensor]:
-    """Exact k nearest neighbours of each point among the others.
+def knn(points: Tensor, k: int, backend: str = "auto") -> Tuple[Tensor, Tensor]:
+    """Exact k nearest neighbours of each point among the others (k clipped to N - 1).
 
-    Args:
-        points: [N, D] points. k: neighbours (clipped to N - 1).
-        backend: "torch" (chunked brute force; fast on a GPU), "scipy" (KD-tree on a CPU copy; fast on a CPU), or
-            "auto" (torch on CUDA, scipy otherwise).
+    Thin adapter over `m4dgs.losses.motion.knn` (one implementation: scipy KD-tree on CPU, chunked torch on GPU).
     Returns:
         (squared distances [N, k] ascending, indices [N, k] long), on the device of `points`.
     """
+    from m4dgs.losses.motion import knn as _knn
+
     n = points.shape[0]
     k_eff = max(min(k, n - 1), 0)
-    if backend == "auto":
-        backend = "torch" if points.is_cuda else "scipy"
     if k_eff == 0:
         return points.new_zeros(n, 0), torch.zeros(n, 0, dtype=torch.long, device=points.device)
-    if backend == "scipy":
-        from scipy.spatial import cKDTree
-
-        pts = points.detach().double().cpu().numpy()
-        dist, idx = cKDTree(pts).query(pts, k=k_eff + 1)
-        # drop each point itself (distance 0); with duplicates the self index may not be first, so remove it by id
-        idx_t = torch.from_numpy(idx)
-        dist_t = torch.from_numpy(dist)
-        self_mask = idx_t == torch.arange(n)[:, None]
-        # keep the first k_eff entries that are not the point itself
-        order = torch.argsort(self_mask.to(torch.int8), dim=1, stable=True)[:, :k_eff]
-        idx_t = torch.gather(idx_t, 1, order)
-        dist_t = torch.gather(dist_t, 1, order)
-        return (dist_t**2).to(device=points.device, dtype=points.dtype), idx_t.to(points.device)
-    if backend != "torch":
-        raise ValueError(f"unknown knn backend {backend!r}")
-    d2_out = torch.empty(n, k_eff, dtype=points.dtype, device=points.device)
-    idx_out = torch.empty(n, k_eff, dtype=torch.long, device=points.device)
-    for start in range(0, n, chunk):
-        blk = points[start : start + chunk]
-        d2 = torch.cdist(blk, points).pow(2)
-        rows = torch.arange(blk.shape[0], device=points.device)
-        d2[rows, rows + start] = float("inf")  # exclude self
-        vals, ids = d2.topk(k_eff, dim=1, largest=False)
-        d2_out[start : start + blk.shape[0]] = vals
-        idx_out[start : start + blk.shape[0]] = ids
-    return d2_out, idx_out
+    idx, dist = _knn(points, k_eff, backend=backend)
+    return (dist**2).to(points.dtype), idx
 
 
 def knn_mean_sq_distance(points: Tensor, k: int = 3, backend: str = "auto") -> Tensor:

@@ -11,7 +11,6 @@ times and the priors are used, never ground truth.
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Optional
@@ -284,16 +283,17 @@ def _arap_subset(pos_t: torch.Tensor, pos_t2: torch.Tensor, nbr: torch.Tensor, s
     return ((d_t - d_t2) ** 2).mean()
 
 
-def train_stage1(stage: VideoStage, start: int = 0, on_step: Optional[Callable[[int, Dict[str, float]], None]] = None,
-                 progress: bool = True) -> None:
-    """Run iterations start..iterations-1, calling on_step(it, record) after each (logging, checkpoints)."""
-    n = stage.cfg.stage1.iterations
+def train_loop(stage, iterations: int, start: int = 0,
+               on_step: Optional[Callable[[int, Dict[str, float]], None]] = None, progress: bool = True,
+               desc: str = "", postfix_keys=("rgb",)) -> None:
+    """Run stage.step(it) for it in start..iterations-1 with a progress bar (loss, Gaussian count) and a callback
+    after each step (logging, checkpoints). Shared by both stages."""
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=n, initial=start, desc="stage 1 (video Gaussians)", unit="it", dynamic_ncols=True)
-    for it in range(start, n):
+        bar = tqdm(total=iterations, initial=start, desc=desc, unit="it", dynamic_ncols=True)
+    for it in range(start, iterations):
         t0 = time.perf_counter()
         rec = stage.step(it)
         rec["sec"] = time.perf_counter() - t0
@@ -301,7 +301,17 @@ def train_stage1(stage: VideoStage, start: int = 0, on_step: Optional[Callable[[
             on_step(it, rec)
         if bar is not None:
             bar.update(1)
-            if it % 10 == 0 or it == n - 1:
-                bar.set_postfix(loss=f"{rec['total']:.4f}", rgb=f"{rec['rgb']:.4f}", N=rec["num_gaussians"])
+            if it % 10 == 0 or it == iterations - 1:
+                post = {"loss": f"{rec['total']:.4f}", **{k: f"{rec[k]:.4f}" for k in postfix_keys if k in rec},
+                        "N": rec["num_gaussians"]}
+                if "num_dynamic" in rec:
+                    post["dyn"] = rec["num_dynamic"]
+                bar.set_postfix(post)
     if bar is not None:
         bar.close()
+
+
+def train_stage1(stage: VideoStage, start: int = 0, on_step: Optional[Callable[[int, Dict[str, float]], None]] = None,
+                 progress: bool = True) -> None:
+    """Run iterations start..iterations-1, calling on_step(it, record) after each (logging, checkpoints)."""
+    train_loop(stage, stage.cfg.stage1.iterations, start, on_step, progress, "stage 1 (video Gaussians)")

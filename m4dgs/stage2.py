@@ -10,8 +10,7 @@ re-running the dynamic/static identification on their projected trajectories.
 """
 from __future__ import annotations
 
-import time
-from typing import Any, Callable, Dict, List, Optional
+from typing import Any, Callable, Dict, Optional
 
 import numpy as np
 import torch
@@ -29,7 +28,7 @@ from .losses.motion import acceleration_loss, knn, velocity_loss
 from .losses.photometric import rgb_loss, unit_exposure_loss
 from .losses.temporal import hdr_reprojection_loss, ldr_reprojection_loss, tlr_loss, tlr_valid_mask
 from .raster import render
-from .stage1 import Background, RenderResult, _arap_subset
+from .stage1 import Background, RenderResult, _arap_subset, train_loop
 from .tonemap import ToneMapper, monotonicity_penalty
 
 STATIC_KEYS = ("means", "quats", "scales", "opacities", "features")
@@ -336,22 +335,6 @@ class WorldStage:
 
 def train_stage2(stage: WorldStage, start: int = 0, on_step: Optional[Callable[[int, Dict[str, float]], None]] = None,
                  progress: bool = True) -> None:
-    n = stage.cfg.stage2.iterations
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=n, initial=start, desc="stage 2 (world Gaussians + cameras)", unit="it", dynamic_ncols=True)
-    for it in range(start, n):
-        t0 = time.perf_counter()
-        rec = stage.step(it)
-        rec["sec"] = time.perf_counter() - t0
-        if on_step is not None:
-            on_step(it, rec)
-        if bar is not None:
-            bar.update(1)
-            if it % 10 == 0 or it == n - 1:
-                bar.set_postfix(loss=f"{rec['total']:.4f}", rgb=f"{rec['rgb']:.4f}", N=rec["num_gaussians"],
-                                dyn=rec["num_dynamic"])
-    if bar is not None:
-        bar.close()
+    """Run stage-2 iterations start..iterations-1 (see m4dgs.stage1.train_loop)."""
+    train_loop(stage, stage.cfg.stage2.iterations, start, on_step, progress, "stage 2 (world Gaussians + cameras)",
+               ("rgb", "pr"))

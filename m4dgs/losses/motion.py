@@ -17,7 +17,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from m4dgs.camera import quat_multiply
 
 ARAP_K = 5  # paper appendix: k = 5
 
@@ -97,18 +96,10 @@ def arap_loss(pos_t: torch.Tensor, pos_tp: torch.Tensor, nbr_idx: torch.Tensor |
 
 
 def quat_relative_angle(q1: torch.Tensor, q2: torch.Tensor) -> torch.Tensor:
-    """Rotation angle of R(q1) R(q2)^-1, in [0, pi].
+    """Rotation angle of R(q1) R(q2)^-1 in [0, pi] (= m4dgs.rotation.relative_rotation_angle)."""
+    from m4dgs.rotation import relative_rotation_angle
 
-    Args:
-        q1, q2: [..., 4] quaternions (w, x, y, z), not necessarily normalised.
-    Returns:
-        [...] angles in radians, 2 atan2(|v|, |w|) of q1 * conj(q2) (gradient-safe at angle 0).
-    """
-    q1 = q1 / _safe_norm(q1)[..., None].clamp_min(1e-12)
-    q2 = q2 / _safe_norm(q2)[..., None].clamp_min(1e-12)
-    conj2 = torch.cat([q2[..., :1], -q2[..., 1:]], dim=-1)
-    q = quat_multiply(q1, conj2)
-    return 2.0 * torch.atan2(_safe_norm(q[..., 1:]), q[..., 0].abs())
+    return relative_rotation_angle(q1, q2)
 
 
 def _reduce_time(x: torch.Tensor, time_reduction: str) -> torch.Tensor:

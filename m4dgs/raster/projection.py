@@ -51,15 +51,10 @@ class Projection:
 
 
 def quat_to_rotmat(quats: Tensor) -> Tensor:
-    """Rotation matrices [N, 3, 3] from quaternions [N, 4] (w, x, y, z), normalised here."""
-    q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    rows = [
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ]
-    return torch.stack(rows, dim=-1).reshape(q.shape[:-1] + (3, 3))
+    """Rotation matrices [N, 3, 3] from quaternions [N, 4] (w, x, y, z), normalised (m4dgs.camera's convention)."""
+    from m4dgs.camera import quat_to_rotmat as _q2r
+
+    return _q2r(quats)
 
 
 def covariance_3d(quats: Tensor, scales: Tensor) -> Tensor:
