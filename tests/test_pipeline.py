@@ -31,13 +31,13 @@ def test_stage1_fits_training_frames(tiny_clip_oracle):
     p0 = np.mean([_psnr(out0["ldr"][i].numpy(), ldr[i]) for i in range(data.num_frames)])
     p1 = np.mean([_psnr(out["ldr"][i].numpy(), ldr[i]) for i in range(data.num_frames)])
     assert p1 > p0 + 3.0, (p0, p1)
-    assert p1 > 22.0, p1
+    assert p1 > 24.0, p1  # measured 27.7 dB (300 iterations)
     # the learned HDR, tone-mapped with the TRUE CRF at the TRUE exposure, reproduces the input: the unit-exposure
     # loss fixes the HDR scale, so H is in the clip's radiometric units (up to the tone mapper's residual error)
     crf = get_crf(clip.meta.crf)
     true_ldr = [crf(out["hdr"][i].numpy() * dt) for i, dt in enumerate(clip.train_dt)]
     p_true = np.mean([_psnr(true_ldr[i], ldr[i]) for i in range(data.num_frames)])
-    assert p_true > 18.0, p_true
+    assert p_true > 23.0, p_true  # measured 27.7 dB
     # and it agrees with the ground-truth HDR in the mu-law domain better than the initial model did
     gt = np.stack([clip.load_gt_hdr(g) for g in clip.train_frames])
     mu = lambda h: np.log1p(5000 * np.clip(h / gt.max(), 0, 1)) / np.log(5001)  # noqa: E731
