@@ -14,7 +14,7 @@ setup:
 
 demo: setup
 	$(VENV)/m4dgs-eval run tiny --preset tiny --out $(OUT)
-	$(VENV)/m4dgs-eval table $(OUT)/runs/tiny
+	$(VENV)/m4dgs-eval table tiny --root $(OUT)
 
 test: setup
 	$(VENV)/python -m pytest
