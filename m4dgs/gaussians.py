@@ -92,6 +92,20 @@ def _logit(p: float) -> float:
     return math.log(p / (1.0 - p))
 
 
+def spline_layout(kind: str, smax: float) -> GaussianLayout:
+    """Densification layout of spline Gaussians ("ctrl" [N, K, 3] control points move together when split; splits
+    are oriented by the rotation polynomial at mid-sequence), shared by video and dynamic world Gaussians."""
+    return GaussianLayout(
+        position_keys=("ctrl",),
+        scale_key="scales",
+        opacity_key="opacities",
+        rotation_key="rot",
+        scale_fn=lambda r: scale_activation(r, kind, smax),
+        scale_inv_fn=lambda s: scale_inverse(s, kind, smax),
+        rotation_fn=lambda p: rot.poly_evaluate(p["rot"], 0.5),
+    )
+
+
 # ---------------------------------------------------------------------------------------------------------------------
 # containers
 # ---------------------------------------------------------------------------------------------------------------------
@@ -168,16 +182,7 @@ class VideoGaussians(nn.Module):
 
     def layout(self) -> GaussianLayout:
         """Densification layout: control points move together; splits are oriented by the mid-sequence rotation."""
-        kind, smax = self.scale_kind, self.scale_max
-        return GaussianLayout(
-            position_keys=("ctrl",),
-            scale_key="scales",
-            opacity_key="opacities",
-            rotation_key="rot",
-            scale_fn=lambda r: scale_activation(r, kind, smax),
-            scale_inv_fn=lambda s: scale_inverse(s, kind, smax),
-            rotation_fn=lambda p: rot.poly_evaluate(p["rot"], 0.5),
-        )
+        return spline_layout(self.scale_kind, self.scale_max)
 
     def to_state(self) -> Dict[str, Any]:
         """Plain dict (tensors + metadata) for torch.save; the inverse is `from_state` (works for any N)."""
@@ -301,16 +306,7 @@ class WorldGaussians(nn.Module):
         )
 
     def dynamic_layout(self) -> GaussianLayout:
-        kind, smax = self.scale_kind, self.scale_max
-        return GaussianLayout(
-            position_keys=("ctrl",),
-            scale_key="scales",
-            opacity_key="opacities",
-            rotation_key="rot",
-            scale_fn=lambda r: scale_activation(r, kind, smax),
-            scale_inv_fn=lambda s: scale_inverse(s, kind, smax),
-            rotation_fn=lambda p: rot.poly_evaluate(p["rot"], 0.5),
-        )
+        return spline_layout(self.scale_kind, self.scale_max)
 
     def split_render_info(self, info: Mapping[str, Any]) -> Tuple[Dict[str, Any], Dict[str, Any]]:
         """Per-set views of a render info dict for the two densification strategies (after backward).
