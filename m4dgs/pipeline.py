@@ -125,6 +125,10 @@ class Trainer:
 
         return on_step
 
+    def _checkpoint_stage(self) -> Optional[str]:
+        p = self.run.ckpt_path
+        return load_torch(p, map_location="cpu").get("stage") if p.exists() else None
+
     def _resume(self, stage: str, stage_obj) -> int:
         p = self.run.ckpt_path
         if not p.exists():
@@ -176,7 +180,8 @@ class Trainer:
         from .stage1 import VideoStage, train_stage1
 
         t0 = [time.perf_counter()]
-        stage = VideoStage(self.data, self.cfg, self.device, self.cfg.raster_backend)
+        resuming = self._checkpoint_stage() == "stage1"  # skip the lift + tone-mapper pre-training when resuming
+        stage = VideoStage(self.data, self.cfg, self.device, self.cfg.raster_backend, init=not resuming)
         start = self._resume("stage1", stage)
         train_stage1(stage, start, self._log_fn("stage1", stage, t0), self.progress)
         save_torch(self.run.path("model", "stage1.pt"), {**stage.state_dict(), "frames": self.data.frames})

@@ -84,3 +84,26 @@ def test_pipeline_runs_resumes_and_renders(tiny_clip_realistic, tmp_path, monkey
     assert len(cams["c2w"]) == clip.meta.num_frames
     # a finished run is not retrained
     assert train(tiny_clip_realistic, run, preset="tiny", overrides=over, progress=False) == run
+
+
+def test_kill_in_stage1_resumes_from_checkpoint(tiny_clip_realistic, tmp_path, monkeypatch):
+    from m4dgs import stage1 as s1mod
+
+    run = tmp_path / "run"
+    over = {"stage1.iterations": 30, "stage2.iterations": 10, "checkpoint_every": 10, "camera_init.ba_steps": 40,
+            "tonemap.pretrain_steps": 20, "v2w.scale_refit_steps": 10}
+    real_step = s1mod.VideoStage.step
+
+    def dying_step(self, it):
+        if it == 25:
+            raise RuntimeError("simulated kill")
+        return real_step(self, it)
+
+    monkeypatch.setattr(s1mod.VideoStage, "step", dying_step)
+    with pytest.raises(RuntimeError, match="simulated kill"):
+        train(tiny_clip_realistic, run, preset="tiny", overrides=over, progress=False)
+    monkeypatch.setattr(s1mod.VideoStage, "step", real_step)
+    train(tiny_clip_realistic, run, preset="tiny", overrides=over, progress=False)
+    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in log if r["stage"] == "stage1"] == list(range(30))
+    assert json.loads((run / "status.json").read_text())["stage"] == "done"
