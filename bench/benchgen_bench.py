@@ -1,6 +1,6 @@
 """Clip generation speed: frames/s and total time for a suite (default: syn-exp-3 at the small preset).
 
-    python bench/benchgen_bench.py [--suite syn-exp-3] [--preset small] [--out /tmp/benchgen-bench] [--jobs 1]
+    python bench/benchgen_bench.py [--suite syn-exp-3] [--preset small] [--out /tmp/benchgen-bench] [--spp N]
 
 Generates into a fresh folder (nothing is skipped) and prints per-clip and total figures. The target for the
 small 9-scene suite on a 2-core machine is at most 15 minutes.
@@ -27,6 +27,7 @@ def main():
     ap.add_argument("--preset", default="small")
     ap.add_argument("--out", default="/tmp/benchgen-bench")
     ap.add_argument("--scenes", default=None, help="comma-separated subset")
+    ap.add_argument("--spp", type=int, default=None, help="override the preset's samples per pixel")
     a = ap.parse_args()
     s = load_suite(a.suite)
     out = Path(a.out)
@@ -39,7 +40,7 @@ def main():
         if pick is not None and p.stem not in pick:
             continue
         t0 = time.perf_counter()
-        clip_dir = make_clip(p, out / p.stem, a.preset, settings, "realistic", 0, progress=False)
+        clip_dir = make_clip(p, out / p.stem, a.preset, settings, "realistic", 0, progress=False, spp=a.spp)
         dt = time.perf_counter() - t0
         c = Clip.open(clip_dir)
         n = c.meta.num_frames
@@ -47,7 +48,8 @@ def main():
         gt = c.meta.gt
         print(f"{p.stem:28s} {n:4d} frames {dt:7.1f} s  {n / dt:5.2f} frames/s  "
               f"dyn {gt.get('dynamic_fraction', 0):.2f}  range {gt.get('dynamic_range_stops', 0):.1f} stops  "
-              f"TAE floor {gt.get('hdr_tae_floor') or float('nan'):.3f}", flush=True)
+              f"TAE floor {gt.get('hdr_tae_floor') or float('nan'):.3f}  noise {gt['render_noise']['tae_two_seeds']:.3f} "
+              f"({gt['render'].get('emitter_sampling', 'uniform')})", flush=True)
     dt = time.perf_counter() - t_all
     pr = get_preset(a.preset)
     print(f"total: {total_frames} frames at {pr.width}x{pr.height} in {dt / 60:.1f} min ({total_frames / dt:.2f} frames/s)")

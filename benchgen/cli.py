@@ -50,14 +50,18 @@ def main():
 @click.option("--jobs", default=1, show_default=True, type=int, help="Clips rendered in parallel (processes).")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of schedules, jitter and priors.")
 @click.option("--force", is_flag=True, help="Regenerate finished clips (otherwise they are skipped).")
-def make(suite, scenes, num_exposures, observed, novel, schedule, preset, priors, out, jobs, seed, force):
+@click.option("--spp", type=click.IntRange(min=1), default=None,
+              help="Samples per pixel of the HDR renders (default: the preset's, tiny 64 / small 64 / paper 1024; the "
+                   "low-discrepancy sampler rounds to a power of 4). At small, 256 lowers the render noise 2-4x and "
+                   "takes ~4x longer (docs/rendering.md).")
+def make(suite, scenes, num_exposures, observed, novel, schedule, preset, priors, out, jobs, seed, force, spp):
     """Generate the clips of a suite (resumable: finished clips and frames are skipped)."""
     from .make import make_suite
 
     paths = make_suite(
         suite, out, preset=preset, scenes=None if scenes is None else [s.strip() for s in scenes.split(",") if s.strip()],
         priors=priors, schedule=schedule, num_exposures=None if num_exposures is None else int(num_exposures),
-        observed=_levels(observed), novel=_levels(novel), seed=seed, jobs=jobs, force=force,
+        observed=_levels(observed), novel=_levels(novel), seed=seed, jobs=jobs, force=force, spp=spp,
     )
     for p in paths:
         click.echo(str(p))

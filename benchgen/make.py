@@ -31,7 +31,7 @@ from .exposure import ExposureSettings, choose_hdr_scale, exposure_gap_ev, sched
 from .priors import degrade_depth, degrade_flow, degrade_tracks, flow_pairs, get_profile, make_rng, priors_metadata
 from .scene import load_scene
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: small preset 64 spp with per-clip light selection (was 256 spp, uniform)
 
 
 @dataclass(frozen=True)
@@ -97,19 +97,22 @@ def _material_masks(cast, state):
     return k == "emitter", k == "glossy"
 
 
-def _generator_settings(scene_path, preset: str, settings: ExposureSettings, profile: str, seed: int) -> dict:
+def _generator_settings(scene_path, preset: str, settings: ExposureSettings, profile: str, seed: int,
+                        spp: int) -> dict:
     return {
         "tool": "benchgen", "version": GENERATOR_VERSION, "scene_spec": Path(scene_path).name, "preset": preset,
-        "seed": int(seed), "observed": list(settings.observed), "novel": list(settings.novel),
+        "seed": int(seed), "spp": int(spp), "observed": list(settings.observed), "novel": list(settings.novel),
         "schedule": settings.schedule, "priors": profile,
     }
 
 
 def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[ExposureSettings] = None,
               priors: str = "realistic", seed: int = 0, crf: str = "hdrnerf", force: bool = False,
-              progress: bool = True, max_frames: Optional[int] = None) -> Path:
-    """Generate one clip folder from a scene spec; returns the clip folder. Resumes an unfinished clip."""
-    from .render import Renderer, RenderSettings, render_clip_gt
+              progress: bool = True, max_frames: Optional[int] = None, spp: Optional[int] = None) -> Path:
+    """Generate one clip folder from a scene spec; returns the clip folder. Resumes an unfinished clip.
+
+    spp overrides the preset's samples per pixel of the HDR renders (benchgen.render.RENDER_PRESETS)."""
+    from .render import EMITTER_PROBE_SPP, Renderer, RenderSettings, choose_emitter_sampling, render_clip_gt
 
     t_start = time.perf_counter()
     settings = settings or ExposureSettings()
@@ -120,7 +123,12 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
     G = min(scene.num_frames, pr.max_frames if max_frames is None else max_frames)
     if G < 3:
         raise ValueError(f"{scene_path}: a clip needs at least 3 frames, the spec gives {scene.num_frames}")
-    gen = _generator_settings(scene_path, preset, settings, priors, seed)
+    render_settings = RenderSettings.resolve(pr.render)
+    if spp is not None:
+        if int(spp) < 1:
+            raise ValueError(f"spp must be >= 1, got {spp}")
+        render_settings = dataclasses.replace(render_settings, spp=int(spp))
+    gen = _generator_settings(scene_path, preset, settings, priors, seed, render_settings.spp)
     if (out / "clip.json").exists() and not force:
         old = Clip.open(out).meta.generator
         if {k: old.get(k) for k in gen} == gen:
@@ -138,9 +146,15 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
     train, test = frames[0::2], frames[1::2]
     crf_fn = get_crf(crf)
 
-    # 1. one global HDR scale for the clip ------------------------------------------------------------------------
+    # 1. light selection and one global HDR scale for the clip ---------------------------------------------------------
+    if render_settings.emitter_sampling == "auto":
+        if "emitter_sampling" not in state:
+            mode, scores = choose_emitter_sampling(scene.frame(0, W, H), W, H, render_settings)
+            state["emitter_sampling"], state["emitter_sampling_noise"] = mode, scores
+            mio.write_json(state_path, state)
+        render_settings = dataclasses.replace(render_settings, emitter_sampling=state["emitter_sampling"])
     if "hdr_scale" not in state:
-        probe_settings = dataclasses.replace(RenderSettings.resolve(pr.render), spp=pr.scale_probe_spp, seed=seed)
+        probe_settings = dataclasses.replace(render_settings, spp=pr.scale_probe_spp, seed=seed)
         probe = Renderer(scene.frame(0, W, H), W, H, probe_settings)
         sample = []
         for g in _probe_frames(G):
@@ -162,11 +176,14 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
     )
     writer = ClipWriter(out, meta)
     if "gt_notes" not in state:
-        notes = render_clip_gt(sscene, W, H, frames, pr.render, writer, progress=progress)
+        notes = render_clip_gt(sscene, W, H, frames, render_settings, writer, progress=progress)
         state["gt_notes"] = notes
         mio.write_json(state_path, state)
     meta.gt.update(state["gt_notes"])
     meta.gt["hdr_scale_report"] = state.get("hdr_scale_report")
+    if "emitter_sampling_noise" in state:
+        meta.gt["emitter_sampling_probe"] = {"chosen": state["emitter_sampling"], "spp": EMITTER_PROBE_SPP,
+                                             "noise_tae_two_seeds": state["emitter_sampling_noise"]}
 
     # 3. exposures: input LDR and test LDR at every level ---------------------------------------------------------------
     hdr_train = {}
@@ -188,7 +205,7 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
     depth_gt = np.stack([mio.read_exr(out / "gt/depth" / frame_name(g, "exr")) for g in train])
     pairs = flow_pairs(train, train_dt, len(settings.observed))
     need = sorted({g for p in pairs for g in p})
-    caster = Renderer(sscene.frame(0, W, H), W, H, pr.render)
+    caster = Renderer(sscene.frame(0, W, H), W, H, render_settings)
     casts, states = {}, {}
     emit, gloss = np.zeros(depth_gt.shape, bool), np.zeros(depth_gt.shape, bool)
     for i, g in enumerate(train):
@@ -245,7 +262,8 @@ def _dynamic_range_stops(hdr_frames: Dict[int, np.ndarray]) -> float:
 
 def make_suite(suite, out_root, preset: str = "small", scenes: Optional[Sequence[str]] = None, priors: str = "realistic",
                schedule: Optional[str] = None, num_exposures: Optional[int] = None, observed=None, novel=None,
-               seed: int = 0, jobs: int = 1, force: bool = False, progress: bool = True) -> List[Path]:
+               seed: int = 0, jobs: int = 1, force: bool = False, progress: bool = True,
+               spp: Optional[int] = None) -> List[Path]:
     """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in parallel processes."""
     from .exposure import exposure_preset
     from .suite import load_suite
@@ -265,9 +283,11 @@ def make_suite(suite, out_root, preset: str = "small", scenes: Optional[Sequence
     root = Path(out_root) / s.name
     jobs_list = [(p, root / p.stem) for p in paths]
     if jobs <= 1:
-        return [make_clip(p, o, preset, settings, priors, seed, force=force, progress=progress) for p, o in jobs_list]
+        return [make_clip(p, o, preset, settings, priors, seed, force=force, progress=progress, spp=spp)
+                for p, o in jobs_list]
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(max_workers=jobs) as ex:
-        futs = [ex.submit(make_clip, p, o, preset, settings, priors, seed, "hdrnerf", force, False) for p, o in jobs_list]
+        futs = [ex.submit(make_clip, p, o, preset, settings, priors, seed, "hdrnerf", force, False, spp=spp)
+                for p, o in jobs_list]
         return [f.result() for f in futs]

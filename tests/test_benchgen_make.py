@@ -71,3 +71,19 @@ def test_other_seed_changes_priors(tiny_clip_realistic, tmp_path):
     a = np.load(tiny_clip_realistic / "priors/tracks.npz")["tracks"]
     b = np.load(other / "priors/tracks.npz")["tracks"]
     assert a.shape != b.shape or not np.array_equal(a, b)
+
+
+def test_spp_override_is_recorded_and_guards_resume(tmp_path):
+    scene = builtin_scenes_dir() / "tiny-lamp-box.yaml"
+    out = make_clip(scene, tmp_path / "c", preset="tiny", priors="oracle", seed=0, progress=False, max_frames=5, spp=16)
+    m = Clip.open(out).meta
+    assert m.generator["spp"] == 16 and m.gt["render"]["spp"] == 16
+    # the light selection chosen by the probe is the one the frames were rendered with, and it was the least noisy
+    probe = m.gt["emitter_sampling_probe"]
+    assert probe["chosen"] == m.gt["render"]["emitter_sampling"]
+    assert probe["noise_tae_two_seeds"][probe["chosen"]] == min(probe["noise_tae_two_seeds"].values())
+    # a finished clip made with other render settings is never silently mixed or overwritten
+    with pytest.raises(FileExistsError, match="other settings"):
+        make_clip(scene, out, preset="tiny", priors="oracle", seed=0, progress=False, max_frames=5, spp=64)
+    with pytest.raises(ValueError, match="spp"):
+        make_clip(scene, tmp_path / "bad", preset="tiny", priors="oracle", seed=0, progress=False, spp=0)
