@@ -90,8 +90,9 @@ class RenderSettings:
 # ("ldsampler") halved the noise of "multijitter" at 64 spp on a small-lamp scene (216x120).
 RENDER_PRESETS: Dict[str, RenderSettings] = {
     "tiny": RenderSettings(spp=64, max_depth=2, sampler="ldsampler", emitter_sampling="auto"),
-    # 64 spp with power-weighted light selection is as noisy as ~150 spp with uniform selection and 4x cheaper than
-    # 256 (docs/rendering.md); ldsampler rounds spp to a power of 4, so the next step up would be 256.
+    # 64 spp meets the 15-minute target for the small suite on 2 cores (256 took ~37 min); the per-clip light
+    # selection lowers its noise by up to 2x (docs/rendering.md). ldsampler rounds spp to a power of 4: the next
+    # step up is 256 (`benchgen make --spp 256`).
     "small": RenderSettings(spp=64, max_depth=2, sampler="ldsampler", emitter_sampling="auto"),
     "paper": RenderSettings(spp=1024, max_depth=2, sampler="ldsampler", emitter_sampling="auto"),
 }
