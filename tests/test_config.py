@@ -43,6 +43,10 @@ def test_presets_are_smaller_and_consistent():
             assert 0 < d.start_iter < d.stop_iter and d.every >= 1
         assert cfg.stage1.densify.stop_iter < cfg.stage1.iterations
         assert cfg.stage2.densify_dynamic.stop_iter < cfg.stage2.iterations
+    # the paper preset is the paper's appendix; small uses the authors' synthetic TLR weight and reprojection window
+    assert preset("paper").stage2.lambda_tlr == 0.1 and preset("paper").stage2.pr_steps is None
+    assert small.stage1.lambda_tlr == small.stage2.lambda_tlr == 0.01
+    assert 0 < small.stage2.pr_steps < small.stage2.iterations
     with pytest.raises(ValueError, match="unknown preset"):
         preset("huge")
 
@@ -55,7 +59,8 @@ def test_yaml_round_trip(name, tmp_path):
     config.save_yaml(cfg, path)
     text = path.read_text()
     data = yaml.safe_load(text)
-    assert data["stage1"]["lambda_tlr"] == 0.1 and data["stage2"]["pr_offsets"] == [1, 2, 3]
+    assert data["stage1"]["lambda_tlr"] == cfg.stage1.lambda_tlr and data["stage2"]["pr_offsets"] == [1, 2, 3]
+    assert data["stage2"]["pr_steps"] == cfg.stage2.pr_steps
     back = config.load_yaml(path)
     assert back == cfg
     assert isinstance(back.stage2.pr_offsets, tuple)
