@@ -29,6 +29,7 @@ from torch import nn
 from m4dgs import rotation as rot
 from m4dgs import spline
 from m4dgs.densify import GaussianLayout
+from m4dgs.losses.motion import knn as _knn
 
 Tensor = torch.Tensor
 TimeLike = Union[Tensor, float, int]
@@ -376,8 +377,6 @@ def knn(points: Tensor, k: int, backend: str = "auto") -> Tuple[Tensor, Tensor]:
     Returns:
         (squared distances [N, k] ascending, indices [N, k] long), on the device of `points`.
     """
-    from m4dgs.losses.motion import knn as _knn
-
     n = points.shape[0]
     k_eff = max(min(k, n - 1), 0)
     if k_eff == 0:

@@ -125,16 +125,16 @@ class Trainer:
 
         return on_step
 
-    def _checkpoint_stage(self) -> Optional[str]:
+    def _checkpoint(self, stage: str) -> Optional[Dict[str, Any]]:
+        """The mid-stage checkpoint (model/ckpt.pt) if it belongs to `stage`, else None."""
         p = self.run.ckpt_path
-        return load_torch(p, map_location="cpu").get("stage") if p.exists() else None
+        ck = load_torch(p, map_location=self.device) if p.exists() else None
+        return ck if ck is not None and ck.get("stage") == stage else None
 
-    def _resume(self, stage: str, stage_obj) -> int:
-        p = self.run.ckpt_path
-        if not p.exists():
-            return 0
-        ck = load_torch(p, map_location=self.device)
-        if ck.get("stage") != stage:
+    def _resume(self, stage: str, stage_obj, ck: Optional[Dict[str, Any]] = None) -> int:
+        """Load `ck` (or the checkpoint on disk) into stage_obj; returns the step to continue from (0 = none)."""
+        ck = self._checkpoint(stage) if ck is None else ck
+        if ck is None:
             return 0
         stage_obj.load_state_dict(ck["state"])
         self.run.truncate_log(stage, ck["step"] - 1)
@@ -180,9 +180,9 @@ class Trainer:
         from .stage1 import VideoStage, train_stage1
 
         t0 = [time.perf_counter()]
-        resuming = self._checkpoint_stage() == "stage1"  # skip the lift + tone-mapper pre-training when resuming
-        stage = VideoStage(self.data, self.cfg, self.device, self.cfg.raster_backend, init=not resuming)
-        start = self._resume("stage1", stage)
+        ck = self._checkpoint("stage1")  # resuming: skip the lift + tone-mapper pre-training
+        stage = VideoStage(self.data, self.cfg, self.device, self.cfg.raster_backend, init=ck is None)
+        start = self._resume("stage1", stage, ck)
         train_stage1(stage, start, self._log_fn("stage1", stage, t0), self.progress)
         save_torch(self.run.path("model", "stage1.pt"), {**stage.state_dict(), "frames": self.data.frames})
         out = stage.render_training_video()

@@ -23,6 +23,8 @@ from typing import Optional
 import torch
 from torch import Tensor
 
+from m4dgs.camera import quat_to_rotmat as _camera_quat_to_rotmat
+
 ALPHA_THRESHOLD = 1.0 / 255.0  # contributions below this are skipped (gsplat's ALPHA_THRESHOLD)
 EPS2D = 0.3  # 2D covariance dilation in pixels^2 (gsplat default)
 NEAR_PLANE = 0.01
@@ -52,9 +54,7 @@ class Projection:
 
 def quat_to_rotmat(quats: Tensor) -> Tensor:
     """Rotation matrices [N, 3, 3] from quaternions [N, 4] (w, x, y, z), normalised (m4dgs.camera's convention)."""
-    from m4dgs.camera import quat_to_rotmat as _q2r
-
-    return _q2r(quats)
+    return _camera_quat_to_rotmat(quats)
 
 
 def covariance_3d(quats: Tensor, scales: Tensor) -> Tensor:
