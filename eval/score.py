@@ -18,6 +18,9 @@ no model, no file):
 - track_epe / track_epe_median / track_delta_avg: model.track_2d from the first frame vs gt tracks (<= 256 gt
   tracks visible at the first frame, seeded sample).
 - dyn_ldr_psnr (observed levels) / dyn_hdr_psnr (mu-law): PSNR over the gt dynamic-mask pixels of the test frames.
+- mask_precision / mask_recall / mask_iou: the run's epipolar dynamic masks (model/camera_init.pt "masks", one per
+  training frame) against the gt dynamic masks, pooled over all training-frame pixels. Low recall means moving
+  objects that the video-to-world transform will treat as static (e.g. motion along the epipolar lines).
 - crf_rmse and crf_curve: the learned tone curve (model.tonemap_curve) vs the clip's true CRF.
 - train_seconds / train_minutes, num_gaussians, peak_memory_mib (run.json); fps at the clip resolution and
   fps_864x480 (model.render timed with eval.metrics.measure_fps).
@@ -58,6 +61,8 @@ SCORE_CONVENTIONS = {
                          "the dynamic Gaussians' motion (model.track_2d)",
     "cameras_all_frames": "Cameras: Sim(3) alignment over every frame present in both trajectories",
     "hdr_tae_train": "HDR-TAE on the rendered training frames",
+    "dyn_masks": "Dynamic masks: the run's epipolar masks vs GT dynamic masks on the training frames, pixel counts "
+                 "pooled over frames (precision, recall, IoU)",
 }
 
 
@@ -254,6 +259,30 @@ def _cameras(run_dir: Path, clip: Clip, name: str) -> Dict[str, Optional[float]]
     return {"ate": ate(ce, cg), "rpe_trans": r["rpe_trans"], "rpe_rot": r["rpe_rot"]}
 
 
+def _mask_metrics(run_dir: Path, clip: Clip) -> Optional[Dict[str, Optional[float]]]:
+    """Precision / recall / IoU of the run's dynamic masks (model/camera_init.pt "masks" [T, H, W], training-frame
+    order) against the gt dynamic masks, pooled over all pixels of all training frames; None without either."""
+    p = run_dir / "model" / "camera_init.pt"
+    if not p.exists() or not clip.has_gt or not (clip.root / "gt/masks/dynamic").is_dir():
+        return None
+    from m4dgs.run import load_torch
+
+    est = load_torch(p, map_location="cpu").get("masks")
+    if est is None:
+        return None
+    est = np.asarray(_to_numpy(est) > 0.5)
+    train = clip.train_frames
+    if est.shape[0] != len(train):
+        raise ValueError(f"{p}: 'masks' has {est.shape[0]} frames, the clip has {len(train)} training frames")
+    gt = np.stack([np.asarray(clip.load_gt_dynamic_mask(g)).astype(bool) for g in train])
+    if gt.shape != est.shape:
+        raise ValueError(f"{p}: 'masks' is {est.shape[1:]}, the clip's gt masks are {gt.shape[1:]}")
+    tp = float(np.logical_and(est, gt).sum())
+    n_est, n_gt, union = float(est.sum()), float(gt.sum()), float(np.logical_or(est, gt).sum())
+    return {"mask_precision": tp / n_est if n_est else None, "mask_recall": tp / n_gt if n_gt else None,
+            "mask_iou": tp / union if union else None}
+
+
 def _to_numpy(x) -> np.ndarray:
     if hasattr(x, "detach"):
         x = x.detach().cpu().numpy()
@@ -349,7 +378,8 @@ METRIC_KEYS = [
     "hdr_psnr", "hdr_ssim", "hdr_lpips", "hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_train_psnr",
     "hdr_train_ssim", "hdr_tae", "hdr_tae_train_test", "hdr_t_std",
     "ate", "rpe_trans", "rpe_rot", "ate_ba", "rpe_trans_ba", "rpe_rot_ba", "depth_absrel",
-    "track_epe", "track_epe_median", "track_delta_avg", "dyn_ldr_psnr", "dyn_hdr_psnr", "crf_rmse",
+    "track_epe", "track_epe_median", "track_delta_avg", "dyn_ldr_psnr", "dyn_hdr_psnr",
+    "mask_precision", "mask_recall", "mask_iou", "crf_rmse",
     "train_seconds", "train_minutes", "fps", "fps_864x480", "num_gaussians", "peak_memory_mib",
 ]
 
@@ -467,6 +497,10 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
     m.update(ate_ba=cba["ate"], rpe_trans_ba=cba["rpe_trans"], rpe_rot_ba=cba["rpe_rot"])
     if m["ate"] is not None or m["ate_ba"] is not None:
         conv_keys += ["ate", "rpe", "cameras_all_frames"]
+    mk = _mask_metrics(run_dir, clip_obj)
+    if mk is not None:
+        m.update(mk)
+        conv_keys.append("dyn_masks")
 
     # depth and dynamic regions --------------------------------------------------------------------------------
     if has_gt and test:

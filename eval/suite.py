@@ -135,6 +135,9 @@ def metric_columns() -> Dict[str, "Column"]:  # noqa: F821
         Column("rpe_rot", "RPE-r (deg)", False, ".3f", "Cameras", "rpe"),
         Column("ate_ba", "ATE (BA)", False, ".4f", "Cameras", "ate"),
         Column("depth_absrel", "Depth AbsRel", False, ".4f", None, "depth_absrel_clip"),
+        Column("mask_precision", "precision", True, ".3f", "Dynamic masks", "dyn_masks"),
+        Column("mask_recall", "recall", True, ".3f", "Dynamic masks", "dyn_masks"),
+        Column("mask_iou", "IoU", True, ".3f", "Dynamic masks", "dyn_masks"),
         Column("track_epe", "EPE (px)", False, ".2f", "Tracks", "track"),
         Column("track_epe_median", "median EPE (px)", False, ".2f", "Tracks", "track"),
         Column("track_delta_avg", "<delta avg", True, ".3f", "Tracks", "track"),
@@ -160,7 +163,7 @@ LAYOUTS: Dict[str, List[str]] = {
     "train": ["ldr_train_psnr", "ldr_train_ssim", "ldr_train_lpips", "hdr_train_psnr", "hdr_train_ssim", "hdr_tae"],
     # beyond the paper
     "geometry": ["ate", "rpe_trans", "rpe_rot", "ate_ba", "depth_absrel", "track_epe", "track_epe_median",
-                 "track_delta_avg"],
+                 "track_delta_avg", "mask_recall", "mask_iou"],
     "hdr-extra": ["hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_t_std", "dyn_ldr_psnr", "dyn_hdr_psnr", "crf_rmse"],
     "cost": ["train_minutes", "fps", "fps_864x480", "num_gaussians", "peak_memory_mib"],
 }

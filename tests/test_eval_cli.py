@@ -240,6 +240,29 @@ def test_score_run_values(tmp_path, fake_trainer):
     assert m["dyn_hdr_psnr"] is not None and m["dyn_ldr_psnr"] is not None
 
 
+def test_score_dynamic_mask_metrics(tmp_path, fake_trainer):
+    """Epipolar masks vs gt: the fake gt mask of frame g is rows 10:20, columns 10+g:25+g; the run's mask is the same
+    box shifted 3 columns right, so precision = recall = 12/15 and IoU = 12/18 (analytic)."""
+    from eval.score import score_run
+
+    clip = make_fake_clip(tmp_path / "clip")
+    run = tmp_path / "run"
+    make_fake_run(run, clip)
+    m = score_run(run, fps=False, model=False)
+    assert m["mask_iou"] is None and "dyn_masks" not in m["conventions"]  # no camera_init.pt
+    masks = torch.zeros(len(clip.train_frames), H, W, dtype=torch.bool)
+    for i, g in enumerate(clip.train_frames):
+        masks[i, 10:20, 13 + g:28 + g] = True
+    (run / "model").mkdir()
+    torch.save({"masks": masks}, run / "model" / "camera_init.pt")
+    m = score_run(run, fps=False, model=False)
+    assert m["mask_precision"] == pytest.approx(0.8) and m["mask_recall"] == pytest.approx(0.8)
+    assert m["mask_iou"] == pytest.approx(2 / 3) and "dyn_masks" in m["conventions"]
+    torch.save({"masks": masks[1:]}, run / "model" / "camera_init.pt")
+    with pytest.raises(ValueError, match="camera_init.pt: 'masks' has"):
+        score_run(run, fps=False, model=False)
+
+
 def test_score_renders_missing_and_identical(tmp_path, fake_trainer):
     from eval.score import PSNR_CAP_DB, score_run
 
