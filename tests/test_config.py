@@ -46,6 +46,7 @@ def test_presets_are_smaller_and_consistent():
     # the paper preset is the paper's appendix; small uses the authors' synthetic TLR weight and reprojection window
     assert preset("paper").stage2.lambda_tlr == 0.1 and preset("paper").stage2.pr_steps is None
     assert small.stage1.lambda_tlr == small.stage2.lambda_tlr == 0.01
+    assert small.stage1.lambda_dep == 0.01 and preset("paper").stage1.lambda_dep == 1.0
     assert 0 < small.stage2.pr_steps < small.stage2.iterations
     with pytest.raises(ValueError, match="unknown preset"):
         preset("huge")
