@@ -270,11 +270,11 @@ def _mask_metrics(run_dir: Path, clip: Clip) -> Optional[Dict[str, Optional[floa
     est = load_torch(p, map_location="cpu").get("masks")
     if est is None:
         return None
-    est = np.asarray(_to_numpy(est) > 0.5)
+    est = _to_numpy(est) > 0.5
     train = clip.train_frames
     if est.shape[0] != len(train):
         raise ValueError(f"{p}: 'masks' has {est.shape[0]} frames, the clip has {len(train)} training frames")
-    gt = np.stack([np.asarray(clip.load_gt_dynamic_mask(g)).astype(bool) for g in train])
+    gt = np.stack([clip.load_gt_dynamic_mask(g) for g in train])
     if gt.shape != est.shape:
         raise ValueError(f"{p}: 'masks' is {est.shape[1:]}, the clip's gt masks are {gt.shape[1:]}")
     tp = float(np.logical_and(est, gt).sum())
