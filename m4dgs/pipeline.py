@@ -152,16 +152,52 @@ class Trainer:
         else:
             ldr = [self.clip.load_ldr(g) for g in d.frames]
             fs = opencv_flow_prior(ldr, self.clip.train_dt.tolist(), d.frames)
+        cfg.masks.validate()
         emaps = epipolar_error_maps(fs, d.frames, cfg.epipolar)
-        masks = dynamic_masks(emaps, cfg.epipolar.threshold)
+        masks_epi = dynamic_masks(emaps, cfg.epipolar.threshold)
         ts = TrackSet(d.tracks.cpu().numpy(), d.track_vis.cpu().numpy(), np.asarray(d.frames))
-        res = initialize_cameras(ts, d.depth.cpu(), masks, d.width, d.height, cfg.camera_init)
+        depth = d.depth.cpu()
+        res = initialize_cameras(ts, depth, masks_epi, d.width, d.height, cfg.camera_init)
+        masks, mask_diag = masks_epi, {"method": "epipolar", "fraction_epipolar": float(masks_epi.float().mean())}
+        if cfg.masks.method != "epipolar" and "warning" not in res.diagnostics:
+            masks, mask_diag, res = self._rigidity_masks(fs, depth, masks_epi, res, ts)
         save_torch(self.run.path("model", "camera_init.pt"), {
             "K": res.K.float(), "c2w": res.c2w.float(), "depth_scale": res.depth_scale.float(), "masks": masks.bool(),
-            "diagnostics": {k: v for k, v in res.diagnostics.items() if isinstance(v, (int, float, str, list, dict))},
+            "masks_epipolar": masks_epi.bool(),
+            "diagnostics": {**{k: v for k, v in res.diagnostics.items() if isinstance(v, (int, float, str, list, dict))},
+                            "masks": mask_diag},
         })
         self._write_cameras("cameras_ba.json", res.K.float(), res.c2w.float())
         self._finish("camera_init", time.perf_counter() - t0)
+
+    def _rigidity_masks(self, fs, depth, masks_epi, res, ts):
+        """(masks [T, H, W], diagnostics, camera result) for cfg.masks.method ("reprojection" | "union") from the BA
+        result `res`; with refine_cameras the BA is re-run once on these masks and the masks recomputed with its
+        cameras (that BA result is returned when it succeeds, else `res`)."""
+        from .camera_init import initialize_cameras
+        from .rigidity import rigidity_masks
+
+        d, mc = self.data, self.cfg.masks
+        index = {g: i for i, g in enumerate(d.frames)}
+        keep = [p for p, (a, b) in enumerate(fs.pairs.tolist()) if a in index and b in index]
+        pairs = [(index[a], index[b]) for a, b in fs.pairs[keep].tolist()]
+        flow, valid = torch.from_numpy(fs.flow[keep]), torch.from_numpy(fs.valid[keep])
+
+        def make(r):
+            m = rigidity_masks(depth, r.depth_scale, r.K, r.c2w, flow, valid, pairs, mc)
+            return m | masks_epi if mc.method == "union" else m
+
+        masks = make(res)
+        diag = {"method": mc.method, "fraction_epipolar": float(masks_epi.float().mean()),
+                "fraction_first_pass": float(masks.float().mean())}
+        if mc.refine_cameras:
+            r2 = initialize_cameras(ts, depth, masks, d.width, d.height, self.cfg.camera_init)
+            if "warning" not in r2.diagnostics:
+                r2.diagnostics["first_pass"] = {k: res.diagnostics[k] for k in ("num_static", "fov_final_deg")}
+                res = r2
+                masks = make(res)
+        diag["fraction"] = float(masks.float().mean())
+        return masks, diag, res
 
     def _camera_init_result(self):
         return load_torch(self.run.path("model", "camera_init.pt"), map_location=self.device)

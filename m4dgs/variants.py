@@ -23,6 +23,8 @@ VARIANTS: Dict[str, Dict[str, Any]] = {
     "ns-16": {"model.control_every": 16},
     "no-depth-loss": {"ablation.depth_loss": False},
     "no-track-loss": {"ablation.track_loss": False},
+    # dynamic masks from the paper's epipolar test alone (the tiny/small presets OR in the rigidity test, m4dgs.rigidity)
+    "epipolar-masks": {"masks.method": "epipolar"},
     # adapted baselines (paper sec. 4.2)
     "static-hdr": {"method": "static-hdr", "ablation.use_video_init": False, "ablation.reproj_loss": False,
                    "ablation.tlr": False, "ablation.track_loss": False, "stage2.optimize_cameras": False},
@@ -41,6 +43,7 @@ DESCRIPTIONS: Dict[str, str] = {
     "no-tlr": "ablation (e): no temporal luminance regularisation",
     "no-depth-loss": "prior ablation: no depth loss",
     "no-track-loss": "prior ablation: no flow/track loss",
+    "epipolar-masks": "dynamic masks from the epipolar test alone (sec. 3.3.2 as written), no rigidity test",
     "static-hdr": "baseline (GaussHDR-style): static HDR Gaussians with the bundle-adjustment cameras (fixed)",
     "world-only": "baseline (MoSca-HDR-style): dynamic world Gaussians from lifted priors, camera refinement by RGB/flow only",
     "ldr-reproj": "baseline (SplineGS-HDR-style): world-only plus an LDR photometric reprojection loss on the cameras",

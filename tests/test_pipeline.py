@@ -82,6 +82,10 @@ def test_pipeline_runs_resumes_and_renders(tiny_clip_realistic, tmp_path, monkey
     assert info["train_seconds"] > 0 and info["num_gaussians"] > 0
     cams = json.loads((run / "cameras.json").read_text())
     assert len(cams["c2w"]) == clip.meta.num_frames
+    # tiny preset: union of the epipolar and rigidity masks, cameras re-adjusted once on them (m4dgs.rigidity)
+    ci = torch.load(run / "model" / "camera_init.pt", weights_only=False)
+    assert ci["diagnostics"]["masks"]["method"] == "union" and "first_pass" in ci["diagnostics"]
+    assert ci["masks"].shape == ci["masks_epipolar"].shape and bool((ci["masks"] | ~ci["masks_epipolar"]).all())
     # a finished run is not retrained
     assert train(tiny_clip_realistic, run, preset="tiny", overrides=over, progress=False) == run
 
