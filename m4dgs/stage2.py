@@ -275,6 +275,9 @@ class WorldStage:
         if (not self.static_only and s2.dynamic_removal_every > 0 and it > 0 and it % s2.dynamic_removal_every == 0
                 and it <= s2.densify_dynamic.stop_iter and self.dynamic_masks is not None):
             counts["dynamic_removed"] = self.remove_misplaced_dynamic()
+        if (not self.static_only and s2.near_camera_fraction > 0 and it > 0
+                and ((s2.dynamic_removal_every > 0 and it % s2.dynamic_removal_every == 0) or it == s2.iterations - 1)):
+            counts["dynamic_near_removed"] = self.remove_near_camera_dynamic()
         if counts:
             self._knn_cache = None
         rec = {k: float(v.detach()) for k, v in L.items()}
@@ -307,6 +310,25 @@ class WorldStage:
             return 0
         return self.strat_dynamic.remove(g.dynamic, self.opt_dynamic, self.state_dynamic, remove)
 
+    @torch.no_grad()
+    def remove_near_camera_dynamic(self) -> int:
+        """Remove the dynamic Gaussians that come in view closer than stage2.near_camera_fraction x the scene extent
+        (median world depth) to the camera at a training time or between two (cameras interpolated as for the test
+        frames). Returns the number removed (never the whole dynamic set)."""
+        s2, g = self.cfg.stage2, self.gauss
+        if g.num_dynamic == 0:
+            return 0
+        T = self.data.num_frames
+        ts = np.arange(0, (T - 1) * s2.near_camera_samples + 1) / max(s2.near_camera_samples, 1)
+        c2w = self.cameras().detach()
+        poses = cam.interpolate_trajectory(np.arange(T, dtype=np.float64), c2w.cpu().double().numpy(), ts)
+        pos = spline.evaluate(g.dynamic["ctrl"], g.knots, torch.as_tensor(ts, dtype=g.knots.dtype, device=self.device))
+        near = near_camera_gaussians(pos, torch.as_tensor(poses, dtype=pos.dtype, device=self.device), self.rig.K,
+                                     self.W, self.H, s2.near_camera_fraction * self.extent)
+        if bool(near.all()) or not bool(near.any()):
+            return 0
+        return self.strat_dynamic.remove(g.dynamic, self.opt_dynamic, self.state_dynamic, near)
+
     # -- checkpoints -----------------------------------------------------------------------------------------------------
     def state_dict(self) -> Dict[str, Any]:
         return {
@@ -331,6 +353,27 @@ class WorldStage:
                 o.load_state_dict(sd[name][k])
         self.state_static, self.state_dynamic = sd["state_static"], sd["state_dynamic"]
         self.rng.bit_generator.state = sd["rng"]
+
+
+def near_camera_gaussians(positions: torch.Tensor, c2w: torch.Tensor, K: torch.Tensor, width: int, height: int,
+                          z_min: float, margin: float = 0.5) -> torch.Tensor:
+    """[N] bool: Gaussians that, at some sample s, are in front of camera s at depth z < z_min and project inside
+    the image enlarged by `margin` x its size on every side (a near Gaussian just outside the frame still splats in).
+
+    Args:
+        positions: [N, S, 3] world means at S sample times; c2w: [S, 4, 4] cameras at those times (OpenCV);
+        K: [3, 3] intrinsics; width, height: image size in pixels; z_min: camera-space depth (world units).
+    """
+    R = c2w[:, :3, :3].to(positions)
+    tvec = c2w[:, :3, 3].to(positions)
+    pc = torch.einsum("sji,nsj->nsi", R, positions - tvec[None])  # R^T (x - t)
+    z = pc[..., 2]
+    front = z > 1e-6
+    uvw = torch.einsum("ij,nsj->nsi", K.to(positions), pc)
+    uv = uvw[..., :2] / torch.where(front, z, torch.ones_like(z))[..., None]
+    mx, my = margin * width, margin * height
+    inside = (uv[..., 0] > -mx) & (uv[..., 0] < width + mx) & (uv[..., 1] > -my) & (uv[..., 1] < height + my)
+    return (front & inside & (z < z_min)).any(1)
 
 
 def train_stage2(stage: WorldStage, start: int = 0, on_step: Optional[Callable[[int, Dict[str, float]], None]] = None,
