@@ -303,8 +303,8 @@ def preset(name: str) -> TrainConfig:
         s1.lambda_dep = 0.01
     # dynamic masks (tiny and small): the paper's epipolar test OR'd with the rigidity test (m4dgs.rigidity). Epipolar
     # masks alone miss motion along the epipolar lines: IoU against the gt masks 0.07 (conveyor-occlusion-orbit),
-    # 0.13 (lamp-room-orbit), 0.61 (pendulum-lamp-handheld), 0.38 (robot-arm-dolly); the union: 0.56, 0.29, 0.79,
-    # 0.54 (small clips, realistic priors; docs/method.md)
+    # 0.13 (lamp-room-orbit), 0.61 (pendulum-lamp-handheld), 0.38 (robot-arm-dolly); the union with the second BA
+    # pass: 0.55, 0.61, 0.79, 0.62 (small clips, realistic priors; docs/cameras.md)
     cfg.masks.method = "union"
     s1.densify, s2.densify_static, s2.densify_dynamic = d1, d2s, d2d
     s2.dynamic_removal_every = removal

@@ -322,9 +322,13 @@ class WorldStage:
         ts = np.arange(0, (T - 1) * s2.near_camera_samples + 1) / max(s2.near_camera_samples, 1)
         c2w = self.cameras().detach()
         poses = cam.interpolate_trajectory(np.arange(T, dtype=np.float64), c2w.cpu().double().numpy(), ts)
-        pos = spline.evaluate(g.dynamic["ctrl"], g.knots, torch.as_tensor(ts, dtype=g.knots.dtype, device=self.device))
-        near = near_camera_gaussians(pos, torch.as_tensor(poses, dtype=pos.dtype, device=self.device), self.rig.K,
-                                     self.W, self.H, s2.near_camera_fraction * self.extent)
+        times = torch.as_tensor(ts, dtype=g.knots.dtype, device=self.device)
+        poses = torch.as_tensor(poses, dtype=g.knots.dtype, device=self.device)
+        ctrl = g.dynamic["ctrl"]
+        near = torch.cat([  # chunks of Gaussians: [chunk, S, 3] positions at a time
+            near_camera_gaussians(spline.evaluate(ctrl[i:i + 16384], g.knots, times), poses, self.rig.K, self.W,
+                                  self.H, s2.near_camera_fraction * self.extent)
+            for i in range(0, ctrl.shape[0], 16384)])
         if bool(near.all()) or not bool(near.any()):
             return 0
         return self.strat_dynamic.remove(g.dynamic, self.opt_dynamic, self.state_dynamic, near)
