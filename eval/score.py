@@ -19,8 +19,9 @@ no model, no file):
   tracks visible at the first frame, seeded sample).
 - dyn_ldr_psnr (observed levels) / dyn_hdr_psnr (mu-law): PSNR over the gt dynamic-mask pixels of the test frames.
 - mask_precision / mask_recall / mask_iou: the run's dynamic masks (model/camera_init.pt "masks", one per training
-  frame; epipolar, or their union with the rigidity masks of m4dgs.rigidity) against the gt dynamic masks, pooled over all training-frame pixels. Low recall means moving
-  objects that the video-to-world transform will treat as static (e.g. motion along the epipolar lines).
+  frame; epipolar, or their union with the rigidity masks of m4dgs.rigidity) against the gt dynamic masks, pooled
+  over all training-frame pixels. Low recall means moving objects that the video-to-world transform will treat as
+  static (e.g. motion along the epipolar lines).
 - crf_rmse and crf_curve: the learned tone curve (model.tonemap_curve) vs the clip's true CRF.
 - train_seconds / train_minutes, num_gaussians, peak_memory_mib (run.json); fps at the clip resolution and
   fps_864x480 (model.render timed with eval.metrics.measure_fps).
@@ -61,8 +62,8 @@ SCORE_CONVENTIONS = {
                          "the dynamic Gaussians' motion (model.track_2d)",
     "cameras_all_frames": "Cameras: Sim(3) alignment over every frame present in both trajectories",
     "hdr_tae_train": "HDR-TAE on the rendered training frames",
-    "dyn_masks": "Dynamic masks: the run's dynamic masks (config masks.method) vs GT dynamic masks on the training frames, pixel counts "
-                 "pooled over frames (precision, recall, IoU)",
+    "dyn_masks": "Dynamic masks: the run's dynamic masks (config masks.method) vs GT dynamic masks on the training "
+                 "frames, pixel counts pooled over frames (precision, recall, IoU)",
 }
 
 

@@ -249,7 +249,7 @@ class TrainConfig:
     ablation: AblationConfig = field(default_factory=AblationConfig)
     camera_init: CameraInitConfig = field(default_factory=CameraInitConfig)
     epipolar: EpipolarConfig = field(default_factory=EpipolarConfig)
-    # which dynamic-mask test (sec. 3.3.2 uses the epipolar one; m4dgs.rigidity adds a reprojection test)
+    # which dynamic-mask test (sec. 3.2 uses the epipolar one; m4dgs.rigidity adds a rigidity test)
     masks: DynamicMaskConfig = field(default_factory=DynamicMaskConfig)
 
     def to_dict(self) -> Dict[str, Any]:

@@ -164,8 +164,8 @@ class Trainer:
         save_torch(self.run.path("model", "camera_init.pt"), {
             "K": res.K.float(), "c2w": res.c2w.float(), "depth_scale": res.depth_scale.float(), "masks": masks.bool(),
             "masks_epipolar": masks_epi.bool(),
-            "diagnostics": {**{k: v for k, v in res.diagnostics.items() if isinstance(v, (int, float, str, list, dict))},
-                            "masks": mask_diag},
+            "diagnostics": {**{k: v for k, v in res.diagnostics.items()
+                               if isinstance(v, (int, float, str, list, dict))}, "masks": mask_diag},
         })
         self._write_cameras("cameras_ba.json", res.K.float(), res.c2w.float())
         self._finish("camera_init", time.perf_counter() - t0)

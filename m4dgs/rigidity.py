@@ -34,12 +34,12 @@ METHODS = ("epipolar", "reprojection", "union")
 class DynamicMaskConfig:
     """Which dynamic-mask test feeds camera initialisation, the V2W split and the stage-2 static masks.
 
-    method: "epipolar" (sec. 3.3.2 as written: epipolar error of the prior flow), "reprojection" (rigidity error with
+    method: "epipolar" (sec. 3.2 as written: epipolar error of the prior flow), "reprojection" (rigidity error with
     the bundle-adjusted cameras and depth prior, this module) or "union" of the two (the tiny and small presets; see
     the module docstring for why: the epipolar test misses motion along the epipolar lines).
     """
 
-    method: str = "epipolar"  # sec. 3.3.2 (paper preset)
+    method: str = "epipolar"  # sec. 3.2 "Prior Precompute" (paper preset)
     median_factor: float = 3.0  # dynamic: rigidity error > median_factor x the frame's median error
     min_threshold: float = 1e-3  # ... and > this fraction of the image diagonal (floor for noise-free input)
     combine: str = "mean"  # "mean" | "max" over a frame's flow pairs
@@ -89,8 +89,9 @@ def static_flow(depth_i: Tensor, K: Tensor, c2w_i: Tensor, c2w_j: Tensor) -> Tup
     return (uv - pix[..., :2]).float(), ok & front
 
 
-def reprojection_error_maps(depth: Tensor, depth_scale: Tensor, K: Tensor, c2w: Tensor, flow: Tensor, flow_valid: Tensor,
-                            pairs: Sequence[Tuple[int, int]], combine: str = "mean") -> Tuple[Tensor, Tensor]:
+def reprojection_error_maps(depth: Tensor, depth_scale: Tensor, K: Tensor, c2w: Tensor, flow: Tensor,
+                            flow_valid: Tensor, pairs: Sequence[Tuple[int, int]],
+                            combine: str = "mean") -> Tuple[Tensor, Tensor]:
     """Per-training-frame rigidity error maps.
 
     Args:
@@ -122,11 +123,11 @@ def reprojection_error_maps(depth: Tensor, depth_scale: Tensor, K: Tensor, c2w: 
         cnt[i] += v.float()
     if combine == "mean":
         err = err / cnt.clamp_min(1)
-    have = [bool(((torch.as_tensor(pairs)[:, 0] == t).any()) if len(pairs) else False) for t in range(T)]
-    src = [t for t in range(T) if have[t]]
+    sources = {int(i) for i, _ in pairs}
+    src = sorted(sources)
     if src:
         for t in range(T):
-            if not have[t]:
+            if t not in sources:
                 s = min(src, key=lambda k: (abs(k - t), k))
                 err[t], cnt[t] = err[s], cnt[s]
     return err, cnt > 0

@@ -43,7 +43,7 @@ DESCRIPTIONS: Dict[str, str] = {
     "no-tlr": "ablation (e): no temporal luminance regularisation",
     "no-depth-loss": "prior ablation: no depth loss",
     "no-track-loss": "prior ablation: no flow/track loss",
-    "epipolar-masks": "dynamic masks from the epipolar test alone (sec. 3.3.2 as written), no rigidity test",
+    "epipolar-masks": "dynamic masks from the epipolar test alone (sec. 3.2 as written), no rigidity test",
     "static-hdr": "baseline (GaussHDR-style): static HDR Gaussians with the bundle-adjustment cameras (fixed)",
     "world-only": "baseline (MoSca-HDR-style): dynamic world Gaussians from lifted priors, camera refinement by RGB/flow only",
     "ldr-reproj": "baseline (SplineGS-HDR-style): world-only plus an LDR photometric reprojection loss on the cameras",
