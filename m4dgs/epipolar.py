@@ -320,14 +320,25 @@ def epipolar_error_maps(flow_set: FlowSet, frames: Sequence[int], cfg: Optional[
             raise ValueError(f"EpipolarConfig.combine must be 'mean' or 'max', got {cfg.combine!r}")
         out[ti] = m
         have[ti] = True
-    if any(have):
-        src = [i for i in range(T) if have[i]]
-        for ti in range(T):
-            if not have[ti]:
-                s = min(src, key=lambda i: (abs(i - ti), i))
-                out[ti] = out[s]
-                info["filled_from"][frames[ti]] = frames[s]
+    filled = fill_from_nearest([out], {i for i in range(T) if have[i]})
+    info["filled_from"] = {frames[t]: frames[s] for t, s in filled.items()}
     return (out, info) if return_info else out
+
+
+def fill_from_nearest(maps: Sequence[torch.Tensor], sources) -> dict:
+    """In place: every frame t of the [T, ...] tensors in `maps` that is not in `sources` (frames with data) gets
+    the data of the nearest source frame (the earlier one on a tie). Returns {t: source}; nothing without sources."""
+    src = sorted(sources)
+    filled = {}
+    if not src:
+        return filled
+    for t in range(maps[0].shape[0]):
+        if t not in sources:
+            s = min(src, key=lambda i: (abs(i - t), i))
+            for m in maps:
+                m[t] = m[s]
+            filled[t] = s
+    return filled
 
 
 def dynamic_masks(error_maps, threshold: float) -> torch.Tensor:

@@ -27,6 +27,9 @@ from typing import Optional, Sequence, Tuple
 import torch
 from torch import Tensor
 
+from . import camera as cam
+from .epipolar import fill_from_nearest
+
 METHODS = ("epipolar", "reprojection", "union")
 
 
@@ -56,13 +59,6 @@ class DynamicMaskConfig:
             raise ValueError(f"masks.median_factor must be > 0, got {self.median_factor}")
 
 
-def _pixel_grid(height: int, width: int, dtype, device) -> Tensor:
-    """[H, W, 3] homogeneous pixel centres (x + 0.5, y + 0.5, 1)."""
-    ys, xs = torch.meshgrid(torch.arange(height, dtype=dtype, device=device) + 0.5,
-                            torch.arange(width, dtype=dtype, device=device) + 0.5, indexing="ij")
-    return torch.stack([xs, ys, torch.ones_like(xs)], -1)
-
-
 def static_flow(depth_i: Tensor, K: Tensor, c2w_i: Tensor, c2w_j: Tensor) -> Tuple[Tensor, Tensor]:
     """Flow F_{i->j} a static scene with depth `depth_i` would induce between two pinhole cameras.
 
@@ -71,22 +67,17 @@ def static_flow(depth_i: Tensor, K: Tensor, c2w_i: Tensor, c2w_j: Tensor) -> Tup
         K: [3, 3] intrinsics shared by both frames (pixel centres at +0.5).
         c2w_i, c2w_j: [4, 4] camera-to-world (OpenCV: x right, y down, z forward).
     Returns:
-        flow [H, W, 2] in pixels, valid [H, W] bool (depth valid and the point in front of camera j).
+        flow [H, W, 2] in pixels (undefined where not valid), valid [H, W] bool (depth valid and the point in front
+        of camera j).
     """
     H, W = depth_i.shape
     dt = torch.float64
-    pix = _pixel_grid(H, W, dt, depth_i.device)
+    pix = cam.pixel_centers(W, H, dtype=dt, device=depth_i.device)
     z = depth_i.to(dt)
     ok = torch.isfinite(z) & (z > 0)
-    z = torch.where(ok, z, torch.ones_like(z))
-    K = K.to(dt)
-    rel = torch.linalg.inv(c2w_j.to(dt)) @ c2w_i.to(dt)  # camera i -> camera j
-    xc = (pix @ torch.linalg.inv(K).T) * z[..., None]
-    xj = xc @ rel[:3, :3].T + rel[:3, 3]
-    front = xj[..., 2] > 1e-9
-    proj = xj @ K.T
-    uv = proj[..., :2] / torch.where(front, proj[..., 2], torch.ones_like(proj[..., 2]))[..., None]
-    return (uv - pix[..., :2]).float(), ok & front
+    rel = cam.invert_rigid(c2w_j.to(dt)) @ c2w_i.to(dt)  # camera i -> camera j
+    xj = cam.transform_points(rel, cam.unproject_pinhole(pix, torch.where(ok, z, torch.ones_like(z)), K.to(dt)))
+    return (cam.project_pinhole(xj, K.to(dt)) - pix).float(), ok & (xj[..., 2] > 1e-9)
 
 
 def reprojection_error_maps(depth: Tensor, depth_scale: Tensor, K: Tensor, c2w: Tensor, flow: Tensor,
@@ -123,13 +114,7 @@ def reprojection_error_maps(depth: Tensor, depth_scale: Tensor, K: Tensor, c2w: 
         cnt[i] += v.float()
     if combine == "mean":
         err = err / cnt.clamp_min(1)
-    sources = {int(i) for i, _ in pairs}
-    src = sorted(sources)
-    if src:
-        for t in range(T):
-            if t not in sources:
-                s = min(src, key=lambda k: (abs(k - t), k))
-                err[t], cnt[t] = err[s], cnt[s]
+    fill_from_nearest([err, cnt], {int(i) for i, _ in pairs})
     return err, cnt > 0
 
 

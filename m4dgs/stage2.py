@@ -368,13 +368,10 @@ def near_camera_gaussians(positions: torch.Tensor, c2w: torch.Tensor, K: torch.T
         positions: [N, S, 3] world means at S sample times; c2w: [S, 4, 4] cameras at those times (OpenCV);
         K: [3, 3] intrinsics; width, height: image size in pixels; z_min: camera-space depth (world units).
     """
-    R = c2w[:, :3, :3].to(positions)
-    tvec = c2w[:, :3, 3].to(positions)
-    pc = torch.einsum("sji,nsj->nsi", R, positions - tvec[None])  # R^T (x - t)
+    pc = cam.transform_points(cam.invert_rigid(c2w.to(positions)), positions)  # [N, S, 3], broadcast over S
     z = pc[..., 2]
     front = z > 1e-6
-    uvw = torch.einsum("ij,nsj->nsi", K.to(positions), pc)
-    uv = uvw[..., :2] / torch.where(front, z, torch.ones_like(z))[..., None]
+    uv = cam.project_pinhole(torch.where(front[..., None], pc, torch.ones_like(pc)), K.to(positions))
     mx, my = margin * width, margin * height
     inside = (uv[..., 0] > -mx) & (uv[..., 0] < width + mx) & (uv[..., 1] > -my) & (uv[..., 1] < height + my)
     return (front & inside & (z < z_min)).any(1)
