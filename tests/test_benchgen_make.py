@@ -87,3 +87,38 @@ def test_spp_override_is_recorded_and_guards_resume(tmp_path):
         make_clip(scene, out, preset="tiny", priors="oracle", seed=0, progress=False, max_frames=5, spp=64)
     with pytest.raises(ValueError, match="spp"):
         make_clip(scene, tmp_path / "bad", preset="tiny", priors="oracle", seed=0, progress=False, spp=0)
+
+
+def test_track_density_follows_the_preset(tmp_path, monkeypatch):
+    """The ground-truth query grid is the preset's: the grid step is sqrt(pixels / cells), the number of tracks grows
+    with the lattice, and the oracle prior keeps every one of them."""
+    import dataclasses
+
+    import benchgen.make as bm
+
+    scene = builtin_scenes_dir() / "tiny-lamp-box.yaml"
+    counts, steps = {}, {}
+    for grid in (64, 256):
+        monkeypatch.setitem(bm.PRESETS, "tiny", dataclasses.replace(bm.PRESETS["tiny"], track_grid=grid, track_dynamic=0))
+        out = make_clip(scene, tmp_path / f"g{grid}", preset="tiny", priors="oracle", seed=0, progress=False,
+                        max_frames=3, spp=4)
+        clip = Clip.open(out)
+        notes = clip.meta.gt["tracks"]
+        assert notes["num_grid"] == grid and notes["num_dynamic"] == 0
+        gt = np.load(out / "gt/tracks.npz")
+        counts[grid] = notes["num"]
+        assert gt["tracks"].shape[0] == counts[grid]
+        # the queries of the first reference frame (frame 0) sit on pixel centres, on a grid of the expected step
+        first = gt["tracks"][:, 0][gt["visible"][:, 0]].astype(np.float64)
+        on_centre = (np.abs((first - 0.5) - np.round(first - 0.5)) < 1e-3).all(axis=1)
+        xs = np.unique(np.round(first[on_centre, 0], 3))
+        steps[grid] = float(np.median(np.diff(xs)))
+        assert np.load(out / "priors/tracks.npz")["tracks"].shape[0] == counts[grid]  # oracle keeps all
+    W, H = bm.PRESETS["tiny"].width, bm.PRESETS["tiny"].height
+    lattice = {}
+    for grid in (64, 256):
+        step = round(np.sqrt(W * H / grid))
+        assert steps[grid] == step
+        lattice[grid] = len(range(step // 2, W, step)) * len(range(step // 2, H, step))
+    # more tracks in proportion to the lattice points (not every grid pixel sees a surface)
+    assert counts[256] / counts[64] == pytest.approx(lattice[256] / lattice[64], rel=0.2)
