@@ -176,6 +176,11 @@ class Stage2Config:
     tlr_occlusion_ratio: float = 1.1
     pr_offsets: Tuple[int, ...] = (1, 2)  # t' in {t +- 1, t +- 2} (appendix "HDR Photometric Reprojection Loss")
     pr_steps: Optional[int] = None  # paper: whole stage; authors' code: first 3,000 steps only
+    # HDR image at the query time t of L_pr: "stage1" = the stage-1 HDR frame (detached, like the one at t'), so the
+    # loss moves only cameras and rendered depth (appendix: "we use the recovered HDR training frames in the first
+    # stage for the computation of L_pr"; the authors' code detaches both); "render" = the stage-2 render at t, which
+    # also pulls the stage-2 colours towards the (less accurate) stage-1 frames
+    pr_query: str = "stage1"
     optimize_cameras: bool = True
 
     def tlr_start_step(self) -> int:

@@ -93,6 +93,8 @@ class WorldStage:
                  dynamic_masks: Optional[torch.Tensor], stage1_hdr: Optional[torch.Tensor], log2_dt: torch.Tensor,
                  device="cpu", backend: str = "auto", ldr_reproj: bool = False, static_only: bool = False):
         self.data, self.cfg, self.device, self.backend = data, cfg, torch.device(device), backend
+        if cfg.stage2.pr_query not in ("stage1", "render"):
+            raise ValueError(f"stage2.pr_query must be 'stage1' or 'render', got {cfg.stage2.pr_query!r}")
         self.W, self.H = data.width, data.height
         self.c0 = float(cfg.exposure.unit_exposure_value or data.unit_exposure_value)
         self.log2_dt = log2_dt.to(self.device)
@@ -224,7 +226,8 @@ class WorldStage:
             elif cfg.ablation.reproj_loss and self.stage1_hdr is not None and s2.lambda_pr > 0:
                 refs = [i + o for off in s2.pr_offsets for o in (-off, off) if 0 <= i + o < T]
                 if refs:
-                    L["pr"] = torch.stack([hdr_reprojection_loss(r.hdr, self.stage1_hdr[k], r.depth, self.rig.K, c2w[i],
+                    query = self.stage1_hdr[i] if s2.pr_query == "stage1" else r.hdr
+                    L["pr"] = torch.stack([hdr_reprojection_loss(query, self.stage1_hdr[k], r.depth, self.rig.K, c2w[i],
                                                                  c2w[k], mask) for k in refs]).mean()
         if cfg.tonemap.lambda_monotonic > 0:
             L["mono"] = monotonicity_penalty(self.tm)
