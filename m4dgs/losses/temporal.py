@@ -166,7 +166,8 @@ def hdr_reprojection_loss(hdr_t: torch.Tensor, hdr_tp: torch.Tensor, depth_t: to
     """HDR photometric reprojection loss L_pr (see the module docstring for the pose convention).
 
     Args:
-        hdr_t: [H, W, 3] HDR image at t (the stage-2 render; gradient flows).
+        hdr_t: [H, W, 3] HDR image at t: the stage-1 frame (paper, stage2.pr_query="stage1") or the stage-2 render
+            (gradient flows where it has one).
         hdr_tp: [H, W, 3] stage-1 HDR frame at t' (detached here).
         depth_t: [H, W] rendered depth at t (gradient flows).
         K: [3, 3] intrinsics; c2w_t, c2w_tp: [4, 4] camera-to-world poses (gradient flows).
