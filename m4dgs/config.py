@@ -183,6 +183,10 @@ class Stage2Config:
     pr_query: str = "stage1"
     optimize_cameras: bool = True
 
+    def validate(self) -> None:
+        if self.pr_query not in ("stage1", "render"):
+            raise ValueError(f"stage2.pr_query must be 'stage1' or 'render', got {self.pr_query!r}")
+
     def tlr_start_step(self) -> int:
         """First step with the TLR loss: tlr_start, or the end of both densifications."""
         if self.tlr_start is not None:

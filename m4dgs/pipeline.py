@@ -77,6 +77,9 @@ class Trainer:
         cfg = resolve_config(self.clip, preset, variant, overrides)
         if backend is not None:
             cfg.raster_backend = backend
+        # bad option values fail here, not after minutes of camera initialisation and stage 1
+        cfg.masks.validate()
+        cfg.stage2.validate()
         self.variant = variant
         want = to_dict(cfg)
         have = self.run.read_config()
@@ -152,7 +155,6 @@ class Trainer:
         else:
             ldr = [self.clip.load_ldr(g) for g in d.frames]
             fs = opencv_flow_prior(ldr, self.clip.train_dt.tolist(), d.frames)
-        cfg.masks.validate()
         emaps = epipolar_error_maps(fs, d.frames, cfg.epipolar)
         masks_epi = dynamic_masks(emaps, cfg.epipolar.threshold)
         ts = TrackSet(d.tracks.cpu().numpy(), d.track_vis.cpu().numpy(), np.asarray(d.frames))

@@ -93,8 +93,7 @@ class WorldStage:
                  dynamic_masks: Optional[torch.Tensor], stage1_hdr: Optional[torch.Tensor], log2_dt: torch.Tensor,
                  device="cpu", backend: str = "auto", ldr_reproj: bool = False, static_only: bool = False):
         self.data, self.cfg, self.device, self.backend = data, cfg, torch.device(device), backend
-        if cfg.stage2.pr_query not in ("stage1", "render"):
-            raise ValueError(f"stage2.pr_query must be 'stage1' or 'render', got {cfg.stage2.pr_query!r}")
+        cfg.stage2.validate()
         self.W, self.H = data.width, data.height
         self.c0 = float(cfg.exposure.unit_exposure_value or data.unit_exposure_value)
         self.log2_dt = log2_dt.to(self.device)

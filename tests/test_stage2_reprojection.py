@@ -75,3 +75,13 @@ def test_pr_against_the_render_also_pulls_colours(tiny_clip_realistic):
 def test_pr_query_is_validated(tiny_clip_realistic):
     with pytest.raises(ValueError, match="pr_query"):
         _stage(tiny_clip_realistic, "video")
+
+
+def test_bad_option_values_fail_before_training(tiny_clip_realistic, tmp_path):
+    from m4dgs.pipeline import train
+
+    for key, value in (("stage2.pr_query", "video"), ("masks.method", "optical")):
+        run = tmp_path / key
+        with pytest.raises(ValueError, match=key.split(".")[1]):
+            train(tiny_clip_realistic, run, preset="tiny", overrides={key: value}, progress=False)
+        assert not (run / "status.json").exists() and not (run / "model").exists()
