@@ -3,7 +3,7 @@
     m4dgs train --clip bench/syn-exp-3/<scene> --preset small --variant full --out runs/<scene>/full
     m4dgs render runs/<scene>/full --videos
     m4dgs export-ply runs/<scene>/full --frame 10 --out scene.ply
-    m4dgs variants
+    m4dgs variants --preset paper
 """
 from __future__ import annotations
 
@@ -102,12 +102,17 @@ def export_ply_cmd(run_dir, g, exposure, out_path):
 
 
 @main.command()
-def variants():
-    """List the variants (full method, ablations, adapted baselines)."""
-    from .variants import VARIANTS, describe
+@click.option("--preset", type=click.Choice(["tiny", "small", "paper"]), default="small", show_default=True,
+              help="Preset whose iteration budgets are listed.")
+def variants(preset):
+    """List the variants (full method, ablations, adapted baselines) with their stage-1 / stage-2 / total
+    iterations under a preset. Every variant gets full's total; one without stage 1 spends it in stage 2."""
+    from .variants import VARIANTS, budget, describe
 
+    click.echo(f"{'variant':24s} {'stage1':>7s} {'stage2':>7s} {'total':>7s}  (preset {preset})")
     for name in VARIANTS:
-        click.echo(f"{name:18s} {describe(name)}")
+        s1, s2, tot = budget(preset, name)
+        click.echo(f"{name:24s} {s1:7d} {s2:7d} {tot:7d}  {describe(name)}")
 
 
 if __name__ == "__main__":

@@ -38,6 +38,7 @@ from m4dgs.gaussians import ModelConfig, VideoInitConfig
 from m4dgs.rigidity import DynamicMaskConfig
 
 PRESETS = ("tiny", "small", "paper")
+LDR_REPROJ_PAIRS = ("same-exposure", "consecutive")
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -181,11 +182,17 @@ class Stage2Config:
     # stage for the computation of L_pr"; the authors' code detaches both); "render" = the stage-2 render at t, which
     # also pulls the stage-2 colours towards the (less accurate) stage-1 frames
     pr_query: str = "stage1"
+    # frame pairs of the LDR reprojection baselines (method "ldr-reproj"; m4dgs.stage2.ldr_reprojection_refs):
+    # "same-exposure" = i +- N_e (same level in an alternating schedule), "consecutive" = i +- 1 (a different
+    # exposure: the SplineGS-HDR form the paper compares with)
+    ldr_reproj_pairs: str = "same-exposure"
     optimize_cameras: bool = True
 
     def validate(self) -> None:
         if self.pr_query not in ("stage1", "render"):
             raise ValueError(f"stage2.pr_query must be 'stage1' or 'render', got {self.pr_query!r}")
+        if self.ldr_reproj_pairs not in LDR_REPROJ_PAIRS:
+            raise ValueError(f"stage2.ldr_reproj_pairs must be one of {LDR_REPROJ_PAIRS}, got {self.ldr_reproj_pairs!r}")
 
     def tlr_start_step(self) -> int:
         """First step with the TLR loss: tlr_start, or the end of both densifications."""
@@ -241,7 +248,7 @@ class TrainConfig:
     preset: str = "paper"
     # "mono4dgs" (the method) or an adapted baseline of the paper's comparisons (m4dgs.variants):
     # "static-hdr" (static HDR Gaussians with the BA cameras), "world-only" (world Gaussians from lifted priors),
-    # "ldr-reproj" (world-only + an LDR photometric reprojection loss on the cameras)
+    # "ldr-reproj" (world-only + an LDR photometric reprojection loss on the cameras, pairs: stage2.ldr_reproj_pairs)
     method: str = "mono4dgs"
     seed: int = 0
     checkpoint_every: int = 500  # iterations between resumable checkpoints (model/ckpt.pt)

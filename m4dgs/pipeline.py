@@ -26,12 +26,12 @@ import torch
 
 from . import camera as cam
 from .clip import Cameras, Clip, TrackSet
-from .config import TrainConfig, apply_overrides, preset as make_preset, to_dict
+from .config import TrainConfig, to_dict
 from .data import TrainingData, frame_time, load_training_data
 from .gaussians import WorldGaussians, init_video_gaussians
 from .io import write_json
 from .run import RunDir, load_torch, save_torch
-from .variants import overrides_for
+from .variants import variant_config
 
 PHASES = ("camera_init", "stage1", "v2w", "stage2", "render", "done")
 
@@ -43,11 +43,9 @@ def resolve_device(device: str) -> torch.device:
 
 
 def resolve_config(clip: Clip, preset: str = "small", variant: str = "full", overrides: Optional[Dict[str, Any]] = None) -> TrainConfig:
-    """Preset defaults, then the variant's overrides, then the user's; the processing size is the clip's."""
-    cfg = make_preset(preset)
-    cfg = apply_overrides(cfg, overrides_for(variant))
-    if overrides:
-        cfg = apply_overrides(cfg, overrides)
+    """Preset defaults, then the variant's overrides (a variant without stage 1 gets stage 1's iterations in stage 2:
+    m4dgs.variants.variant_config), then the user's; the processing size is the clip's."""
+    cfg = variant_config(preset, variant, overrides)
     cfg.width, cfg.height = clip.width, clip.height
     return cfg
 

@@ -217,8 +217,7 @@ class WorldStage:
         if pr_active and self.optimize_cameras:
             mask = None if self.dynamic_masks is None else self.dynamic_masks[i]
             if self.ldr_reproj:
-                n_e = max(d.num_levels, 1)
-                refs = [k for k in (i - n_e, i + n_e) if 0 <= k < T]
+                refs = ldr_reprojection_refs(i, T, d.num_levels, s2.ldr_reproj_pairs)
                 if refs:
                     L["pr"] = torch.stack([ldr_reprojection_loss(d.ldr[i], d.ldr[k], r.depth, self.rig.K, c2w[i], c2w[k], mask)
                                            for k in refs]).mean()
@@ -359,6 +358,23 @@ class WorldStage:
                 o.load_state_dict(sd[name][k])
         self.state_static, self.state_dynamic = sd["state_static"], sd["state_dynamic"]
         self.rng.bit_generator.state = sd["rng"]
+
+
+def ldr_reprojection_refs(i: int, num_frames: int, num_levels: int, pairs: str = "same-exposure") -> list:
+    """Training-frame indices t' paired with frame i by the LDR reprojection baselines (those inside the clip).
+
+    pairs: "same-exposure" -> i +- N_e (N_e = num_levels, the observed exposure levels): the same level in an
+        alternating schedule, so plain L1 between the LDR frames is meaningful; "consecutive" -> i +- 1: the
+        neighbouring, differently exposed frames, where the L1 compares unequal exposures (SplineGS-HDR as the
+        paper ran it). With one level both are i +- 1.
+    """
+    if pairs == "same-exposure":
+        off = max(int(num_levels), 1)
+    elif pairs == "consecutive":
+        off = 1
+    else:
+        raise ValueError(f"unknown LDR reprojection pairs {pairs!r} (same-exposure | consecutive)")
+    return [k for k in (i - off, i + off) if 0 <= k < num_frames]
 
 
 def near_camera_gaussians(positions: torch.Tensor, c2w: torch.Tensor, K: torch.Tensor, width: int, height: int,

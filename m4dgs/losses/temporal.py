@@ -24,7 +24,8 @@ which is what `reprojection_coords` computes. The stage-1 HDR frame H_t' (stoppe
 u_{t->t'} and compared with H_t:
     L_pr = | (1 - M_t) * (H_{t'->t} - H_t) / (H_{t'->t} + H_t) |_1   (mean over static, in-bounds pixels).
 Gradients reach the rendered depth D_t, H_t and the camera poses (through the sampling position). The LDR variant
-(`ldr_reprojection_loss`, SplineGS-style baseline) uses a plain L1 between two LDR frames of the same exposure.
+(`ldr_reprojection_loss`, SplineGS-style baselines) uses a plain L1 between two LDR frames: of the same exposure
+(i +- N_e), or consecutive and differently exposed (i +- 1) as SplineGS-HDR in the paper (m4dgs.stage2.ldr_reprojection_refs).
 """
 from __future__ import annotations
 
@@ -185,7 +186,8 @@ def hdr_reprojection_loss(hdr_t: torch.Tensor, hdr_tp: torch.Tensor, depth_t: to
 def ldr_reprojection_loss(ldr_t: torch.Tensor, ldr_tp: torch.Tensor, depth_t: torch.Tensor, K: torch.Tensor,
                           c2w_t: torch.Tensor, c2w_tp: torch.Tensor, dynamic_mask: torch.Tensor | None = None,
                           z_min: float = Z_MIN) -> torch.Tensor:
-    """Plain L1 photometric reprojection between two LDR frames of the SAME exposure (SplineGS-style baseline).
+    """Plain L1 photometric reprojection between two LDR frames (SplineGS-style baselines); meaningful for frames of
+    the same exposure, biased by the exposure ratio between differently exposed ones (the paper's SplineGS-HDR case).
 
     Args:
         ldr_t, ldr_tp: [H, W, 3] LDR frames at t and t' (input frames); depth_t, K, c2w_t, c2w_tp, dynamic_mask as in
