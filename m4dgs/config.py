@@ -210,11 +210,13 @@ class ToneMapConfig:
     pretrain_steps: int = 1_000
     pretrain_monotonic_weight: float = 10.0  # ReLU of the negative slope over ln x in [-10, 10]
     lambda_monotonic: float = 0.0  # authors' code adds it during stage 1 with weight 10; paper does not
-    # pre-training target (paper silent; authors: "an equal-RGB CRF"). "auto": the generic Reinhard + gamma-2.2 curve
-    # (x / (x + k))^(1/2.2) with k chosen so that f(1) equals the unit-exposure target C_0; for C_0 = 0.73 this is
-    # the HDR-NeRF curve itself (the synthetic CRF), for real clips (C_0 = 0.5) a flatter one. Any registered
-    # m4dgs.crf name ("gamma", "srgb", ...) is accepted too.
-    pretrain_crf: str = "auto"
+    # pre-training target (paper silent; authors: "an equal-RGB CRF"). "log-logistic" (default): the generic curve
+    # C_0 x^0.5 / (C_0 x^0.5 + 1 - C_0), a logistic in the tone mapper's input log2 x anchored only at f(1) = C_0
+    # (the unit-exposure target); it is none of the benchmark's clip responses (m4dgs.crf.CLIP_CRFS) and differs from
+    # each by >= 0.09 somewhere in log2 x in [-10, 10], so the tone mapper does not start at the answer.
+    # "reinhard-c0" (alias "auto", the former default): (x / (x + k))^(1/2.2) with f(1) = C_0, which for C_0 = 0.73
+    # IS the HDR-NeRF clip curve. Any registered m4dgs.crf name is accepted too (an oracle when it is the clip's).
+    pretrain_crf: str = "log-logistic"
     lut_size: int = 2048  # tone mapper evaluated through a piecewise-linear table of this many nodes (0 = exact MLP)
     learn_background: bool = True  # learnable constant HDR background behind the Gaussians (paper silent)
 

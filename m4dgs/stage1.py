@@ -23,7 +23,7 @@ from . import rotation as rot
 from . import spline
 from .color import ColorMLP
 from .config import TrainConfig
-from .crf import get_crf
+from .crf import get_crf, log_logistic, reinhard_anchored
 from .data import TrainingData
 from .densify import Strategy
 from .exposure import perturb_exposures
@@ -50,10 +50,17 @@ def build_appearance(cfg: TrainConfig, c0: float, device, pretrain: bool = True)
 
 
 def pretrain_curve(name: str, c0: float) -> Callable:
-    """Tone-mapper pre-training target f(x) on linear exposure x (see ToneMapConfig.pretrain_crf)."""
-    if name == "auto":
-        k = c0 ** (-2.2) - 1.0
-        return lambda x: (x / (x + k)) ** (1.0 / 2.2)
+    """Tone-mapper pre-training target f(x) on linear exposure x (see ToneMapConfig.pretrain_crf).
+
+    "log-logistic": m4dgs.crf.log_logistic(c0) (default; generic, anchored only at f(1) = c0); "reinhard-c0" or
+    "auto": m4dgs.crf.reinhard_anchored(c0) (the former default: the HDR-NeRF curve when c0 = 0.73); otherwise a
+    registered m4dgs.crf name (the reference channel of a per-channel curve)."""
+    if name == "log-logistic":
+        crf = log_logistic(c0)
+        return lambda x: crf(x)
+    if name in ("reinhard-c0", "auto"):
+        crf = reinhard_anchored(c0)
+        return lambda x: crf(x)
     crf = get_crf(name)
     return lambda x: crf(x)
 
