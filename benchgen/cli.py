@@ -50,18 +50,28 @@ def main():
 @click.option("--jobs", default=1, show_default=True, type=int, help="Clips rendered in parallel (processes).")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of schedules, jitter and priors.")
 @click.option("--force", is_flag=True, help="Regenerate finished clips (otherwise they are skipped).")
+@click.option("--crf", default="hdrnerf", show_default=True,
+              help="Camera response the clips are tone-mapped with (docs/exposure.md): hdrnerf (the paper's), "
+                   "srgb-shoulder, aces-filmic, hdrnerf-g1.8, hdrnerf-g2.4, hdrnerf-rgb. Recorded in clip.json; "
+                   "give clips of another response their own --out.")
 @click.option("--spp", type=click.IntRange(min=1), default=None,
               help="Samples per pixel of the HDR renders (default: the preset's, tiny 64 / small 64 / paper 1024; the "
                    "low-discrepancy sampler rounds to a power of 4). At small, 256 lowers the render noise 2-4x and "
                    "takes ~4x longer (docs/rendering.md).")
-def make(suite, scenes, num_exposures, observed, novel, schedule, preset, priors, out, jobs, seed, force, spp):
+def make(suite, scenes, num_exposures, observed, novel, schedule, preset, priors, out, jobs, seed, force, crf, spp):
     """Generate the clips of a suite (resumable: finished clips and frames are skipped)."""
+    from m4dgs.crf import CLIP_CRFS
+
     from .make import make_suite
+
+    if crf not in CLIP_CRFS:
+        raise click.BadParameter(f"{crf!r} is not a clip response; choose one of {', '.join(CLIP_CRFS)}",
+                                 param_hint="--crf")
 
     paths = make_suite(
         suite, out, preset=preset, scenes=None if scenes is None else [s.strip() for s in scenes.split(",") if s.strip()],
         priors=priors, schedule=schedule, num_exposures=None if num_exposures is None else int(num_exposures),
-        observed=_levels(observed), novel=_levels(novel), seed=seed, jobs=jobs, force=force, spp=spp,
+        observed=_levels(observed), novel=_levels(novel), seed=seed, jobs=jobs, force=force, spp=spp, crf=crf,
     )
     for p in paths:
         click.echo(str(p))

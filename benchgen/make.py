@@ -25,7 +25,7 @@ import numpy as np
 
 from m4dgs import io as mio
 from m4dgs.clip import Clip, ClipMeta, ClipWriter, Exposures, FlowSet, Split, TrackSet, frame_name, load_trackset
-from m4dgs.crf import get_crf, tonemap_ldr
+from m4dgs.crf import clip_crf, tonemap_ldr
 
 from .exposure import ExposureSettings, choose_hdr_scale, exposure_gap_ev, schedule_train_dt, test_levels
 from .priors import degrade_depth, degrade_flow, degrade_tracks, flow_pairs, get_profile, make_rng, priors_metadata
@@ -109,12 +109,17 @@ def _material_masks(cast, state):
 
 
 def _generator_settings(scene_path, preset: str, settings: ExposureSettings, profile: str, seed: int,
-                        spp: int) -> dict:
+                        spp: int, crf: str = "hdrnerf") -> dict:
     return {
         "tool": "benchgen", "version": GENERATOR_VERSION, "scene_spec": Path(scene_path).name, "preset": preset,
         "seed": int(seed), "spp": int(spp), "observed": list(settings.observed), "novel": list(settings.novel),
-        "schedule": settings.schedule, "priors": profile,
+        "schedule": settings.schedule, "priors": profile, "crf": crf,
     }
+
+
+def _with_crf(gen: Optional[dict]) -> Optional[dict]:
+    """Generator settings recorded before the response was a clip setting were all made with hdrnerf."""
+    return None if gen is None else {"crf": "hdrnerf", **gen}
 
 
 def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[ExposureSettings] = None,
@@ -139,9 +144,10 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
         if int(spp) < 1:
             raise ValueError(f"spp must be >= 1, got {spp}")
         render_settings = dataclasses.replace(render_settings, spp=int(spp))
-    gen = _generator_settings(scene_path, preset, settings, priors, seed, render_settings.spp)
+    crf_fn = clip_crf(crf)  # a response of the clip family (m4dgs.crf.CLIP_CRFS), recorded in clip.json
+    gen = _generator_settings(scene_path, preset, settings, priors, seed, render_settings.spp, crf_fn.name)
     if (out / "clip.json").exists() and not force:
-        old = Clip.open(out).meta.generator
+        old = _with_crf(Clip.open(out).meta.generator)
         if {k: old.get(k) for k in gen} == gen:
             return out  # finished with the same settings
         raise FileExistsError(f"{out}: a finished clip with other settings exists (generator {old}); pass force")
@@ -149,13 +155,12 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
         (out / "clip.json").unlink()
     state_path = out / ".benchgen" / "state.json"
     state = mio.read_json(state_path) if state_path.exists() else {}
-    if state.get("generator") not in (None, gen):
+    if _with_crf(state.get("generator")) not in (None, gen):
         raise FileExistsError(f"{out}: an unfinished clip with other settings is here; remove it or pick another --out")
     state["generator"] = gen
 
     frames = list(range(G))
     train, test = frames[0::2], frames[1::2]
-    crf_fn = get_crf(crf)
 
     # 1. light selection and one global HDR scale for the clip ---------------------------------------------------------
     if render_settings.emitter_sampling == "auto":
@@ -193,6 +198,7 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
         mio.write_json(state_path, state)
     meta.gt.update(state["gt_notes"])
     meta.gt["hdr_scale_report"] = state.get("hdr_scale_report")
+    meta.gt["crf"] = crf_fn.metadata()  # formula, source, parameters and f(1) per channel of the response
     if "emitter_sampling_noise" in state:
         meta.gt["emitter_sampling_probe"] = {"chosen": state["emitter_sampling"], "spp": EMITTER_PROBE_SPP,
                                              "noise_tae_two_seeds": state["emitter_sampling_noise"]}
@@ -275,8 +281,10 @@ def _dynamic_range_stops(hdr_frames: Dict[int, np.ndarray]) -> float:
 def make_suite(suite, out_root, preset: str = "small", scenes: Optional[Sequence[str]] = None, priors: str = "realistic",
                schedule: Optional[str] = None, num_exposures: Optional[int] = None, observed=None, novel=None,
                seed: int = 0, jobs: int = 1, force: bool = False, progress: bool = True,
-               spp: Optional[int] = None) -> List[Path]:
-    """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in parallel processes."""
+               spp: Optional[int] = None, crf: str = "hdrnerf") -> List[Path]:
+    """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in parallel processes.
+
+    crf: the clips' camera response (m4dgs.crf.CLIP_CRFS; the paper's "hdrnerf" by default)."""
     from .exposure import exposure_preset
     from .suite import load_suite
 
@@ -295,11 +303,11 @@ def make_suite(suite, out_root, preset: str = "small", scenes: Optional[Sequence
     root = Path(out_root) / s.name
     jobs_list = [(p, root / p.stem) for p in paths]
     if jobs <= 1:
-        return [make_clip(p, o, preset, settings, priors, seed, force=force, progress=progress, spp=spp)
+        return [make_clip(p, o, preset, settings, priors, seed, crf=crf, force=force, progress=progress, spp=spp)
                 for p, o in jobs_list]
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(max_workers=jobs) as ex:
-        futs = [ex.submit(make_clip, p, o, preset, settings, priors, seed, "hdrnerf", force, False, spp=spp)
+        futs = [ex.submit(make_clip, p, o, preset, settings, priors, seed, crf, force, False, spp=spp)
                 for p, o in jobs_list]
         return [f.result() for f in futs]
