@@ -82,16 +82,20 @@ def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> 
         return None
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5.2, 3.8))
-    true_done = False
+    true_done = set()  # rows of one scene may have different true CRFs (suite crf): each is drawn once
     for lab, c in curves:
         z = np.asarray(c["log2_x"], np.float64)
-        ax.plot(z, np.asarray(c["learned"], np.float64).reshape(len(z), -1).mean(axis=1), lw=1.4, label=lab)
-        if c.get("true") is not None and not true_done:
+        line, = ax.plot(z, np.asarray(c["learned"], np.float64).reshape(len(z), -1).mean(axis=1), lw=1.4, label=lab)
+        if c.get("true") is not None and c.get("crf") not in true_done:
             from m4dgs.crf import get_crf
 
             zz = np.linspace(z.min(), z.max(), 401)
-            ax.plot(zz, np.asarray(get_crf(c["crf"])(np.exp2(zz))), "k--", lw=1.2, label=f"true CRF ({c['crf']})")
-            true_done = True
+            f = get_crf(c["crf"])
+            true = np.asarray(f.rgb(np.repeat(np.exp2(zz)[:, None], 3, 1))).mean(axis=1)  # mean of RGB, as learned
+            one_true = len({d.get("crf") for _, d in curves}) == 1
+            style = dict(color="k") if one_true else dict(color=line.get_color())
+            ax.plot(zz, true, "--", lw=1.2, label=f"true CRF ({c['crf']})", **style)
+            true_done.add(c.get("crf"))
     ax.set_xlabel("log2 exposure  log2(H dt)")
     ax.set_ylabel("LDR value")
     ax.set_ylim(-0.02, 1.02)

@@ -22,7 +22,9 @@ no model, no file):
   frame; epipolar, or their union with the rigidity masks of m4dgs.rigidity) against the gt dynamic masks, pooled
   over all training-frame pixels. Low recall means moving objects that the video-to-world transform will treat as
   static (e.g. motion along the epipolar lines).
-- crf_rmse and crf_curve: the learned tone curve (model.tonemap_curve) vs the clip's true CRF.
+- crf_rmse and crf_curve: the learned tone curve (model.tonemap_curve) vs the clip's true CRF over log2 x in
+  [-10, 10]; crf_error (eval.metrics.crf): mean |learned - true| in 8-bit codes over the exposure range the training
+  frames recorded unclipped, per channel, then the mean over RGB (None without a model or a true CRF).
 - train_seconds / train_minutes, num_gaussians, peak_memory_mib (run.json); fps at the clip resolution and
   fps_864x480 (model.render timed with eval.metrics.measure_fps).
 - conventions (key -> sentence of every convention used) and options (roundtrip, LPIPS weights, ...).
@@ -324,9 +326,29 @@ def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
         learned = _to_numpy(model.tonemap_curve(torch.tensor(z, dtype=torch.float32)))
     learned = learned.reshape(len(z), -1)
     true = None
+    true_crf = None
     if clip.meta.crf:
-        true = np.asarray(get_crf(clip.meta.crf)(np.exp2(z)), np.float64)
-        out["crf_rmse"] = float(np.sqrt(np.mean((learned - true[:, None]) ** 2)))
+        try:
+            true_crf = get_crf(clip.meta.crf)
+        except KeyError:  # a curve this installation does not know
+            true_crf = None
+    if true_crf is not None:
+        true = np.asarray(true_crf(np.exp2(z)), np.float64)
+        true_rgb = np.asarray(true_crf.rgb(np.repeat(np.exp2(z)[:, None], learned.shape[1], 1)), np.float64)
+        out["crf_rmse"] = float(np.sqrt(np.mean((learned - true_rgb) ** 2)))
+        if clip.has_gt and clip.train_frames:
+            from eval.metrics import crf_error, observed_exposure_range
+
+            frames = (clip.load_gt_hdr(g) for g in clip.train_frames)
+            ranges = observed_exposure_range(frames, clip.meta.exposures.train_dt, true_crf)
+
+            def curve(log2_x):
+                with torch.no_grad():
+                    return _to_numpy(model.tonemap_curve(torch.tensor(log2_x, dtype=torch.float32)))
+
+            ce = crf_error(curve, true_crf, ranges)
+            out["crf_error"] = ce.pop("crf_error")
+            out["crf_error_detail"] = ce
     out["crf_curve"] = {"log2_x": z.tolist(), "learned": learned.tolist(),
                         "true": None if true is None else true.tolist(), "crf": clip.meta.crf}
     # induced 2D tracks vs gt tracks
@@ -380,7 +402,7 @@ METRIC_KEYS = [
     "hdr_train_ssim", "hdr_tae", "hdr_tae_train_test", "hdr_t_std",
     "ate", "rpe_trans", "rpe_rot", "ate_ba", "rpe_trans_ba", "rpe_rot_ba", "depth_absrel",
     "track_epe", "track_epe_median", "track_delta_avg", "dyn_ldr_psnr", "dyn_hdr_psnr",
-    "mask_precision", "mask_recall", "mask_iou", "crf_rmse",
+    "mask_precision", "mask_recall", "mask_iou", "crf_rmse", "crf_error",
     "train_seconds", "train_minutes", "fps", "fps_864x480", "num_gaussians", "peak_memory_mib",
 ]
 
@@ -557,8 +579,12 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
             if m["num_gaussians"] is None and getattr(mdl, "num_gaussians", None) is not None:
                 m["num_gaussians"] = float(mdl.num_gaussians)
             m["crf_curve"] = mm.pop("crf_curve")
+            if "crf_error_detail" in mm:
+                m["crf_error_detail"] = mm.pop("crf_error_detail")
             m.update(mm)
             conv_keys.append("crf_rmse")
+            if mm.get("crf_error") is not None:
+                conv_keys.append("crf_error")
             if mm.get("track_epe") is not None:
                 conv_keys += ["track", "track_first_frame"]
             if fps:

@@ -5,7 +5,8 @@ A suite file names
 - ``scenes``: the benchgen scene suite (``syn-exp-3``, ``tiny``, or a path to a benchgen suite YAML);
 - ``clips``: named clip settings (optional; default one setting ``default`` = the scene suite as it is). A setting may
   change the exposure ``schedule`` (alternating | random-order | random-values), the prior ``priors`` profile
-  (oracle | realistic | harsh), the ``observed`` / ``novel`` levels and the ``seed``;
+  (oracle | realistic | harsh), the ``observed`` / ``novel`` levels, the ``seed`` and the camera response ``crf``
+  (a name of ``m4dgs.crf.CLIP_CRFS``; default the paper's ``hdrnerf``);
 - ``rows``: the table rows, each ``{name, label, variant, overrides, clip}``: ``name`` is the run folder
   (default: the variant), ``label`` the text in the table (default: the name), ``variant`` a name of
   ``m4dgs.variants.VARIANTS`` (default ``full``), ``overrides`` extra dotted config overrides
@@ -51,6 +52,7 @@ class ClipSetting:
     observed: Optional[tuple] = None
     novel: Optional[tuple] = None
     seed: int = 0
+    crf: Optional[str] = None  # camera response (m4dgs.crf.CLIP_CRFS); None = the paper's hdrnerf
 
     def setting_id(self, scene_suite: str) -> str:
         """Folder name under OUT/clips: the scene suite plus every non-default value (shared across suites)."""
@@ -65,6 +67,8 @@ class ClipSetting:
             parts.append("novel-" + ("_".join(f"{v:g}" for v in self.novel) or "none"))
         if self.seed != 0:
             parts.append(f"seed-{self.seed}")
+        if self.crf not in (None, "hdrnerf"):
+            parts.append(f"crf-{self.crf}")
         return "-".join(parts)
 
 
@@ -130,6 +134,7 @@ def metric_columns() -> Dict[str, "Column"]:  # noqa: F821
         Column("dyn_ldr_psnr", "PSNR", True, ".2f", "Dynamic LDR-OE", "masked"),
         Column("dyn_hdr_psnr", "PSNR", True, ".2f", "Dynamic HDR", "masked"),
         Column("crf_rmse", "CRF RMSE", False, ".4f", None, "crf_rmse"),
+        Column("crf_error", "CRF err (codes)", False, ".2f", None, "crf_error"),
         Column("ate", "ATE", False, ".4f", "Cameras", "ate"),
         Column("rpe_trans", "RPE-t", False, ".4f", "Cameras", "rpe"),
         Column("rpe_rot", "RPE-r (deg)", False, ".3f", "Cameras", "rpe"),
@@ -158,13 +163,16 @@ LAYOUTS: Dict[str, List[str]] = {
     # the paper's ablation tables (rows a-f, control points): "all metrics PSNR except HDR-TAE"
     "ablation": ["ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae"],
     # exposure studies (schedules / perturbation): the ablation layout plus the learned-CRF error
-    "exposure": ["ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "crf_rmse"],
+    "exposure": ["ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "crf_rmse", "crf_error"],
+    # camera-response study (suite crf): image metrics plus the learned-vs-true response over the observed range
+    "crf": ["ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_ssim", "hdr_tae", "crf_error", "crf_rmse"],
     # the GFlow comparison (appendix): training frames
     "train": ["ldr_train_psnr", "ldr_train_ssim", "ldr_train_lpips", "hdr_train_psnr", "hdr_train_ssim", "hdr_tae"],
     # beyond the paper
     "geometry": ["ate", "rpe_trans", "rpe_rot", "ate_ba", "depth_absrel", "track_epe", "track_epe_median",
                  "track_delta_avg", "mask_recall", "mask_iou"],
-    "hdr-extra": ["hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_t_std", "dyn_ldr_psnr", "dyn_hdr_psnr", "crf_rmse"],
+    "hdr-extra": ["hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_t_std", "dyn_ldr_psnr", "dyn_hdr_psnr", "crf_rmse",
+                  "crf_error"],
     "cost": ["train_minutes", "fps", "fps_864x480", "num_gaussians", "peak_memory_mib"],
 }
 
@@ -228,9 +236,15 @@ def _parse_clip(key: str, d: Any, path) -> ClipSetting:
         d = {}
     if not isinstance(d, dict):
         raise SuiteError(path, f"clips.{key}", "expected a mapping")
-    unknown = sorted(set(d) - {"schedule", "priors", "observed", "novel", "seed"})
+    unknown = sorted(set(d) - {"schedule", "priors", "observed", "novel", "seed", "crf"})
     if unknown:
-        raise SuiteError(path, f"clips.{key}.{unknown[0]}", "unknown key (schedule, priors, observed, novel, seed)")
+        raise SuiteError(path, f"clips.{key}.{unknown[0]}",
+                         "unknown key (schedule, priors, observed, novel, seed, crf)")
+    from m4dgs.crf import CLIP_CRFS
+
+    crf = d.get("crf")
+    if crf is not None and crf not in CLIP_CRFS:
+        raise SuiteError(path, f"clips.{key}.crf", f"expected one of {CLIP_CRFS}, got {crf!r}")
     sched = d.get("schedule")
     if sched is not None and sched not in SCHEDULES:
         raise SuiteError(path, f"clips.{key}.schedule", f"expected one of {SCHEDULES}, got {sched!r}")
@@ -241,7 +255,7 @@ def _parse_clip(key: str, d: Any, path) -> ClipSetting:
     if not isinstance(seed, int) or isinstance(seed, bool):
         raise SuiteError(path, f"clips.{key}.seed", f"expected an integer, got {seed!r}")
     return ClipSetting(key, sched, pri, _levels(d.get("observed"), path, f"clips.{key}.observed"),
-                       _levels(d.get("novel"), path, f"clips.{key}.novel"), seed)
+                       _levels(d.get("novel"), path, f"clips.{key}.novel"), seed, crf)
 
 
 def parse_suite(d: dict, path="<suite>") -> EvalSuite:

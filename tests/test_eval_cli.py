@@ -231,6 +231,8 @@ def test_score_run_values(tmp_path, fake_trainer):
     assert m["track_epe"] == pytest.approx(0.5, abs=1e-5) and m["track_delta_avg"] == pytest.approx(1.0)
     assert m["track_epe_median"] == pytest.approx(0.5, abs=1e-5)
     assert m["crf_rmse"] == pytest.approx(0, abs=1e-6)
+    assert m["crf_error"] == pytest.approx(0, abs=1e-3) and "crf_error" in m["conventions"]  # 8-bit codes
+    assert all(r is not None and r[0] < 1 < r[1] for r in m["crf_error_detail"]["ranges"])
     # no LPIPS weights -> None; run.json values; FPS measured; conventions present
     assert m["ldr_oe_lpips"] is None and m["hdr_lpips"] is None and "lpips_na" in m["conventions"]
     assert m["train_minutes"] == pytest.approx(2.0) and m["peak_memory_mib"] == 321.0
@@ -271,7 +273,7 @@ def test_score_renders_missing_and_identical(tmp_path, fake_trainer):
     make_fake_run(run, clip, renders=False)
     m = score_run(run, fps=False, model=False)
     assert fake_trainer["render_run"] == [str(run)]  # rendered what was missing
-    assert m["track_epe"] is None and m["fps"] is None and m["crf_rmse"] is None
+    assert m["track_epe"] is None and m["fps"] is None and m["crf_rmse"] is None and m["crf_error"] is None
     # identical HDR renders: PSNR capped, not inf, and valid JSON
     for g in clip.test_frames:
         mio.write_exr(run / "renders/test/hdr" / frame_name(g, "exr"), clip.load_gt_hdr(g))
