@@ -367,7 +367,8 @@ register_crf(CRF("srgb-shoulder", _srgb_shoulder_f, _srgb_shoulder_inv,
                         "white 3 stops above unit exposure, like a camera JPEG",
                  params={"a": SRGB_SHOULDER_A}))
 register_crf(CRF("aces-filmic", _aces_filmic_f, _aces_filmic_inv,
-                 f"sRGB_OETF({ACES_NORM:.6f} u (2.51 u + 0.03) / (u (2.43 u + 0.59) + 0.14)), u = {ACES_FILMIC_A:.6f} x",
+                 f"sRGB_OETF({ACES_NORM:.6f} u (2.51 u + 0.03) / (u (2.43 u + 0.59) + 0.14)), "
+                 f"u = {ACES_FILMIC_A:.6f} x",
                  source="ACES filmic curve, K. Narkowicz's 2016 fit of the ACES RRT + ODT (a = 2.51, b = 0.03, "
                         "c = 2.43, d = 0.59, e = 0.14), divided by its asymptote a / c so that it never clips, "
                         "then the sRGB OETF (IEC 61966-2-1)",
@@ -433,7 +434,8 @@ def log_logistic(c0: float, slope: float = 0.5) -> CRF:
 
     It is a logistic in the tone mapper's own input log2 x (sigmoid(s ln2 log2 x + logit c0)), i.e. the Naka-Rushton
     response x^s / (x^s + sigma^s) with sigma^s = (1 - c0) / c0 (Naka & Rushton 1966; the photoreceptor tone-mapping
-    operator of Reinhard & Devlin 2005 builds on it). The trainer's default pre-training target (m4dgs.stage1.pretrain_curve)."""
+    operator of Reinhard & Devlin 2005 builds on it). The trainer's default pre-training target
+    (m4dgs.stage1.pretrain_curve)."""
     c0, s = float(c0), float(slope)
     if not (0.0 < c0 < 1.0 and s > 0.0):
         raise ValueError(f"log_logistic needs 0 < c0 < 1 and slope > 0, got c0={c0!r}, slope={s!r}")
