@@ -3,9 +3,12 @@
     eval score RUN                          write RUN/metrics.json (renders what is missing through m4dgs)
     eval suites                             the shipped experiment suites and their rows
     eval run tiny --preset tiny             make clips, train and score every (scene, row) of a suite (resumable)
+    eval run tiny --seeds 3                 ... with trainer seeds 0, 1, 2 (same clips; runs <row>, <row>-seed-n)
     eval run paper-main --list-jobs         the job list as JSON lines (one `python -m eval job ...` per line)
     eval job paper-main --scene S --row R   run ONE job (for cluster fan-out: docs/cluster.md)
-    eval table tiny                         the suite's tables (Markdown; --format latex|csv) and figures
+    eval table tiny                         the suite's tables (Markdown; --format latex|csv) and figures:
+                                            mean +- 95 % CI over scenes x seeds, paired differences to the
+                                            reference row, the paper's values and direction agreement
 
 Details: docs/eval.md.
 """
@@ -102,22 +105,25 @@ _device_opt = click.option("--device", default="auto", show_default=True,
 @_preset_opt
 @click.option("--jobs", default=1, show_default=True, type=int, help="Local worker processes.")
 @click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
+@click.option("--seeds", default=1, show_default=True, type=click.IntRange(min=1),
+              help="Trainer seeds 0..N-1 per (scene, row), same clip; seed 0 trains into <row>, seed n into "
+                   "<row>-seed-n.")
 @click.option("--force", is_flag=True, help="Recompute metrics.json of finished runs (never retrains).")
 @click.option("--list-jobs", is_flag=True,
               help="Print the job list as JSON lines (with each job's `python -m eval job` command) and exit.")
 @click.option("--clips-only", is_flag=True, help="Only make the missing clips.")
 @_lpips_opt
 @_device_opt
-def run(suite, out, preset, jobs, scenes, force, list_jobs, clips_only, lpips_weights, device):
+def run(suite, out, preset, jobs, scenes, seeds, force, list_jobs, clips_only, lpips_weights, device):
     """Make missing clips, train missing runs and score missing metrics of SUITE (name or YAML path); resumable."""
     from .runner import list_jobs_jsonl, run_suite
 
     if list_jobs:
         click.echo(list_jobs_jsonl(suite, out, preset, _scenes(scenes), lpips_weights=lpips_weights,
-                                   device=None if device == "auto" else device), nl=False)
+                                   device=None if device == "auto" else device, seeds=seeds), nl=False)
         return
     res = run_suite(suite, out, preset, jobs=jobs, scenes=_scenes(scenes), force=force, lpips_weights=lpips_weights,
-                    device=device, clips_only=clips_only, log=lambda s: click.echo(s, err=True))
+                    device=device, clips_only=clips_only, log=lambda s: click.echo(s, err=True), seeds=seeds)
     for r in res:
         click.echo(json.dumps(r))
 
@@ -126,41 +132,52 @@ def run(suite, out, preset, jobs, scenes, force, list_jobs, clips_only, lpips_we
 @click.argument("suite")
 @click.option("--scene", required=True, help="Scene name of the job.")
 @click.option("--row", required=True, help="Row name of the job (see `eval suites`).")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0),
+              help="Trainer seed index of the job (0: the run folder <row>; n: <row>-seed-n).")
 @_out_opt
 @_preset_opt
 @click.option("--clip-only", is_flag=True, help="Only make the job's clip (run this once per clip before fan-out).")
 @click.option("--force", is_flag=True, help="Recompute metrics.json even if it exists.")
 @_lpips_opt
 @_device_opt
-def job(suite, scene, row, out, preset, clip_only, force, lpips_weights, device):
+def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, device):
     """Run ONE job of SUITE: make its clip if missing, train (resumes), score. Prints a JSON result line."""
     from .runner import find_job, run_job
 
-    j = find_job(suite, out, preset, scene, row)
+    j = find_job(suite, out, preset, scene, row, seed)
     click.echo(json.dumps(run_job(j, force=force, lpips_weights=lpips_weights, device=device, clip_only=clip_only)))
 
 
 # ----------------------------------------------------------------------------------------------------------------
-def collect_suite(suite, out, scenes=None, preset: str = "small") -> list:
-    """Entries {"scene", "row", "label", "run_dir", "clip_dir", "metrics" (dict or None)} of a suite's jobs."""
+def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) -> list:
+    """Entries {"scene", "row", "label", "seed", "run_dir", "clip_dir", "metrics" (dict or None)} of a suite's jobs,
+    for trainer seeds 0 .. seeds-1 (None: up to the largest seed with a run folder under OUT, for every row)."""
     from m4dgs import io as mio
 
-    from .runner import job_list
+    from .runner import job_list, seeds_present
 
+    if seeds is None:
+        seeds = seeds_present(suite, out, preset, scenes)
     entries = []
-    for j in job_list(suite, out, preset, scenes):
+    for j in job_list(suite, out, preset, scenes, seeds):
         mp = Path(j.run_dir) / "metrics.json"
-        entries.append({"scene": j.scene, "row": j.row, "label": j.label, "run_dir": j.run_dir,
+        entries.append({"scene": j.scene, "row": j.row, "label": j.label, "seed": j.seed, "run_dir": j.run_dir,
                         "clip_dir": j.clip_dir, "metrics": mio.read_json(mp) if mp.exists() else None})
     return entries
 
 
 def collect_runs_dir(runs_dir) -> list:
     """Entries of every run under RUNS_DIR with a metrics.json; rows = the variant names (run.json / metrics.json),
-    or the run folder names where two runs of one scene share a variant."""
+    or the run folder names where two runs of one scene and seed share a variant. A folder named <row>-seed-<n> is
+    trainer seed n of <row> (eval run --seeds)."""
+    import re
+
     from m4dgs import io as mio
 
+    from .runner import SEED_SUFFIX
     from .score import read_run_info
+
+    seed_re = re.compile(re.escape(SEED_SUFFIX) + r"([0-9]+)$")
 
     entries = []
     for mp in sorted(Path(runs_dir).rglob("metrics.json")):
@@ -170,19 +187,23 @@ def collect_runs_dir(runs_dir) -> list:
         info = read_run_info(rd)
         variant = run_meta.get("variant") or info.get("variant") or rd.name
         scene = run_meta.get("clip_name") or rd.parent.name
-        entries.append({"scene": scene, "row": rd.name, "label": variant, "run_dir": str(rd),
+        sm = seed_re.search(rd.name)
+        row, seed = (rd.name[:sm.start()], int(sm.group(1))) if sm else (rd.name, 0)
+        entries.append({"scene": scene, "row": row, "label": variant, "seed": seed, "run_dir": str(rd),
                         "clip_dir": run_meta.get("clip"), "metrics": m})
     seen = {}
     for e in entries:
-        seen.setdefault((e["scene"], e["label"]), []).append(e)
+        seen.setdefault((e["scene"], e["label"], e["seed"]), []).append(e)
     if any(len(v) > 1 for v in seen.values()):
         for e in entries:
             e["label"] = e["row"]
     return entries
 
 
-def build_tables(entries: list, table_defs: list, fmt: str = "markdown") -> str:
-    """Render every table of a suite from collected entries (means over scenes, best in bold, footnotes)."""
+def build_tables(entries: list, table_defs: list, fmt: str = "markdown", reference: str | None = None) -> str:
+    """Render every table of a suite from collected entries: mean +- 95 % t-interval over the (scene, seed) runs of
+    each row, best mean in bold, the paired difference to the `reference` row (a row name; its label in the table),
+    for tables with `paper` the paper's values and the direction agreement, footnotes."""
     from eval.tables import render
 
     from .score import PSNR_CAP_DB, all_conventions
@@ -190,9 +211,13 @@ def build_tables(entries: list, table_defs: list, fmt: str = "markdown") -> str:
 
     present = [e for e in entries if e["metrics"]]
     methods = list(dict.fromkeys(e["label"] for e in entries))
+    label_of = {}
+    for e in entries:
+        label_of.setdefault(e["row"], e["label"])
+    ref_label = label_of.get(reference) if reference is not None else None
     rows = []
     for e in entries:  # a run without metrics.json counts as a scene without values: its row's means are n/a
-        r = {"method": e["label"], "scene": e["scene"]}
+        r = {"method": e["label"], "scene": e["scene"], "seed": e.get("seed", 0)}
         if e["metrics"]:
             r.update({k: v for k, v in e["metrics"].items() if isinstance(v, (int, float)) or v is None})
         rows.append(r)
@@ -203,6 +228,13 @@ def build_tables(entries: list, table_defs: list, fmt: str = "markdown") -> str:
     parts = []
     for td in table_defs:
         spec = table_spec(td, lpips_available=lp, ldr_convention=ldr_conv, methods=methods)
+        spec.intervals, spec.reference = True, ref_label
+        if getattr(td, "paper", None):
+            from .paper import load_paper_values
+
+            pt = load_paper_values()[td.paper]
+            spec.paper = {label_of[row]: vals for row, vals in pt.rows.items() if row in label_of}
+            spec.paper_source = pt.source
         if any(r.get(c.key) == PSNR_CAP_DB for r in rows for c in spec.columns if "psnr" in c.key):
             spec.conventions = list(spec.conventions) + ["psnr_cap"]
         parts.append(render(rows, spec, FORMATS[fmt], conventions=conventions,
@@ -223,10 +255,12 @@ def build_tables(entries: list, table_defs: list, fmt: str = "markdown") -> str:
 @click.option("--out", "out_file", default=None, type=click.Path(dir_okay=False),
               help="Write the tables to this file (atomically) instead of stdout.")
 @click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
+@click.option("--seeds", default=None, type=click.IntRange(min=1),
+              help="Trainer seeds 0..N-1 to tabulate (default: up to the largest seed with a run folder).")
 @click.option("--no-figures", is_flag=True, help="Do not write the figures (CRF curves, loss curves, image grids).")
 @click.option("--figures-dir", default=None, type=click.Path(file_okay=False),
               help="Folder for the figures (default ROOT/figures/<suite>, or <runs dir>/../figures/<name>).")
-def table(target, out, fmt, out_file, scenes, no_figures, figures_dir):
+def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
     """Print the paper-style tables of TARGET: a suite (name or YAML; runs under OUT) or a folder of runs."""
     from m4dgs import io as mio
 
@@ -234,17 +268,18 @@ def table(target, out, fmt, out_file, scenes, no_figures, figures_dir):
 
     if Path(target).is_dir():
         entries = collect_runs_dir(target)
+        reference = "full" if any(e["row"] == "full" for e in entries) else None
         defs = [TableDef(f"Runs under {target}", "paper"), TableDef("Training frames", "train"),
                 TableDef("Geometry", "geometry"), TableDef("Cost", "cost")]
         fig_dir = Path(figures_dir) if figures_dir else Path(target).resolve().parent / "figures" / Path(target).name
     else:
         s = load_eval_suite(target)
-        entries = collect_suite(target, out, _scenes(scenes))
-        defs = s.tables
+        entries = collect_suite(target, out, _scenes(scenes), seeds=seeds)
+        defs, reference = s.tables, s.reference
         fig_dir = Path(figures_dir) if figures_dir else Path(out) / "figures" / s.name
     if not any(e["metrics"] for e in entries):
         raise click.ClickException(f"no metrics.json found for {target} (run `eval run` / `eval score` first)")
-    text = build_tables(entries, defs, fmt)
+    text = build_tables(entries, defs, fmt, reference)
     if out_file:
         mio._atomic_write_bytes(Path(out_file), text.encode())
         click.echo(f"wrote {out_file}", err=True)
@@ -253,7 +288,7 @@ def table(target, out, fmt, out_file, scenes, no_figures, figures_dir):
     if not no_figures:
         from .figures import suite_figures
 
-        paths = suite_figures([e for e in entries if e["metrics"]], fig_dir)
+        paths = suite_figures([e for e in entries if e["metrics"] and not e.get("seed")], fig_dir)  # seed 0 only
         click.echo(f"wrote {len(paths)} figure(s) to {fig_dir}", err=True)
 
 

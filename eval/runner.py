@@ -1,9 +1,11 @@
 """Run an experiment suite: make missing clips, train missing runs, score missing metrics (resumable).
 
-The job list of a suite is (clip setting, scene, row) (eval.suite). `run_suite` works through it locally, with a
-process pool for `jobs > 1`; `job_list` / `run_job` are the same work one job at a time, which is how the list is
-fanned out to a cluster (`eval run SUITE --list-jobs` prints one JSON line per job with its `python -m eval job ...`
-command line; docs/cluster.md).
+The job list of a suite is (clip setting, scene, row) (eval.suite), times the trainer seeds of `seeds` (0 .. N-1;
+the clip is the same for every seed). Seed 0 trains into OUT/runs/<suite>/<scene>/<row> with the row's config as
+it is, seed n > 0 into OUT/runs/<suite>/<scene>/<row>-seed-<n> with the override `seed` = the row's seed + n.
+`run_suite` works through it locally, with a process pool for `jobs > 1`; `job_list` / `run_job` are the same work
+one job at a time, which is how the list is fanned out to a cluster (`eval run SUITE --list-jobs` prints one JSON
+line per job with its `python -m eval job ...` command line; docs/cluster.md).
 
 Concurrency: making a clip and training a run each hold an exclusive `fcntl.flock` on a lock file beside the
 folder (`<folder>.lock`), so two workers given the same clip or run wait for each other instead of writing the
@@ -29,9 +31,18 @@ from .suite import EvalSuite, load_eval_suite, scene_suite_names
 PRESETS = ("tiny", "small", "paper")
 
 
+SEED_SUFFIX = "-seed-"
+
+
+def seed_run_name(row: str, seed: int) -> str:
+    """Run folder name of a row's trainer seed: the row name for seed 0 (the layout before seeds existed), else
+    `<row>-seed-<seed>`."""
+    return row if seed == 0 else f"{row}{SEED_SUFFIX}{seed}"
+
+
 @dataclass
 class Job:
-    """One (clip setting, scene, row) of a suite, with its folders and the command that runs it."""
+    """One (clip setting, scene, row, trainer seed) of a suite, with its folders and the command that runs it."""
 
     suite: str  # suite name or path, as given to `eval`
     suite_name: str
@@ -46,10 +57,11 @@ class Job:
     run_dir: str
     preset: str
     out: str
+    seed: int = 0  # trainer seed index (0: the row as it is; n > 0: overrides["seed"] = row seed + n)
 
     @property
     def id(self) -> str:
-        return f"{self.suite_name}/{self.scene}/{self.row}"
+        return f"{self.suite_name}/{self.scene}/{seed_run_name(self.row, self.seed)}"
 
     @property
     def clip_key(self) -> str:
@@ -58,6 +70,8 @@ class Job:
     def command(self, lpips_weights: Optional[str] = None, device: Optional[str] = None) -> List[str]:
         cmd = ["python", "-m", "eval", "job", self.suite, "--out", self.out,
                "--preset", self.preset, "--scene", self.scene, "--row", self.row]
+        if self.seed:
+            cmd += ["--seed", str(self.seed)]
         if lpips_weights:
             cmd += ["--lpips-weights", str(lpips_weights)]
         if device:
@@ -80,10 +94,13 @@ def _suite_ref(suite) -> tuple:
     return s, (s.name if builtin else str(s.path.resolve()))
 
 
-def job_list(suite, out, preset: str = "small", scenes: Optional[Sequence[str]] = None) -> List[Job]:
-    """Every job of a suite, ordered by clip setting, scene, row."""
+def job_list(suite, out, preset: str = "small", scenes: Optional[Sequence[str]] = None, seeds: int = 1) -> List[Job]:
+    """Every job of a suite for trainer seeds 0 .. seeds-1: seed by seed, each ordered by clip setting, scene, row
+    (seeds=1 is the job list before seeds existed)."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r} (known: {PRESETS})")
+    if int(seeds) < 1:
+        raise ValueError(f"seeds must be >= 1, got {seeds!r}")
     s, ref = _suite_ref(suite)
     out = Path(out).resolve()
     names = scene_suite_names(s)
@@ -93,15 +110,20 @@ def job_list(suite, out, preset: str = "small", scenes: Optional[Sequence[str]] 
             raise ValueError(f"suite {s.name!r} has no scene(s) {unknown} (it has {names})")
         names = [n for n in names if n in scenes]
     jobs = []
-    for key, setting in s.clips.items():
-        sid = setting.setting_id(s.scenes)
-        for scene in names:
-            for r in s.rows:
-                if r.clip != key:
-                    continue
-                jobs.append(Job(ref, s.name, key, sid, scene, r.name, r.label, r.variant, dict(r.overrides),
-                                str(out / "clips" / sid / scene), str(out / "runs" / s.name / scene / r.name),
-                                preset, str(out)))
+    for seed in range(int(seeds)):
+        for key, setting in s.clips.items():
+            sid = setting.setting_id(s.scenes)
+            for scene in names:
+                for r in s.rows:
+                    if r.clip != key:
+                        continue
+                    ov = dict(r.overrides)
+                    if seed:
+                        ov["seed"] = int(ov.get("seed", 0)) + seed
+                    jobs.append(Job(ref, s.name, key, sid, scene, r.name, r.label, r.variant, ov,
+                                    str(out / "clips" / sid / scene),
+                                    str(out / "runs" / s.name / scene / seed_run_name(r.name, seed)), preset, str(out),
+                                    seed))
     return jobs
 
 
@@ -200,19 +222,20 @@ def _run_job_kw(job: Job, kw: dict) -> dict:
 
 def run_suite(suite, out, preset: str = "small", jobs: int = 1, scenes: Optional[Sequence[str]] = None,
               force: bool = False, *, lpips_weights=None, device: str = "auto", progress: bool = True,
-              clips_only: bool = False, score_kw: Optional[dict] = None, log=None) -> List[dict]:
-    """Make every missing clip, then train and score every (scene, row) of a suite; resumable.
+              clips_only: bool = False, score_kw: Optional[dict] = None, log=None, seeds: int = 1) -> List[dict]:
+    """Make every missing clip, then train and score every (scene, row, seed) of a suite; resumable.
 
     jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool of `jobs`
     workers, each with cpu_count / jobs torch threads. Returns the per-job results (run_job) in job order.
     """
-    jl = job_list(suite, out, preset, scenes)
+    jl = job_list(suite, out, preset, scenes, seeds)
     say = log or (lambda msg: print(msg, file=sys.stderr))
     firsts: Dict[str, Job] = {}
     for j in jl:
         firsts.setdefault(j.clip_key, j)
     todo = [j for j in firsts.values() if not (Path(j.clip_dir) / "clip.json").exists()]
-    say(f"[eval run] {len(jl)} jobs, {len(firsts)} clips ({len(todo)} to make), preset {preset}, jobs {jobs}")
+    say(f"[eval run] {len(jl)} jobs, {len(firsts)} clips ({len(todo)} to make), preset {preset}, jobs {jobs}, "
+        f"seeds {seeds}")
     kw = dict(force=force, lpips_weights=lpips_weights, device=device, score_kw=score_kw)
     if jobs <= 1:
         for j in todo:
@@ -242,15 +265,35 @@ def run_suite(suite, out, preset: str = "small", jobs: int = 1, scenes: Optional
         return results
 
 
-def list_jobs_jsonl(suite, out, preset: str = "small", scenes=None, lpips_weights=None, device=None) -> str:
+def list_jobs_jsonl(suite, out, preset: str = "small", scenes=None, lpips_weights=None, device=None,
+                    seeds: int = 1) -> str:
     """The job list as JSON lines (one job per line, with its `python -m eval job ...` command)."""
     return "".join(json.dumps(j.to_json(lpips_weights=lpips_weights, device=device)) + "\n"
-                   for j in job_list(suite, out, preset, scenes))
+                   for j in job_list(suite, out, preset, scenes, seeds))
 
 
-def find_job(suite, out, preset: str, scene: str, row: str) -> Job:
-    for j in job_list(suite, out, preset, [scene]):
-        if j.row == row:
+def find_job(suite, out, preset: str, scene: str, row: str, seed: int = 0) -> Job:
+    if seed < 0:
+        raise ValueError(f"seed must be >= 0, got {seed}")
+    for j in job_list(suite, out, preset, [scene], seed + 1):
+        if j.row == row and j.seed == seed:
             return j
     s, _ = _suite_ref(suite)
     raise KeyError(f"suite {s.name!r} has no row {row!r} (rows: {[r.name for r in s.rows]})")
+
+
+def seeds_present(suite, out, preset: str = "small", scenes=None) -> int:
+    """1 + the largest trainer seed that has a run folder of this suite under OUT (1 when only seed 0 exists)."""
+    import re
+
+    top = 0
+    for j in job_list(suite, out, preset, scenes):
+        parent = Path(j.run_dir).parent
+        if not parent.is_dir():
+            continue
+        pat = re.compile(re.escape(j.row + SEED_SUFFIX) + r"([0-9]+)$")
+        for p in parent.iterdir():
+            m = pat.match(p.name)
+            if m and p.is_dir():
+                top = max(top, int(m.group(1)))
+    return top + 1

@@ -11,13 +11,17 @@ A suite file names
   (default: the variant), ``label`` the text in the table (default: the name), ``variant`` a name of
   ``m4dgs.variants.VARIANTS`` (default ``full``), ``overrides`` extra dotted config overrides
   (e.g. ``{"exposure.perturb_ev": 0.5}``), ``clip`` the clip setting (default ``default``);
-- ``tables``: each ``{title, columns}`` with ``columns`` a layout name of ``LAYOUTS`` (``paper`` is
-  ``eval.tables.paper_table_spec``) or a list of metric keys of ``metric_columns()``.
+- ``tables``: each ``{title, columns, paper}`` with ``columns`` a layout name of ``LAYOUTS`` (``paper`` is
+  ``eval.tables.paper_table_spec``) or a list of metric keys of ``metric_columns()``, and ``paper`` (optional) a
+  table of ``eval/paper_values.yaml`` whose values are shown beside ours with the direction agreement;
+- ``reference``: the row every other row is compared with (paired differences; default the row named ``full``).
 
 The job list is (clip setting, scene, row). Clips are made once per distinct clip setting:
 ``OUT/clips/<setting id>/<scene>`` where the setting id is the scene suite's name, followed by the non-default
 values (``syn-exp-3``, ``syn-exp-3-random-order``, ``syn-exp-3-priors-oracle``), so suites that use the same clips
-share them. Runs go to ``OUT/runs/<suite>/<scene>/<row name>``. Use one OUT per preset.
+share them. Runs go to ``OUT/runs/<suite>/<scene>/<row name>`` (trainer seed 0) and
+``OUT/runs/<suite>/<scene>/<row name>-seed-<n>`` (seed n > 0, ``eval run --seeds``), so row names may not end in
+``-seed-<n>``. Use one OUT per preset.
 """
 from __future__ import annotations
 
@@ -33,6 +37,7 @@ SCHEDULES = ("alternating", "random-order", "random-values")
 PRIOR_PROFILES = ("oracle", "realistic", "harsh")
 DEFAULT_PRIORS = "realistic"
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
+_SEED_SUFFIX_RE = re.compile(r"-seed-[0-9]+$")
 
 
 class SuiteError(ValueError):
@@ -87,6 +92,7 @@ class Row:
 class TableDef:
     title: str
     columns: Any  # layout name (str) or list of metric keys
+    paper: Optional[str] = None  # key of eval/paper_values.yaml: "Paper" and agreement columns (eval.paper)
 
 
 @dataclass
@@ -98,6 +104,7 @@ class EvalSuite:
     rows: List[Row]
     tables: List[TableDef]
     path: Path = Path()
+    reference: Optional[str] = None  # row of the paired differences in the tables (default: the row named "full")
 
     def row(self, name: str) -> Row:
         for r in self.rows:
@@ -262,7 +269,7 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
     """Validate a suite mapping (as read from YAML) -> EvalSuite. Raises SuiteError naming the key."""
     if not isinstance(d, dict):
         raise SuiteError(path, "<root>", "expected a mapping")
-    unknown = sorted(set(d) - {"name", "description", "scenes", "clips", "rows", "tables"})
+    unknown = sorted(set(d) - {"name", "description", "scenes", "clips", "rows", "tables", "reference"})
     if unknown:
         raise SuiteError(path, unknown[0], "unknown key")
     for k in ("name", "scenes", "rows"):
@@ -290,6 +297,8 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
             raise SuiteError(path, f"rows[{i}].name", f"expected a folder-safe name, got {rname!r}")
         if rname in seen:
             raise SuiteError(path, f"rows[{i}].name", f"duplicate row name {rname!r}")
+        if _SEED_SUFFIX_RE.search(rname):  # reserved for the run folders of trainer seeds > 0 (eval.runner)
+            raise SuiteError(path, f"rows[{i}].name", f"a row name may not end in '-seed-<n>', got {rname!r}")
         seen.add(rname)
         ov = r.get("overrides") or {}
         if not isinstance(ov, dict):
@@ -302,6 +311,16 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
     for i, t in enumerate(d.get("tables") or [{"title": d.get("description", name), "columns": "paper"}]):
         if not isinstance(t, dict) or "columns" not in t:
             raise SuiteError(path, f"tables[{i}]", "expected {title, columns}")
+        bad = sorted(set(t) - {"title", "columns", "paper"})
+        if bad:
+            raise SuiteError(path, f"tables[{i}].{bad[0]}", "unknown key (title, columns, paper)")
+        if t.get("paper") is not None:
+            from .paper import load_paper_values
+
+            known = load_paper_values()
+            if t["paper"] not in known:
+                raise SuiteError(path, f"tables[{i}].paper",
+                                 f"unknown paper table {t['paper']!r} (have {sorted(known)})")
         cols = t["columns"]
         if isinstance(cols, str):
             if cols not in LAYOUTS:
@@ -313,8 +332,12 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
                     raise SuiteError(path, f"tables[{i}].columns", f"unknown metric column {k!r}")
         else:
             raise SuiteError(path, f"tables[{i}].columns", "expected a layout name or a list of metric keys")
-        tables.append(TableDef(str(t.get("title", name)), cols))
-    return EvalSuite(name, str(d.get("description", "")), str(d["scenes"]), clips, rows, tables, Path(str(path)))
+        tables.append(TableDef(str(t.get("title", name)), cols, None if t.get("paper") is None else str(t["paper"])))
+    reference = d.get("reference", "full" if "full" in seen else None)
+    if reference is not None and str(reference) not in seen:
+        raise SuiteError(path, "reference", f"not a row name: {reference!r} (rows: {sorted(seen)})")
+    return EvalSuite(name, str(d.get("description", "")), str(d["scenes"]), clips, rows, tables, Path(str(path)),
+                     None if reference is None else str(reference))
 
 
 def load_eval_suite(name_or_path) -> EvalSuite:

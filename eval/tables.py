@@ -8,6 +8,19 @@ listing the metric conventions (eval.metrics.CONVENTIONS keys or literal strings
 
 Mean over scenes: a method missing a value (None / NaN / absent) for any scene gets "n/a" for that column, unless
 the spec sets `partial_means=True` (then the mean is over the scenes that have the value, and the footnote says so).
+
+Rows may carry a "seed" (trainer seed, default 0): a method's values are then its (scene, seed) runs. Optional
+statistics (eval.stats), each switched on in the TableSpec:
+
+- `intervals`: cells read "mean ± h", h the half-width of the Student-t 95 % interval of the mean over the method's
+  n runs (n/a for n < 2), and an "n" column counts the runs;
+- `reference`: a method; every metric gets a "Δ" column with the paired difference row - reference over the
+  (scene, seed) runs both have, mean ± its t-interval, marked † when the interval excludes 0 ("ref" in its own row);
+- `paper`: {method: {metric key: value}} typed from the paper; every metric gets a "Paper" column and a
+  "paper / ours / agree" column: the sign of (row - reference) in the paper, ours ("n.s." when our interval
+  includes 0), and agree / disagree / not significant (eval.stats.agreement).
+
+The best value stays bold, judged on the means.
 """
 from __future__ import annotations
 
@@ -46,6 +59,11 @@ class TableSpec:
     scenes: list | None = None  # restrict to these scenes (default: all scenes in the rows)
     partial_means: bool = False
     method_header: str = "Method"
+    intervals: bool = False  # "mean ± CI half-width" cells and an "n" column (eval.stats.mean_ci)
+    reference: str | None = None  # method of the paired differences: a "Δ" column per metric
+    paper: dict | None = None  # {method: {key: value}} from the paper: "Paper" and agreement columns per metric
+    paper_source: str | None = None  # the paper table those values come from (footnote)
+    level: float = 0.95  # confidence level of the intervals
 
     @classmethod
     def from_dict(cls, d: dict) -> "TableSpec":
@@ -68,7 +86,8 @@ def aggregate(rows: list, spec: TableSpec) -> list:
     out = []
     for m in order:
         mrows = [r for r in rows if r["method"] == m]
-        agg = {"method": m, "n_scenes": len({r.get("scene") for r in mrows})}
+        agg = {"method": m, "n_scenes": len({r.get("scene") for r in mrows}),
+               "n_runs": sum(any(not _missing(r.get(c.key)) for c in spec.columns) for r in mrows)}
         for c in spec.columns:
             vals = [r.get(c.key) for r in mrows]
             present = [float(v) for v in vals if not _missing(v)]
@@ -78,6 +97,106 @@ def aggregate(rows: list, spec: TableSpec) -> list:
                 agg[c.key] = sum(present) / len(present)
         out.append(agg)
     return out
+
+
+@dataclass
+class CellStats:
+    """Statistics of one (method, metric) cell: the interval of the mean (None where the mean is n/a), the paired
+    difference to the reference (None: no reference or n/a), the paper's value and the agreement triple."""
+
+    ci: object = None  # eval.stats.Interval
+    diff: object = None  # eval.stats.Interval
+    is_reference: bool = False
+    paper: float | None = None
+    agree: tuple | None = None  # (paper's direction, ours, verdict)
+
+
+def _has_reference(agg: list, spec: TableSpec) -> bool:
+    return spec.reference is not None and any(r["method"] == spec.reference for r in agg)
+
+
+def cell_stats(rows: list, spec: TableSpec, agg: list | None = None) -> list:
+    """[row][col] CellStats in the order of aggregate(rows, spec)."""
+    from eval.stats import agreement, by_key, mean_ci, paired_diff
+
+    agg = aggregate(rows, spec) if agg is None else agg
+    rows = [r for r in rows if spec.scenes is None or r.get("scene") in spec.scenes]
+    has_ref = _has_reference(agg, spec)
+    ref_rows = [r for r in rows if r["method"] == spec.reference] if has_ref else []
+    ref_agg = next((a for a in agg if a["method"] == spec.reference), None) if has_ref else None
+    paper = spec.paper or {}
+    out = []
+    for a in agg:
+        m = a["method"]
+        mrows = [r for r in rows if r["method"] == m]
+        line = []
+        for c in spec.columns:
+            st = CellStats(is_reference=has_ref and m == spec.reference)
+            if a[c.key] is not None:
+                st.ci = mean_ci([r.get(c.key) for r in mrows], spec.level)
+                if has_ref and m != spec.reference and ref_agg[c.key] is not None:
+                    st.diff = paired_diff(by_key(mrows, c.key), by_key(ref_rows, c.key), spec.level)
+            st.paper = paper.get(m, {}).get(c.key)
+            if spec.paper is not None and has_ref and m != spec.reference:
+                pr = paper.get(spec.reference, {}).get(c.key)
+                st.agree = agreement(None if st.paper is None or pr is None else st.paper - pr, st.diff)
+            line.append(st)
+        out.append(line)
+    return out
+
+
+def _subcolumns(agg: list, spec: TableSpec) -> list:
+    """Sub-columns of every metric: "value", then "diff" (with a reference row), "paper" and "agree" (with paper
+    values)."""
+    sub = ["value"]
+    if _has_reference(agg, spec):
+        sub.append("diff")
+    if spec.paper is not None:
+        sub += ["paper", "agree"]
+    return sub
+
+
+_SYMBOLS = {"markdown": (" ± ", "†"), "latex": (" $\\pm$ ", "$^\\dagger$")}
+
+
+def _paper_fmt(v, fmt: str) -> str:
+    """A paper value at the column precision, but at most 3 decimals (the paper prints 2 or 3)."""
+    if _missing(v):
+        return NA
+    if fmt.endswith("f") and fmt[:-1].lstrip(".").isdigit():
+        fmt = f".{min(int(fmt[:-1].lstrip('.')), 3)}f"
+    return format(v, fmt)
+
+
+def _sub_cell(kind: str, st: CellStats, c: "Column", value_text: str, style: str, intervals: bool) -> str:
+    """Text of one sub-column cell; value_text is the (possibly bold) formatted mean."""
+    pm, dagger = _SYMBOLS[style]
+    if kind == "value":
+        if not intervals or st.ci is None:
+            return value_text
+        return value_text + pm + (NA if st.ci.half is None else format(st.ci.half, c.fmt))
+    if kind == "diff":
+        if st.is_reference:
+            return "ref"
+        d = st.diff
+        if d is None or d.mean is None:
+            return NA
+        text = format(d.mean, "+" + c.fmt) + pm + (NA if d.half is None else format(d.half, c.fmt))
+        return text + (dagger if d.excludes_zero else "")
+    if kind == "paper":
+        return _paper_fmt(st.paper, c.fmt)
+    if st.is_reference:
+        return "ref"
+    return NA if st.agree is None else " / ".join(st.agree)
+
+
+def _sub_header(kind: str, c: "Column", latex: bool) -> str:
+    name = (f"{c.group} " if c.group else "") + c.header
+    if kind == "value":
+        return (latex_escape(c.header) if latex else name) + _arrow(c, latex)
+    if latex:
+        return {"diff": "$\\Delta$", "paper": "Paper", "agree": "paper / ours / agree"}[kind]
+    return {"diff": f"Δ {name}", "paper": f"Paper {name}", "agree": f"{name}: paper / ours / agree"}[kind]
 
 
 def _fmt(v, fmt: str) -> str:
@@ -102,8 +221,9 @@ def best_flags(agg: list, spec: TableSpec) -> list:
     return flags
 
 
-def footnotes(spec: TableSpec, conventions: dict | None = None) -> list:
-    """Convention sentences for the table: each column's, then the spec's extras, de-duplicated, in order."""
+def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None = None) -> list:
+    """Convention sentences for the table: each column's, then the spec's extras, de-duplicated, in order, then the
+    statistics notes (intervals, paired differences, paper values; `agg` tells whether the reference row is there)."""
     if conventions is None:
         from eval.metrics import CONVENTIONS as conventions  # noqa: N811
     notes = []
@@ -115,6 +235,21 @@ def footnotes(spec: TableSpec, conventions: dict | None = None) -> list:
         notes.append("Means over the scenes that have a value (partial means).")
     else:
         notes.append("Means over scenes; n/a where a method lacks the value for a scene.")
+    pct = f"{100 * spec.level:g} %"
+    if spec.intervals:
+        notes.append(f"mean ± h: h is the half-width of the Student-t {pct} confidence interval of the mean over the "
+                     "n runs of a row (scenes x trainer seeds, treated as independent samples; t quantile with n - 1 "
+                     "degrees of freedom); n/a for n < 2.")
+    ref = spec.reference if (spec.reference is not None and (agg is None or _has_reference(agg, spec))) else None
+    if ref is not None:
+        notes.append(f"Δ: paired difference row - {ref} over the (scene, seed) runs both rows have, mean ± the "
+                     f"Student-t {pct} interval of the mean difference; † where that interval excludes 0.")
+    if spec.paper is not None:
+        src = f" ({spec.paper_source})" if spec.paper_source else ""
+        notes.append(f"Paper: the paper's value{src}, n/a where the paper has none. paper / ours / agree: the sign of "
+                     f"(row - {ref or 'reference'}) in the paper and in our mean difference (n.s. where our interval "
+                     "includes 0), then agree, disagree, not significant, or paper tie (the paper's two values are "
+                     "equal as printed).")
     return notes
 
 
@@ -128,27 +263,31 @@ def render_markdown(rows: list, spec: TableSpec, *, conventions: dict | None = N
     """GitHub Markdown table; bold as **x**; group names prefixed to headers ("HDR PSNR↑")."""
     agg = aggregate(rows, spec)
     flags = best_flags(agg, spec)
-    heads = [spec.method_header] + [
-        (f"{c.group} " if c.group else "") + c.header + _arrow(c, False) for c in spec.columns]
+    stats = cell_stats(rows, spec, agg)
+    sub = _subcolumns(agg, spec)
+    heads = [spec.method_header] + (["n"] if spec.intervals else []) + [
+        _sub_header(k, c, False) for c in spec.columns for k in sub]
     lines = []
     if spec.title:
         lines += [f"**{spec.title}**", ""]
     lines.append("| " + " | ".join(heads) + " |")
-    lines.append("|" + "|".join([":---"] + ["---:"] * len(spec.columns)) + "|")
-    for r, fl in zip(agg, flags):
-        cells = [str(r["method"])]
-        for c, f in zip(spec.columns, fl):
+    lines.append("|" + "|".join([":---"] + ["---:"] * (len(heads) - 1)) + "|")
+    for r, fl, st in zip(agg, flags, stats):
+        cells = [str(r["method"])] + ([str(r["n_runs"])] if spec.intervals else [])
+        for c, f, cs in zip(spec.columns, fl, st):
             s = _fmt(r[c.key], c.fmt)
-            cells.append(f"**{s}**" if f else s)
+            s = f"**{s}**" if f else s
+            cells += [_sub_cell(k, cs, c, s, "markdown", spec.intervals) for k in sub]
         lines.append("| " + " | ".join(cells) + " |")
     if notes:
         lines.append("")
-        lines += [f"- {n}" for n in footnotes(spec, conventions)]
+        lines += [f"- {n}" for n in footnotes(spec, conventions, agg)]
     return "\n".join(lines) + "\n"
 
 
 _LATEX_ESC = {"&": "\\&", "%": "\\%", "$": "\\$", "#": "\\#", "_": "\\_", "{": "\\{", "}": "\\}",
-              "~": "\\textasciitilde{}", "^": "\\textasciicircum{}", "\\": "\\textbackslash{}"}
+              "~": "\\textasciitilde{}", "^": "\\textasciicircum{}", "\\": "\\textbackslash{}",
+              "±": "$\\pm$", "Δ": "$\\Delta$", "†": "$^\\dagger$"}
 
 
 def latex_escape(s: str) -> str:
@@ -170,52 +309,103 @@ def render_latex(rows: list, spec: TableSpec, *, conventions: dict | None = None
     """booktabs tabular (l + one r per column), a \\multicolumn group row when groups are set, \\textbf for the best."""
     agg = aggregate(rows, spec)
     flags = best_flags(agg, spec)
-    n = len(spec.columns)
+    stats = cell_stats(rows, spec, agg)
+    sub = _subcolumns(agg, spec)
+    k = len(sub)
+    lead = ["n"] if spec.intervals else []  # columns between the method and the metrics
+    n = len(spec.columns) * k + len(lead)
     lines = []
     if spec.title:
         lines.append(f"% {spec.title}")
     lines.append("\\begin{tabular}{l" + "r" * n + "}")
     lines.append("\\toprule")
-    runs = _groups(spec)
-    if any(g for g, _, _ in runs):
-        cells, rules = [""], []
-        for g, start, cnt in runs:
-            cells.append(f"\\multicolumn{{{cnt}}}{{c}}{{{latex_escape(g)}}}" if g else " & ".join([""] * cnt))
-            if g:
-                rules.append(f"\\cmidrule(lr){{{start + 2}-{start + cnt + 1}}}")
+    first = 2 + len(lead)  # table column number of the first metric cell
+    if k > 1:  # one multicolumn per metric over its sub-columns, then the sub-column names
+        cells = [""] + [""] * len(lead)
+        rules = []
+        for j, c in enumerate(spec.columns):
+            title = latex_escape((f"{c.group} " if c.group else "") + c.header) + _arrow(c, True)
+            cells.append(f"\\multicolumn{{{k}}}{{c}}{{{title}}}")
+            rules.append(f"\\cmidrule(lr){{{first + j * k}-{first + j * k + k - 1}}}")
         lines.append(" & ".join(cells) + " \\\\")
-        if rules:
-            lines.append(" ".join(rules))
-    heads = [latex_escape(spec.method_header)] + [latex_escape(c.header) + _arrow(c, True) for c in spec.columns]
+        lines.append(" ".join(rules))
+        heads = [latex_escape(spec.method_header)] + lead + [
+            "ours" if s_ == "value" else _sub_header(s_, c, True) for c in spec.columns for s_ in sub]
+    else:
+        runs = _groups(spec)
+        if any(g for g, _, _ in runs):
+            cells, rules = [""] + [""] * len(lead), []
+            for g, start, cnt in runs:
+                cells.append(f"\\multicolumn{{{cnt}}}{{c}}{{{latex_escape(g)}}}" if g else " & ".join([""] * cnt))
+                if g:
+                    rules.append(f"\\cmidrule(lr){{{start + first}-{start + cnt + first - 1}}}")
+            lines.append(" & ".join(cells) + " \\\\")
+            if rules:
+                lines.append(" ".join(rules))
+        heads = [latex_escape(spec.method_header)] + lead + [latex_escape(c.header) + _arrow(c, True)
+                                                             for c in spec.columns]
     lines.append(" & ".join(heads) + " \\\\")
     lines.append("\\midrule")
-    for r, fl in zip(agg, flags):
-        cells = [latex_escape(r["method"])]
-        for c, f in zip(spec.columns, fl):
+    for r, fl, st in zip(agg, flags, stats):
+        cells = [latex_escape(r["method"])] + ([str(r["n_runs"])] if spec.intervals else [])
+        for c, f, cs in zip(spec.columns, fl, st):
             s = _fmt(r[c.key], c.fmt)
-            cells.append(f"\\textbf{{{s}}}" if f else s)
+            s = f"\\textbf{{{s}}}" if f else s
+            cells += [_sub_cell(s_, cs, c, s, "latex", spec.intervals) for s_ in sub]
         lines.append(" & ".join(cells) + " \\\\")
     lines.append("\\bottomrule")
     lines.append("\\end{tabular}")
     if notes:
         lines.append("\\par\\footnotesize")
-        lines += [latex_escape(nt) + " \\\\" for nt in footnotes(spec, conventions)]
+        lines += [latex_escape(nt) + " \\\\" for nt in footnotes(spec, conventions, agg)]
     return "\n".join(lines) + "\n"
 
 
 def render_csv(rows: list, spec: TableSpec, *, conventions: dict | None = None, notes: bool = False) -> str:
     """CSV: header row (method, n_scenes, then "<group> <header>"), one row per method, values at the column
-    precision, "n/a" for missing, no bold. `notes=True` appends the footnotes as '# ' comment lines."""
+    precision, "n/a" for missing, no bold. `notes=True` appends the footnotes as '# ' comment lines.
+
+    With the spec's statistics: an "n_runs" column, and after each metric "<name> ci95" (half-width), "Δ <name>",
+    "Δ <name> ci95", "Δ <name> excludes 0" (yes / no), "Paper <name>" and "<name> paper/ours/agree" (one field,
+    ' / '-separated), each only when switched on."""
     agg = aggregate(rows, spec)
+    stats = cell_stats(rows, spec, agg)
+    sub = _subcolumns(agg, spec)
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow([spec.method_header, "n_scenes"] + [((c.group + " ") if c.group else "") + c.header
-                                                  for c in spec.columns])
-    for r in agg:
-        w.writerow([r["method"], r["n_scenes"]] + [_fmt(r[c.key], c.fmt) for c in spec.columns])
+    head = [spec.method_header, "n_scenes"] + (["n_runs"] if spec.intervals else [])
+    for c in spec.columns:
+        name = ((c.group + " ") if c.group else "") + c.header
+        head.append(name)
+        head += [f"{name} ci95"] if spec.intervals else []
+        head += [f"Δ {name}", f"Δ {name} ci95", f"Δ {name} excludes 0"] if "diff" in sub else []
+        head += [f"Paper {name}", f"{name} paper/ours/agree"] if "paper" in sub else []
+    w.writerow(head)
+
+    def num(v, fmt):
+        return NA if v is None else _fmt(v, fmt)
+
+    for r, st in zip(agg, stats):
+        line = [r["method"], r["n_scenes"]] + ([r["n_runs"]] if spec.intervals else [])
+        for c, cs in zip(spec.columns, st):
+            line.append(_fmt(r[c.key], c.fmt))
+            if spec.intervals:
+                line.append(num(None if cs.ci is None else cs.ci.half, c.fmt))
+            if "diff" in sub:
+                d = cs.diff
+                if cs.is_reference:
+                    line += ["ref", "", ""]
+                elif d is None or d.mean is None:
+                    line += [NA, NA, NA]
+                else:
+                    line += [format(d.mean, "+" + c.fmt), num(d.half, c.fmt),
+                             NA if d.excludes_zero is None else ("yes" if d.excludes_zero else "no")]
+            if "paper" in sub:
+                line += [_paper_fmt(cs.paper, c.fmt), _sub_cell("agree", cs, c, "", "markdown", False)]
+        w.writerow(line)
     text = buf.getvalue()
     if notes:
-        text += "".join(f"# {nt}\n" for nt in footnotes(spec, conventions))
+        text += "".join(f"# {nt}\n" for nt in footnotes(spec, conventions, agg))
     return text
 
 

@@ -416,7 +416,9 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
     mp.unlink()
     r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures"])
     base_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Baseline"))
-    assert r.exit_code == 0 and base_line.count("n/a") == 10 and "1 of 4 runs have no metrics.json" in r.output
+    # 10 means and their 10 paired differences to the reference row (full) are n/a; n counts the one scored run
+    assert r.exit_code == 0 and base_line.count("n/a") == 20 and "1 of 4 runs have no metrics.json" in r.output
+    assert base_line.startswith("| Baseline | 1 | n/a | n/a |")
     mp.write_bytes(saved)
     # latex / csv / runs-dir forms
     r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--format", "latex", "--no-figures"])
@@ -523,3 +525,53 @@ def test_score_real_clip_without_gt(tmp_path, fake_trainer):
     assert m["ldr_train_psnr"] == 100.0  # train renders equal the input video
     assert m["hdr_tae"] is not None and math.isfinite(m["hdr_tae"]) and "hdr_tae_dis_flow" in m["conventions"]
     assert m["run"]["has_gt"] is False
+
+
+def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
+    """--seeds 2: seed 0 keeps the run folders, seed 1 trains into <row>-seed-1 with seed=1 on the same clips; the
+    table pools the 2 scenes x 2 seeds with intervals and paired differences to the reference row."""
+    from eval.runner import job_list, run_suite
+
+    suite = tmp_path / "t2.yaml"
+    suite.write_text(SUITE_YAML)
+    out = tmp_path / "exp"
+    for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
+        make_fake_clip(Path(j), seed=len(j))
+    r = CliRunner().invoke(main, ["run", str(suite), "--out", str(out), "--preset", "tiny", "--seeds", "2",
+                                  "--list-jobs"])
+    assert r.exit_code == 0 and len(r.output.strip().splitlines()) == 8 and "--seed 1" in r.output
+    res = run_suite(suite, out, "tiny", score_kw={"fps": False}, progress=False, log=lambda s: None, seeds=2)
+    assert len(res) == 8 and len(fake_trainer["train"]) == 8
+    by_dir = {Path(d).name: ov for d, _, ov in fake_trainer["train"]}
+    assert by_dir["full"] == {"exposure.perturb_ev": 0.0} and by_dir["full-seed-1"] == {"exposure.perturb_ev": 0.0,
+                                                                                            "seed": 1}
+    assert by_dir["base"] is None and by_dir["base-seed-1"] == {"seed": 1}
+    # known numbers: Ours = Baseline + 1 dB HDR PSNR (+- 0.1) on every (scene, seed)
+    vals = {}
+    for j in job_list(suite, out, "tiny", seeds=2):
+        mp = Path(j.run_dir) / "metrics.json"
+        m = json.loads(mp.read_text())
+        b = 30.0 + 2.0 * (j.scene == "tiny-flag-arm") + 0.3 * j.seed
+        m["hdr_psnr"] = b + (1.0 + 0.1 * (j.seed - 0.5) if j.row == "full" else 0.0)
+        vals[(j.row, j.scene, j.seed)] = m["hdr_psnr"]
+        mio.write_json(mp, m)
+    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures"])
+    assert r.exit_code == 0, r.output
+    base_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Baseline"))
+    ours_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Ours"))
+    cells = [c.strip() for c in base_line.strip("|").split("|")]
+    assert cells[1] == "4"  # 2 scenes x 2 seeds
+    heads = [c.strip() for c in r.output.splitlines()[2].strip("|").split("|")]
+    k = heads.index("HDR PSNR↑")
+    base = [v for (row, _, _), v in vals.items() if row == "base"]
+    h = 3.182446305284263 * np.std(base, ddof=1) / 2  # t_{0.975, 3} s / sqrt(4)
+    assert cells[k] == f"{np.mean(base):.2f} ± {h:.2f}"
+    assert heads[k + 1] == "Δ HDR PSNR" and cells[k + 1].startswith("-1.00 ± ") and cells[k + 1].endswith("†")
+    assert "| Ours | 4 |" in ours_line and "ref" in ours_line
+    # with --seeds 1 only the seed-0 runs are tabulated
+    r1 = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures", "--seeds", "1"])
+    assert "| Baseline | 2 |" in r1.output
+    # the runs folder form: <row>-seed-<n> folders are seeds of the same row
+    r2 = CliRunner().invoke(main, ["table", str(out / "runs" / "t2"), "--no-figures"])
+    assert r2.exit_code == 0, r2.output
+    assert "| world-only | 4 |" in r2.output and "| full | 4 |" in r2.output
