@@ -60,7 +60,8 @@ DESCRIPTIONS: Dict[str, str] = {
     "epipolar-masks": "dynamic masks from the epipolar test alone (sec. 3.2 as written), no rigidity test",
     "static-hdr": "baseline (GaussHDR-style): static HDR Gaussians with the bundle-adjustment cameras (fixed)",
     "world-only": "ablation (a) without TLR: world Gaussians from lifted tracks/depth (no stage 1, hence no HDR "
-                  "reprojection loss), no temporal luminance regularisation; cameras refined by the RGB/depth/flow losses",
+                  "reprojection loss), no temporal luminance regularisation; cameras refined by the RGB/depth/flow "
+                  "losses",
     "ldr-reproj": "world-only plus an LDR photometric reprojection loss between SAME-exposure frames i +- N_e (this "
                   "sidesteps the exposure change that the paper blames for SplineGS-HDR's failure)",
     "ldr-reproj-consecutive": "baseline (SplineGS-HDR-style, the paper's form): world-only plus an LDR photometric "

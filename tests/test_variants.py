@@ -1,4 +1,4 @@
-"""Variants: equal iteration budgets across variants within a preset, and the LDR reprojection baselines' frame pairs."""
+"""Variants: equal iteration budgets across the variants of a preset; the LDR reprojection baselines' frame pairs."""
 from __future__ import annotations
 
 import pytest
