@@ -54,7 +54,9 @@ class RenderSettings:
     render is bit-identical; emitter_sampling: how next-event estimation picks a light: "uniform" (Mitsuba's
     default, every emitter equally often), "power" (each emitter's `sampling_weight` proportional to the irradiance
     it gives the scene, :func:`emitter_sampling_weights`), "power-sqrt" (the square root of those weights, a
-    compromise) or "auto" (whichever of the three is least noisy on the first frame, :func:`choose_emitter_sampling`).
+    compromise) or "auto" (whichever of the three is least noisy on the first frame, :func:`choose_emitter_sampling`);
+    denoise: render the first-hit albedo and shading normal (Mitsuba's ``aov`` integrator, GUIDE_SPP samples) and
+    denoise every frame with Open Image Denoise (:mod:`benchgen.denoise`).
     """
 
     spp: int = 256
@@ -63,6 +65,7 @@ class RenderSettings:
     rfilter: str = "box"
     seed: int = 0
     emitter_sampling: str = "uniform"
+    denoise: bool = False
 
     @staticmethod
     def resolve(preset: Union[str, "RenderSettings", Dict[str, Any], None]) -> "RenderSettings":
@@ -89,12 +92,12 @@ class RenderSettings:
 # and made shadowed pixels (lit only indirectly) flicker by ~100 % from frame to frame. The low-discrepancy sampler
 # ("ldsampler") halved the noise of "multijitter" at 64 spp on a small-lamp scene (216x120).
 RENDER_PRESETS: Dict[str, RenderSettings] = {
-    "tiny": RenderSettings(spp=64, max_depth=2, sampler="ldsampler", emitter_sampling="auto"),
+    "tiny": RenderSettings(spp=64, max_depth=2, sampler="ldsampler", emitter_sampling="auto", denoise=True),
     # 64 spp meets the 15-minute target for the small suite on 2 cores (256 took ~37 min); the per-clip light
-    # selection lowers its noise by up to 2x (docs/rendering.md). ldsampler rounds spp to a power of 4: the next
-    # step up is 256 (`benchgen make --spp 256`).
-    "small": RenderSettings(spp=64, max_depth=2, sampler="ldsampler", emitter_sampling="auto"),
-    "paper": RenderSettings(spp=1024, max_depth=2, sampler="ldsampler", emitter_sampling="auto"),
+    # selection lowers its noise by up to 2x and the denoiser by a further ~3x (docs/rendering.md). ldsampler rounds
+    # spp to a power of 4: the next step up is 256 (`benchgen make --spp 256`).
+    "small": RenderSettings(spp=64, max_depth=2, sampler="ldsampler", emitter_sampling="auto", denoise=True),
+    "paper": RenderSettings(spp=1024, max_depth=2, sampler="ldsampler", emitter_sampling="auto", denoise=True),
 }
 
 
@@ -241,6 +244,7 @@ def emitter_weights_for(mode: str, fs) -> Dict[str, float]:
 
 
 EMITTER_PROBE_SPP = 16  # spp of choose_emitter_sampling's probe renders
+GUIDE_SPP = 16  # spp of the albedo / normal guides of the denoiser (first hits only: cheap)
 
 
 def choose_emitter_sampling(fs, width: int, height: int, settings, probe_spp: int = EMITTER_PROBE_SPP):
@@ -259,7 +263,8 @@ def choose_emitter_sampling(fs, width: int, height: int, settings, probe_spp: in
     if not any(m.material.kind == "emitter" for m in fs.meshes) and fs.lighting.sun_irradiance is None:
         return "uniform", scores  # the environment is the only light: nothing to choose
     for mode in EMITTER_SAMPLING_MODES:
-        r = Renderer(fs, width, height, dataclasses.replace(base, spp=int(probe_spp), emitter_sampling=mode))
+        r = Renderer(fs, width, height, dataclasses.replace(base, spp=int(probe_spp), emitter_sampling=mode,
+                                                            denoise=False))
         hit = r.cast_rays().hit
         a = r.render_hdr(seed=base.seed + 1)
         b = r.render_hdr(seed=base.seed + 2)
@@ -299,6 +304,7 @@ class Renderer:
         self._shapes = [by_id[mid] for mid in self.mesh_ids]
         self.state = frame_state0
         self.num_updates = 0
+        self._guides = None  # Mitsuba aov integrator for the denoiser's albedo / normal, loaded on first use
 
     # -- scene construction ------------------------------------------------------------------------------------
     def _texture(self, material):
@@ -422,14 +428,36 @@ class Renderer:
         self.num_updates += 1
 
     # -- rendering ------------------------------------------------------------------------------------------------
-    def render_hdr(self, seed: Optional[int] = None, spp: Optional[int] = None) -> np.ndarray:
-        """[H, W, 3] float32 linear radiance of the current state (seed defaults to settings.seed + g)."""
+    def render_hdr(self, seed: Optional[int] = None, spp: Optional[int] = None,
+                   denoise: Optional[bool] = None) -> np.ndarray:
+        """[H, W, 3] float32 linear radiance of the current state (seed defaults to settings.seed + g).
+
+        denoise (default: settings.denoise): pass the frame through benchgen.denoise.denoise_hdr, guided by an
+        albedo / normal render of GUIDE_SPP samples, with the emitter pixels of this state's ray cast.
+        """
         mi = self._mi
         if seed is None:
             seed = self.settings.seed + int(self.state.g)
-        img = mi.render(self.scene, seed=int(seed), spp=int(spp or self.settings.spp))
-        out = np.array(img, dtype=np.float32)[..., :3]
-        return np.ascontiguousarray(out)
+        img = np.array(mi.render(self.scene, seed=int(seed), spp=int(spp or self.settings.spp)), dtype=np.float32)
+        color = np.ascontiguousarray(img[..., :3])
+        if not (self.settings.denoise if denoise is None else denoise):
+            return color
+        from .denoise import denoise_hdr
+
+        # the guides need few samples (first hits only: 16 spp cost ~4 % of a 64-spp colour render at 216x120)
+        if self._guides is None:
+            self._guides = mi.load_dict({"type": "aov", "aovs": "albedo:albedo,nn:sh_normal"})
+        aux = np.array(mi.render(self.scene, integrator=self._guides, seed=int(seed), spp=GUIDE_SPP), np.float32)
+        return denoise_hdr(color, aux[..., 0:3], aux[..., 3:6], self.emitter_pixels())
+
+    def emitter_pixels(self) -> np.ndarray:
+        """[H, W] bool: pixels of the current state whose centre ray hits an emitter (cached per state)."""
+        key = (id(self.state), self.num_updates)
+        if getattr(self, "_emit_key", None) != key:
+            cast = self.cast_rays()
+            kinds = np.array([m.material.kind == "emitter" for m in self.state.meshes] + [False])
+            self._emit_mask, self._emit_key = kinds[cast.mesh], key  # mesh -1 (no surface) -> the last entry
+        return self._emit_mask
 
     # -- exact ray casts ------------------------------------------------------------------------------------------
     def _intersect(self, o: np.ndarray, d: np.ndarray):
@@ -524,10 +552,11 @@ NOISE_SEED_OFFSET = 1_000_003  # seed of the second, independent render of the f
 
 def render_clip_gt(scene, width: int, height: int, frames, preset, out, progress: bool = True, *,
                    num_grid: int = 256, num_dynamic: int = 64, num_ref: int = 4,
-                   rtol: float = DEFAULT_DEPTH_RTOL) -> dict:
+                   rtol: float = DEFAULT_DEPTH_RTOL, hdr_dir=("gt", "hdr")) -> dict:
     """Render and write the ground truth of a clip through a m4dgs.clip.ClipWriter.
 
-    For every frame g in `frames`: gt/hdr (skipped when the file exists: resume; read back where needed), gt/depth
+    For every frame g in `frames`: the HDR frame into `hdr_dir` (a folder relative to the clip, default gt/hdr;
+    skipped when the file exists: resume; read back where needed), gt/depth
     (z-depth, 0 = no surface) and gt/masks/dynamic. Then gt/cameras.json, gt/flow.npz (exact flow + visibility between
     consecutive TRAINING frames of out.meta.split.train, both directions) and gt/tracks.npz (over all frames, queries
     from `num_ref` reference frames). Returns the ground-truth notes, also merged into out.meta.gt:
@@ -537,7 +566,7 @@ def render_clip_gt(scene, width: int, height: int, frames, preset, out, progress
     """
     import time
 
-    from eval.metrics.temporal import hdr_tae_pairs
+    from eval.metrics.temporal import depth_edges, hdr_tae_pairs, interior_visibility
     from m4dgs import io as mio
     from m4dgs.clip import FlowSet, frame_name
 
@@ -574,9 +603,9 @@ def render_clip_gt(scene, width: int, height: int, frames, preset, out, progress
         except ImportError:
             pass
     cams, tr_uv, tr_p3, tr_vis = [], [], [], []
-    pairs, flows, valids, tae_pairs = [], [], [], []
+    pairs, flows, valids, tae_pairs, tae_inner = [], [], [], [], []
     prev = None  # (g, state, cast, hdr) of the previous training frame
-    noise, surface_fraction = None, None
+    noise, noise_interior, surface_fraction = None, None, None
     t_render, t_cast, n_render = 0.0, 0.0, 0
     for g in iterator:
         st = first if g == frames[0] else scene.frame(g, width, height)
@@ -585,7 +614,7 @@ def render_clip_gt(scene, width: int, height: int, frames, preset, out, progress
         cast = renderer.cast_rays()
         t_cast += time.perf_counter() - t0
         cams.append(st)
-        hdr_rel = ("gt", "hdr", frame_name(g, "exr"))
+        hdr_rel = tuple(hdr_dir) + (frame_name(g, "exr"),)
         need_hdr = g in train or g == frames[0]
         hdr = None
         if out.exists(*hdr_rel):
@@ -596,7 +625,7 @@ def render_clip_gt(scene, width: int, height: int, frames, preset, out, progress
             hdr = renderer.render_hdr()
             t_render += time.perf_counter() - t0
             n_render += 1
-            out.write_gt_hdr(g, hdr)
+            mio.write_exr(out.root.joinpath(*hdr_rel), hdr)
         if not out.exists("gt", "depth", frame_name(g, "exr")):
             out.write_gt_depth(g, cast.depth)
         if not out.exists("gt", "masks", "dynamic", frame_name(g, "png")):
@@ -604,6 +633,7 @@ def render_clip_gt(scene, width: int, height: int, frames, preset, out, progress
         if g == frames[0]:
             other = renderer.render_hdr(seed=settings.seed + g + NOISE_SEED_OFFSET)
             noise = render_noise(hdr, other, cast.hit)
+            noise_interior = render_noise(hdr, other, cast.hit & ~depth_edges(cast.depth))
             surface_fraction = float(cast.hit.mean())
         uv, p3, vis = track_frame(q, st, cast.depth, cast.instance, rtol)
         tr_uv.append(uv)
@@ -618,6 +648,10 @@ def render_clip_gt(scene, width: int, height: int, frames, preset, out, progress
                 flows += [f_ab, f_ba]
                 valids += [v_ab, v_ba]
                 tae_pairs += hdr_tae_pairs(np.stack([ha, hdr]), f_ab[None], f_ba[None], v_ab[None], v_ba[None])
+                ea, eb = depth_edges(ca.depth), depth_edges(cast.depth)
+                tae_inner += hdr_tae_pairs(np.stack([ha, hdr]), f_ab[None], f_ba[None],
+                                           interior_visibility(v_ab, f_ab, ea, eb)[None],
+                                           interior_visibility(v_ba, f_ba, eb, ea)[None])
             prev = (g, st, cast, hdr)
 
     out.write_gt_cameras(cameras_from_states(cams))
@@ -629,6 +663,7 @@ def render_clip_gt(scene, width: int, height: int, frames, preset, out, progress
     out.write_gt_tracks(ts)
 
     finite = [v for v in tae_pairs if np.isfinite(v)]
+    finite_inner = [v for v in tae_inner if np.isfinite(v)]
     notes = {
         "render": {"variant": renderer.variant, **dataclasses.asdict(settings), "integrator": "path",
                    "pixel_filter": "box", "emitter_sampling": renderer.emitter_sampling,
@@ -639,6 +674,15 @@ def render_clip_gt(scene, width: int, height: int, frames, preset, out, progress
         "hdr_tae_floor": float(np.mean(finite)) if finite else None,
         "hdr_tae_floor_convention": "HDR-TAE (channel sum) of the gt training sequence with exact gt flow and "
                                     "visibility (eval.metrics.temporal.hdr_tae_pairs)",
+        # where the floor comes from: occlusion-edge pixels (mixed colours, one flow), noise (two seeds of frame 0,
+        # no motion), and the rest (resampling of texture by the bilinear warp, shading that changes with motion)
+        "hdr_tae_floor_parts": {
+            "interior": float(np.mean(finite_inner)) if finite_inner else None,
+            "edges": (float(np.mean(finite)) - float(np.mean(finite_inner))) if finite and finite_inner else None,
+            "noise_interior_two_seeds": float(noise_interior["tae_two_seeds"]),
+            "rest_interior": (float(np.mean(finite_inner)) - float(noise_interior["tae_two_seeds"]))
+            if finite_inner else None,
+        },
         "depth_no_surface": 0.0,
         "visibility_depth_rtol": rtol,
         "tracks": {"num": int(len(q)), "reference_frames": [frames[r] for r in refs], "num_grid": num_grid,

@@ -33,6 +33,8 @@ CONVENTIONS = {
     "hdr_tae_gt_flow": "HDR-TAE flow: exact ground-truth flow and visibility",
     "hdr_tae_dis_flow": "HDR-TAE flow: OpenCV DIS (preset medium) on 8-bit mu-law tone-mapped HDR, visibility from "
                         "forward-backward consistency",
+    "hdr_tae_interior": "HDR-TAE interior: the same, with occlusion-edge pixels (a 5 % depth jump or a surface "
+                        "boundary, grown by 1 px, in either frame) removed from the visibility",
     "hdr_t_std": "HDR_T_std: population std over frames of each frame's mean HDR value, divided by the global mean",
 }
 
@@ -80,6 +82,53 @@ def hdr_tae_pairs(frames, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> lis
         terms = [s / n for s, n in ((s1, n1), (s2, n2)) if n > 0]
         out.append(float(np.mean(terms)) if terms else math.nan)
     return out
+
+
+EDGE_DEPTH_RTOL = 0.05  # relative z-depth jump between 4-neighbours that marks an occlusion edge
+EDGE_RADIUS = 1  # edge pixels are grown by this many pixels (box)
+
+
+def depth_edges(depth, rtol: float = EDGE_DEPTH_RTOL, radius: int = EDGE_RADIUS) -> np.ndarray:
+    """[H, W] bool: pixels next to an occlusion edge of a z-depth map [H, W] (0 = no surface).
+
+    A 4-neighbour pair is an edge when one has a surface and the other not, or when their depths differ by more than
+    rtol of the smaller; both pixels of the pair are marked, then the mask is grown by `radius` pixels. These are the
+    pixels whose colour mixes two surfaces (the box pixel filter averages over the footprint) and whose flow is that of
+    only one of them, so the HDR-TAE of perfectly consistent frames is not zero there.
+    """
+    d = np.asarray(depth, np.float64)
+    e = np.zeros(d.shape, bool)
+    for a, b, sl_a, sl_b in ((d[:, :-1], d[:, 1:], (slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+                             (d[:-1], d[1:], (slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+        surf_a, surf_b = a > 0, b > 0
+        jump = np.abs(a - b) > rtol * np.maximum(np.minimum(a, b), 1e-12)
+        pair = (surf_a != surf_b) | (surf_a & surf_b & jump)
+        e[sl_a] |= pair
+        e[sl_b] |= pair
+    for _ in range(int(radius)):
+        g = e.copy()
+        g[1:] |= e[:-1]
+        g[:-1] |= e[1:]
+        g[:, 1:] |= e[:, :-1]
+        g[:, :-1] |= e[:, 1:]
+        g[1:, 1:] |= e[:-1, :-1]
+        g[:-1, :-1] |= e[1:, 1:]
+        g[1:, :-1] |= e[:-1, 1:]
+        g[:-1, 1:] |= e[1:, :-1]
+        e = g
+    return e
+
+
+def interior_visibility(vis_ab, flow_ab, edges_a, edges_b) -> np.ndarray:
+    """vis_ab [H, W] without the pixels of frame a that are edge pixels or whose flow lands on an edge pixel of b
+    (nearest pixel): the edge-excluded HDR-TAE's visibility (see `depth_edges`)."""
+    v = np.asarray(vis_ab, bool) & ~np.asarray(edges_a, bool)
+    f = np.asarray(flow_ab, np.float64)
+    H, W = v.shape
+    ys, xs = np.mgrid[0:H, 0:W]
+    xt = np.clip(np.floor(xs + f[..., 0] + 0.5).astype(np.int64), 0, W - 1)  # pixel centres at integer + 0.5
+    yt = np.clip(np.floor(ys + f[..., 1] + 0.5).astype(np.int64), 0, H - 1)
+    return v & ~np.asarray(edges_b, bool)[yt, xt]
 
 
 def hdr_tae(frames, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> float:
