@@ -58,7 +58,12 @@ def main():
               help="Samples per pixel of the HDR renders (default: the preset's, tiny 64 / small 64 / paper 1024; the "
                    "low-discrepancy sampler rounds to a power of 4). At small, 256 lowers the render noise 2-4x and "
                    "takes ~4x longer (docs/rendering.md).")
-def make(suite, scenes, num_exposures, observed, novel, schedule, preset, priors, out, jobs, seed, force, crf, spp):
+@click.option("--allow-misplaced", is_flag=True,
+              help="Keep clips that miss their exposure-placement targets (median of the middle level in "
+                   "[0.35, 0.65], highlights observed at the shortest level, saturation at the longest, dark pixels "
+                   "at the shortest; docs/exposure.md) with a warning instead of failing.")
+def make(suite, scenes, num_exposures, observed, novel, schedule, preset, priors, out, jobs, seed, force, crf, spp,
+         allow_misplaced):
     """Generate the clips of a suite (resumable: finished clips and frames are skipped)."""
     from m4dgs.crf import CLIP_CRFS
 
@@ -68,11 +73,18 @@ def make(suite, scenes, num_exposures, observed, novel, schedule, preset, priors
         raise click.BadParameter(f"{crf!r} is not a clip response; choose one of {', '.join(CLIP_CRFS)}",
                                  param_hint="--crf")
 
-    paths = make_suite(
-        suite, out, preset=preset, scenes=None if scenes is None else [s.strip() for s in scenes.split(",") if s.strip()],
-        priors=priors, schedule=schedule, num_exposures=None if num_exposures is None else int(num_exposures),
-        observed=_levels(observed), novel=_levels(novel), seed=seed, jobs=jobs, force=force, spp=spp, crf=crf,
-    )
+    from .make import PlacementError
+
+    try:
+        paths = make_suite(
+            suite, out, preset=preset,
+            scenes=None if scenes is None else [s.strip() for s in scenes.split(",") if s.strip()],
+            priors=priors, schedule=schedule, num_exposures=None if num_exposures is None else int(num_exposures),
+            observed=_levels(observed), novel=_levels(novel), seed=seed, jobs=jobs, force=force, spp=spp, crf=crf,
+            allow_misplaced=allow_misplaced,
+        )
+    except PlacementError as e:
+        raise click.ClickException(str(e))
     for p in paths:
         click.echo(str(p))
 

@@ -2,7 +2,7 @@
 
 The input video is tone-mapped with a CRF (``m4dgs.crf``, HDR-NeRF by default) and quantised to 8 bits:
 ``LDR_g = floor(255 * f(s * H_g * dt_g) + 0.5)`` where ``H_g`` is the rendered linear HDR frame, ``s`` the clip's
-single HDR scale (``choose_hdr_scale``, recorded in clip.json ``hdr_scale``) and ``dt_g`` the frame's exposure time.
+single HDR scale (``benchgen.placement.choose_hdr_scale``, recorded in clip.json ``hdr_scale``) and ``dt_g`` the frame's exposure time.
 
 Presets (DESIGN.md "Conventions"; HDR-NeRF's ladder 0.125, 0.5, 2, 8, 32 — two stops apart):
 
@@ -25,11 +25,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple, Union
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from m4dgs.crf import CRF, get_crf
 
 SCHEDULES = ("alternating", "random-order", "random-values")
 
@@ -146,124 +145,6 @@ def schedule_train_dt(num_train: int, settings: ExposureSettings, seed: int = 0)
         return [bag[int(i)] for i in perm]
     lo, hi = math.log(settings.shortest), math.log(settings.longest)
     return [float(v) for v in np.exp(rng.uniform(lo, hi, size=n))]
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# HDR scale
-# ----------------------------------------------------------------------------------------------------------------
-def _max_channel_sample(hdr_frames_sample, max_pixels: int) -> np.ndarray:
-    """Per-pixel max over channels of every given frame, subsampled with a fixed stride to <= max_pixels."""
-    if isinstance(hdr_frames_sample, np.ndarray):
-        frames = [hdr_frames_sample]
-    else:
-        frames = list(hdr_frames_sample)
-    parts = []
-    for fr in frames:
-        a = np.asarray(fr, dtype=np.float64)
-        if a.ndim >= 3 and a.shape[-1] in (1, 3, 4):
-            a = a[..., :3].max(axis=-1)
-        parts.append(a.reshape(-1))
-    m = np.concatenate(parts) if parts else np.zeros(0)
-    if m.size == 0:
-        raise ValueError("choose_hdr_scale: empty HDR sample")
-    if not np.isfinite(m).all() or (m < 0).any():
-        raise ValueError("choose_hdr_scale: HDR sample must be finite and >= 0")
-    if m.size > max_pixels:
-        m = m[:: int(math.ceil(m.size / max_pixels))]
-    return m
-
-
-def choose_hdr_scale(hdr_frames_sample, settings: ExposureSettings, crf: Union[str, CRF] = "hdrnerf", *,
-                     target_saturated: float = 0.005, target_black: float = 0.005, median_target: float = 0.5,
-                     priority: str = "saturation", max_pixels: int = 4_000_000) -> Tuple[float, dict]:
-    """One global HDR scale s for a clip so that the clip genuinely needs exposure merging.
-
-    A pixel (of a frame tone-mapped with ``tonemap_ldr(s * H, dt, crf)``) counts as *saturated* when its brightest
-    channel is 255 and as *black* when all its channels are 0. The wanted scale satisfies
-
-        fraction saturated at the longest observed level  >= target_saturated      (needs s >= s_sat)
-        fraction black at the shortest observed level     >= target_black          (needs s <= s_black)
-
-    and, inside [s_sat, s_black], puts the median brightest channel at LDR ``median_target`` at the middle level
-    sqrt(shortest * longest) (s_mid). When the scene's dynamic range is too small for both (s_sat > s_black) the
-    ``priority`` decides: "saturation" (default; s = s_sat: the smallest scale that still saturates, so as many
-    pixels as possible go black), "black" (s = s_black), or "median" (s_mid clipped to [s_black, s_sat]). The result
-    says so honestly (``feasible`` False, ``message``).
-
-    Note that black at the shortest level is demanding with the hdrnerf CRF: code 0 needs x = s H dt < f^-1(0.5/255)
-    = 1.1e-6, i.e. about 19.6 stops between the brightest and darkest pixel percentiles for the 3-level preset
-    (``required_range_stops``), which only scenes with deep shadows or unlit regions reach.
-
-    Args:
-        hdr_frames_sample: one [H, W, 3] frame, an array [T, H, W, 3], or a list of frames (linear HDR, >= 0).
-        settings: the clip's exposure settings.
-        crf: the CRF (or its name) the clip is tone-mapped with.
-        target_saturated, target_black: wanted pixel fractions (0..1).
-        median_target: wanted LDR value (0..1) of the median pixel's brightest channel at the middle level.
-        priority: "saturation" | "black" | "median" (only used when both targets cannot be met).
-        max_pixels: the pixel sample is strided down to at most this many pixels.
-    Returns:
-        (scale, report) with report = {scale, feasible, message, saturated_fraction (at the longest level),
-        black_fraction (at the shortest level), median_ldr (median brightest-channel LDR value at the middle level,
-        0..1), s_saturation, s_black, s_median, required_range_stops, available_range_stops, longest, shortest,
-        middle, targets}.
-    """
-    if priority not in ("saturation", "black", "median"):
-        raise ValueError(f"priority must be 'saturation', 'black' or 'median', got {priority!r}")
-    f = get_crf(crf)
-    m = _max_channel_sample(hdr_frames_sample, max_pixels)
-    n = m.size
-    dt_long, dt_short, dt_mid = settings.longest, settings.shortest, settings.middle
-    # exposure thresholds of the codes: 255 needs f(x) >= 254.5/255, 0 needs f(x) < 0.5/255
-    x_sat = float(f.inverse(254.5 / 255.0))
-    x_blk = float(f.inverse(0.5 / 255.0))
-    x_mid = float(f.inverse(median_target))
-    ms = np.sort(m)
-    positive = ms[ms > 0]
-    if positive.size == 0:
-        raise ValueError("choose_hdr_scale: the HDR sample is entirely black")
-    # saturation: the brightest ceil(target * n) pixels must reach x_sat at dt_long
-    k_sat = max(1, int(math.ceil(target_saturated * n)))
-    q_hi = ms[n - k_sat]
-    s_sat = (x_sat / (dt_long * q_hi)) * (1.0 + 1e-9) if q_hi > 0 else math.inf
-    # black: the darkest ceil(target * n) pixels must stay below x_blk at dt_short (zeros are black at any scale)
-    k_blk = max(1, int(math.ceil(target_black * n)))
-    q_lo = ms[k_blk - 1]
-    s_blk = (x_blk / (dt_short * q_lo)) * (1.0 - 1e-9) if q_lo > 0 else math.inf
-    s_mid = x_mid / (dt_mid * float(np.median(positive)))
-    feasible = s_sat <= s_blk
-    if feasible:
-        s = min(max(s_mid, s_sat), s_blk)
-        msg = "both targets met"
-    else:
-        if priority == "saturation":
-            s = s_sat
-        elif priority == "black":
-            s = s_blk
-        else:
-            s = min(max(s_mid, s_blk), s_sat)
-        msg = (f"dynamic range too small for both targets: saturation needs s >= {s_sat:.4g}, black needs "
-               f"s <= {s_blk:.4g}; chose s by priority '{priority}'")
-    if not math.isfinite(s):
-        s = s_mid
-    # measure what was achieved with the actual quantiser
-    from m4dgs.crf import quantize_ldr  # local: keep the module namespace small
-
-    sat = float(np.mean(quantize_ldr(f(m * s * dt_long)) == 255))
-    blk = float(np.mean(quantize_ldr(f(m * s * dt_short)) == 0))
-    med = float(quantize_ldr(f(np.median(positive) * s * dt_mid))) / 255.0
-    required = math.log2((x_sat / dt_long) / (x_blk / dt_short))
-    available = math.log2(q_hi / q_lo) if q_lo > 0 else math.inf
-    report = {
-        "scale": float(s), "feasible": bool(feasible), "message": msg,
-        "saturated_fraction": sat, "black_fraction": blk, "median_ldr": med,
-        "s_saturation": float(s_sat), "s_black": float(s_blk), "s_median": float(s_mid),
-        "required_range_stops": float(required), "available_range_stops": float(available),
-        "longest": dt_long, "shortest": dt_short, "middle": dt_mid,
-        "targets": {"saturated": target_saturated, "black": target_black, "median_ldr": median_target},
-        "crf": f.name, "num_pixels": int(n),
-    }
-    return float(s), report
 
 
 def exposure_gap_ev(dt_a: float, dt_b: float) -> float:

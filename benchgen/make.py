@@ -3,19 +3,25 @@
 Pipeline of `make_clip` (each step resumable; every file write is atomic; clip.json is written last, so a folder
 without clip.json is an unfinished clip and is resumed, and a finished clip is skipped unless `force`):
 
-1. HDR scale: frames 0, G/2 and G-1 are rendered at low spp and `choose_hdr_scale` picks one global scale so that
-   the longest observed level saturates some pixels and the shortest leaves some black. Light transport is linear in
-   the emitters, so the scale is applied exactly by multiplying every emitter (area lights, sun, environment).
-2. Ground truth (`benchgen.render.render_clip_gt`): HDR of every frame, z-depth, dynamic masks, cameras, exact flow
-   between consecutive training frames, point tracks over all frames; measured render noise and HDR-TAE floor.
-3. Exposure: training exposure times from the schedule; input LDR = CRF(H dt) in 8 bits; test frames at every
+1. Light selection for next-event estimation (benchgen.render.choose_emitter_sampling).
+2. Ground truth (`benchgen.render.render_clip_gt`) at the scene's own emitter scale: denoised HDR of every frame
+   (kept in .benchgen/hdr_unit until the clip is done), z-depth, dynamic masks, cameras, exact flow between
+   consecutive training frames, point tracks over all frames; measured render noise and HDR-TAE floor.
+3. HDR scale (benchgen.placement.choose_hdr_scale): one global scale chosen from those converged training frames so
+   that the exposure levels sit where a bracketing camera puts them; gt/hdr = scale * the unit frame (light transport
+   is linear in the emitters, so this equals rendering with every emitter scaled).
+4. Exposure: training exposure times from the schedule; input LDR = CRF(H dt) in 8 bits; test frames at every
    observed and novel level under gt/ldr.
-4. Priors through the profile (benchgen.priors): depth (with emitter/glossy masks from pixel-centre ray casts),
+5. Priors through the profile (benchgen.priors): depth (with emitter/glossy masks from pixel-centre ray casts),
    tracks (from the ground-truth tracks on the training frames), flow between training frames (t, t +- N_e).
+6. Placement (benchgen.placement.measure_placement): what the clip achieved, recomputed from its PNGs, into
+   clip.json gt.placement; a clip that misses a target is finished but `make_clip` raises PlacementError (unless
+   allow_misplaced), and says so again whenever the finished clip is asked for.
 """
 from __future__ import annotations
 
 import dataclasses
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,13 +33,18 @@ from m4dgs import io as mio
 from m4dgs.clip import Clip, ClipMeta, ClipWriter, Exposures, FlowSet, Split, TrackSet, frame_name, load_trackset
 from m4dgs.crf import clip_crf, tonemap_ldr
 
-from .exposure import ExposureSettings, choose_hdr_scale, exposure_gap_ev, schedule_train_dt, test_levels
+from .exposure import ExposureSettings, exposure_gap_ev, schedule_train_dt, test_levels
+from .placement import PlacementTargets, choose_hdr_scale, measure_placement
 from .priors import degrade_depth, degrade_flow, degrade_tracks, flow_pairs, get_profile, make_rng, priors_metadata
 from .scene import load_scene
 
 # 2: small preset 64 spp with per-clip light selection (was 256 spp, uniform)
 # 3: ground-truth track queries scale with the preset (small: ~15k tracks, was ~1.3k)
-GENERATOR_VERSION = 3
+# 4: denoised renders; HDR scale from the clip's own converged frames with placement targets, measured in clip.json
+GENERATOR_VERSION = 4
+
+#: where the unit-scale HDR frames wait for the clip's scale (removed when the clip is finished)
+UNIT_HDR_DIR = (".benchgen", "hdr_unit")
 
 
 @dataclass(frozen=True)
@@ -45,7 +56,6 @@ class Preset:
     height: int
     max_frames: int
     render: str
-    scale_probe_spp: int = 8
     # Ground-truth tracks are what the prior profiles subsample (`realistic` asks for a 16k-cell uniform grid plus 16k
     # dynamic queries, as the paper's tracker does), so they must be at least that dense for the profile to mean it.
     # With the old 256 + 64 queries per reference frame a small clip had ~1.3k tracks: stage 1 (which starts from one
@@ -55,11 +65,11 @@ class Preset:
 
 
 PRESETS: Dict[str, Preset] = {
-    "tiny": Preset(72, 40, 17, "tiny", 4),  # tests: seconds per clip
-    # the CPU default (DESIGN.md); probe spp a power of 4 (ldsampler); a 3-px query grid: ~11k grid + 4k dynamic tracks
-    "small": Preset(216, 120, 101, "small", 16, track_grid=4096, track_dynamic=1024),
+    "tiny": Preset(72, 40, 17, "tiny"),  # tests: seconds per clip
+    # the CPU default; a 3-px query grid: ~11k grid + 4k dynamic tracks
+    "small": Preset(216, 120, 101, "small", track_grid=4096, track_dynamic=1024),
     # the paper's resolution, for a big machine: a 7-px grid (~33k grid + 16k dynamic tracks)
-    "paper": Preset(864, 480, 101, "paper", 16, track_grid=8192, track_dynamic=4096),
+    "paper": Preset(864, 480, 101, "paper", track_grid=8192, track_dynamic=4096),
 }
 
 
@@ -67,38 +77,6 @@ def get_preset(name: str) -> Preset:
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r} (known: {', '.join(PRESETS)})")
     return PRESETS[name]
-
-
-class ScaledScene:
-    """A scene whose emitters are all multiplied by `scale` (the clip's HDR scale): radiance scales exactly."""
-
-    def __init__(self, scene, scale: float):
-        self._scene = scene
-        self.scale = float(scale)
-        self.name = scene.name
-        self.num_frames = scene.num_frames
-        self.fps = scene.fps
-
-    def frame(self, g: int, width: int, height: int):
-        st = self._scene.frame(g, width, height)
-        s = self.scale
-        meshes = []
-        for m in st.meshes:
-            if m.material.kind == "emitter" and m.material.radiance is not None:
-                mat = dataclasses.replace(m.material, radiance=tuple(s * float(x) for x in m.material.radiance))
-                m = dataclasses.replace(m, material=mat)
-            meshes.append(m)
-        lit = st.lighting
-        lit = dataclasses.replace(
-            lit,
-            env_radiance=tuple(s * float(x) for x in lit.env_radiance),
-            sun_irradiance=None if lit.sun_irradiance is None else tuple(s * float(x) for x in lit.sun_irradiance),
-        )
-        return dataclasses.replace(st, meshes=meshes, lighting=lit)
-
-
-def _probe_frames(num_frames: int) -> List[int]:
-    return sorted({0, num_frames // 2, num_frames - 1})
 
 
 def _material_masks(cast, state):
@@ -124,8 +102,13 @@ def _with_crf(gen: Optional[dict]) -> Optional[dict]:
 
 def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[ExposureSettings] = None,
               priors: str = "realistic", seed: int = 0, crf: str = "hdrnerf", force: bool = False,
-              progress: bool = True, max_frames: Optional[int] = None, spp: Optional[int] = None) -> Path:
+              progress: bool = True, max_frames: Optional[int] = None, spp: Optional[int] = None,
+              targets: Optional[PlacementTargets] = None, allow_misplaced: bool = False) -> Path:
     """Generate one clip folder from a scene spec; returns the clip folder. Resumes an unfinished clip.
+
+    targets: exposure-placement targets (default: the benchmark's, benchgen.placement.PlacementTargets); a clip that
+    misses one raises PlacementError after it is written (also when a finished clip is found again), unless
+    allow_misplaced (then a warning).
 
     spp overrides the preset's samples per pixel of the HDR renders (benchgen.render.RENDER_PRESETS)."""
     from .render import EMITTER_PROBE_SPP, Renderer, RenderSettings, choose_emitter_sampling, render_clip_gt
@@ -147,9 +130,11 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
     crf_fn = clip_crf(crf)  # a response of the clip family (m4dgs.crf.CLIP_CRFS), recorded in clip.json
     gen = _generator_settings(scene_path, preset, settings, priors, seed, render_settings.spp, crf_fn.name)
     if (out / "clip.json").exists() and not force:
-        old = _with_crf(Clip.open(out).meta.generator)
-        if {k: old.get(k) for k in gen} == gen:
-            return out  # finished with the same settings
+        done = Clip.open(out).meta
+        old = _with_crf(done.generator)
+        if {k: old.get(k) for k in gen} == gen:  # finished with the same settings
+            check_clip_placement(out, done.gt.get("placement"), allow_misplaced)
+            return out
         raise FileExistsError(f"{out}: a finished clip with other settings exists (generator {old}); pass force")
     if force and (out / "clip.json").exists():
         (out / "clip.json").unlink()
@@ -162,40 +147,42 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
     frames = list(range(G))
     train, test = frames[0::2], frames[1::2]
 
-    # 1. light selection and one global HDR scale for the clip ---------------------------------------------------------
+    # 1. light selection ---------------------------------------------------------------------------------------------------
     if render_settings.emitter_sampling == "auto":
         if "emitter_sampling" not in state:
             mode, scores = choose_emitter_sampling(scene.frame(0, W, H), W, H, render_settings)
             state["emitter_sampling"], state["emitter_sampling_noise"] = mode, scores
             mio.write_json(state_path, state)
         render_settings = dataclasses.replace(render_settings, emitter_sampling=state["emitter_sampling"])
-    if "hdr_scale" not in state:
-        probe_settings = dataclasses.replace(render_settings, spp=pr.scale_probe_spp, seed=seed)
-        probe = Renderer(scene.frame(0, W, H), W, H, probe_settings)
-        sample = []
-        for g in _probe_frames(G):
-            probe.update(scene.frame(g, W, H))
-            sample.append(probe.render_hdr())
-        scale, report = choose_hdr_scale(np.stack(sample), settings, crf_fn)
-        state["hdr_scale"], state["hdr_scale_report"] = float(scale), report
-        mio.write_json(state_path, state)
-    scale = float(state["hdr_scale"])
-    sscene = ScaledScene(scene, scale)
-
-    # 2. ground truth -----------------------------------------------------------------------------------------------
     train_dt = schedule_train_dt(len(train), settings, seed)
     meta = ClipMeta(
         name=scene.name, width=W, height=H, fps=float(scene.fps), frames=frames, split=Split(train, test),
         exposures=Exposures(train_dt=[float(v) for v in train_dt], observed=list(settings.observed),
                             novel=list(settings.novel), schedule=settings.schedule),
-        crf=crf_fn.name, unit_exposure_value=float(crf_fn(np.float64(1.0))), hdr_scale=scale, generator=gen,
+        crf=crf_fn.name, unit_exposure_value=float(crf_fn(np.float64(1.0))), hdr_scale=1.0, generator=gen,
     )
     writer = ClipWriter(out, meta)
+
+    # 2. ground truth at the scene's own (unit) emitter scale: HDR frames go to .benchgen/hdr_unit --------------------
     if "gt_notes" not in state:
-        notes = render_clip_gt(sscene, W, H, frames, render_settings, writer, progress=progress,
-                               num_grid=pr.track_grid, num_dynamic=pr.track_dynamic)
+        notes = render_clip_gt(scene, W, H, frames, render_settings, writer, progress=progress,
+                               num_grid=pr.track_grid, num_dynamic=pr.track_dynamic, hdr_dir=UNIT_HDR_DIR)
         state["gt_notes"] = notes
         mio.write_json(state_path, state)
+
+    # 3. one global HDR scale from the clip's own converged frames, then gt/hdr = scale * unit frame ------------------
+    # (light transport is linear in the emitters, so this equals rendering with every emitter scaled)
+    if "hdr_scale" not in state:
+        scale, report = choose_hdr_scale(_frames_by_level(out, settings, train, train_dt, test), crf_fn,
+                                         targets or PlacementTargets())
+        state["hdr_scale"], state["hdr_scale_report"] = float(scale), report
+        mio.write_json(state_path, state)
+    scale = float(state["hdr_scale"])
+    meta.hdr_scale = scale
+    for g in frames:
+        if not writer.exists("gt", "hdr", frame_name(g, "exr")):
+            unit = mio.read_exr(out.joinpath(*UNIT_HDR_DIR, frame_name(g, "exr")))
+            writer.write_gt_hdr(g, (unit * np.float32(scale)).astype(np.float32))
     meta.gt.update(state["gt_notes"])
     meta.gt["hdr_scale_report"] = state.get("hdr_scale_report")
     meta.gt["crf"] = crf_fn.metadata()  # formula, source, parameters and f(1) per channel of the response
@@ -203,7 +190,7 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
         meta.gt["emitter_sampling_probe"] = {"chosen": state["emitter_sampling"], "spp": EMITTER_PROBE_SPP,
                                              "noise_tae_two_seeds": state["emitter_sampling_noise"]}
 
-    # 3. exposures: input LDR and test LDR at every level ---------------------------------------------------------------
+    # 4. exposures: input LDR and test LDR at every level ---------------------------------------------------------------
     hdr_train = {}
     for g, dt in zip(train, train_dt):
         hdr_train[g] = mio.read_exr(out / "gt/hdr" / frame_name(g, "exr"))
@@ -217,17 +204,17 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
                 h = mio.read_exr(out / "gt/hdr" / frame_name(g, "exr")) if h is None else h
                 writer.write_gt_ldr(lv, g, tonemap_ldr(h, float(lv), crf_fn))
 
-    # 4. priors -----------------------------------------------------------------------------------------------------
+    # 5. priors -----------------------------------------------------------------------------------------------------
     profile = get_profile(priors)
     clip_key = scene.name
     depth_gt = np.stack([mio.read_exr(out / "gt/depth" / frame_name(g, "exr")) for g in train])
     pairs = flow_pairs(train, train_dt, len(settings.observed))
     need = sorted({g for p in pairs for g in p})
-    caster = Renderer(sscene.frame(0, W, H), W, H, render_settings)
+    caster = Renderer(scene.frame(0, W, H), W, H, dataclasses.replace(render_settings, denoise=False))
     casts, states = {}, {}
     emit, gloss = np.zeros(depth_gt.shape, bool), np.zeros(depth_gt.shape, bool)
     for i, g in enumerate(train):
-        st = sscene.frame(g, W, H)
+        st = scene.frame(g, W, H)
         caster.update(st)
         c = caster.cast_rays()
         emit[i], gloss[i] = _material_masks(c, st)
@@ -263,9 +250,48 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
     stops = _dynamic_range_stops(hdr_train)
     meta.gt["dynamic_range_stops"] = stops
     meta.generator["seconds"] = round(time.perf_counter() - t_start, 2)
+    # 6. what the clip achieved, measured from its PNGs ------------------------------------------------------------
+    meta.gt["placement"] = measure_placement(out, meta, targets)
     writer.meta = meta
     writer.finalize()
+    shutil.rmtree(out.joinpath(*UNIT_HDR_DIR), ignore_errors=True)  # gt/hdr holds the same frames, scaled
+    check_clip_placement(out, meta.gt["placement"], allow_misplaced)
     return out
+
+
+class PlacementError(ValueError):
+    """A finished clip misses its exposure-placement targets (benchgen.placement)."""
+
+
+def check_clip_placement(clip_dir, placement: Optional[dict], allow_misplaced: bool = False) -> None:
+    """Raise PlacementError naming every missed target (unless allow_misplaced; then only warn on stderr)."""
+    import sys
+
+    from .placement import placement_failures
+
+    if not placement:
+        return
+    bad = placement_failures(placement)
+    if not bad:
+        return
+    msg = (f"{clip_dir}: the clip misses its exposure-placement targets (clip.json gt.placement): " + "; ".join(bad)
+           + ". Change the scene spec (deeper shadows, an unlit corner, smaller or dimmer lamps; docs/exposure.md)"
+             " or pass --allow-misplaced to keep the clip anyway.")
+    if allow_misplaced:
+        print("warning: " + msg, file=sys.stderr)
+        return
+    raise PlacementError(msg)
+
+
+def _frames_by_level(out: Path, settings: ExposureSettings, train: Sequence[int], train_dt: Sequence[float],
+                     test: Sequence[int]) -> Dict[float, np.ndarray]:
+    """Unit-scale HDR frames of each observed level: the training frames shown at it, or (when the schedule puts no
+    training frame exactly at a level, e.g. random-values) the test frames, which are rendered at every level."""
+    res = {}
+    for lv in settings.observed:
+        gs = [g for g, dt in zip(train, train_dt) if float(dt) == float(lv)] or list(test)
+        res[float(lv)] = np.stack([mio.read_exr(out.joinpath(*UNIT_HDR_DIR, frame_name(g, "exr"))) for g in gs])
+    return res
 
 
 def _dynamic_range_stops(hdr_frames: Dict[int, np.ndarray]) -> float:
@@ -281,8 +307,11 @@ def _dynamic_range_stops(hdr_frames: Dict[int, np.ndarray]) -> float:
 def make_suite(suite, out_root, preset: str = "small", scenes: Optional[Sequence[str]] = None, priors: str = "realistic",
                schedule: Optional[str] = None, num_exposures: Optional[int] = None, observed=None, novel=None,
                seed: int = 0, jobs: int = 1, force: bool = False, progress: bool = True,
-               spp: Optional[int] = None, crf: str = "hdrnerf") -> List[Path]:
+               spp: Optional[int] = None, crf: str = "hdrnerf", allow_misplaced: bool = False) -> List[Path]:
     """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in parallel processes.
+
+    Clips that miss their exposure-placement targets are all finished first, then one PlacementError lists them
+    (allow_misplaced: only warnings).
 
     crf: the clips' camera response (m4dgs.crf.CLIP_CRFS; the paper's "hdrnerf" by default)."""
     from .exposure import exposure_preset
@@ -302,12 +331,26 @@ def make_suite(suite, out_root, preset: str = "small", scenes: Optional[Sequence
             raise ValueError(f"suite {s.name!r} has no scene(s) {missing} (it has {s.scene_names})")
     root = Path(out_root) / s.name
     jobs_list = [(p, root / p.stem) for p in paths]
+    kw = dict(crf=crf, force=force, spp=spp, allow_misplaced=allow_misplaced or s.placement == "warn")
+    # every clip is made even when an earlier one misses its placement targets; the misses are reported together
+    results, misplaced = [], []
     if jobs <= 1:
-        return [make_clip(p, o, preset, settings, priors, seed, crf=crf, force=force, progress=progress, spp=spp)
-                for p, o in jobs_list]
-    from concurrent.futures import ProcessPoolExecutor
+        for p, o in jobs_list:
+            try:
+                results.append(make_clip(p, o, preset, settings, priors, seed, progress=progress, **kw))
+            except PlacementError as e:
+                misplaced.append(str(e))
+    else:
+        from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(max_workers=jobs) as ex:
-        futs = [ex.submit(make_clip, p, o, preset, settings, priors, seed, crf, force, False, spp=spp)
-                for p, o in jobs_list]
-        return [f.result() for f in futs]
+        with ProcessPoolExecutor(max_workers=jobs) as ex:
+            futs = [ex.submit(make_clip, p, o, preset, settings, priors, seed, progress=False, **kw)
+                    for p, o in jobs_list]
+            for f in futs:
+                try:
+                    results.append(f.result())
+                except PlacementError as e:
+                    misplaced.append(str(e))
+    if misplaced:
+        raise PlacementError("\n".join(misplaced))
+    return results

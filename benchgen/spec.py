@@ -564,6 +564,9 @@ SUITE_SCHEMA = Dict(
             _REQUIRED,
             "exposure settings",
         ),
+        "placement": F(Str(["require", "warn"]), "require",
+                       "exposure-placement targets (docs/exposure.md): `require` fails `benchgen make` on a clip that "
+                       "misses one, `warn` only warns (smoke-test suites)"),
     },
     doc="A suite file: scenes + exposure settings.",
 )

@@ -24,6 +24,7 @@ class Suite:
     schedule: str = "alternating"  # alternating | random-order | random-values
     description: str = ""
     path: Path = Path()
+    placement: str = "require"  # "require": clips must meet the exposure-placement targets; "warn": only warn
 
     @property
     def scene_names(self) -> List[str]:
@@ -65,4 +66,5 @@ def load_suite(name_or_path: Union[str, Path]) -> Suite:
             raise SpecError(str(path), f"scenes[{i}]", f"an existing scene file ({p})", entry)
         resolved.append(p)
     ex = spec["exposures"]
-    return Suite(spec["name"], resolved, list(ex["observed"]), list(ex["novel"]), ex["schedule"], spec["description"], path)
+    return Suite(spec["name"], resolved, list(ex["observed"]), list(ex["novel"]), ex["schedule"], spec["description"], path,
+                 spec["placement"])

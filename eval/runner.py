@@ -161,7 +161,7 @@ def make_job_clip(job: Job, progress: bool = False) -> Path:
     with folder_lock(clip_dir):
         if not (clip_dir / "clip.json").exists():
             make_clip(scene_path, clip_dir, preset=job.preset, settings=ex, priors=setting.priors, seed=setting.seed,
-                      crf=setting.crf or "hdrnerf", progress=progress)
+                      crf=setting.crf or "hdrnerf", progress=progress, allow_misplaced=bs.placement == "warn")
     return clip_dir
 
 

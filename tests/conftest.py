@@ -13,7 +13,8 @@ def _make(tmp_path_factory, scene: str, priors: str):
     from benchgen.suite import builtin_scenes_dir
 
     out = tmp_path_factory.mktemp(f"clip-{scene}-{priors}") / scene
-    return make_clip(builtin_scenes_dir() / f"{scene}.yaml", out, preset="tiny", priors=priors, seed=0, progress=False)
+    return make_clip(builtin_scenes_dir() / f"{scene}.yaml", out, preset="tiny", priors=priors, seed=0, progress=False,
+                      allow_misplaced=True)  # a smoke-test scene: placement is tested in test_placement.py
 
 
 @pytest.fixture(scope="session")

@@ -1,4 +1,4 @@
-"""CRF registry (m4dgs.crf) and exposure settings / schedules / HDR scale (benchgen.exposure) against analytic values,
+"""CRF registry (m4dgs.crf) and exposure settings / schedules (benchgen.exposure) against analytic values,
 an independent sRGB implementation (colour-science) and hand-written formulas."""
 import math
 
@@ -7,8 +7,8 @@ import pytest
 import torch
 from scipy import stats
 
-from benchgen.exposure import (ExposureSettings, choose_hdr_scale, exposure_gap_ev, exposure_preset, parse_levels,
-                               schedule_train_dt, test_levels)
+from benchgen.exposure import (ExposureSettings, exposure_gap_ev, exposure_preset, parse_levels, schedule_train_dt,
+                               test_levels)
 from m4dgs.crf import available_crfs, get_crf, quantize_ldr, tonemap_ldr
 
 
@@ -171,37 +171,3 @@ def test_random_values_schedule_log_uniform():
     assert dts.mean() == pytest.approx((32 - 0.125) / math.log(256.0), rel=0.1)
     assert schedule_train_dt(10, s, seed=3) == list(dts[:10])
     assert schedule_train_dt(10, s, seed=4) != list(dts[:10])
-
-
-# ------------------------------------------------------------------------------------------------------ HDR scale
-def test_hdr_scale_wide_range_meets_both_targets():
-    rng = np.random.default_rng(11)
-    hdr = np.exp(rng.uniform(math.log(1e-8), math.log(1e3), size=(2, 64, 64, 1))) * np.array([1.0, 0.8, 0.6])
-    s3 = exposure_preset(3)
-    scale, rep = choose_hdr_scale(hdr, s3)
-    assert rep["feasible"] and rep["scale"] == scale
-    m = hdr.reshape(-1, 3)
-    long_ldr = _ldr_ref(m * scale, 32.0)
-    short_ldr = _ldr_ref(m * scale, 0.125)
-    sat = np.mean(long_ldr.max(-1) == 255)
-    blk = np.mean(short_ldr.max(-1) == 0)
-    assert sat >= 0.005 and blk >= 0.005
-    assert rep["saturated_fraction"] == pytest.approx(sat) and rep["black_fraction"] == pytest.approx(blk)
-    med = _ldr_ref(np.median(m.max(-1)) * scale, 2.0) / 255.0
-    assert 0.3 <= med <= 0.8  # the median is well exposed at the middle level
-    assert rep["required_range_stops"] == pytest.approx(19.64, abs=0.05)
-
-
-def test_hdr_scale_narrow_range_is_reported_honestly():
-    rng = np.random.default_rng(12)
-    hdr = np.exp(rng.normal(0.0, 1.0, size=(64, 64, 3)))  # ~ 10 stops between the 0.5% and 99.5% quantiles
-    scale, rep = choose_hdr_scale(hdr, exposure_preset(3))
-    assert not rep["feasible"] and "too small" in rep["message"]
-    m = hdr.reshape(-1, 3)
-    sat = np.mean(_ldr_ref(m * scale, 32.0).max(-1) == 255)
-    blk = np.mean(_ldr_ref(m * scale, 0.125).max(-1) == 0)
-    assert sat >= 0.005  # priority "saturation"
-    assert blk == rep["black_fraction"] == 0.0
-    assert rep["available_range_stops"] < rep["required_range_stops"]
-    _, rep_b = choose_hdr_scale(hdr, exposure_preset(3), priority="black")
-    assert rep_b["black_fraction"] >= 0.005
