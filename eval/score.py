@@ -64,6 +64,7 @@ SCORE_CONVENTIONS = {
                          "the dynamic Gaussians' motion (model.track_2d)",
     "cameras_all_frames": "Cameras: Sim(3) alignment over every frame present in both trajectories",
     "hdr_tae_train": "HDR-TAE on the rendered training frames",
+    "hdr_tae_interior": "HDR-TAE on the rendered training frames without occlusion-edge pixels (gt depth)",
     "dyn_masks": "Dynamic masks: the run's dynamic masks (config masks.method) vs GT dynamic masks on the training "
                  "frames, pixel counts pooled over frames (precision, recall, IoU)",
 }
@@ -399,7 +400,7 @@ METRIC_KEYS = [
     "ldr_oe_psnr", "ldr_oe_ssim", "ldr_oe_lpips", "ldr_ne_psnr", "ldr_ne_ssim", "ldr_ne_lpips",
     "ldr_train_psnr", "ldr_train_ssim", "ldr_train_lpips",
     "hdr_psnr", "hdr_ssim", "hdr_lpips", "hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_train_psnr",
-    "hdr_train_ssim", "hdr_tae", "hdr_tae_train_test", "hdr_t_std",
+    "hdr_train_ssim", "hdr_tae", "hdr_tae_interior", "hdr_tae_train_test", "hdr_t_std",
     "ate", "rpe_trans", "rpe_rot", "ate_ba", "rpe_trans_ba", "rpe_rot_ba", "depth_absrel",
     "track_epe", "track_epe_median", "track_delta_avg", "dyn_ldr_psnr", "dyn_hdr_psnr",
     "mask_precision", "mask_recall", "mask_iou", "crf_rmse", "crf_error",
@@ -496,6 +497,16 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
 
         m["hdr_tae"] = _tae_pairwise(train, load_train, flows)
         conv_keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_gt_flow"]
+        if all((clip_obj.root / "gt/depth" / frame_name(g, "exr")).exists() for g in train):
+            from eval.metrics.temporal import depth_edges, interior_visibility
+
+            def interior_flows(a, b, ha, hb):  # the same pairs without occlusion-edge pixels (gt depth)
+                fab, fba, vab, vba = flows(a, b, ha, hb)
+                ea, eb = depth_edges(clip_obj.load_gt_depth(a)), depth_edges(clip_obj.load_gt_depth(b))
+                return fab, fba, interior_visibility(vab, fab, ea, eb), interior_visibility(vba, fba, eb, ea)
+
+            m["hdr_tae_interior"] = _tae_pairwise(train, load_train, interior_flows)
+            conv_keys.append("hdr_tae_interior")
     else:
         m["hdr_tae"] = _tae_pairwise(train, load_train, _dis_flows)
         conv_keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_dis_flow"]

@@ -137,6 +137,7 @@ def metric_columns() -> Dict[str, "Column"]:  # noqa: F821
         Column("pu21_psnr", "PU21-PSNR", True, ".2f", "HDR", "pu21"),
         Column("hdr_flip", "FLIP", False, ".4f", "HDR", "hdr_flip"),
         Column("hdr_t_std", "T-std", False, ".4f", "HDR", "hdr_t_std"),
+        Column("hdr_tae_interior", "TAE interior", False, ".4f", "HDR", "hdr_tae_interior"),
         Column("hdr_tae_train_test", "TAE (train+test)", False, ".4f", "HDR", "hdr_tae_dis_flow"),
         Column("dyn_ldr_psnr", "PSNR", True, ".2f", "Dynamic LDR-OE", "masked"),
         Column("dyn_hdr_psnr", "PSNR", True, ".2f", "Dynamic HDR", "masked"),
@@ -178,7 +179,7 @@ LAYOUTS: Dict[str, List[str]] = {
     # beyond the paper
     "geometry": ["ate", "rpe_trans", "rpe_rot", "ate_ba", "depth_absrel", "track_epe", "track_epe_median",
                  "track_delta_avg", "mask_recall", "mask_iou"],
-    "hdr-extra": ["hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_t_std", "dyn_ldr_psnr", "dyn_hdr_psnr", "crf_rmse",
+    "hdr-extra": ["hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_t_std", "hdr_tae_interior", "dyn_ldr_psnr", "dyn_hdr_psnr", "crf_rmse",
                   "crf_error"],
     "cost": ["train_minutes", "fps", "fps_864x480", "num_gaussians", "peak_memory_mib"],
 }

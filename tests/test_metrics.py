@@ -451,3 +451,32 @@ def test_metrics_follow_cuda_inputs():
                             torch.from_numpy(vf).cuda(), torch.from_numpy(vb).cuda()) == pytest.approx(cpu, rel=1e-9)
     w = _random_weights()
     assert lpips.lpips(pc, gc, w) == pytest.approx(lpips.lpips(pred, gt, w), rel=1e-3)
+
+
+def test_depth_edges_and_interior_visibility_on_a_hand_made_step():
+    from eval.metrics.temporal import depth_edges, interior_visibility
+
+    d = np.ones((6, 10))
+    d[:, 5:] = 2.0  # a 100 % depth jump between columns 4 and 5
+    d[0, 0] = 0.0  # one pixel without a surface
+    e = depth_edges(d, radius=0)
+    expect = np.zeros((6, 10), bool)
+    expect[:, 4:6] = True
+    expect[0, 0] = expect[0, 1] = expect[1, 0] = True
+    assert (e == expect).all()
+    e1 = depth_edges(d, radius=1)
+    assert e1[:, 3:7].all() and not e1[3:, :3].any() and not e1[:, 7:].any()
+    d2 = np.ones((6, 10))
+    d2[:, 5:] = 1.03  # below the 5 % tolerance: no edge
+    assert not depth_edges(d2).any()
+    # interior visibility: pixels on an edge of a, or landing on an edge of b, are dropped
+    vis = np.ones((6, 10), bool)
+    flow = np.zeros((6, 10, 2))
+    flow[:, 0, 0] = 4.0  # column 0 lands on column 4 (an edge of b)
+    eb = np.zeros((6, 10), bool)
+    eb[:, 4] = True
+    ea = np.zeros((6, 10), bool)
+    ea[2, 8] = True
+    iv = interior_visibility(vis, flow, ea, eb)
+    assert not iv[:, 0].any() and not iv[:, 4].any() and not iv[2, 8]
+    assert iv.sum() == 60 - 6 - 6 - 1
