@@ -452,11 +452,8 @@ class Renderer:
 
     def emitter_pixels(self) -> np.ndarray:
         """[H, W] bool: pixels of the current state whose centre ray hits an emitter (cached per state)."""
-        key = (id(self.state), self.num_updates)
-        if getattr(self, "_emit_key", None) != key:
-            cast = self.cast_rays()
-            kinds = np.array([m.material.kind == "emitter" for m in self.state.meshes] + [False])
-            self._emit_mask, self._emit_key = kinds[cast.mesh], key  # mesh -1 (no surface) -> the last entry
+        if getattr(self, "_emit_key", None) != (id(self.state), self.num_updates):
+            self.cast_rays()  # caches the mask
         return self._emit_mask
 
     # -- exact ray casts ------------------------------------------------------------------------------------------
@@ -505,6 +502,9 @@ class Renderer:
         dn = d_cam_world / np.linalg.norm(d_cam_world, axis=1, keepdims=True)
         orig = np.broadcast_to(o, dn.shape)
         mesh, prim = self._intersect(np.ascontiguousarray(orig), dn)
+        # emitter pixels of this state, for the denoiser (no second ray cast when a frame is cast, then rendered)
+        kinds = np.array([m.material.kind == "emitter" for m in fs.meshes] + [False])  # mesh -1 -> the last entry
+        self._emit_mask, self._emit_key = kinds[mesh.reshape(H, W)], (id(fs), self.num_updates)
         return _exact_hits(fs, o, d_cam_world, mesh, prim, H, W)
 
 
