@@ -147,7 +147,7 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
     frames = list(range(G))
     train, test = frames[0::2], frames[1::2]
 
-    # 1. light selection ---------------------------------------------------------------------------------------------------
+    # 1. light selection -----------------------------------------------------------------------------------------------
     if render_settings.emitter_sampling == "auto":
         if "emitter_sampling" not in state:
             mode, scores = choose_emitter_sampling(scene.frame(0, W, H), W, H, render_settings)
@@ -190,7 +190,7 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
         meta.gt["emitter_sampling_probe"] = {"chosen": state["emitter_sampling"], "spp": EMITTER_PROBE_SPP,
                                              "noise_tae_two_seeds": state["emitter_sampling_noise"]}
 
-    # 4. exposures: input LDR and test LDR at every level ---------------------------------------------------------------
+    # 4. exposures: input LDR and test LDR at every level --------------------------------------------------------------
     hdr_train = {}
     for g, dt in zip(train, train_dt):
         hdr_train[g] = mio.read_exr(out / "gt/hdr" / frame_name(g, "exr"))

@@ -31,7 +31,7 @@ user of the clip sees) and the result goes to clip.json ``gt.placement``.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np

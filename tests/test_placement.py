@@ -1,13 +1,12 @@
 """Exposure placement (benchgen.placement): the HDR scale meets the targets it claims, checked with an independent
 quantiser, and the statistics a clip records are recomputed independently from its PNGs (PIL, not m4dgs.io)."""
 import json
-import math
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from benchgen.placement import PlacementTargets, choose_hdr_scale, level_roles, placement_failures
+from benchgen.placement import choose_hdr_scale, level_roles, placement_failures
 
 LEVELS = (0.125, 2.0, 32.0)
 
