@@ -7,7 +7,7 @@ export DRJIT_LIBLLVM_PATH ?= $(firstword $(wildcard /usr/lib/x86_64-linux-gnu/li
 VENV := .venv/bin
 OUT ?= out
 
-.PHONY: setup demo test test-slow clean
+.PHONY: setup demo test test-slow lint format clean
 
 setup:
 	@bash scripts/setup.sh
@@ -18,6 +18,14 @@ demo: setup
 
 test: setup
 	$(VENV)/python -m pytest
+
+lint: setup
+	$(VENV)/ruff format --check .
+	$(VENV)/ruff check .
+
+format: setup
+	$(VENV)/ruff format .
+	$(VENV)/ruff check --fix .
 
 test-slow: setup
 	$(VENV)/python -m pytest -m slow

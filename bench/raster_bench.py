@@ -2,16 +2,16 @@
 
 Usage: python bench/raster_bench.py [--backend cpu] [--iters 15]
 
-Each case runs in its own subprocess; peak memory is the growth of VmHWM (/proc/self/status) from just before the
-first render to the end of the timed loop. Targets (2-core machine): 10k Gaussians at 216x120 with 16 channels
-<= 40 ms, 50k at 432x240 <= 150 ms, peak growth < 200 MiB.
-"""
+Each case runs in its own subprocess; peak memory is the growth of VmHWM (/proc/self/status) from
+just before the first render to the end of the timed loop. Targets (2-core machine): 10k Gaussians
+at 216x120 with 16 channels <= 40 ms, 50k at 432x240 <= 150 ms, peak growth < 200 MiB."""
 
 from __future__ import annotations
 
 import os
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # must precede the torch import (see rasterizer-facts.md)
+# must precede the torch import (see rasterizer-facts.md)
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
@@ -38,9 +38,12 @@ def vm_hwm_mib() -> float:
     return float("nan")
 
 
-def make_scene(n: int, width: int, height: int, channels: int, sigma_px: float = 1.0, seed: int = 0):
-    """Random Gaussians filling a pinhole frustum: depth 2-6, random rotations, per-axis screen-space standard
-    deviation ``sigma_px`` x lognormal(0, 0.4), opacity U(0.1, 0.9), features U(0, 1)."""
+def make_scene(
+    n: int, width: int, height: int, channels: int, sigma_px: float = 1.0, seed: int = 0
+):
+    """Random Gaussians filling a pinhole frustum: depth 2-6, random rotations, per-axis
+    screen-space standard deviation ``sigma_px`` x lognormal(0, 0.4), opacity U(0.1, 0.9), features
+    U(0, 1)."""
     import torch
 
     g = torch.Generator().manual_seed(seed)
@@ -72,8 +75,16 @@ def depth_complexity(scene, width: int, height: int) -> float:
     return float(area.sum()) / (width * height)
 
 
-def run_case(name: str, n: int, width: int, height: int, channels: int, sigma_px: float, backend: str,
-             iters: int) -> dict:
+def run_case(
+    name: str,
+    n: int,
+    width: int,
+    height: int,
+    channels: int,
+    sigma_px: float,
+    backend: str,
+    iters: int,
+) -> dict:
     import torch
 
     from m4dgs.raster import render
@@ -122,20 +133,34 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--backend", default="cpu", choices=["cpu", "torch"])
     parser.add_argument("--iters", type=int, default=15)
-    parser.add_argument("--case", default=None, help=argparse.SUPPRESS)  # internal: run one case in-process
+    # internal: run one case in-process
+    parser.add_argument("--case", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.case is not None:
         spec = next(c for c in CASES if c[0] == args.case)
         print(json.dumps(run_case(*spec[:6], args.backend, args.iters)))
         return
-    print(f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')} (PASSIVE: "
-          f"{os.environ.get('OMP_WAIT_POLICY', '').upper() == 'PASSIVE'}); load average before: "
-          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} CPUs "
-          "(wall times are only meaningful on an otherwise idle machine; CPU ms = all threads)")
-    for name, n, width, height, channels, sigma_px, target in CASES:
+    print(
+        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')} (PASSIVE: "
+        f"{os.environ.get('OMP_WAIT_POLICY', '').upper() == 'PASSIVE'}); load average before: "
+        f"{' '.join(f'{x:.2f}' for x in os.getloadavg())} on {os.cpu_count()} CPUs "
+        "(wall times are only meaningful on an otherwise idle machine; CPU ms = all threads)"
+    )
+    for name, _n, _width, _height, channels, _sigma_px, target in CASES:
         proc = subprocess.run(
-            [sys.executable, __file__, "--backend", args.backend, "--iters", str(args.iters), "--case", name],
-            capture_output=True, text=True, check=False,
+            [
+                sys.executable,
+                __file__,
+                "--backend",
+                args.backend,
+                "--iters",
+                str(args.iters),
+                "--case",
+                name,
+            ],
+            capture_output=True,
+            text=True,
+            check=False,
         )
         if proc.returncode != 0:
             print(f"{name}: FAILED\n{proc.stderr[-2000:]}")
@@ -152,7 +177,8 @@ def main() -> None:
             f"{name} C={channels} backend={r['backend']}: fwd+bwd median {r['ms_median']:.1f} ms "
             f"(min {r['ms_min']:.1f}, target {target_s}) | CPU {r['cpu_ms_median']:.1f} ms | "
             f"peak RSS +{r['peak_rss_increase_mib']:.1f} MiB | "
-            f"threads {r['threads']} | OMP_WAIT_POLICY={r['omp_wait_policy']} | isects {r['n_isects']} | "
+            f"threads {r['threads']} | OMP_WAIT_POLICY={r['omp_wait_policy']} | isects "
+            f"{r['n_isects']} | "
             f"depth complexity {r['depth_complexity']:.1f} | {verdict}"
         )
 

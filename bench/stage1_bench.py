@@ -2,8 +2,9 @@
 
     python bench/stage1_bench.py CLIP_DIR [--iterations 200] [--preset small] [--backend auto]
 
-Prints the measured figures (after a warm-up that builds the C++ rasterizer); with OMP_WAIT_POLICY=PASSIVE.
-"""
+Prints the measured figures (after a warm-up that builds the C++ rasterizer); with
+OMP_WAIT_POLICY=PASSIVE."""
+
 from __future__ import annotations
 
 import argparse
@@ -22,13 +23,21 @@ from m4dgs.stage1 import VideoStage  # noqa: E402
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("clip")
-    ap.add_argument("--iterations", type=int, default=200, help="timed iterations (after 10 warm-up ones)")
+    ap.add_argument(
+        "--iterations", type=int, default=200, help="timed iterations (after 10 warm-up ones)"
+    )
     ap.add_argument("--preset", default="small")
     ap.add_argument("--backend", default="auto")
-    ap.add_argument("--start", type=int, default=0,
-                    help="iteration index to time from (e.g. past densification to include TLR)")
+    ap.add_argument(
+        "--start",
+        type=int,
+        default=0,
+        help="iteration index to time from (e.g. past densification to include TLR)",
+    )
     a = ap.parse_args()
     clip = Clip.open(a.clip)
     cfg = resolve_config(clip, a.preset)
@@ -44,12 +53,20 @@ def main():
         stage.step(a.start + 10 + i)
     dt = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"clip {clip.meta.name} {clip.width}x{clip.height}, {data.num_frames} training frames, preset {a.preset}")
-    print(f"threads {torch.get_num_threads()}, OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}, "
-          f"backend {stage._last_meta.backend}")
+    print(
+        f"clip {clip.meta.name} {clip.width}x{clip.height}, {data.num_frames} training frames, "
+        f"preset {a.preset}"
+    )
+    print(
+        f"threads {torch.get_num_threads()}, OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}, "
+        f"backend {stage._last_meta.backend}"
+    )
     print(f"init (lift + tone-mapper pre-training): {t_init:.1f} s")
     print(f"Gaussians: {stage.gauss.num_gaussians}")
-    print(f"stage 1: {a.iterations / dt:.2f} it/s ({1000 * dt / a.iterations:.1f} ms/it) from iteration {a.start}")
+    print(
+        f"stage 1: {a.iterations / dt:.2f} it/s ({1000 * dt / a.iterations:.1f} ms/it) from "
+        f"iteration {a.start}"
+    )
     print(f"peak RSS: {peak:.0f} MiB (before the model: {rss0:.0f} MiB)")
 
 

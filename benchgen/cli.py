@@ -1,10 +1,12 @@
-"""`benchgen`: render procedural dynamic HDR scenes into alternating-exposure clips with exact ground truth.
+"""`benchgen`: render procedural dynamic HDR scenes into alternating-exposure clips with exact
+ground truth.
 
-    benchgen make --exposures 3                      the syn-exp-3 suite at the small preset into bench/
-    benchgen make --suite tiny --preset tiny         the two tiny scenes (seconds each)
-    benchgen list                                    shipped suites and scenes
-    benchgen show bench/syn-exp-3/<scene>            summary + contact sheet PNG
+benchgen make --exposures 3                      the syn-exp-3 suite at the small preset into bench/
+benchgen make --suite tiny --preset tiny         the two tiny scenes (seconds each)
+benchgen list                                    shipped suites and scenes
+benchgen show bench/syn-exp-3/<scene>            summary + contact sheet PNG
 """
+
 from __future__ import annotations
 
 import json
@@ -27,64 +29,142 @@ def _levels(text):
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 def main():
-    """Synthetic benchmark generator for Mono4DGS-HDR (Mitsuba 3 renders, exact ground truth, degraded priors)."""
+    """Synthetic benchmark generator for Mono4DGS-HDR (Mitsuba 3 renders, exact ground truth,
+    degraded priors)."""
 
 
 @main.command()
-@click.option("--suite", default="syn-exp-3", show_default=True,
-              help="Built-in suite name (see `benchgen list`) or a path to a suite YAML file.")
+@click.option(
+    "--suite",
+    default="syn-exp-3",
+    show_default=True,
+    help="Built-in suite name (see `benchgen list`) or a path to a suite YAML file.",
+)
 @click.option("--scenes", default=None, help="Comma-separated subset of the suite's scene names.")
-@click.option("--exposures", "num_exposures", type=click.Choice(["2", "3"]), default=None,
-              help="Number of observed exposure levels: 3 = {0.125, 2, 32} (novel {0.5, 8}); 2 = two observed levels "
-                   "(docs/exposure.md). Default: the suite's levels.")
+@click.option(
+    "--exposures",
+    "num_exposures",
+    type=click.Choice(["2", "3"]),
+    default=None,
+    help="Number of observed exposure levels: 3 = {0.125, 2, 32} (novel {0.5, 8}); 2 = two "
+    "observed levels "
+    "(docs/exposure.md). Default: the suite's levels.",
+)
 @click.option("--observed", default=None, help="Override the observed levels, e.g. '0.125,2,32'.")
 @click.option("--novel", default=None, help="Override the novel (test-only) levels, e.g. '0.5,8'.")
-@click.option("--schedule", type=click.Choice(["alternating", "random-order", "random-values"]), default=None,
-              help="Exposure schedule of the training frames (default: the suite's, normally alternating).")
-@click.option("--preset", type=click.Choice(["tiny", "small", "paper"]), default="small", show_default=True,
-              help="Clip size: tiny 72x40 (tests), small 216x120 (CPU default), paper 864x480.")
-@click.option("--priors", type=click.Choice(["oracle", "realistic", "harsh"]), default="realistic", show_default=True,
-              help="Prior degradation profile (docs/priors.md).")
-@click.option("--out", default="bench", show_default=True, type=click.Path(file_okay=False),
-              help="Output root; clips go to OUT/<suite>/<scene>/.")
-@click.option("--jobs", default=1, show_default=True, type=int, help="Clips rendered in parallel (processes).")
-@click.option("--seed", default=0, show_default=True, type=int, help="Seed of schedules, jitter and priors.")
-@click.option("--force", is_flag=True, help="Regenerate finished clips (otherwise they are skipped).")
-@click.option("--crf", default="hdrnerf", show_default=True,
-              help="Camera response the clips are tone-mapped with (docs/exposure.md): hdrnerf (the paper's), "
-                   "srgb-shoulder, aces-filmic, hdrnerf-g1.8, hdrnerf-g2.4, hdrnerf-rgb. Recorded in clip.json; "
-                   "give clips of another response their own --out.")
-@click.option("--spp", type=click.IntRange(min=1), default=None,
-              help="Samples per pixel of the HDR renders (default: the preset's, tiny 64 / small 64 / paper 1024; the "
-                   "low-discrepancy sampler rounds to a power of 4). At small, 256 lowers the render noise 2-4x and "
-                   "takes ~4x longer (docs/rendering.md).")
-@click.option("--allow-misplaced", is_flag=True,
-              help="Keep clips that miss their exposure-placement targets (median of the middle level in "
-                   "[0.35, 0.65], highlights observed at the shortest level, saturation at the longest, dark pixels "
-                   "at the shortest; docs/exposure.md) with a warning instead of failing.")
-def make(suite, scenes, num_exposures, observed, novel, schedule, preset, priors, out, jobs, seed, force, crf, spp,
-         allow_misplaced):
+@click.option(
+    "--schedule",
+    type=click.Choice(["alternating", "random-order", "random-values"]),
+    default=None,
+    help="Exposure schedule of the training frames (default: the suite's, normally alternating).",
+)
+@click.option(
+    "--preset",
+    type=click.Choice(["tiny", "small", "paper"]),
+    default="small",
+    show_default=True,
+    help="Clip size: tiny 72x40 (tests), small 216x120 (CPU default), paper 864x480.",
+)
+@click.option(
+    "--priors",
+    type=click.Choice(["oracle", "realistic", "harsh"]),
+    default="realistic",
+    show_default=True,
+    help="Prior degradation profile (docs/priors.md).",
+)
+@click.option(
+    "--out",
+    default="bench",
+    show_default=True,
+    type=click.Path(file_okay=False),
+    help="Output root; clips go to OUT/<suite>/<scene>/.",
+)
+@click.option(
+    "--jobs", default=1, show_default=True, type=int, help="Clips rendered in parallel (processes)."
+)
+@click.option(
+    "--seed", default=0, show_default=True, type=int, help="Seed of schedules, jitter and priors."
+)
+@click.option(
+    "--force", is_flag=True, help="Regenerate finished clips (otherwise they are skipped)."
+)
+@click.option(
+    "--crf",
+    default="hdrnerf",
+    show_default=True,
+    help="Camera response the clips are tone-mapped with (docs/exposure.md): hdrnerf (the "
+    "paper's), "
+    "srgb-shoulder, aces-filmic, hdrnerf-g1.8, hdrnerf-g2.4, hdrnerf-rgb. Recorded in clip.json; "
+    "give clips of another response their own --out.",
+)
+@click.option(
+    "--spp",
+    type=click.IntRange(min=1),
+    default=None,
+    help="Samples per pixel of the HDR renders (default: the preset's, tiny 64 / small 64 / paper "
+    "1024; the "
+    "low-discrepancy sampler rounds to a power of 4). At small, 256 lowers the render noise 2-4x "
+    "and "
+    "takes ~4x longer (docs/rendering.md).",
+)
+@click.option(
+    "--allow-misplaced",
+    is_flag=True,
+    help="Keep clips that miss their exposure-placement targets (median of the middle level in "
+    "[0.35, 0.65], highlights observed at the shortest level, saturation at the longest, dark "
+    "pixels "
+    "at the shortest; docs/exposure.md) with a warning instead of failing.",
+)
+def make(
+    suite,
+    scenes,
+    num_exposures,
+    observed,
+    novel,
+    schedule,
+    preset,
+    priors,
+    out,
+    jobs,
+    seed,
+    force,
+    crf,
+    spp,
+    allow_misplaced,
+):
     """Generate the clips of a suite (resumable: finished clips and frames are skipped)."""
     from m4dgs.crf import CLIP_CRFS
 
     from .make import make_suite
 
     if crf not in CLIP_CRFS:
-        raise click.BadParameter(f"{crf!r} is not a clip response; choose one of {', '.join(CLIP_CRFS)}",
-                                 param_hint="--crf")
+        raise click.BadParameter(
+            f"{crf!r} is not a clip response; choose one of {', '.join(CLIP_CRFS)}",
+            param_hint="--crf",
+        )
 
     from .make import PlacementError
 
     try:
         paths = make_suite(
-            suite, out, preset=preset,
+            suite,
+            out,
+            preset=preset,
             scenes=None if scenes is None else [s.strip() for s in scenes.split(",") if s.strip()],
-            priors=priors, schedule=schedule, num_exposures=None if num_exposures is None else int(num_exposures),
-            observed=_levels(observed), novel=_levels(novel), seed=seed, jobs=jobs, force=force, spp=spp, crf=crf,
+            priors=priors,
+            schedule=schedule,
+            num_exposures=None if num_exposures is None else int(num_exposures),
+            observed=_levels(observed),
+            novel=_levels(novel),
+            seed=seed,
+            jobs=jobs,
+            force=force,
+            spp=spp,
+            crf=crf,
             allow_misplaced=allow_misplaced,
         )
     except PlacementError as e:
-        raise click.ClickException(str(e))
+        raise click.ClickException(str(e)) from None
     for p in paths:
         click.echo(str(p))
 
@@ -96,16 +176,22 @@ def list_cmd():
 
     for name in builtin_suites():
         s = load_suite(name)
-        click.echo(f"suite {s.name}: {len(s.scenes)} scenes, observed {s.observed}, novel {s.novel}, {s.schedule}")
+        click.echo(
+            f"suite {s.name}: {len(s.scenes)} scenes, observed {s.observed}, novel {s.novel}, "
+            f"{s.schedule}"
+        )
         for p in s.scenes:
             click.echo(f"  - {p.stem}")
 
 
 @main.command()
 @click.argument("clip", type=click.Path(exists=True, file_okay=False))
-@click.option("--sheet/--no-sheet", default=True, show_default=True, help="Write CLIP/contact_sheet.png.")
+@click.option(
+    "--sheet/--no-sheet", default=True, show_default=True, help="Write CLIP/contact_sheet.png."
+)
 def show(clip, sheet):
-    """Print a clip's summary and write a contact sheet (LDR per level, HDR, depth, flow, tracks, masks)."""
+    """Print a clip's summary and write a contact sheet (LDR per level, HDR, depth, flow, tracks,
+    masks)."""
     from m4dgs.clip import Clip
 
     from .show import contact_sheet, summary

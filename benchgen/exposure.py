@@ -1,26 +1,30 @@
 """Exposure levels, training-frame exposure schedules and the per-clip HDR scale (docs/exposure.md).
 
-The input video is tone-mapped with a CRF (``m4dgs.crf``, HDR-NeRF by default) and quantised to 8 bits:
-``LDR_g = floor(255 * f(s * H_g * dt_g) + 0.5)`` where ``H_g`` is the rendered linear HDR frame, ``s`` the clip's
-single HDR scale (``benchgen.placement.choose_hdr_scale``, recorded in clip.json ``hdr_scale``) and ``dt_g`` the frame's exposure time.
+The input video is tone-mapped with a CRF (``m4dgs.crf``, HDR-NeRF by default) and quantised to 8
+bits: ``LDR_g = floor(255 * f(s * H_g * dt_g) + 0.5)`` where ``H_g`` is the rendered linear HDR
+frame, ``s`` the clip's single HDR scale (``benchgen.placement.choose_hdr_scale``, recorded in
+clip.json ``hdr_scale``) and ``dt_g`` the frame's exposure time.
 
 Presets (DESIGN.md "Conventions"; HDR-NeRF's ladder 0.125, 0.5, 2, 8, 32 — two stops apart):
 
 * ``--exposures 3``: observed {0.125, 2, 32}, novel {0.5, 8} (HDR-NeRF / Syn-Exp-3 protocol).
-* ``--exposures 2``: observed {0.5, 8}, novel {0.125, 2, 32}: a 4-stop bracket (+-2 EV around 2, the geometric
-  middle of the ladder, like the 2-exposure alternating videos of Real-Exp-2), one interpolated novel level (2) and
-  the two extrapolated ends of the same ladder, so the novel LDR folders share names with the 3-level suite.
+* ``--exposures 2``: observed {0.5, 8}, novel {0.125, 2, 32}: a 4-stop bracket (+-2 EV around 2, the
+  geometric middle of the ladder, like the 2-exposure alternating videos of Real-Exp-2), one
+  interpolated novel level (2) and the two extrapolated ends of the same ladder, so the novel LDR
+  folders share names with the 3-level suite.
 
 Schedules of the training frames (paper appendix "Other Exposure Schedules"):
 
 * ``alternating`` (default): observed levels in the given order, repeated: [a, b, c, a, b, c, ...].
-* ``random-order``: a random permutation of a balanced multiset of the observed levels (each level equally often;
-  when the frame count is not a multiple of the level count the extra frames take distinct random levels).
+* ``random-order``: a random permutation of a balanced multiset of the observed levels (each level
+  equally often; when the frame count is not a multiple of the level count the extra frames take
+  distinct random levels).
 * ``random-values``: log-uniform values between the shortest and the longest observed level.
 
-Test frames are rendered at every observed and every novel level (``test_levels``). Exposure-value perturbation
-(paper Table "random exposure perturbation") is a trainer option, never a property of the clip.
-"""
+Test frames are rendered at every observed and every novel level (``test_levels``). Exposure-value
+perturbation (paper Table "random exposure perturbation") is a trainer option, never a property of
+the clip."""
+
 from __future__ import annotations
 
 import math
@@ -28,7 +32,6 @@ from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
-
 
 SCHEDULES = ("alternating", "random-order", "random-values")
 
@@ -62,13 +65,20 @@ class ExposureSettings:
         for name, levels in (("observed", obs), ("novel", nov)):
             for v in levels:
                 if not (math.isfinite(v) and v > 0):
-                    raise ValueError(f"ExposureSettings.{name}: exposure must be finite and > 0, got {v!r}")
+                    raise ValueError(
+                        f"ExposureSettings.{name}: exposure must be finite and > 0, got {v!r}"
+                    )
             if len(set(levels)) != len(levels):
                 raise ValueError(f"ExposureSettings.{name}: duplicate level in {levels}")
         if set(obs) & set(nov):
-            raise ValueError(f"ExposureSettings: levels {sorted(set(obs) & set(nov))} are both observed and novel")
+            raise ValueError(
+                f"ExposureSettings: levels {sorted(set(obs) & set(nov))} are both observed and "
+                "novel"
+            )
         if self.schedule not in SCHEDULES:
-            raise ValueError(f"ExposureSettings.schedule: expected one of {SCHEDULES}, got {self.schedule!r}")
+            raise ValueError(
+                f"ExposureSettings.schedule: expected one of {SCHEDULES}, got {self.schedule!r}"
+            )
 
     @property
     def num_levels(self) -> int:
@@ -85,18 +95,31 @@ class ExposureSettings:
 
     @property
     def middle(self) -> float:
-        """Geometric middle of the observed range, sqrt(shortest * longest) (= 2 for both presets)."""
+        """Geometric middle of the observed range, sqrt(shortest * longest) (= 2 for both
+        presets)."""
         return math.sqrt(self.shortest * self.longest)
 
     def to_dict(self) -> dict:
-        return {"observed": list(self.observed), "novel": list(self.novel), "schedule": self.schedule}
+        return {
+            "observed": list(self.observed),
+            "novel": list(self.novel),
+            "schedule": self.schedule,
+        }
 
 
-def exposure_preset(num_exposures: int = 3, schedule: str = "alternating", observed: Optional[Sequence[float]] = None,
-                    novel: Optional[Sequence[float]] = None) -> ExposureSettings:
-    """Settings for ``--exposures N`` (2 or 3) with optional overrides of the observed and/or novel levels."""
+def exposure_preset(
+    num_exposures: int = 3,
+    schedule: str = "alternating",
+    observed: Optional[Sequence[float]] = None,
+    novel: Optional[Sequence[float]] = None,
+) -> ExposureSettings:
+    """Settings for ``--exposures N`` (2 or 3) with optional overrides of the observed and/or novel
+    levels."""
     if observed is None and num_exposures not in PRESET_LEVELS:
-        raise ValueError(f"--exposures {num_exposures}: presets exist for {sorted(PRESET_LEVELS)}; give observed levels")
+        raise ValueError(
+            f"--exposures {num_exposures}: presets exist for {sorted(PRESET_LEVELS)}; give "
+            "observed levels"
+        )
     obs_p, nov_p = PRESET_LEVELS.get(num_exposures, ((), ()))
     obs = tuple(observed) if observed is not None else obs_p
     if novel is not None:
@@ -124,8 +147,8 @@ test_levels.__test__ = False  # not a pytest test
 def schedule_train_dt(num_train: int, settings: ExposureSettings, seed: int = 0) -> List[float]:
     """Exposure time of each training frame (in training-frame order).
 
-    alternating:   observed[i % N_e] (deterministic, seed unused).
-    random-order:  numpy Generator(seed).permutation of [each level repeated num_train // N_e times] plus
+    alternating:   observed[i % N_e] (deterministic, seed unused). random-order:  numpy
+    Generator(seed).permutation of [each level repeated num_train // N_e times] plus
                    num_train % N_e distinct levels drawn without replacement.
     random-values: exp(U(log shortest, log longest)) per frame, numpy Generator(seed).
     """

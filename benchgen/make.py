@@ -1,23 +1,30 @@
-"""Make one clip (and suites of clips): render, exact ground truth, exposure, tone mapping, degraded priors.
+"""Make one clip (and suites of clips): render, exact ground truth, exposure, tone mapping, degraded
+priors.
 
-Pipeline of `make_clip` (each step resumable; every file write is atomic; clip.json is written last, so a folder
-without clip.json is an unfinished clip and is resumed, and a finished clip is skipped unless `force`):
+Pipeline of `make_clip` (each step resumable; every file write is atomic; clip.json is written last,
+so a folder without clip.json is an unfinished clip and is resumed, and a finished clip is skipped
+unless `force`):
 
 1. Light selection for next-event estimation (benchgen.render.choose_emitter_sampling).
-2. Ground truth (`benchgen.render.render_clip_gt`) at the scene's own emitter scale: denoised HDR of every frame
-   (kept in .benchgen/hdr_unit until the clip is done), z-depth, dynamic masks, cameras, exact flow between
-   consecutive training frames, point tracks over all frames; measured render noise and HDR-TAE floor.
-3. HDR scale (benchgen.placement.choose_hdr_scale): one global scale chosen from those converged training frames so
-   that the exposure levels sit where a bracketing camera puts them; gt/hdr = scale * the unit frame (light transport
-   is linear in the emitters, so this equals rendering with every emitter scaled).
-4. Exposure: training exposure times from the schedule; input LDR = CRF(H dt) in 8 bits; test frames at every
-   observed and novel level under gt/ldr.
-5. Priors through the profile (benchgen.priors): depth (with emitter/glossy masks from pixel-centre ray casts),
-   tracks (from the ground-truth tracks on the training frames), flow between training frames (t, t +- N_e).
-6. Placement (benchgen.placement.measure_placement): what the clip achieved, recomputed from its PNGs, into
-   clip.json gt.placement; a clip that misses a target is finished but `make_clip` raises PlacementError (unless
-   allow_misplaced), and says so again whenever the finished clip is asked for.
+2. Ground truth (`benchgen.render.render_clip_gt`) at the scene's own emitter scale: denoised HDR of
+   every frame (kept in .benchgen/hdr_unit until the clip is done), z-depth, dynamic masks, cameras,
+   exact flow between consecutive training frames, point tracks over all frames; measured render
+   noise and HDR-TAE floor.
+3. HDR scale (benchgen.placement.choose_hdr_scale): one global scale chosen from those converged
+   training frames so that the exposure levels sit where a bracketing camera puts them; gt/hdr =
+   scale * the unit frame (light transport is linear in the emitters, so this equals rendering with
+   every emitter scaled).
+4. Exposure: training exposure times from the schedule; input LDR = CRF(H dt) in 8 bits; test frames
+   at every observed and novel level under gt/ldr.
+5. Priors through the profile (benchgen.priors): depth (with emitter/glossy masks from pixel-centre
+   ray casts), tracks (from the ground-truth tracks on the training frames), flow between training
+   frames (t, t +- N_e).
+6. Placement (benchgen.placement.measure_placement): what the clip achieved, recomputed from its
+   PNGs, into clip.json gt.placement; a clip that misses a target is finished but `make_clip` raises
+   PlacementError (unless allow_misplaced), and says so again whenever the finished clip is asked
+   for.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -30,17 +37,35 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 
 from m4dgs import io as mio
-from m4dgs.clip import Clip, ClipMeta, ClipWriter, Exposures, FlowSet, Split, TrackSet, frame_name, load_trackset
+from m4dgs.clip import (
+    Clip,
+    ClipMeta,
+    ClipWriter,
+    Exposures,
+    FlowSet,
+    Split,
+    TrackSet,
+    frame_name,
+    load_trackset,
+)
 from m4dgs.crf import clip_crf, tonemap_ldr
 
 from .exposure import ExposureSettings, exposure_gap_ev, schedule_train_dt, test_levels
 from .placement import PlacementTargets, choose_hdr_scale, measure_placement
-from .priors import degrade_depth, degrade_flow, degrade_tracks, flow_pairs, get_profile, make_rng, priors_metadata
+from .priors import (
+    degrade_depth,
+    degrade_flow,
+    degrade_tracks,
+    flow_pairs,
+    get_profile,
+    make_rng,
+    priors_metadata,
+)
 from .scene import load_scene
 
-# 2: small preset 64 spp with per-clip light selection (was 256 spp, uniform)
-# 3: ground-truth track queries scale with the preset (small: ~15k tracks, was ~1.3k)
-# 4: denoised renders; HDR scale from the clip's own converged frames with placement targets, measured in clip.json
+# 2: small preset 64 spp with per-clip light selection (was 256 spp, uniform) 3: ground-truth track
+# queries scale with the preset (small: ~15k tracks, was ~1.3k) 4: denoised renders; HDR scale from
+# the clip's own converged frames with placement targets, measured in clip.json
 GENERATOR_VERSION = 4
 
 #: where the unit-scale HDR frames wait for the clip's scale (removed when the clip is finished)
@@ -49,17 +74,19 @@ UNIT_HDR_DIR = (".benchgen", "hdr_unit")
 
 @dataclass(frozen=True)
 class Preset:
-    """Clip size of a preset: resolution, frame cap, render settings (benchgen.render.RENDER_PRESETS) and the density
-    of the ground-truth track queries (benchgen.groundtruth.select_queries, on each of the 4 reference frames)."""
+    """Clip size of a preset: resolution, frame cap, render settings
+    (benchgen.render.RENDER_PRESETS) and the density of the ground-truth track queries
+    (benchgen.groundtruth.select_queries, on each of the 4 reference frames)."""
 
     width: int
     height: int
     max_frames: int
     render: str
-    # Ground-truth tracks are what the prior profiles subsample (`realistic` asks for a 16k-cell uniform grid plus 16k
-    # dynamic queries, as the paper's tracker does), so they must be at least that dense for the profile to mean it.
-    # With the old 256 + 64 queries per reference frame a small clip had ~1.3k tracks: stage 1 (which starts from one
-    # video Gaussian per track) never reconstructed a 3-pixel lamp on conveyor-occlusion-orbit.
+    # Ground-truth tracks are what the prior profiles subsample (`realistic` asks for a 16k-cell
+    # uniform grid plus 16k dynamic queries, as the paper's tracker does), so they must be at least
+    # that dense for the profile to mean it. With the old 256 + 64 queries per reference frame a
+    # small clip had ~1.3k tracks: stage 1 (which starts from one video Gaussian per track) never
+    # reconstructed a 3-pixel lamp on conveyor-occlusion-orbit.
     track_grid: int = 256  # uniform-grid cells per reference frame
     track_dynamic: int = 64  # extra random dynamic-object pixels per reference frame
 
@@ -86,32 +113,67 @@ def _material_masks(cast, state):
     return k == "emitter", k == "glossy"
 
 
-def _generator_settings(scene_path, preset: str, settings: ExposureSettings, profile: str, seed: int,
-                        spp: int, crf: str = "hdrnerf") -> dict:
+def _generator_settings(
+    scene_path,
+    preset: str,
+    settings: ExposureSettings,
+    profile: str,
+    seed: int,
+    spp: int,
+    crf: str = "hdrnerf",
+) -> dict:
     return {
-        "tool": "benchgen", "version": GENERATOR_VERSION, "scene_spec": Path(scene_path).name, "preset": preset,
-        "seed": int(seed), "spp": int(spp), "observed": list(settings.observed), "novel": list(settings.novel),
-        "schedule": settings.schedule, "priors": profile, "crf": crf,
+        "tool": "benchgen",
+        "version": GENERATOR_VERSION,
+        "scene_spec": Path(scene_path).name,
+        "preset": preset,
+        "seed": int(seed),
+        "spp": int(spp),
+        "observed": list(settings.observed),
+        "novel": list(settings.novel),
+        "schedule": settings.schedule,
+        "priors": profile,
+        "crf": crf,
     }
 
 
 def _with_crf(gen: Optional[dict]) -> Optional[dict]:
-    """Generator settings recorded before the response was a clip setting were all made with hdrnerf."""
+    """Generator settings recorded before the response was a clip setting were all made with
+    hdrnerf."""
     return None if gen is None else {"crf": "hdrnerf", **gen}
 
 
-def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[ExposureSettings] = None,
-              priors: str = "realistic", seed: int = 0, crf: str = "hdrnerf", force: bool = False,
-              progress: bool = True, max_frames: Optional[int] = None, spp: Optional[int] = None,
-              targets: Optional[PlacementTargets] = None, allow_misplaced: bool = False) -> Path:
-    """Generate one clip folder from a scene spec; returns the clip folder. Resumes an unfinished clip.
+def make_clip(
+    scene_path,
+    out_dir,
+    preset: str = "small",
+    settings: Optional[ExposureSettings] = None,
+    priors: str = "realistic",
+    seed: int = 0,
+    crf: str = "hdrnerf",
+    force: bool = False,
+    progress: bool = True,
+    max_frames: Optional[int] = None,
+    spp: Optional[int] = None,
+    targets: Optional[PlacementTargets] = None,
+    allow_misplaced: bool = False,
+) -> Path:
+    """Generate one clip folder from a scene spec; returns the clip folder. Resumes an unfinished
+    clip.
 
-    targets: exposure-placement targets (default: the benchmark's, benchgen.placement.PlacementTargets); a clip that
-    misses one raises PlacementError after it is written (also when a finished clip is found again), unless
-    allow_misplaced (then a warning).
+    targets: exposure-placement targets (default: the benchmark's,
+    benchgen.placement.PlacementTargets); a clip that misses one raises PlacementError after it is
+    written (also when a finished clip is found again), unless allow_misplaced (then a warning).
 
-    spp overrides the preset's samples per pixel of the HDR renders (benchgen.render.RENDER_PRESETS)."""
-    from .render import EMITTER_PROBE_SPP, Renderer, RenderSettings, choose_emitter_sampling, render_clip_gt
+    spp overrides the preset's samples per pixel of the HDR renders
+    (benchgen.render.RENDER_PRESETS)."""
+    from .render import (
+        EMITTER_PROBE_SPP,
+        Renderer,
+        RenderSettings,
+        choose_emitter_sampling,
+        render_clip_gt,
+    )
 
     t_start = time.perf_counter()
     settings = settings or ExposureSettings()
@@ -121,60 +183,101 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
     W, H = pr.width, pr.height
     G = min(scene.num_frames, pr.max_frames if max_frames is None else max_frames)
     if G < 3:
-        raise ValueError(f"{scene_path}: a clip needs at least 3 frames, the spec gives {scene.num_frames}")
+        raise ValueError(
+            f"{scene_path}: a clip needs at least 3 frames, the spec gives {scene.num_frames}"
+        )
     render_settings = RenderSettings.resolve(pr.render)
     if spp is not None:
         if int(spp) < 1:
             raise ValueError(f"spp must be >= 1, got {spp}")
         render_settings = dataclasses.replace(render_settings, spp=int(spp))
-    crf_fn = clip_crf(crf)  # a response of the clip family (m4dgs.crf.CLIP_CRFS), recorded in clip.json
-    gen = _generator_settings(scene_path, preset, settings, priors, seed, render_settings.spp, crf_fn.name)
+    # a response of the clip family (m4dgs.crf.CLIP_CRFS), recorded in clip.json
+    crf_fn = clip_crf(crf)
+    gen = _generator_settings(
+        scene_path, preset, settings, priors, seed, render_settings.spp, crf_fn.name
+    )
     if (out / "clip.json").exists() and not force:
         done = Clip.open(out).meta
         old = _with_crf(done.generator)
         if {k: old.get(k) for k in gen} == gen:  # finished with the same settings
             check_clip_placement(out, done.gt.get("placement"), allow_misplaced)
             return out
-        raise FileExistsError(f"{out}: a finished clip with other settings exists (generator {old}); pass force")
+        raise FileExistsError(
+            f"{out}: a finished clip with other settings exists (generator {old}); pass force"
+        )
     if force and (out / "clip.json").exists():
         (out / "clip.json").unlink()
     state_path = out / ".benchgen" / "state.json"
     state = mio.read_json(state_path) if state_path.exists() else {}
     if _with_crf(state.get("generator")) not in (None, gen):
-        raise FileExistsError(f"{out}: an unfinished clip with other settings is here; remove it or pick another --out")
+        raise FileExistsError(
+            f"{out}: an unfinished clip with other settings is here; remove it or pick another "
+            "--out"
+        )
     state["generator"] = gen
 
     frames = list(range(G))
     train, test = frames[0::2], frames[1::2]
 
-    # 1. light selection -----------------------------------------------------------------------------------------------
+    # 1. light selection
+    # ----------------------------------------------------------------------------------------------
     if render_settings.emitter_sampling == "auto":
         if "emitter_sampling" not in state:
             mode, scores = choose_emitter_sampling(scene.frame(0, W, H), W, H, render_settings)
             state["emitter_sampling"], state["emitter_sampling_noise"] = mode, scores
             mio.write_json(state_path, state)
-        render_settings = dataclasses.replace(render_settings, emitter_sampling=state["emitter_sampling"])
+        render_settings = dataclasses.replace(
+            render_settings, emitter_sampling=state["emitter_sampling"]
+        )
     train_dt = schedule_train_dt(len(train), settings, seed)
     meta = ClipMeta(
-        name=scene.name, width=W, height=H, fps=float(scene.fps), frames=frames, split=Split(train, test),
-        exposures=Exposures(train_dt=[float(v) for v in train_dt], observed=list(settings.observed),
-                            novel=list(settings.novel), schedule=settings.schedule),
-        crf=crf_fn.name, unit_exposure_value=float(crf_fn(np.float64(1.0))), hdr_scale=1.0, generator=gen,
+        name=scene.name,
+        width=W,
+        height=H,
+        fps=float(scene.fps),
+        frames=frames,
+        split=Split(train, test),
+        exposures=Exposures(
+            train_dt=[float(v) for v in train_dt],
+            observed=list(settings.observed),
+            novel=list(settings.novel),
+            schedule=settings.schedule,
+        ),
+        crf=crf_fn.name,
+        unit_exposure_value=float(crf_fn(np.float64(1.0))),
+        hdr_scale=1.0,
+        generator=gen,
     )
     writer = ClipWriter(out, meta)
 
-    # 2. ground truth at the scene's own (unit) emitter scale: HDR frames go to .benchgen/hdr_unit --------------------
+    # 2. ground truth at the scene's own (unit) emitter scale: HDR frames go to .benchgen/hdr_unit
+    #    --------------------
     if "gt_notes" not in state:
-        notes = render_clip_gt(scene, W, H, frames, render_settings, writer, progress=progress,
-                               num_grid=pr.track_grid, num_dynamic=pr.track_dynamic, hdr_dir=UNIT_HDR_DIR)
+        notes = render_clip_gt(
+            scene,
+            W,
+            H,
+            frames,
+            render_settings,
+            writer,
+            progress=progress,
+            num_grid=pr.track_grid,
+            num_dynamic=pr.track_dynamic,
+            hdr_dir=UNIT_HDR_DIR,
+        )
         state["gt_notes"] = notes
         mio.write_json(state_path, state)
 
-    # 3. one global HDR scale from the clip's own converged frames, then gt/hdr = scale * unit frame ------------------
-    # (light transport is linear in the emitters, so this equals rendering with every emitter scaled)
+    # 3. one global HDR scale from the clip's own converged frames, then gt/hdr = scale * unit frame
+    #    ------------------
+    # (light transport is linear in the emitters, so this equals rendering with every emitter
+    # scaled)
     if "hdr_scale" not in state:
-        scale, report = choose_hdr_scale(_frames_by_level(out, settings, train, train_dt, test), crf_fn,
-                                         targets or PlacementTargets())
+        scale, report = choose_hdr_scale(
+            _frames_by_level(out, settings, train, train_dt, test),
+            crf_fn,
+            targets or PlacementTargets(),
+        )
         state["hdr_scale"], state["hdr_scale_report"] = float(scale), report
         mio.write_json(state_path, state)
     scale = float(state["hdr_scale"])
@@ -185,12 +288,17 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
             writer.write_gt_hdr(g, (unit * np.float32(scale)).astype(np.float32))
     meta.gt.update(state["gt_notes"])
     meta.gt["hdr_scale_report"] = state.get("hdr_scale_report")
-    meta.gt["crf"] = crf_fn.metadata()  # formula, source, parameters and f(1) per channel of the response
+    # formula, source, parameters and f(1) per channel of the response
+    meta.gt["crf"] = crf_fn.metadata()
     if "emitter_sampling_noise" in state:
-        meta.gt["emitter_sampling_probe"] = {"chosen": state["emitter_sampling"], "spp": EMITTER_PROBE_SPP,
-                                             "noise_tae_two_seeds": state["emitter_sampling_noise"]}
+        meta.gt["emitter_sampling_probe"] = {
+            "chosen": state["emitter_sampling"],
+            "spp": EMITTER_PROBE_SPP,
+            "noise_tae_two_seeds": state["emitter_sampling_noise"],
+        }
 
-    # 4. exposures: input LDR and test LDR at every level --------------------------------------------------------------
+    # 4. exposures: input LDR and test LDR at every level
+    #    --------------------------------------------------------------
     hdr_train = {}
     for g, dt in zip(train, train_dt):
         hdr_train[g] = mio.read_exr(out / "gt/hdr" / frame_name(g, "exr"))
@@ -204,13 +312,16 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
                 h = mio.read_exr(out / "gt/hdr" / frame_name(g, "exr")) if h is None else h
                 writer.write_gt_ldr(lv, g, tonemap_ldr(h, float(lv), crf_fn))
 
-    # 5. priors -----------------------------------------------------------------------------------------------------
+    # 5. priors
+    # ----------------------------------------------------------------------------------------------
     profile = get_profile(priors)
     clip_key = scene.name
     depth_gt = np.stack([mio.read_exr(out / "gt/depth" / frame_name(g, "exr")) for g in train])
     pairs = flow_pairs(train, train_dt, len(settings.observed))
     need = sorted({g for p in pairs for g in p})
-    caster = Renderer(scene.frame(0, W, H), W, H, dataclasses.replace(render_settings, denoise=False))
+    caster = Renderer(
+        scene.frame(0, W, H), W, H, dataclasses.replace(render_settings, denoise=False)
+    )
     casts, states = {}, {}
     emit, gloss = np.zeros(depth_gt.shape, bool), np.zeros(depth_gt.shape, bool)
     for i, g in enumerate(train):
@@ -226,9 +337,15 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
 
     gt_tracks = load_trackset(out / "gt/tracks.npz")
     cols = [list(gt_tracks.frames).index(g) for g in train]
-    gt_train = TrackSet(tracks=gt_tracks.tracks[:, cols], visible=gt_tracks.visible[:, cols],
-                        frames=np.array(train, np.int64), dynamic=gt_tracks.dynamic)
-    writer.write_prior_tracks(degrade_tracks(gt_train, depth_gt, W, H, profile, make_rng(seed, clip_key, "tracks")))
+    gt_train = TrackSet(
+        tracks=gt_tracks.tracks[:, cols],
+        visible=gt_tracks.visible[:, cols],
+        frames=np.array(train, np.int64),
+        dynamic=gt_tracks.dynamic,
+    )
+    writer.write_prior_tracks(
+        degrade_tracks(gt_train, depth_gt, W, H, profile, make_rng(seed, clip_key, "tracks"))
+    )
 
     from .groundtruth import flow_between
 
@@ -236,25 +353,44 @@ def make_clip(scene_path, out_dir, preset: str = "small", settings: Optional[Exp
     ldr_of = {g: mio.read_png(out / "input/ldr" / frame_name(g, "png")) for g in need}
     flows, valids = [], []
     for k, (a, b) in enumerate(pairs):
-        f, v = flow_between(casts[a], states[b], states[b], casts[b].depth, casts[b].instance, cam_a=states[a])
-        f2, v2 = degrade_flow(f, v, ldr_of[a], ldr_of[b], exposure_gap_ev(dt_of[a], dt_of[b]), profile,
-                              make_rng(seed, clip_key, "flow", k))
+        f, v = flow_between(
+            casts[a], states[b], states[b], casts[b].depth, casts[b].instance, cam_a=states[a]
+        )
+        f2, v2 = degrade_flow(
+            f,
+            v,
+            ldr_of[a],
+            ldr_of[b],
+            exposure_gap_ev(dt_of[a], dt_of[b]),
+            profile,
+            make_rng(seed, clip_key, "flow", k),
+        )
         flows.append(f2)
         valids.append(v2)
     if pairs:
-        writer.write_prior_flow(FlowSet(np.array(pairs, np.int64), np.stack(flows), np.stack(valids)))
+        writer.write_prior_flow(
+            FlowSet(np.array(pairs, np.int64), np.stack(flows), np.stack(valids))
+        )
 
     meta.priors = priors_metadata(profile, seed)
-    meta.gt["dynamic_fraction"] = float(np.mean([
-        (mio.read_png(out / "gt/masks/dynamic" / frame_name(g, "png")) > 127).mean() for g in frames]))
+    meta.gt["dynamic_fraction"] = float(
+        np.mean(
+            [
+                (mio.read_png(out / "gt/masks/dynamic" / frame_name(g, "png")) > 127).mean()
+                for g in frames
+            ]
+        )
+    )
     stops = _dynamic_range_stops(hdr_train)
     meta.gt["dynamic_range_stops"] = stops
     meta.generator["seconds"] = round(time.perf_counter() - t_start, 2)
-    # 6. what the clip achieved, measured from its PNGs ------------------------------------------------------------
+    # 6. what the clip achieved, measured from its PNGs
+    #    ------------------------------------------------------------
     meta.gt["placement"] = measure_placement(out, meta, targets)
     writer.meta = meta
     writer.finalize()
-    shutil.rmtree(out.joinpath(*UNIT_HDR_DIR), ignore_errors=True)  # gt/hdr holds the same frames, scaled
+    # gt/hdr holds the same frames, scaled
+    shutil.rmtree(out.joinpath(*UNIT_HDR_DIR), ignore_errors=True)
     check_clip_placement(out, meta.gt["placement"], allow_misplaced)
     return out
 
@@ -263,8 +399,11 @@ class PlacementError(ValueError):
     """A finished clip misses its exposure-placement targets (benchgen.placement)."""
 
 
-def check_clip_placement(clip_dir, placement: Optional[dict], allow_misplaced: bool = False) -> None:
-    """Raise PlacementError naming every missed target (unless allow_misplaced; then only warn on stderr)."""
+def check_clip_placement(
+    clip_dir, placement: Optional[dict], allow_misplaced: bool = False
+) -> None:
+    """Raise PlacementError naming every missed target (unless allow_misplaced; then only warn on
+    stderr)."""
     import sys
 
     from .placement import placement_failures
@@ -274,29 +413,47 @@ def check_clip_placement(clip_dir, placement: Optional[dict], allow_misplaced: b
     bad = placement_failures(placement)
     if not bad:
         return
-    msg = (f"{clip_dir}: the clip misses its exposure-placement targets (clip.json gt.placement): " + "; ".join(bad)
-           + ". Change the scene spec (deeper shadows, an unlit corner, smaller or dimmer lamps; docs/exposure.md)"
-             " or pass --allow-misplaced to keep the clip anyway.")
+    msg = (
+        f"{clip_dir}: the clip misses its exposure-placement targets (clip.json gt.placement): "
+        + "; ".join(bad)
+        + ". Change the scene spec (deeper shadows, an unlit corner, smaller or dimmer lamps; "
+        "docs/exposure.md)"
+        " or pass --allow-misplaced to keep the clip anyway."
+    )
     if allow_misplaced:
         print("warning: " + msg, file=sys.stderr)
         return
     raise PlacementError(msg)
 
 
-def _frames_by_level(out: Path, settings: ExposureSettings, train: Sequence[int], train_dt: Sequence[float],
-                     test: Sequence[int]) -> Dict[float, np.ndarray]:
-    """Unit-scale HDR frames of each observed level: the training frames shown at it, or (when the schedule puts no
-    training frame exactly at a level, e.g. random-values) the test frames, which are rendered at every level."""
+def _frames_by_level(
+    out: Path,
+    settings: ExposureSettings,
+    train: Sequence[int],
+    train_dt: Sequence[float],
+    test: Sequence[int],
+) -> Dict[float, np.ndarray]:
+    """Unit-scale HDR frames of each observed level: the training frames shown at it, or (when the
+    schedule puts no training frame exactly at a level, e.g. random-values) the test frames, which
+    are rendered at every level."""
     res = {}
     for lv in settings.observed:
         gs = [g for g, dt in zip(train, train_dt) if float(dt) == float(lv)] or list(test)
-        res[float(lv)] = np.stack([mio.read_exr(out.joinpath(*UNIT_HDR_DIR, frame_name(g, "exr"))) for g in gs])
+        res[float(lv)] = np.stack(
+            [mio.read_exr(out.joinpath(*UNIT_HDR_DIR, frame_name(g, "exr"))) for g in gs]
+        )
     return res
 
 
 def _dynamic_range_stops(hdr_frames: Dict[int, np.ndarray]) -> float:
-    """log2 of the ratio between the 99.99th and 0.01th percentiles of positive luminance over the training frames."""
-    lum = np.concatenate([(0.2126 * h[..., 0] + 0.7152 * h[..., 1] + 0.0722 * h[..., 2]).ravel() for h in hdr_frames.values()])
+    """log2 of the ratio between the 99.99th and 0.01th percentiles of positive luminance over the
+    training frames."""
+    lum = np.concatenate(
+        [
+            (0.2126 * h[..., 0] + 0.7152 * h[..., 1] + 0.0722 * h[..., 2]).ravel()
+            for h in hdr_frames.values()
+        ]
+    )
     lum = lum[lum > 0]
     if lum.size == 0:
         return 0.0
@@ -304,24 +461,47 @@ def _dynamic_range_stops(hdr_frames: Dict[int, np.ndarray]) -> float:
     return float(np.log2(hi / max(lo, 1e-12)))
 
 
-def make_suite(suite, out_root, preset: str = "small", scenes: Optional[Sequence[str]] = None, priors: str = "realistic",
-               schedule: Optional[str] = None, num_exposures: Optional[int] = None, observed=None, novel=None,
-               seed: int = 0, jobs: int = 1, force: bool = False, progress: bool = True,
-               spp: Optional[int] = None, crf: str = "hdrnerf", allow_misplaced: bool = False) -> List[Path]:
-    """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in parallel processes.
+def make_suite(
+    suite,
+    out_root,
+    preset: str = "small",
+    scenes: Optional[Sequence[str]] = None,
+    priors: str = "realistic",
+    schedule: Optional[str] = None,
+    num_exposures: Optional[int] = None,
+    observed=None,
+    novel=None,
+    seed: int = 0,
+    jobs: int = 1,
+    force: bool = False,
+    progress: bool = True,
+    spp: Optional[int] = None,
+    crf: str = "hdrnerf",
+    allow_misplaced: bool = False,
+) -> List[Path]:
+    """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in
+    parallel processes.
 
-    Clips that miss their exposure-placement targets are all finished first, then one PlacementError lists them
-    (allow_misplaced: only warnings).
+    Clips that miss their exposure-placement targets are all finished first, then one PlacementError
+    lists them (allow_misplaced: only warnings).
 
     crf: the clips' camera response (m4dgs.crf.CLIP_CRFS; the paper's "hdrnerf" by default)."""
     from .exposure import exposure_preset
     from .suite import load_suite
 
     s = load_suite(suite)
-    if num_exposures is not None or observed is not None or novel is not None or schedule is not None:
-        settings = exposure_preset(num_exposures or len(s.observed), schedule or s.schedule,
-                                   observed=observed if observed is not None else (None if num_exposures else s.observed),
-                                   novel=novel if novel is not None else (None if num_exposures else s.novel))
+    if (
+        num_exposures is not None
+        or observed is not None
+        or novel is not None
+        or schedule is not None
+    ):
+        settings = exposure_preset(
+            num_exposures or len(s.observed),
+            schedule or s.schedule,
+            observed=observed if observed is not None else (None if num_exposures else s.observed),
+            novel=novel if novel is not None else (None if num_exposures else s.novel),
+        )
     else:
         settings = ExposureSettings(tuple(s.observed), tuple(s.novel), s.schedule)
     paths = [p for p in s.scenes if scenes is None or p.stem in scenes]
@@ -331,21 +511,28 @@ def make_suite(suite, out_root, preset: str = "small", scenes: Optional[Sequence
             raise ValueError(f"suite {s.name!r} has no scene(s) {missing} (it has {s.scene_names})")
     root = Path(out_root) / s.name
     jobs_list = [(p, root / p.stem) for p in paths]
-    kw = dict(crf=crf, force=force, spp=spp, allow_misplaced=allow_misplaced or s.placement == "warn")
-    # every clip is made even when an earlier one misses its placement targets; the misses are reported together
+    kw = dict(
+        crf=crf, force=force, spp=spp, allow_misplaced=allow_misplaced or s.placement == "warn"
+    )
+    # every clip is made even when an earlier one misses its placement targets; the misses are
+    # reported together
     results, misplaced = [], []
     if jobs <= 1:
         for p, o in jobs_list:
             try:
-                results.append(make_clip(p, o, preset, settings, priors, seed, progress=progress, **kw))
+                results.append(
+                    make_clip(p, o, preset, settings, priors, seed, progress=progress, **kw)
+                )
             except PlacementError as e:
                 misplaced.append(str(e))
     else:
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(max_workers=jobs) as ex:
-            futs = [ex.submit(make_clip, p, o, preset, settings, priors, seed, progress=False, **kw)
-                    for p, o in jobs_list]
+            futs = [
+                ex.submit(make_clip, p, o, preset, settings, priors, seed, progress=False, **kw)
+                for p, o in jobs_list
+            ]
             for f in futs:
                 try:
                     results.append(f.result())

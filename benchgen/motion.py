@@ -1,20 +1,23 @@
 """Camera trajectories and object motion as pure functions of time (project issue 3, "Scenes").
 
-Conventions: world is right-handed and z-up; cameras are OpenCV (x right, y down, z forward) and returned as 4x4
-camera-to-world matrices (float64). Rigid object motions return 4x4 world transforms M(t) that are applied on top of
-the object's static placement (world = M(t) @ placement @ local). Angles are degrees at the spec level and radians
-inside unless a name says ``_deg``.
+Conventions: world is right-handed and z-up; cameras are OpenCV (x right, y down, z forward) and
+returned as 4x4 camera-to-world matrices (float64). Rigid object motions return 4x4 world transforms
+M(t) that are applied on top of the object's static placement (world = M(t) @ placement @ local).
+Angles are degrees at the spec level and radians inside unless a name says ``_deg``.
 
 Contents:
 - rotations: :func:`axis_angle`, :func:`euler_xyz_deg`, :func:`rigid`.
 - :func:`look_at` (explicit OpenCV look-at), :func:`smooth_noise` (band-limited seeded jitter).
-- splines: :func:`hermite_spline` (Catmull-Rom tangents, zero velocity at the end keys, so the clamped curve is C1
-  everywhere) and :func:`quat_spline` (the same Hermite curve on sign-aligned quaternion components, normalised; C1).
-- cameras: :func:`static_c2w`, :func:`orbit_c2w`, :func:`dolly_c2w`, :func:`handheld_c2w`, :func:`camera_c2w`.
+- splines: :func:`hermite_spline` (Catmull-Rom tangents, zero velocity at the end keys, so the
+  clamped curve is C1 everywhere) and :func:`quat_spline` (the same Hermite curve on sign-aligned
+  quaternion components, normalised; C1).
+- cameras: :func:`static_c2w`, :func:`orbit_c2w`, :func:`dolly_c2w`, :func:`handheld_c2w`,
+  :func:`camera_c2w`.
 - objects: :func:`keyframes_transform`, :func:`translate_transform`, :func:`rotate_transform`,
-  :func:`oscillate_transform`, :func:`rigid_motion`; :func:`joint_angles`, :func:`chain_fk`, :func:`chain_tip`,
-  :func:`chain_vertices` (articulated); :func:`flag_deform` (non-rigid).
+  :func:`oscillate_transform`, :func:`rigid_motion`; :func:`joint_angles`, :func:`chain_fk`,
+  :func:`chain_tip`, :func:`chain_vertices` (articulated); :func:`flag_deform` (non-rigid).
 """
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -27,9 +30,9 @@ from m4dgs.camera import quat_to_rotmat, rotmat_to_quat
 WORLD_UP = np.array([0.0, 0.0, 1.0])
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Rotations
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def normalize(v) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64)
     n = np.linalg.norm(v)
@@ -46,7 +49,8 @@ def axis_angle(axis, angle: float) -> np.ndarray:
 
 
 def euler_xyz_deg(angles_deg) -> np.ndarray:
-    """[3, 3] R = Rz(c) Ry(b) Rx(a) for angles_deg = (a, b, c): rotate about x, then y, then z (world axes)."""
+    """[3, 3] R = Rz(c) Ry(b) Rx(a) for angles_deg = (a, b, c): rotate about x, then y, then z
+    (world axes)."""
     a, b, c = np.deg2rad(np.asarray(angles_deg, dtype=np.float64))
     return axis_angle([0, 0, 1], c) @ axis_angle([0, 1, 0], b) @ axis_angle([1, 0, 0], a)
 
@@ -73,17 +77,18 @@ def apply(M: np.ndarray, p: np.ndarray) -> np.ndarray:
     return p @ M[:3, :3].T + M[:3, 3]
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Cameras
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def look_at(eye, target, up=WORLD_UP, roll_deg: float = 0.0) -> np.ndarray:
     """OpenCV camera-to-world [4, 4] at eye looking at target.
 
-    Columns of R are the camera axes in world coordinates: z = forward = (target - eye) / |.|, x = right =
-    z x up / |.|, y = down = z x x. With up = world +z, image up (-y) has a positive world-z component. If forward is
-    parallel to up, world +y is used as the up hint. roll_deg turns the camera about its optical axis (positive: camera x
-    towards camera y).
-    """
+    Columns of R are the camera axes in world coordinates: z = forward = (target - eye) / |.|, x =
+    right =
+    z x up / |.|, y = down = z x x. With up = world +z, image up (-y) has a positive world-z
+    component. If forward is
+    parallel to up, world +y is used as the up hint. roll_deg turns the camera about its optical
+    axis (positive: camera x towards camera y)."""
     eye = np.asarray(eye, dtype=np.float64)
     z = normalize(np.asarray(target, dtype=np.float64) - eye)
     up = np.asarray(up, dtype=np.float64)
@@ -98,9 +103,11 @@ def look_at(eye, target, up=WORLD_UP, roll_deg: float = 0.0) -> np.ndarray:
     return rigid(R, eye)
 
 
-def smooth_noise(t: float, seed: int, frequency_hz: float, dims: int = 3, terms: int = 6) -> np.ndarray:
-    """Band-limited deterministic noise [dims] with unit RMS: a seeded sum of sinusoids with frequencies in
-    [0.2, 1] x frequency_hz (smooth, C-infinity in t; not white noise)."""
+def smooth_noise(
+    t: float, seed: int, frequency_hz: float, dims: int = 3, terms: int = 6
+) -> np.ndarray:
+    """Band-limited deterministic noise [dims] with unit RMS: a seeded sum of sinusoids with
+    frequencies in [0.2, 1] x frequency_hz (smooth, C-infinity in t; not white noise)."""
     rng = np.random.default_rng([int(seed), 0x5EED])
     f = rng.uniform(0.2, 1.0, (dims, terms)) * frequency_hz
     ph = rng.uniform(0, 2 * np.pi, (dims, terms))
@@ -113,9 +120,18 @@ def static_c2w(position, target, roll_deg: float = 0.0) -> np.ndarray:
     return look_at(position, target, roll_deg=roll_deg)
 
 
-def orbit_c2w(t: float, duration: float, target, radius: float, height: float, start_deg: float, sweep_deg: float,
-              roll_deg: float = 0.0) -> np.ndarray:
-    """Circular orbit at constant angular speed; azimuth = start + sweep * t / duration (0 = +x, CCW from above).
+def orbit_c2w(
+    t: float,
+    duration: float,
+    target,
+    radius: float,
+    height: float,
+    start_deg: float,
+    sweep_deg: float,
+    roll_deg: float = 0.0,
+) -> np.ndarray:
+    """Circular orbit at constant angular speed; azimuth = start + sweep * t / duration (0 = +x, CCW
+    from above).
 
     Distance to the target is sqrt(radius**2 + height**2) at every t.
     """
@@ -131,8 +147,11 @@ def _ease(s: float) -> float:
     return s * s * (3 - 2 * s)
 
 
-def dolly_c2w(t: float, duration: float, start, end, target, track_target: bool = False, ease: bool = True) -> np.ndarray:
-    """Straight rail from start to end over the clip; orientation fixed (look at target from start) unless tracking."""
+def dolly_c2w(
+    t: float, duration: float, start, end, target, track_target: bool = False, ease: bool = True
+) -> np.ndarray:
+    """Straight rail from start to end over the clip; orientation fixed (look at target from start)
+    unless tracking."""
     s = t / duration if duration > 0 else 0.0
     s = _ease(s) if ease else min(max(s, 0.0), 1.0)
     start, end = np.asarray(start, dtype=np.float64), np.asarray(end, dtype=np.float64)
@@ -144,10 +163,19 @@ def dolly_c2w(t: float, duration: float, start, end, target, track_target: bool 
     return M
 
 
-def handheld_c2w(t: float, duration: float, waypoints, targets, position_m: float = 0.01, rotation_deg: float = 0.3,
-                 frequency_hz: float = 1.5, seed: int = 0) -> np.ndarray:
-    """Smooth hand-held path: Catmull-Rom through evenly timed waypoints, looking at (splined) targets, plus smooth
-    seeded jitter of the centre (world, std position_m) and of the orientation (camera axes, std rotation_deg)."""
+def handheld_c2w(
+    t: float,
+    duration: float,
+    waypoints,
+    targets,
+    position_m: float = 0.01,
+    rotation_deg: float = 0.3,
+    frequency_hz: float = 1.5,
+    seed: int = 0,
+) -> np.ndarray:
+    """Smooth hand-held path: Catmull-Rom through evenly timed waypoints, looking at (splined)
+    targets, plus smooth seeded jitter of the centre (world, std position_m) and of the orientation
+    (camera axes, std rotation_deg)."""
     wp = np.asarray(waypoints, dtype=np.float64)
     tg = np.asarray(targets, dtype=np.float64)
     eye = hermite_spline(np.linspace(0, duration, len(wp)), wp, t) if len(wp) > 1 else wp[0]
@@ -161,28 +189,54 @@ def handheld_c2w(t: float, duration: float, waypoints, targets, position_m: floa
 
 
 def camera_c2w(traj: dict, t: float, duration: float, seed: int = 0) -> np.ndarray:
-    """c2w [4, 4] of a validated ``camera.trajectory`` spec at time t (seconds); duration = (G - 1) / fps."""
+    """c2w [4, 4] of a validated ``camera.trajectory`` spec at time t (seconds); duration = (G - 1)
+    / fps."""
     k = traj["type"]
     if k == "static":
         return static_c2w(traj["position"], traj["target"], traj["roll_deg"])
     if k == "orbit":
-        return orbit_c2w(t, duration, traj["target"], traj["radius"], traj["height"], traj["start_deg"], traj["sweep_deg"],
-                         traj["roll_deg"])
+        return orbit_c2w(
+            t,
+            duration,
+            traj["target"],
+            traj["radius"],
+            traj["height"],
+            traj["start_deg"],
+            traj["sweep_deg"],
+            traj["roll_deg"],
+        )
     if k == "dolly":
-        return dolly_c2w(t, duration, traj["start"], traj["end"], traj["target"], traj["track_target"], traj["ease"])
+        return dolly_c2w(
+            t,
+            duration,
+            traj["start"],
+            traj["end"],
+            traj["target"],
+            traj["track_target"],
+            traj["ease"],
+        )
     if k == "handheld":
         j = traj["jitter"]
         s = seed if j["seed"] is None else j["seed"]
-        return handheld_c2w(t, duration, traj["waypoints"], traj["targets"], j["position_m"], j["rotation_deg"],
-                            j["frequency_hz"], s)
+        return handheld_c2w(
+            t,
+            duration,
+            traj["waypoints"],
+            traj["targets"],
+            j["position_m"],
+            j["rotation_deg"],
+            j["frequency_hz"],
+            s,
+        )
     raise ValueError(f"unknown trajectory type {k!r}")
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Splines
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _tangents(times: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """Catmull-Rom tangents (p[k+1] - p[k-1]) / (t[k+1] - t[k-1]); zero at the first and last key."""
+    """Catmull-Rom tangents (p[k+1] - p[k-1]) / (t[k+1] - t[k-1]); zero at the first and last
+    key."""
     m = np.zeros_like(values)
     if len(times) > 2:
         m[1:-1] = (values[2:] - values[:-2]) / (times[2:] - times[:-2])[:, None]
@@ -190,8 +244,9 @@ def _tangents(times: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 
 def hermite_spline(times, values, t: float) -> np.ndarray:
-    """Cubic Hermite curve through (times[k], values[k]) [K, D] at t with Catmull-Rom interior tangents and zero
-    end tangents; held constant outside [times[0], times[-1]] (so C1 for all t)."""
+    """Cubic Hermite curve through (times[k], values[k]) [K, D] at t with Catmull-Rom interior
+    tangents and zero end tangents; held constant outside [times[0], times[-1]] (so C1 for all
+    t)."""
     tk = np.asarray(times, dtype=np.float64)
     p = np.asarray(values, dtype=np.float64)
     if t <= tk[0]:
@@ -219,8 +274,8 @@ def _align_quats(q: np.ndarray) -> np.ndarray:
 
 
 def quat_spline(times, quats, t: float) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) at t: Hermite spline of sign-aligned key quaternions, normalised (C1, passes
-    through the keys)."""
+    """Unit quaternion (w, x, y, z) at t: Hermite spline of sign-aligned key quaternions, normalised
+    (C1, passes through the keys)."""
     q = hermite_spline(times, _align_quats(np.asarray(quats, dtype=np.float64)), t)
     return q / np.linalg.norm(q)
 
@@ -237,19 +292,23 @@ def _slerp_np(q0, q1, s):
     return q / np.linalg.norm(q)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Rigid object motion
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 @lru_cache(maxsize=256)
 def _key_quats(rotations_deg: tuple) -> np.ndarray:
-    """[K, 4] quaternions of the keys' Euler rotations (cached: the same keys are evaluated every frame)."""
+    """[K, 4] quaternions of the keys' Euler rotations (cached: the same keys are evaluated every
+    frame)."""
     q = np.stack([rotmat_to_quat(euler_xyz_deg(r)) for r in rotations_deg])
     q.setflags(write=False)
     return q
 
 
-def keyframes_transform(t: float, keys: Sequence[dict], interpolation: str = "catmull_rom") -> np.ndarray:
-    """4x4 [R(t) | p(t)] from keys [{time, position, rotate_deg}] (clamped outside the key range)."""
+def keyframes_transform(
+    t: float, keys: Sequence[dict], interpolation: str = "catmull_rom"
+) -> np.ndarray:
+    """4x4 [R(t) | p(t)] from keys [{time, position, rotate_deg}] (clamped outside the key
+    range)."""
     times = np.array([k["time"] for k in keys], dtype=np.float64)
     pos = np.array([k["position"] for k in keys], dtype=np.float64)
     quats = _key_quats(tuple(tuple(float(a) for a in k.get("rotate_deg", (0, 0, 0))) for k in keys))
@@ -265,7 +324,9 @@ def keyframes_transform(t: float, keys: Sequence[dict], interpolation: str = "ca
     return rigid(quat_to_rotmat(q), p)
 
 
-def translate_transform(t: float, velocity, start_time: float = 0.0, end_time: Optional[float] = None) -> np.ndarray:
+def translate_transform(
+    t: float, velocity, start_time: float = 0.0, end_time: Optional[float] = None
+) -> np.ndarray:
     """4x4 translation by velocity * (clamp(t, start, end) - start)."""
     te = t if end_time is None else min(t, end_time)
     dt = max(te - start_time, 0.0)
@@ -282,10 +343,18 @@ def rotate_transform(t: float, axis, speed_deg_s: float, pivot) -> np.ndarray:
     return _about_pivot(axis_angle(axis, np.deg2rad(speed_deg_s * t)), pivot)
 
 
-def oscillate_transform(t: float, mode: str, axis, amplitude: float, frequency_hz: float, phase_deg: float = 0.0,
-                        pivot=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """4x4 sinusoidal oscillation: offset a(t) = amplitude sin(2 pi f t + phase); translate along the unit axis by
-    a(t) metres, or rotate by a(t) degrees about the axis through pivot (pendulum)."""
+def oscillate_transform(
+    t: float,
+    mode: str,
+    axis,
+    amplitude: float,
+    frequency_hz: float,
+    phase_deg: float = 0.0,
+    pivot=(0.0, 0.0, 0.0),
+) -> np.ndarray:
+    """4x4 sinusoidal oscillation: offset a(t) = amplitude sin(2 pi f t + phase); translate along
+    the unit axis by a(t) metres, or rotate by a(t) degrees about the axis through pivot
+    (pendulum)."""
     a = amplitude * np.sin(2 * np.pi * frequency_hz * t + np.deg2rad(phase_deg))
     if mode == "translate":
         return rigid(None, a * normalize(axis))
@@ -293,7 +362,8 @@ def oscillate_transform(t: float, mode: str, axis, amplitude: float, frequency_h
 
 
 def rigid_motion(motion: dict, t: float, default_pivot) -> np.ndarray:
-    """4x4 world transform of a validated rigid ``motion`` spec (none/keyframes/translate/rotate/oscillate) at t."""
+    """4x4 world transform of a validated rigid ``motion`` spec
+    (none/keyframes/translate/rotate/oscillate) at t."""
     k = motion["type"]
     pivot = default_pivot if motion.get("pivot") is None else motion["pivot"]
     if k in ("none", "articulated", "flag"):
@@ -305,20 +375,30 @@ def rigid_motion(motion: dict, t: float, default_pivot) -> np.ndarray:
     if k == "rotate":
         return rotate_transform(t, motion["axis"], motion["speed_deg_s"], pivot)
     if k == "oscillate":
-        return oscillate_transform(t, motion["mode"], motion["axis"], motion["amplitude"], motion["frequency_hz"],
-                                   motion["phase_deg"], pivot)
+        return oscillate_transform(
+            t,
+            motion["mode"],
+            motion["axis"],
+            motion["amplitude"],
+            motion["frequency_hz"],
+            motion["phase_deg"],
+            pivot,
+        )
     raise ValueError(f"unknown motion type {k!r}")
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Articulated chains
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def joint_angles(t: float, joints: Sequence[dict]) -> np.ndarray:
-    """[n] radians: base + rate t + amplitude sin(2 pi f t + phase) per joint (spec values in degrees)."""
+    """[n] radians: base + rate t + amplitude sin(2 pi f t + phase) per joint (spec values in
+    degrees)."""
     out = []
     for j in joints:
         a = j.get("base_deg", 0.0) + j.get("rate_deg_s", 0.0) * t
-        a += j.get("amplitude_deg", 0.0) * np.sin(2 * np.pi * j.get("frequency_hz", 0.0) * t + np.deg2rad(j.get("phase_deg", 0.0)))
+        a += j.get("amplitude_deg", 0.0) * np.sin(
+            2 * np.pi * j.get("frequency_hz", 0.0) * t + np.deg2rad(j.get("phase_deg", 0.0))
+        )
         out.append(np.deg2rad(a))
     return np.asarray(out, dtype=np.float64)
 
@@ -326,9 +406,9 @@ def joint_angles(t: float, joints: Sequence[dict]) -> np.ndarray:
 def chain_fk(lengths: Sequence[float], axes: Sequence, angles: Sequence[float]) -> np.ndarray:
     """Forward kinematics: [n, 4, 4] frame of each link in the chain's local frame.
 
-    Frame_0 = Rot(axis_0, angle_0); Frame_i = Frame_{i-1} Trans(0, 0, length_{i-1}) Rot(axis_i, angle_i). Link i
-    occupies z in [0, length_i] of Frame_i; joint axes are expressed in the parent frame.
-    """
+    Frame_0 = Rot(axis_0, angle_0); Frame_i = Frame_{i-1} Trans(0, 0, length_{i-1}) Rot(axis_i,
+    angle_i). Link i occupies z in [0, length_i] of Frame_i; joint axes are expressed in the parent
+    frame."""
     n = len(lengths)
     frames = np.zeros((n, 4, 4))
     M = np.eye(4)
@@ -347,18 +427,28 @@ def chain_tip(lengths: Sequence[float], axes: Sequence, angles: Sequence[float])
 
 
 def chain_vertices(vertices: np.ndarray, parts: np.ndarray, frames: np.ndarray) -> np.ndarray:
-    """[V, 3] chain-local posed vertices: each link-local vertex transformed by the frame of its link."""
+    """[V, 3] chain-local posed vertices: each link-local vertex transformed by the frame of its
+    link."""
     R = frames[parts, :3, :3]  # [V, 3, 3]
     T = frames[parts, :3, 3]
     return np.einsum("vij,vj->vi", R, vertices) + T
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Non-rigid: waving flag
-# ----------------------------------------------------------------------------------------------------------------
-def flag_deform(vertices: np.ndarray, t: float, width: float, amplitude: float, wavelength: float, frequency_hz: float,
-                growth: float = 1.5, sag: float = 0.0) -> np.ndarray:
-    """[V, 3] deformed grid vertices (grid-local: x from the pole, y along the pole, sheet normal +z).
+# --------------------------------------------------------------------------------------------------
+def flag_deform(
+    vertices: np.ndarray,
+    t: float,
+    width: float,
+    amplitude: float,
+    wavelength: float,
+    frequency_hz: float,
+    growth: float = 1.5,
+    sag: float = 0.0,
+) -> np.ndarray:
+    """[V, 3] deformed grid vertices (grid-local: x from the pole, y along the pole, sheet normal
+    +z).
 
     A sine wave travelling away from the pole, displacement along z:
         dz = amplitude * (x / width) ** growth * sin(2 pi (x / wavelength - f t)),

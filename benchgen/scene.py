@@ -1,15 +1,15 @@
 """Scene = validated spec + procedural meshes, textures and motion, evaluated per global frame.
 
-This module implements the "benchgen scene interface" contract (helpers/API.md) shared with benchgen.render and
-benchgen.groundtruth: :class:`Material`, :class:`MeshState`, :class:`Lighting`, :class:`FrameState`, :class:`Scene`,
-:func:`load_scene`. Frame g is at time g / fps. Camera trajectories are timed over the spec's own duration
-(num_frames - 1) / fps, so a preset that renders fewer frames (:meth:`Scene.capped`) sees the first part of the
-same clip rather than a faster one.
+This module implements the "benchgen scene interface" contract (helpers/API.md) shared with
+benchgen.render and benchgen.groundtruth: :class:`Material`, :class:`MeshState`, :class:`Lighting`,
+:class:`FrameState`, :class:`Scene`, :func:`load_scene`. Frame g is at time g / fps. Camera
+trajectories are timed over the spec's own duration (num_frames - 1) / fps, so a preset that renders
+fewer frames (:meth:`Scene.capped`) sees the first part of the same clip rather than a faster one.
 
-It also has a small numpy z-buffer rasterizer (:func:`rasterize_ids`) used to estimate, honestly but cheaply, how
-much of each frame shows dynamic objects or emitters (:func:`dynamic_pixel_fraction`, :func:`coverage`): the
-renderer's exact masks come from ray casting.
-"""
+It also has a small numpy z-buffer rasterizer (:func:`rasterize_ids`) used to estimate, honestly but
+cheaply, how much of each frame shows dynamic objects or emitters (:func:`dynamic_pixel_fraction`,
+:func:`coverage`): the renderer's exact masks come from ray casting."""
+
 from __future__ import annotations
 
 import copy
@@ -27,8 +27,17 @@ from .spec import SpecError, load_scene_spec, validate_scene  # noqa: F401  (Spe
 from .textures import solid_color, texture_from_spec
 
 __all__ = [
-    "Material", "MeshState", "Lighting", "FrameState", "Scene", "load_scene", "scene_from_dict", "SpecError",
-    "rasterize_ids", "dynamic_pixel_fraction", "coverage",
+    "Material",
+    "MeshState",
+    "Lighting",
+    "FrameState",
+    "Scene",
+    "load_scene",
+    "scene_from_dict",
+    "SpecError",
+    "rasterize_ids",
+    "dynamic_pixel_fraction",
+    "coverage",
 ]
 
 
@@ -40,7 +49,8 @@ class Material:
     albedo: Optional[np.ndarray]  # texture [h, w, 3] float32 in [0, 1] (linear) or None
     color: Tuple[float, float, float] = (0.5, 0.5, 0.5)  # used when albedo is None
     roughness: float = 0.2  # glossy only (GGX alpha)
-    radiance: Optional[Tuple[float, float, float]] = None  # emitter only (area light radiance, linear)
+    # emitter only (area light radiance, linear)
+    radiance: Optional[Tuple[float, float, float]] = None
 
 
 @dataclass
@@ -94,11 +104,14 @@ def _material(spec: dict, seed: int) -> Material:
     if kind == "emitter":
         return Material("emitter", None, radiance=tuple(float(x) for x in spec["radiance"]))
     albedo = texture_from_spec(spec["texture"], seed) if spec["texture"] is not None else None
-    return Material(kind, albedo, color=solid_color(spec["color"]), roughness=float(spec.get("roughness", 0.2)))
+    return Material(
+        kind, albedo, color=solid_color(spec["color"]), roughness=float(spec.get("roughness", 0.2))
+    )
 
 
 class Scene:
-    """A scene built from a validated spec (see benchgen.spec). ``frame(g, W, H)`` gives the full state of frame g."""
+    """A scene built from a validated spec (see benchgen.spec). ``frame(g, W, H)`` gives the full
+    state of frame g."""
 
     def __init__(self, spec: dict, path: Optional[str] = None):
         self.spec = spec
@@ -127,19 +140,22 @@ class Scene:
             obj = _Object(o["name"], i + 1, local, P, mat, o["motion"], o["mesh"], None)
             if not obj.dynamic:
                 obj.static_vertices = _motion.apply(P, local.vertices)
-            # arrays shared by every FrameState are read-only, so a consumer cannot corrupt later frames
+            # arrays shared by every FrameState are read-only, so a consumer cannot corrupt later
+            # frames
             for arr in (obj.static_vertices, local.faces, local.uvs, local.vertices, mat.albedo):
                 if arr is not None:
                     arr.setflags(write=False)
             self.objects.append(obj)
 
-    # ------------------------------------------------------------------------------------------------------------
+    # ----------------------------------------------------------------------------------------------
     def time(self, g: int) -> float:
         return g / self.fps
 
     def c2w(self, g: int) -> np.ndarray:
         """[4, 4] OpenCV camera-to-world at global frame g."""
-        return _motion.camera_c2w(self.spec["camera"]["trajectory"], self.time(g), self.duration, self.seed)
+        return _motion.camera_c2w(
+            self.spec["camera"]["trajectory"], self.time(g), self.duration, self.seed
+        )
 
     def K(self, width: int, height: int) -> np.ndarray:
         """[3, 3] intrinsics from the horizontal field of view."""
@@ -153,12 +169,25 @@ class Scene:
         m = o.motion
         if m["type"] == "articulated":
             links = o.mesh_spec["links"]
-            frames = _motion.chain_fk([ln["length"] for ln in links], [j["axis"] for j in m["joints"]],
-                                      _motion.joint_angles(t, m["joints"]))
-            return _motion.apply(o.placement, _motion.chain_vertices(o.local.vertices, o.local.parts, frames))
+            frames = _motion.chain_fk(
+                [ln["length"] for ln in links],
+                [j["axis"] for j in m["joints"]],
+                _motion.joint_angles(t, m["joints"]),
+            )
+            return _motion.apply(
+                o.placement, _motion.chain_vertices(o.local.vertices, o.local.parts, frames)
+            )
         if m["type"] == "flag":
-            v = _motion.flag_deform(o.local.vertices, t, o.mesh_spec["size"][0], m["amplitude"], m["wavelength"],
-                                    m["frequency_hz"], m["growth"], m["sag"])
+            v = _motion.flag_deform(
+                o.local.vertices,
+                t,
+                o.mesh_spec["size"][0],
+                m["amplitude"],
+                m["wavelength"],
+                m["frequency_hz"],
+                m["growth"],
+                m["sag"],
+            )
             return _motion.apply(o.placement, v)
         M = _motion.rigid_motion(m, t, default_pivot=o.placement[:3, 3])
         return _motion.apply(M @ o.placement, o.local.vertices)
@@ -167,13 +196,22 @@ class Scene:
         """State of global frame g rendered at width x height."""
         t = self.time(g)
         states = [
-            MeshState(o.name, o.instance_id, self.object_vertices(i, t), o.local.faces, o.local.uvs, o.material, o.dynamic)
+            MeshState(
+                o.name,
+                o.instance_id,
+                self.object_vertices(i, t),
+                o.local.faces,
+                o.local.uvs,
+                o.material,
+                o.dynamic,
+            )
             for i, o in enumerate(self.objects)
         ]
         return FrameState(int(g), t, states, self.c2w(g), self.K(width, height), self.lighting)
 
     def capped(self, max_frames: Optional[int]) -> "Scene":
-        """The same scene limited to its first max_frames frames (timing unchanged); None = no cap."""
+        """The same scene limited to its first max_frames frames (timing unchanged); None = no
+        cap."""
         if max_frames is None or max_frames >= self.num_frames:
             return self
         s = copy.copy(self)
@@ -181,7 +219,10 @@ class Scene:
         return s
 
     def __repr__(self) -> str:
-        return f"Scene({self.name!r}, frames={self.num_frames}, fps={self.fps:g}, objects={len(self.objects)})"
+        return (
+            f"Scene({self.name!r}, frames={self.num_frames}, fps={self.fps:g}, "
+            f"objects={len(self.objects)})"
+        )
 
 
 def scene_from_dict(data: dict, file: str = "<dict>") -> Scene:
@@ -194,9 +235,9 @@ def load_scene(path) -> Scene:
     return Scene(load_scene_spec(path), path=str(path))
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Cheap z-buffer rasterizer (coverage estimates)
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _clip_near(tri: np.ndarray, near: float) -> List[np.ndarray]:
     """Clip one camera-space triangle [3, 3] against z >= near; 0, 1 or 2 triangles."""
     poly = []
@@ -211,12 +252,14 @@ def _clip_near(tri: np.ndarray, near: float) -> List[np.ndarray]:
     return [np.stack([poly[0], poly[k], poly[k + 1]]) for k in range(1, len(poly) - 1)]
 
 
-def rasterize_ids(state: FrameState, width: int, height: int, near: float = 0.02) -> Tuple[np.ndarray, np.ndarray]:
+def rasterize_ids(
+    state: FrameState, width: int, height: int, near: float = 0.02
+) -> Tuple[np.ndarray, np.ndarray]:
     """Visible instance id [H, W] int32 (0 = none) and z-depth [H, W] (inf = none) at pixel centres.
 
-    Pinhole projection with the frame's c2w; K is rescaled from the state's own resolution (2 cx, 2 cy) to
-    width x height. Triangles crossing the near plane are clipped; no back-face culling (sheets are two-sided).
-    """
+    Pinhole projection with the frame's c2w; K is rescaled from the state's own resolution (2 cx, 2
+    cy) to width x height. Triangles crossing the near plane are clipped; no back-face culling
+    (sheets are two-sided)."""
     K = state.K.copy()
     sx, sy = width / (2 * K[0, 2]), height / (2 * K[1, 2])
     fx, fy, cx, cy = K[0, 0] * sx, K[1, 1] * sy, K[0, 2] * sx, K[1, 2] * sy
@@ -262,15 +305,22 @@ def rasterize_ids(state: FrameState, width: int, height: int, near: float = 0.02
             cxp, cyp = px + 0.5, py + 0.5
             ua, va = u[k], v[k]
 
-            def edge(i, j):
-                return (ua[:, j, None, None] - ua[:, i, None, None]) * (cyp - va[:, i, None, None]) - (
-                    va[:, j, None, None] - va[:, i, None, None]) * (cxp - ua[:, i, None, None])
+            def edge(i, j, ua=ua, va=va, cxp=cxp, cyp=cyp):
+                return (ua[:, j, None, None] - ua[:, i, None, None]) * (
+                    cyp - va[:, i, None, None]
+                ) - (va[:, j, None, None] - va[:, i, None, None]) * (cxp - ua[:, i, None, None])
 
             ar = area[k, None, None]
             w0 = edge(1, 2) / ar
             w1 = edge(2, 0) / ar
             w2 = 1.0 - w0 - w1
-            inside = (w0 >= 0) & (w1 >= 0) & (w2 >= 0) & (px <= x1[k, None, None]) & (py <= y1[k, None, None])
+            inside = (
+                (w0 >= 0)
+                & (w1 >= 0)
+                & (w2 >= 0)
+                & (px <= x1[k, None, None])
+                & (py <= y1[k, None, None])
+            )
             izp = w0 * iz[k, 0, None, None] + w1 * iz[k, 1, None, None] + w2 * iz[k, 2, None, None]
             inside &= izp > 0
             n_, a_, b_ = np.nonzero(inside)
@@ -293,12 +343,15 @@ def rasterize_ids(state: FrameState, width: int, height: int, near: float = 0.02
     return ids_img.reshape(height, width), depth.reshape(height, width)
 
 
-def coverage(scene: Scene, width: int = 160, height: int = 90, frames: Optional[Sequence[int]] = None) -> Dict[str, np.ndarray]:
-    """Per-frame visible fractions from the z-buffer: {'frames', 'dynamic', 'emitter', 'background'} ([n] each).
+def coverage(
+    scene: Scene, width: int = 160, height: int = 90, frames: Optional[Sequence[int]] = None
+) -> Dict[str, np.ndarray]:
+    """Per-frame visible fractions from the z-buffer: {'frames', 'dynamic', 'emitter', 'background'}
+    ([n] each).
 
-    'dynamic': pixels whose nearest surface belongs to an object with its own motion; 'emitter': pixels showing an
-    emitter mesh (lamp, window/sky); 'background': pixels showing no mesh (environment).
-    """
+    'dynamic': pixels whose nearest surface belongs to an object with its own motion; 'emitter':
+    pixels showing an emitter mesh (lamp, window/sky); 'background': pixels showing no mesh
+    (environment)."""
     frames = list(range(scene.num_frames)) if frames is None else list(frames)
     dyn_ids = np.array([0] + [o.instance_id for o in scene.objects if o.dynamic])
     emi_ids = np.array([0] + [o.instance_id for o in scene.objects if o.material.kind == "emitter"])
@@ -311,19 +364,25 @@ def coverage(scene: Scene, width: int = 160, height: int = 90, frames: Optional[
     return {k: np.asarray(v) for k, v in out.items()}
 
 
-def dynamic_pixel_fraction(scene: Scene, width: int = 160, height: int = 90, frames: Optional[Sequence[int]] = None) -> np.ndarray:
-    """[n] fraction of pixels whose visible surface (z-buffered against static geometry) is a dynamic object."""
+def dynamic_pixel_fraction(
+    scene: Scene, width: int = 160, height: int = 90, frames: Optional[Sequence[int]] = None
+) -> np.ndarray:
+    """[n] fraction of pixels whose visible surface (z-buffered against static geometry) is a
+    dynamic object."""
     return coverage(scene, width, height, frames)["dynamic"]
 
 
 def _main(argv: Optional[Sequence[str]] = None) -> None:
-    """``python -m benchgen.scene [suite-or-scene.yaml ...]``: per-scene coverage table (z-buffered estimate)."""
+    """``python -m benchgen.scene [suite-or-scene.yaml ...]``: per-scene coverage table (z-buffered
+    estimate)."""
     import argparse
 
     from .suite import load_suite
 
     ap = argparse.ArgumentParser(description=_main.__doc__)
-    ap.add_argument("items", nargs="*", default=["syn-exp-3"], help="suite names/paths or scene YAML files")
+    ap.add_argument(
+        "items", nargs="*", default=["syn-exp-3"], help="suite names/paths or scene YAML files"
+    )
     ap.add_argument("--width", type=int, default=160)
     ap.add_argument("--height", type=int, default=90)
     ap.add_argument("--step", type=int, default=3, help="evaluate every step-th frame")
@@ -331,16 +390,26 @@ def _main(argv: Optional[Sequence[str]] = None) -> None:
     paths: List[Path] = []
     for it in a.items:
         p = Path(it)
-        paths += [p] if p.suffix in (".yaml", ".yml") and "suites" not in p.parts else load_suite(it).scenes
-    print("| scene | camera | object motions | dynamic px min / mean / max | frames with an emitter in view |")
+        paths += (
+            [p]
+            if p.suffix in (".yaml", ".yml") and "suites" not in p.parts
+            else load_suite(it).scenes
+        )
+    print(
+        "| scene | camera | object motions | dynamic px min / mean / max | frames with an emitter "
+        "in view |"
+    )
     print("|---|---|---|---|---|")
     for p in paths:
         sc = load_scene(p)
         c = coverage(sc, a.width, a.height, range(0, sc.num_frames, a.step))
         d, e = c["dynamic"], c["emitter"]
         mot = sorted({o.motion["type"] for o in sc.objects} - {"none"})
-        print(f"| {sc.name} | {sc.spec['camera']['trajectory']['type']} | {', '.join(mot)} | "
-              f"{100 * d.min():.1f} / {100 * d.mean():.1f} / {100 * d.max():.1f} % | {int((e > 0).sum())} / {len(e)} |")
+        print(
+            f"| {sc.name} | {sc.spec['camera']['trajectory']['type']} | {', '.join(mot)} | "
+            f"{100 * d.min():.1f} / {100 * d.mean():.1f} / {100 * d.max():.1f} % | "
+            f"{int((e > 0).sum())} / {len(e)} |"
+        )
 
 
 if __name__ == "__main__":

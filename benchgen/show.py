@@ -1,4 +1,5 @@
 """Human-readable views of a clip: a JSON summary and a contact-sheet PNG."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -11,11 +12,19 @@ from m4dgs.clip import Clip
 def summary(clip: Clip) -> dict:
     m = clip.meta
     out = {
-        "name": m.name, "size": f"{m.width}x{m.height}", "frames": m.num_frames,
-        "train": len(m.split.train), "test": len(m.split.test), "schedule": m.exposures.schedule,
-        "observed": m.exposures.observed, "novel": m.exposures.novel, "crf": m.crf,
-        "unit_exposure_value": m.unit_exposure_value, "hdr_scale": m.hdr_scale,
-        "priors": m.priors.get("profile"), "has_gt": clip.has_gt,
+        "name": m.name,
+        "size": f"{m.width}x{m.height}",
+        "frames": m.num_frames,
+        "train": len(m.split.train),
+        "test": len(m.split.test),
+        "schedule": m.exposures.schedule,
+        "observed": m.exposures.observed,
+        "novel": m.exposures.novel,
+        "crf": m.crf,
+        "unit_exposure_value": m.unit_exposure_value,
+        "hdr_scale": m.hdr_scale,
+        "priors": m.priors.get("profile"),
+        "has_gt": clip.has_gt,
     }
     for k in ("dynamic_fraction", "dynamic_range_stops", "hdr_tae_floor", "render_noise"):
         if k in m.gt:
@@ -24,7 +33,8 @@ def summary(clip: Clip) -> dict:
 
 
 def flow_to_color(flow: np.ndarray, max_mag: float = None) -> np.ndarray:
-    """Colour-wheel visualisation [H, W, 3] in [0, 1] of a flow field [H, W, 2] (hue = direction, value = magnitude)."""
+    """Colour-wheel visualisation [H, W, 3] in [0, 1] of a flow field [H, W, 2] (hue = direction,
+    value = magnitude)."""
     import matplotlib.colors as mcolors
 
     mag = np.linalg.norm(flow, axis=-1)
@@ -40,8 +50,8 @@ def mu_law_view(hdr: np.ndarray) -> np.ndarray:
 
 
 def contact_sheet(clip: Clip, path) -> Path:
-    """Write a PNG grid: input LDR frames at each observed level, test LDR at every level, HDR, depth (gt and prior),
-    flow (gt and prior), tracks, dynamic mask."""
+    """Write a PNG grid: input LDR frames at each observed level, test LDR at every level, HDR,
+    depth (gt and prior), flow (gt and prior), tracks, dynamic mask."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -68,11 +78,21 @@ def contact_sheet(clip: Clip, path) -> Path:
     panels.append((clip.load_depth_prior(g0), f"prior depth g={g0}"))
     if clip.has_gt and (clip.root / "gt/flow.npz").exists():
         fs = clip.load_gt_flow()
-        panels.append((flow_to_color(fs.flow[0]) * fs.valid[0][..., None], f"gt flow {tuple(int(x) for x in fs.pairs[0])}"))
+        panels.append(
+            (
+                flow_to_color(fs.flow[0]) * fs.valid[0][..., None],
+                f"gt flow {tuple(int(x) for x in fs.pairs[0])}",
+            )
+        )
     if clip.has_flow_prior():
         fs = clip.load_flow_prior()
         if len(fs.pairs):
-            panels.append((flow_to_color(fs.flow[0]) * fs.valid[0][..., None], f"prior flow {tuple(int(x) for x in fs.pairs[0])}"))
+            panels.append(
+                (
+                    flow_to_color(fs.flow[0]) * fs.valid[0][..., None],
+                    f"prior flow {tuple(int(x) for x in fs.pairs[0])}",
+                )
+            )
     ts = clip.load_tracks_prior()
     img = clip.load_ldr(train[-1]).astype(np.float32) / 255.0
     panels.append((img, "prior tracks (last frame)", ts))
@@ -82,7 +102,9 @@ def contact_sheet(clip: Clip, path) -> Path:
     cols = 4
     rows = int(np.ceil(len(panels) / cols))
     aspect = m.height / m.width
-    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 4 * aspect * rows + 0.6 * rows), squeeze=False)
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(4 * cols, 4 * aspect * rows + 0.6 * rows), squeeze=False
+    )
     for ax in axes.ravel():
         ax.axis("off")
     for ax, p in zip(axes.ravel(), panels):
@@ -96,10 +118,19 @@ def contact_sheet(clip: Clip, path) -> Path:
             T = t.tracks.shape[1]
             vis = t.visible[:, -1]
             for n in np.nonzero(vis)[0][:200]:
-                ax.plot(t.tracks[n, max(0, T - 6):, 0] - 0.5, t.tracks[n, max(0, T - 6):, 1] - 0.5, "-", lw=0.6, color="cyan")
+                ax.plot(
+                    t.tracks[n, max(0, T - 6) :, 0] - 0.5,
+                    t.tracks[n, max(0, T - 6) :, 1] - 0.5,
+                    "-",
+                    lw=0.6,
+                    color="cyan",
+                )
             ax.scatter(t.tracks[vis, -1, 0] - 0.5, t.tracks[vis, -1, 1] - 0.5, s=2, c="yellow")
         ax.set_title(title, fontsize=8)
-    fig.suptitle(f"{m.name}: {m.width}x{m.height}, {m.num_frames} frames, {m.exposures.schedule}", fontsize=10)
+    fig.suptitle(
+        f"{m.name}: {m.width}x{m.height}, {m.num_frames} frames, {m.exposures.schedule}",
+        fontsize=10,
+    )
     fig.tight_layout()
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp.png")

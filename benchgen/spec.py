@@ -1,12 +1,14 @@
 """Declarative scene and suite specs: schema, validation, defaults (project issue 3, "Scenes").
 
-A scene spec is a YAML mapping validated against :data:`SCENE_SCHEMA`; a suite file against :data:`SUITE_SCHEMA`.
-Validation fills in every default, rejects unknown keys and raises :class:`SpecError` naming the file, the key path
-(``objects[2].motion.type``) and what was expected. The schema is data: :func:`schema_markdown` prints the key
-reference of ``docs/scenes.md`` from it, so the documentation cannot drift from the validator.
+A scene spec is a YAML mapping validated against :data:`SCENE_SCHEMA`; a suite file against
+:data:`SUITE_SCHEMA`. Validation fills in every default, rejects unknown keys and raises
+:class:`SpecError` naming the file, the key path (``objects[2].motion.type``) and what was expected.
+The schema is data: :func:`schema_markdown` prints the key reference of ``docs/scenes.md`` from it,
+so the documentation cannot drift from the validator.
 
-World conventions: right-handed, z up, metres, seconds, angles in degrees in specs. Radiance and irradiance are linear.
-"""
+World conventions: right-handed, z up, metres, seconds, angles in degrees in specs. Radiance and
+irradiance are linear."""
+
 from __future__ import annotations
 
 import copy
@@ -21,7 +23,8 @@ _REQUIRED = object()
 
 
 class SpecError(ValueError):
-    """A spec that does not validate. ``str(err)`` is ``"<file>: <key path>: expected <...>, got <...>"``."""
+    """A spec that does not validate. ``str(err)`` is ``"<file>: <key path>: expected <...>, got
+    <...>"``."""
 
     def __init__(self, file, key_path: str, expected: str, got: Any = _REQUIRED):
         self.file = str(file)
@@ -44,9 +47,9 @@ def _short(v: Any) -> str:
     return s if len(s) <= 80 else s[:77] + "..."
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Schema nodes
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 class Node:
     """Base schema node: ``check(value, file, path) -> normalised value``."""
 
@@ -118,14 +121,27 @@ class Bool(Node):
 
 
 class Vec(Node):
-    """Fixed-length list of numbers; a scalar is broadcast when ``broadcast`` is set (e.g. ``scale: 2``)."""
+    """Fixed-length list of numbers; a scalar is broadcast when ``broadcast`` is set (e.g. ``scale:
+    2``)."""
 
-    def __init__(self, n: int, lo=None, hi=None, *, integer=False, lo_open=False, nonzero=False, broadcast=False, doc=""):
+    def __init__(
+        self,
+        n: int,
+        lo=None,
+        hi=None,
+        *,
+        integer=False,
+        lo_open=False,
+        nonzero=False,
+        broadcast=False,
+        doc="",
+    ):
         self.n, self.nonzero, self.broadcast, self.doc = n, nonzero, broadcast, doc
         self.item = Num(lo, hi, integer=integer, lo_open=lo_open)
 
     def describe(self):
-        s = f"list of {self.n} {self.item.describe().replace('number', 'numbers').replace('int', 'ints', 1)}"
+        item = self.item.describe().replace("number", "numbers").replace("int", "ints", 1)
+        s = f"list of {self.n} {item}"
         if self.nonzero:
             s += ", not all zero"
         if self.broadcast:
@@ -200,14 +216,21 @@ class Dict(Node):
             raise SpecError(file, path, f"a mapping with keys {sorted(self.fields)}", v)
         for k in v:
             if k not in self.fields:
-                raise SpecError(file, _join(path, str(k)), f"a known key (allowed here: {sorted(self.fields)})", _Raw("an unknown key"))
+                raise SpecError(
+                    file,
+                    _join(path, str(k)),
+                    f"a known key (allowed here: {sorted(self.fields)})",
+                    _Raw("an unknown key"),
+                )
         out = {}
         for k, f in self.fields.items():
             p = _join(path, k)
             if k in v:
                 out[k] = f.node.check(v[k], file, p)
             elif f.default is _REQUIRED:
-                raise SpecError(file, p, f"a value for this required key ({f.node.describe()})", _Raw("nothing"))
+                raise SpecError(
+                    file, p, f"a value for this required key ({f.node.describe()})", _Raw("nothing")
+                )
             else:
                 d = copy.deepcopy(f.default)
                 out[k] = f.node.check(d, file, p) if d is not None else None
@@ -215,7 +238,8 @@ class Dict(Node):
 
 
 class Union(Node):
-    """A mapping whose ``<tag>`` key (e.g. ``type``) selects one of several :class:`Dict` variants."""
+    """A mapping whose ``<tag>`` key (e.g. ``type``) selects one of several :class:`Dict`
+    variants."""
 
     def __init__(self, tag: str, variants: Mapping[str, "Dict"], doc: str = ""):
         self.tag, self.variants, self.doc = tag, variants, doc
@@ -227,7 +251,12 @@ class Union(Node):
         if not isinstance(v, dict):
             raise SpecError(file, path, self.describe(), v)
         if self.tag not in v:
-            raise SpecError(file, _join(path, self.tag), f"a value for this required key (one of {list(self.variants)})", _Raw("nothing"))
+            raise SpecError(
+                file,
+                _join(path, self.tag),
+                f"a value for this required key (one of {list(self.variants)})",
+                _Raw("nothing"),
+            )
         t = v[self.tag]
         if not isinstance(t, str) or t not in self.variants:
             raise SpecError(file, _join(path, self.tag), f"one of {list(self.variants)}", t)
@@ -236,23 +265,44 @@ class Union(Node):
         return {self.tag: t, **out}
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Scene schema
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 RGB01 = Vec(3, 0.0, 1.0)
 RGB_POS = Vec(3, 0.0, None)
 
 TEXTURE = Dict(
     {
-        "type": F(Str(["checker", "stripes", "noise"]), _REQUIRED, "pattern: checker board, stripes or multi-octave value noise"),
-        "colors": F(ListOf(RGB01, 2, 2), [[0.8, 0.8, 0.8], [0.15, 0.15, 0.15]], "the two linear albedos the pattern blends between"),
-        "frequency": F(Num(0, None, lo_open=True), 8.0, "cells (checker), stripe periods (stripes) or base lattice cells (noise) across the texture"),
+        "type": F(
+            Str(["checker", "stripes", "noise"]),
+            _REQUIRED,
+            "pattern: checker board, stripes or multi-octave value noise",
+        ),
+        "colors": F(
+            ListOf(RGB01, 2, 2),
+            [[0.8, 0.8, 0.8], [0.15, 0.15, 0.15]],
+            "the two linear albedos the pattern blends between",
+        ),
+        "frequency": F(
+            Num(0, None, lo_open=True),
+            8.0,
+            "cells (checker), stripe periods (stripes) or base lattice cells (noise) across the "
+            "texture",
+        ),
         "angle_deg": F(Num(), 0.0, "stripes: direction of the stripes in uv space"),
         "octaves": F(Num(1, 8, integer=True), 4, "noise: number of octaves"),
         "persistence": F(Num(0, 1), 0.5, "noise: amplitude ratio between successive octaves"),
-        "noise_amount": F(Num(0, 1), 0.0, "combination: strength of a multiplicative value-noise overlay on checker/stripes"),
+        "noise_amount": F(
+            Num(0, 1),
+            0.0,
+            "combination: strength of a multiplicative value-noise overlay on checker/stripes",
+        ),
         "resolution": F(Num(8, 2048, integer=True), 256, "texture size in pixels (square)"),
-        "seed": F(Optional_(Num(0, None, integer=True)), None, "noise seed; null derives it from the scene seed and the object index"),
+        "seed": F(
+            Optional_(Num(0, None, integer=True)),
+            None,
+            "noise seed; null derives it from the scene seed and the object index",
+        ),
     },
     doc="Procedural texture (benchgen.textures); albedo values are clipped to [0.02, 0.95].",
     name="texture",
@@ -267,10 +317,17 @@ MATERIAL = Union(
     {
         "diffuse": Dict(dict(_SURFACE), doc="Lambertian."),
         "glossy": Dict(
-            {**_SURFACE, "roughness": F(Num(0.01, 1.0), 0.2, "GGX alpha")}, doc="Rough conductor/plastic-like glossy surface."
+            {**_SURFACE, "roughness": F(Num(0.01, 1.0), 0.2, "GGX alpha")},
+            doc="Rough conductor/plastic-like glossy surface.",
         ),
         "emitter": Dict(
-            {"radiance": F(RGB_POS, _REQUIRED, "area-light radiance (linear); lamps ~1e3-1e4, windows/sky ~10-50")},
+            {
+                "radiance": F(
+                    RGB_POS,
+                    _REQUIRED,
+                    "area-light radiance (linear); lamps ~1e3-1e4, windows/sky ~10-50",
+                )
+            },
             doc="Area emitter on the mesh's front faces.",
         ),
     },
@@ -282,12 +339,23 @@ MESH = Union(
     {
         "plane": Dict(
             {
-                "size": F(Vec(2, 0, None, lo_open=True), _REQUIRED, "extent along local x and y (centred, normal +z)"),
+                "size": F(
+                    Vec(2, 0, None, lo_open=True),
+                    _REQUIRED,
+                    "extent along local x and y (centred, normal +z)",
+                ),
                 "subdivisions": F(Num(1, 256, integer=True), 4, "quads per side"),
             },
             doc="Rectangle in the local xy plane, normal +z.",
         ),
-        "box": Dict({"size": F(Vec(3, 0, None, lo_open=True), _REQUIRED, "extent along local x, y, z (centred)")}, doc="Axis-aligned box."),
+        "box": Dict(
+            {
+                "size": F(
+                    Vec(3, 0, None, lo_open=True), _REQUIRED, "extent along local x, y, z (centred)"
+                )
+            },
+            doc="Axis-aligned box.",
+        ),
         "uv_sphere": Dict(
             {
                 "radius": F(Num(0, None, lo_open=True), _REQUIRED, "radius"),
@@ -302,24 +370,42 @@ MESH = Union(
                 "height": F(Num(0, None, lo_open=True), _REQUIRED, "extent along local z"),
                 "segments": F(Num(3, 512, integer=True), 24, "segments around the axis"),
                 "caps": F(Bool(), True, "close both ends"),
-                "origin": F(Str(["center", "base"]), "center", "local origin at the centre or at the bottom cap"),
+                "origin": F(
+                    Str(["center", "base"]),
+                    "center",
+                    "local origin at the centre or at the bottom cap",
+                ),
             },
             doc="Cylinder along local z (thin ones make poles and wires).",
         ),
         "grid": Dict(
             {
-                "size": F(Vec(2, 0, None, lo_open=True), _REQUIRED, "extent along local x (away from the pole) and y"),
+                "size": F(
+                    Vec(2, 0, None, lo_open=True),
+                    _REQUIRED,
+                    "extent along local x (away from the pole) and y",
+                ),
                 "resolution": F(Vec(2, 1, 1024, integer=True), [32, 16], "quads along x and y"),
             },
-            doc="Subdivided sheet for cloth/flags: x in [0, w] (x = 0 is the pole edge), y in [0, h], normal +z.",
+            doc="Subdivided sheet for cloth/flags: x in [0, w] (x = 0 is the pole edge), y in [0, "
+            "h], normal +z.",
         ),
         "wall": Dict(
             {
-                "size": F(Vec(2, 0, None, lo_open=True), _REQUIRED, "width (local x, centred) and height (local z, from 0)"),
+                "size": F(
+                    Vec(2, 0, None, lo_open=True),
+                    _REQUIRED,
+                    "width (local x, centred) and height (local z, from 0)",
+                ),
                 "thickness": F(Num(0, None, lo_open=True), 0.1, "extent along local y (centred)"),
-                "opening": F(Optional_(Vec(4)), None, "window (or door, z0 = 0) hole [x0, z0, x1, z1] in wall coordinates, or null"),
+                "opening": F(
+                    Optional_(Vec(4)),
+                    None,
+                    "window (or door, z0 = 0) hole [x0, z0, x1, z1] in wall coordinates, or null",
+                ),
             },
-            doc="Upright wall in the local xz plane, optionally with a rectangular window opening (built from boxes).",
+            doc="Upright wall in the local xz plane, optionally with a rectangular window opening "
+            "(built from boxes).",
         ),
         "chain": Dict(
             {
@@ -328,8 +414,16 @@ MESH = Union(
                         Dict(
                             {
                                 "shape": F(Str(["box", "cylinder"]), "box", "link geometry"),
-                                "length": F(Num(0, None, lo_open=True), _REQUIRED, "extent along the link's local z"),
-                                "width": F(Num(0, None, lo_open=True), 0.1, "box: side of the square cross-section"),
+                                "length": F(
+                                    Num(0, None, lo_open=True),
+                                    _REQUIRED,
+                                    "extent along the link's local z",
+                                ),
+                                "width": F(
+                                    Num(0, None, lo_open=True),
+                                    0.1,
+                                    "box: side of the square cross-section",
+                                ),
                                 "radius": F(Num(0, None, lo_open=True), 0.05, "cylinder: radius"),
                             }
                         ),
@@ -340,13 +434,18 @@ MESH = Union(
                 ),
                 "segments": F(Num(3, 256, integer=True), 16, "segments of cylinder links"),
             },
-            doc="Articulated chain: links joined end to end by revolute joints (pose set by an 'articulated' motion).",
+            doc="Articulated chain: links joined end to end by revolute joints (pose set by an "
+            "'articulated' motion).",
         ),
     },
     doc="Procedural mesh, selected by 'type' (benchgen.meshes).",
 )
 
-_PIVOT = F(Optional_(Vec(3)), None, "world point the rotation axis passes through; null = the object's transform.translate")
+_PIVOT = F(
+    Optional_(Vec(3)),
+    None,
+    "world point the rotation axis passes through; null = the object's transform.translate",
+)
 MOTION = Union(
     "type",
     {
@@ -359,7 +458,11 @@ MOTION = Union(
                             {
                                 "time": F(Num(0, None), _REQUIRED, "seconds"),
                                 "position": F(Vec(3), _REQUIRED, "translation at that time"),
-                                "rotate_deg": F(Vec(3), [0.0, 0.0, 0.0], "XYZ Euler rotation (R = Rz Ry Rx) at that time"),
+                                "rotate_deg": F(
+                                    Vec(3),
+                                    [0.0, 0.0, 0.0],
+                                    "XYZ Euler rotation (R = Rz Ry Rx) at that time",
+                                ),
                             }
                         ),
                         2,
@@ -367,15 +470,25 @@ MOTION = Union(
                     _REQUIRED,
                     "keyframes, strictly increasing in time; the pose is held outside their range",
                 ),
-                "interpolation": F(Str(["catmull_rom", "linear"]), "catmull_rom", "C1 Catmull-Rom (positions) + normalised quaternion Hermite spline, or piecewise lerp/slerp"),
+                "interpolation": F(
+                    Str(["catmull_rom", "linear"]),
+                    "catmull_rom",
+                    "C1 Catmull-Rom (positions) + normalised quaternion Hermite spline, or "
+                    "piecewise lerp/slerp",
+                ),
             },
-            doc="Keyframed rigid motion: world = K(t) * transform (K = keyframe translation and rotation).",
+            doc="Keyframed rigid motion: world = K(t) * transform (K = keyframe translation and "
+            "rotation).",
         ),
         "translate": Dict(
             {
                 "velocity": F(Vec(3), _REQUIRED, "metres per second"),
                 "start_time": F(Num(0, None), 0.0, "seconds before which the object rests"),
-                "end_time": F(Optional_(Num(0, None)), None, "seconds after which it rests again (null: never)"),
+                "end_time": F(
+                    Optional_(Num(0, None)),
+                    None,
+                    "seconds after which it rests again (null: never)",
+                ),
             },
             doc="Constant-velocity translation.",
         ),
@@ -389,8 +502,16 @@ MOTION = Union(
         ),
         "oscillate": Dict(
             {
-                "mode": F(Str(["translate", "rotate"]), "translate", "oscillate along the axis or swing about it (pendulum)"),
-                "axis": F(Vec(3, nonzero=True), _REQUIRED, "world direction (translate) or rotation axis (rotate)"),
+                "mode": F(
+                    Str(["translate", "rotate"]),
+                    "translate",
+                    "oscillate along the axis or swing about it (pendulum)",
+                ),
+                "axis": F(
+                    Vec(3, nonzero=True),
+                    _REQUIRED,
+                    "world direction (translate) or rotation axis (rotate)",
+                ),
                 "amplitude": F(Num(), _REQUIRED, "metres (translate) or degrees (rotate)"),
                 "frequency_hz": F(Num(0, None), _REQUIRED, "oscillation frequency"),
                 "phase_deg": F(Num(), 0.0, "phase offset"),
@@ -404,9 +525,15 @@ MOTION = Union(
                     ListOf(
                         Dict(
                             {
-                                "axis": F(Vec(3, nonzero=True), _REQUIRED, "joint axis in the parent link's frame"),
+                                "axis": F(
+                                    Vec(3, nonzero=True),
+                                    _REQUIRED,
+                                    "joint axis in the parent link's frame",
+                                ),
                                 "base_deg": F(Num(), 0.0, "rest angle"),
-                                "rate_deg_s": F(Num(), 0.0, "constant angular rate added to the rest angle"),
+                                "rate_deg_s": F(
+                                    Num(), 0.0, "constant angular rate added to the rest angle"
+                                ),
                                 "amplitude_deg": F(Num(), 0.0, "sinusoidal swing amplitude"),
                                 "frequency_hz": F(Num(0, None), 0.0, "sinusoidal swing frequency"),
                                 "phase_deg": F(Num(), 0.0, "sinusoidal swing phase"),
@@ -415,20 +542,34 @@ MOTION = Union(
                         1,
                     ),
                     _REQUIRED,
-                    "one joint per chain link: angle(t) = base + rate t + amplitude sin(2 pi f t + phase)",
+                    "one joint per chain link: angle(t) = base + rate t + amplitude sin(2 pi f t "
+                    "+ phase)",
                 ),
             },
             doc="Forward kinematics of a 'chain' mesh.",
         ),
         "flag": Dict(
             {
-                "amplitude": F(Num(0, None), 0.1, "wave amplitude at the free edge (metres, along the sheet normal)"),
+                "amplitude": F(
+                    Num(0, None),
+                    0.1,
+                    "wave amplitude at the free edge (metres, along the sheet normal)",
+                ),
                 "wavelength": F(Num(0, None, lo_open=True), 1.0, "metres along the sheet"),
                 "frequency_hz": F(Num(0, None), 1.0, "wave frequency (travels away from the pole)"),
-                "growth": F(Num(0, None, lo_open=True), 1.5, "amplitude grows as (x / width) ** growth from the pole"),
-                "sag": F(Num(0, None), 0.0, "extra droop of the free edge (metres, along -y of the sheet)"),
+                "growth": F(
+                    Num(0, None, lo_open=True),
+                    1.5,
+                    "amplitude grows as (x / width) ** growth from the pole",
+                ),
+                "sag": F(
+                    Num(0, None),
+                    0.0,
+                    "extra droop of the free edge (metres, along -y of the sheet)",
+                ),
             },
-            doc="Non-rigid waving flag on a 'grid' mesh: travelling sine wave, pole edge (x = 0) fixed.",
+            doc="Non-rigid waving flag on a 'grid' mesh: travelling sine wave, pole edge (x = 0) "
+            "fixed.",
         ),
     },
     doc="Object motion, selected by 'type' (benchgen.motion).",
@@ -438,7 +579,11 @@ TRANSFORM = Dict(
     {
         "translate": F(Vec(3), [0.0, 0.0, 0.0], "world position of the local origin"),
         "rotate_deg": F(Vec(3), [0.0, 0.0, 0.0], "XYZ Euler angles, R = Rz Ry Rx"),
-        "scale": F(Vec(3, 0, None, lo_open=True, broadcast=True), [1.0, 1.0, 1.0], "per-axis scale (or one number)"),
+        "scale": F(
+            Vec(3, 0, None, lo_open=True, broadcast=True),
+            [1.0, 1.0, 1.0],
+            "per-axis scale (or one number)",
+        ),
     },
     doc="Static placement: world = T(translate) R(rotate) S(scale) * local.",
 )
@@ -457,8 +602,12 @@ OBJECT = Dict(
 _JITTER = Dict(
     {
         "position_m": F(Num(0, None), 0.01, "standard deviation of the positional jitter"),
-        "rotation_deg": F(Num(0, None), 0.3, "standard deviation of the rotational jitter (per axis)"),
-        "frequency_hz": F(Num(0, None, lo_open=True), 1.5, "highest frequency of the smooth jitter"),
+        "rotation_deg": F(
+            Num(0, None), 0.3, "standard deviation of the rotational jitter (per axis)"
+        ),
+        "frequency_hz": F(
+            Num(0, None, lo_open=True), 1.5, "highest frequency of the smooth jitter"
+        ),
         "seed": F(Optional_(Num(0, None, integer=True)), None, "null: the scene seed"),
     },
     doc="Smooth hand-shake: sums of seeded sinusoids (band-limited, not white noise).",
@@ -477,28 +626,50 @@ TRAJECTORY = Union(
         "orbit": Dict(
             {
                 "target": F(Vec(3), _REQUIRED, "orbit centre and look-at point"),
-                "radius": F(Num(0, None, lo_open=True), _REQUIRED, "horizontal distance to the target"),
+                "radius": F(
+                    Num(0, None, lo_open=True), _REQUIRED, "horizontal distance to the target"
+                ),
                 "height": F(Num(), 1.0, "camera height above the target"),
-                "start_deg": F(Num(), 0.0, "azimuth at t = 0 (0 = +x, counter-clockwise seen from above)"),
-                "sweep_deg": F(Num(), 90.0, "azimuth swept over the whole clip (num_frames / fps seconds)"),
+                "start_deg": F(
+                    Num(), 0.0, "azimuth at t = 0 (0 = +x, counter-clockwise seen from above)"
+                ),
+                "sweep_deg": F(
+                    Num(), 90.0, "azimuth swept over the whole clip (num_frames / fps seconds)"
+                ),
                 "roll_deg": F(Num(), 0.0, "roll about the optical axis"),
             },
-            doc="Constant-speed circular orbit looking at the target (distance to the target is constant).",
+            doc="Constant-speed circular orbit looking at the target (distance to the target is "
+            "constant).",
         ),
         "dolly": Dict(
             {
                 "start": F(Vec(3), _REQUIRED, "camera centre at t = 0"),
                 "end": F(Vec(3), _REQUIRED, "camera centre at the last frame"),
                 "target": F(Vec(3), _REQUIRED, "look-at point"),
-                "track_target": F(Bool(), False, "false: orientation fixed (looking at the target from 'start'); true: keep looking at the target"),
-                "ease": F(Bool(), True, "smooth ease-in/ease-out along the rail (else constant speed)"),
+                "track_target": F(
+                    Bool(),
+                    False,
+                    "false: orientation fixed (looking at the target from 'start'); true: keep "
+                    "looking at the target",
+                ),
+                "ease": F(
+                    Bool(), True, "smooth ease-in/ease-out along the rail (else constant speed)"
+                ),
             },
             doc="Straight rail move.",
         ),
         "handheld": Dict(
             {
-                "waypoints": F(ListOf(Vec(3), 2), _REQUIRED, "camera centres, passed through at evenly spaced times (Catmull-Rom)"),
-                "targets": F(ListOf(Vec(3), 1), _REQUIRED, "look-at points, evenly spaced in time (one = fixed target)"),
+                "waypoints": F(
+                    ListOf(Vec(3), 2),
+                    _REQUIRED,
+                    "camera centres, passed through at evenly spaced times (Catmull-Rom)",
+                ),
+                "targets": F(
+                    ListOf(Vec(3), 1),
+                    _REQUIRED,
+                    "look-at points, evenly spaced in time (one = fixed target)",
+                ),
                 "jitter": F(_JITTER, {}, "hand shake"),
             },
             doc="Smooth hand-held path with small smooth jitter.",
@@ -522,8 +693,14 @@ LIGHTING = Dict(
             Optional_(
                 Dict(
                     {
-                        "direction": F(Vec(3, nonzero=True), _REQUIRED, "from the scene towards the sun (normalised on load)"),
-                        "irradiance": F(RGB_POS, _REQUIRED, "irradiance on a surface facing the sun"),
+                        "direction": F(
+                            Vec(3, nonzero=True),
+                            _REQUIRED,
+                            "from the scene towards the sun (normalised on load)",
+                        ),
+                        "irradiance": F(
+                            RGB_POS, _REQUIRED, "irradiance on a surface facing the sun"
+                        ),
                     }
                 )
             ),
@@ -552,29 +729,49 @@ SUITE_SCHEMA = Dict(
     {
         "name": F(Str(), _REQUIRED, "suite name"),
         "description": F(Str(allow_empty=True), "", "one line"),
-        "scenes": F(ListOf(Str(), 1), _REQUIRED, "scene names (scenes/<name>.yaml) or paths relative to the suite file"),
+        "scenes": F(
+            ListOf(Str(), 1),
+            _REQUIRED,
+            "scene names (scenes/<name>.yaml) or paths relative to the suite file",
+        ),
         "exposures": F(
             Dict(
                 {
-                    "observed": F(ListOf(Num(0, None, lo_open=True), 1), _REQUIRED, "exposure times of the training frames (cycled)"),
-                    "novel": F(ListOf(Num(0, None, lo_open=True)), [], "extra exposure times rendered for test frames only"),
-                    "schedule": F(Str(["alternating", "random-order", "random-values"]), "alternating", "how observed levels are assigned to training frames"),
+                    "observed": F(
+                        ListOf(Num(0, None, lo_open=True), 1),
+                        _REQUIRED,
+                        "exposure times of the training frames (cycled)",
+                    ),
+                    "novel": F(
+                        ListOf(Num(0, None, lo_open=True)),
+                        [],
+                        "extra exposure times rendered for test frames only",
+                    ),
+                    "schedule": F(
+                        Str(["alternating", "random-order", "random-values"]),
+                        "alternating",
+                        "how observed levels are assigned to training frames",
+                    ),
                 }
             ),
             _REQUIRED,
             "exposure settings",
         ),
-        "placement": F(Str(["require", "warn"]), "require",
-                       "exposure-placement targets (docs/exposure.md): `require` fails `benchgen make` on a clip that "
-                       "misses one, `warn` only warns (smoke-test suites)"),
+        "placement": F(
+            Str(["require", "warn"]),
+            "require",
+            "exposure-placement targets (docs/exposure.md): `require` fails `benchgen make` on a "
+            "clip that "
+            "misses one, `warn` only warns (smoke-test suites)",
+        ),
     },
     doc="A suite file: scenes + exposure settings.",
 )
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Entry points
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def read_yaml(path) -> Any:
     """Parse a YAML file; a syntax error becomes a SpecError naming the file."""
     path = Path(path)
@@ -589,46 +786,96 @@ def read_yaml(path) -> Any:
 
 
 def validate_scene(data: Any, file="<spec>") -> dict:
-    """Validated scene spec with all defaults filled in (plain nested dicts/lists). Raises SpecError."""
+    """Validated scene spec with all defaults filled in (plain nested dicts/lists). Raises
+    SpecError."""
     spec = SCENE_SCHEMA.check(data, file, "")
     names = {}
     for i, obj in enumerate(spec["objects"]):
         p = f"objects[{i}]"
         if obj["name"] in names:
-            raise SpecError(file, f"{p}.name", f"a unique name (already used by objects[{names[obj['name']]}])", obj["name"])
+            raise SpecError(
+                file,
+                f"{p}.name",
+                f"a unique name (already used by objects[{names[obj['name']]}])",
+                obj["name"],
+            )
         names[obj["name"]] = i
         mesh, motion = obj["mesh"], obj["motion"]
         if motion["type"] == "articulated":
             if mesh["type"] != "chain":
-                raise SpecError(file, f"{p}.mesh.type", "'chain' (required by motion.type 'articulated')", mesh["type"])
+                raise SpecError(
+                    file,
+                    f"{p}.mesh.type",
+                    "'chain' (required by motion.type 'articulated')",
+                    mesh["type"],
+                )
             if len(motion["joints"]) != len(mesh["links"]):
                 raise SpecError(
-                    file, f"{p}.motion.joints", f"one joint per chain link ({len(mesh['links'])})", _Raw(f"{len(motion['joints'])} joints")
+                    file,
+                    f"{p}.motion.joints",
+                    f"one joint per chain link ({len(mesh['links'])})",
+                    _Raw(f"{len(motion['joints'])} joints"),
                 )
         elif mesh["type"] == "chain":
-            raise SpecError(file, f"{p}.motion.type", "'articulated' (a 'chain' mesh needs joint angles)", motion["type"])
+            raise SpecError(
+                file,
+                f"{p}.motion.type",
+                "'articulated' (a 'chain' mesh needs joint angles)",
+                motion["type"],
+            )
         if motion["type"] == "flag" and mesh["type"] != "grid":
-            raise SpecError(file, f"{p}.mesh.type", "'grid' (required by motion.type 'flag')", mesh["type"])
+            raise SpecError(
+                file, f"{p}.mesh.type", "'grid' (required by motion.type 'flag')", mesh["type"]
+            )
         if motion["type"] == "keyframes":
             times = [k["time"] for k in motion["keys"]]
             for j in range(1, len(times)):
                 if times[j] <= times[j - 1]:
-                    raise SpecError(file, f"{p}.motion.keys[{j}].time", f"a time > {times[j - 1]:g} (strictly increasing)", times[j])
+                    raise SpecError(
+                        file,
+                        f"{p}.motion.keys[{j}].time",
+                        f"a time > {times[j - 1]:g} (strictly increasing)",
+                        times[j],
+                    )
                 r0, r1 = motion["keys"][j - 1]["rotate_deg"], motion["keys"][j]["rotate_deg"]
                 if max(abs(a - b) for a, b in zip(r0, r1)) >= 180:
-                    raise SpecError(file, f"{p}.motion.keys[{j}].rotate_deg",
-                                    f"angles within 180 degrees of the previous key's {r0} (rotations are interpolated "
-                                    "along the shortest arc: add keys for larger turns)", r1)
-        if motion["type"] == "translate" and motion["end_time"] is not None and motion["end_time"] < motion["start_time"]:
-            raise SpecError(file, f"{p}.motion.end_time", f"null or >= start_time ({motion['start_time']:g})", motion["end_time"])
+                    raise SpecError(
+                        file,
+                        f"{p}.motion.keys[{j}].rotate_deg",
+                        f"angles within 180 degrees of the previous key's {r0} (rotations are "
+                        "interpolated "
+                        "along the shortest arc: add keys for larger turns)",
+                        r1,
+                    )
+        if (
+            motion["type"] == "translate"
+            and motion["end_time"] is not None
+            and motion["end_time"] < motion["start_time"]
+        ):
+            raise SpecError(
+                file,
+                f"{p}.motion.end_time",
+                f"null or >= start_time ({motion['start_time']:g})",
+                motion["end_time"],
+            )
         if mesh["type"] == "wall" and mesh["opening"] is not None:
             w, h = mesh["size"]
             x0, z0, x1, z1 = mesh["opening"]
             if not (-w / 2 < x0 < x1 < w / 2 and 0 <= z0 < z1 < h):
-                raise SpecError(file, f"{p}.mesh.opening", f"-{w / 2:g} < x0 < x1 < {w / 2:g} and 0 <= z0 < z1 < {h:g}", mesh["opening"])
+                raise SpecError(
+                    file,
+                    f"{p}.mesh.opening",
+                    f"-{w / 2:g} < x0 < x1 < {w / 2:g} and 0 <= z0 < z1 < {h:g}",
+                    mesh["opening"],
+                )
     traj = spec["camera"]["trajectory"]
     if traj["type"] in ("static",) and traj["position"] == traj["target"]:
-        raise SpecError(file, "camera.trajectory.target", "a point different from the camera position", traj["target"])
+        raise SpecError(
+            file,
+            "camera.trajectory.target",
+            "a point different from the camera position",
+            traj["target"],
+        )
     return spec
 
 
@@ -642,13 +889,15 @@ def validate_suite(data: Any, file="<suite>") -> dict:
     return SUITE_SCHEMA.check(data, file, "")
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Documentation from the schema
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _fmt_default(d) -> str:
     if d is _REQUIRED:
         return "**required**"
-    return "`" + yaml.safe_dump(d, default_flow_style=True).strip().removesuffix("...").strip() + "`"
+    return (
+        "`" + yaml.safe_dump(d, default_flow_style=True).strip().removesuffix("...").strip() + "`"
+    )
 
 
 def _doc_rows(node: Node, path: str, rows: List[str]):
@@ -677,4 +926,9 @@ def schema_markdown(schema: Node = SCENE_SCHEMA) -> str:
 
 
 if __name__ == "__main__":  # python -m benchgen.spec  -> key reference tables
-    print("## Scene keys\n\n" + schema_markdown(SCENE_SCHEMA) + "\n\n## Suite keys\n\n" + schema_markdown(SUITE_SCHEMA))
+    print(
+        "## Scene keys\n\n"
+        + schema_markdown(SCENE_SCHEMA)
+        + "\n\n## Suite keys\n\n"
+        + schema_markdown(SUITE_SCHEMA)
+    )

@@ -1,10 +1,12 @@
-"""Suite files: which scenes make a benchmark and with which exposure settings (scenes/suites/<name>.yaml).
+"""Suite files: which scenes make a benchmark and with which exposure settings
+(scenes/suites/<name>.yaml).
 
-Built-in suites and scenes ship as package data of the ``scenes`` package; ``load_suite('syn-exp-3')`` finds them
-through importlib.resources, ``load_suite('path/to/suite.yaml')`` reads any file. Scene entries are names
-(``lamp-room-orbit`` -> ``<scenes dir>/lamp-room-orbit.yaml``, where the scenes dir is the suite folder's parent)
-or paths relative to the suite file.
-"""
+Built-in suites and scenes ship as package data of the ``scenes`` package;
+``load_suite('syn-exp-3')`` finds them through importlib.resources,
+``load_suite('path/to/suite.yaml')`` reads any file. Scene entries are names (``lamp-room-orbit`` ->
+``<scenes dir>/lamp-room-orbit.yaml``, where the scenes dir is the suite folder's parent) or paths
+relative to the suite file."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -24,7 +26,9 @@ class Suite:
     schedule: str = "alternating"  # alternating | random-order | random-values
     description: str = ""
     path: Path = Path()
-    placement: str = "require"  # "require": clips must meet the exposure-placement targets; "warn": only warn
+    placement: str = (
+        "require"  # "require": clips must meet the exposure-placement targets; "warn": only warn
+    )
 
     @property
     def scene_names(self) -> List[str]:
@@ -48,7 +52,11 @@ def find_suite(name_or_path: Union[str, Path]) -> Path:
     cand = builtin_scenes_dir() / "suites" / f"{name_or_path}.yaml"
     if cand.exists():
         return cand
-    raise SpecError(str(name_or_path), "<suite>", f"a suite file or one of the built-in suites {builtin_suites()}")
+    raise SpecError(
+        str(name_or_path),
+        "<suite>",
+        f"a suite file or one of the built-in suites {builtin_suites()}",
+    )
 
 
 def load_suite(name_or_path: Union[str, Path]) -> Suite:
@@ -66,5 +74,13 @@ def load_suite(name_or_path: Union[str, Path]) -> Suite:
             raise SpecError(str(path), f"scenes[{i}]", f"an existing scene file ({p})", entry)
         resolved.append(p)
     ex = spec["exposures"]
-    return Suite(spec["name"], resolved, list(ex["observed"]), list(ex["novel"]), ex["schedule"], spec["description"], path,
-                 spec["placement"])
+    return Suite(
+        spec["name"],
+        resolved,
+        list(ex["observed"]),
+        list(ex["novel"]),
+        ex["schedule"],
+        spec["description"],
+        path,
+        spec["placement"],
+    )

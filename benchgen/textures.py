@@ -1,10 +1,12 @@
-"""Procedural albedo textures in numpy (project issue 3: "texture is what priors and photometric losses need").
+"""Procedural albedo textures in numpy (project issue 3: "texture is what priors and photometric
+losses need").
 
-Each pattern is a scalar mask m [h, w] in [0, 1] blended between two linear albedos; a multiplicative multi-octave
-value-noise overlay combines patterns (checker + noise, stripes + noise). Everything is deterministic per seed and
-returned as float32 [h, w, 3] linear albedo clipped to [ALBEDO_MIN, ALBEDO_MAX]. Row 0 of the array is v = 0
-(texture "bottom"); uvs of benchgen.meshes index it as (u -> column, v -> row).
-"""
+Each pattern is a scalar mask m [h, w] in [0, 1] blended between two linear albedos; a
+multiplicative multi-octave value-noise overlay combines patterns (checker + noise, stripes +
+noise). Everything is deterministic per seed and returned as float32 [h, w, 3] linear albedo clipped
+to [ALBEDO_MIN, ALBEDO_MAX]. Row 0 of the array is v = 0 (texture "bottom"); uvs of benchgen.meshes
+index it as (u -> column, v -> row)."""
+
 from __future__ import annotations
 
 from typing import Sequence
@@ -28,8 +30,11 @@ def checker_mask(res: int, frequency: float) -> np.ndarray:
     return ((np.floor(u * frequency) + np.floor(v * frequency)) % 2).astype(np.float64)
 
 
-def stripes_mask(res: int, frequency: float, angle_deg: float = 0.0, sharpness: float = 3.0) -> np.ndarray:
-    """[res, res] in [0, 1]: frequency stripe periods across the texture, direction angle_deg in uv space.
+def stripes_mask(
+    res: int, frequency: float, angle_deg: float = 0.0, sharpness: float = 3.0
+) -> np.ndarray:
+    """[res, res] in [0, 1]: frequency stripe periods across the texture, direction angle_deg in uv
+    space.
 
     A softened square wave (clipped sine) so stripes have crisp but not aliased edges.
     """
@@ -40,7 +45,8 @@ def stripes_mask(res: int, frequency: float, angle_deg: float = 0.0, sharpness: 
 
 
 def _lattice_octave(res: int, cells: int, rng: np.random.Generator) -> np.ndarray:
-    """One octave of tileable value noise: random values on a cells x cells lattice, quintic interpolation."""
+    """One octave of tileable value noise: random values on a cells x cells lattice, quintic
+    interpolation."""
     cells = max(int(cells), 1)
     lat = rng.random((cells, cells))
     c = (np.arange(res) + 0.5) / res * cells
@@ -59,8 +65,11 @@ def _lattice_octave(res: int, cells: int, rng: np.random.Generator) -> np.ndarra
     return (a * (1 - fx) + b * fx) * (1 - fy) + (cc * (1 - fx) + d * fx) * fy
 
 
-def value_noise(res: int, frequency: float = 4.0, octaves: int = 4, persistence: float = 0.5, seed: int = 0) -> np.ndarray:
-    """Multi-octave tileable value noise [res, res] rescaled to [0, 1]; octave k has frequency * 2**k cells."""
+def value_noise(
+    res: int, frequency: float = 4.0, octaves: int = 4, persistence: float = 0.5, seed: int = 0
+) -> np.ndarray:
+    """Multi-octave tileable value noise [res, res] rescaled to [0, 1]; octave k has frequency *
+    2**k cells."""
     rng = np.random.default_rng(seed)
     acc = np.zeros((res, res))
     amp, tot = 1.0, 0.0
@@ -94,7 +103,8 @@ def make_texture(
 
     Args:
         type: 'checker' | 'stripes' | 'noise'.
-        noise_amount: in [0, 1]; multiplies the pattern by (1 + noise_amount * 1.5 * (n - 0.5)) with n a value-noise
+        noise_amount: in [0, 1]; multiplies the pattern by (1 + noise_amount * 1.5 * (n - 0.5)) with
+        n a value-noise
             field at 4x the pattern frequency (the "combination" of patterns).
     """
     res = int(resolution)
@@ -117,8 +127,15 @@ def texture_from_spec(spec: dict, default_seed: int) -> np.ndarray:
     """Texture of a validated ``material.texture`` spec; a null seed uses default_seed."""
     seed = spec["seed"] if spec.get("seed") is not None else default_seed
     return make_texture(
-        spec["type"], spec["colors"], spec["frequency"], spec["angle_deg"], spec["octaves"], spec["persistence"],
-        spec["noise_amount"], spec["resolution"], int(seed),
+        spec["type"],
+        spec["colors"],
+        spec["frequency"],
+        spec["angle_deg"],
+        spec["octaves"],
+        spec["persistence"],
+        spec["noise_amount"],
+        spec["resolution"],
+        int(seed),
     )
 
 

@@ -1,17 +1,21 @@
-"""`eval` (also `m4dgs-eval`, `python -m eval`): score runs, run experiment suites, print paper-style tables.
+"""`eval` (also `m4dgs-eval`, `python -m eval`): score runs, run experiment suites, print
+paper-style tables.
 
-    eval score RUN                          write RUN/metrics.json (renders what is missing through m4dgs)
-    eval suites                             the shipped experiment suites and their rows
-    eval run tiny --preset tiny             make clips, train and score every (scene, row) of a suite (resumable)
-    eval run tiny --seeds 3                 ... with trainer seeds 0, 1, 2 (same clips; runs <row>, <row>-seed-n)
-    eval run paper-main --list-jobs         the job list as JSON lines (one `python -m eval job ...` per line)
-    eval job paper-main --scene S --row R   run ONE job (for cluster fan-out: docs/cluster.md)
-    eval table tiny                         the suite's tables (Markdown; --format latex|csv) and figures:
-                                            mean +- 95 % CI over scenes x seeds, paired differences to the
-                                            reference row, the paper's values and direction agreement
+    eval score RUN                          write RUN/metrics.json (renders what is missing through
+    m4dgs) eval suites                             the shipped experiment suites and their rows eval
+    run tiny --preset tiny             make clips, train and score every (scene, row) of a suite
+    (resumable) eval run tiny --seeds 3                 ... with trainer seeds 0, 1, 2 (same clips;
+    runs <row>, <row>-seed-n) eval run paper-main --list-jobs         the job list as JSON lines
+    (one `python -m eval job ...` per line) eval job paper-main --scene S --row R   run ONE job (for
+    cluster fan-out: docs/cluster.md) eval table tiny                         the suite's tables
+    (Markdown; --format latex|csv) and figures:
+                                            mean +- 95 % CI over scenes x seeds, paired differences
+                                            to the reference row, the paper's values and direction
+                                            agreement
 
 Details: docs/eval.md.
 """
+
 from __future__ import annotations
 
 import json
@@ -32,25 +36,48 @@ def _scenes(text):
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 def main():
-    """Evaluation of Mono4DGS-HDR runs: metrics, experiment suites, paper-style tables and figures."""
+    """Evaluation of Mono4DGS-HDR runs: metrics, experiment suites, paper-style tables and
+    figures."""
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 @main.command()
 @click.argument("run", type=click.Path(exists=True, file_okay=False))
-@click.option("--clip", "clip_dir", default=None, type=click.Path(exists=True, file_okay=False),
-              help="Clip folder to score against (default: the 'clip' entry of RUN/run.json).")
-@click.option("--lpips-weights", default=None, type=click.Path(exists=True, dir_okay=False),
-              help="LPIPS weights file (AlexNet + linear heads, docs/metrics.md); without it LPIPS is n/a.")
-@click.option("--roundtrip", type=click.Choice(["none", "png", "jpeg"]), default="none", show_default=True,
-              help="8-bit round trip of the LDR renders before scoring (jpeg: as the authors scored).")
+@click.option(
+    "--clip",
+    "clip_dir",
+    default=None,
+    type=click.Path(exists=True, file_okay=False),
+    help="Clip folder to score against (default: the 'clip' entry of RUN/run.json).",
+)
+@click.option(
+    "--lpips-weights",
+    default=None,
+    type=click.Path(exists=True, dir_okay=False),
+    help="LPIPS weights file (AlexNet + linear heads, docs/metrics.md); without it LPIPS is n/a.",
+)
+@click.option(
+    "--roundtrip",
+    type=click.Choice(["none", "png", "jpeg"]),
+    default="none",
+    show_default=True,
+    help="8-bit round trip of the LDR renders before scoring (jpeg: as the authors scored).",
+)
 @click.option("--flip", is_flag=True, help="Also compute HDR-FLIP on the test frames (slow).")
-@click.option("--tae-train-test", is_flag=True, help="Also HDR-TAE over all frames (train + test, DIS flow).")
+@click.option(
+    "--tae-train-test", is_flag=True, help="Also HDR-TAE over all frames (train + test, DIS flow)."
+)
 @click.option("--no-fps", is_flag=True, help="Skip the render-speed measurement.")
-@click.option("--no-model", is_flag=True, help="Do not load the trained model (no tracks, CRF curve or FPS).")
-@click.option("--device", default="auto", show_default=True, help="Device for the model: auto, cpu or cuda.")
+@click.option(
+    "--no-model", is_flag=True, help="Do not load the trained model (no tracks, CRF curve or FPS)."
+)
+@click.option(
+    "--device", default="auto", show_default=True, help="Device for the model: auto, cpu or cuda."
+)
 @click.option("--force", is_flag=True, help="Recompute metrics.json even if it exists.")
-def score(run, clip_dir, lpips_weights, roundtrip, flip, tae_train_test, no_fps, no_model, device, force):
+def score(
+    run, clip_dir, lpips_weights, roundtrip, flip, tae_train_test, no_fps, no_model, device, force
+):
     """Score one run folder and write RUN/metrics.json; prints the headline metrics as JSON."""
     from m4dgs import io as mio
 
@@ -61,18 +88,38 @@ def score(run, clip_dir, lpips_weights, roundtrip, flip, tae_train_test, no_fps,
         m = mio.read_json(mpath)
         click.echo(f"{mpath} exists (use --force to recompute)", err=True)
     else:
-        m = score_run(run, clip=clip_dir, lpips_weights=lpips_weights, roundtrip=None if roundtrip == "none" else
-                      roundtrip, flip=flip, fps=not no_fps, tae_train_test=tae_train_test, device=device,
-                      model=not no_model)
-    head = {k: m.get(k) for k in ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_ssim", "hdr_tae", "ate",
-                                  "depth_absrel", "fps")}
+        m = score_run(
+            run,
+            clip=clip_dir,
+            lpips_weights=lpips_weights,
+            roundtrip=None if roundtrip == "none" else roundtrip,
+            flip=flip,
+            fps=not no_fps,
+            tae_train_test=tae_train_test,
+            device=device,
+            model=not no_model,
+        )
+    head = {
+        k: m.get(k)
+        for k in (
+            "ldr_oe_psnr",
+            "ldr_ne_psnr",
+            "hdr_psnr",
+            "hdr_ssim",
+            "hdr_tae",
+            "ate",
+            "depth_absrel",
+            "fps",
+        )
+    }
     click.echo(json.dumps(head))
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 @main.command()
 def suites():
-    """List the shipped experiment suites, their rows (name: variant + overrides, clip setting) and tables."""
+    """List the shipped experiment suites, their rows (name: variant + overrides, clip setting) and
+    tables."""
     from .suite import builtin_suites, check_variants, load_eval_suite
 
     for name in builtin_suites():
@@ -86,17 +133,36 @@ def suites():
             click.echo(f"  ! variants unknown to m4dgs.variants: {bad}")
 
 
-# ----------------------------------------------------------------------------------------------------------------
-_out_opt = click.option("--out", "--root", "out", default=DEFAULT_OUT, show_default=True,
-                        type=click.Path(file_okay=False),
-                        help="Experiment root: clips in OUT/clips/<setting>/<scene>, runs in "
-                             "OUT/runs/<suite>/<scene>/<row>, figures in OUT/figures/<suite>. One OUT per preset.")
-_preset_opt = click.option("--preset", type=click.Choice(["tiny", "small", "paper"]), default="small",
-                           show_default=True, help="Clip preset AND training preset (tiny: tests and the demo).")
-_lpips_opt = click.option("--lpips-weights", default=None, type=click.Path(exists=True, dir_okay=False),
-                          help="LPIPS weights file passed to the scoring (LPIPS is n/a without it).")
-_device_opt = click.option("--device", default="auto", show_default=True,
-                           help="Training / scoring device: auto, cpu or cuda.")
+# --------------------------------------------------------------------------------------------------
+_out_opt = click.option(
+    "--out",
+    "--root",
+    "out",
+    default=DEFAULT_OUT,
+    show_default=True,
+    type=click.Path(file_okay=False),
+    help="Experiment root: clips in OUT/clips/<setting>/<scene>, runs in "
+    "OUT/runs/<suite>/<scene>/<row>, figures in OUT/figures/<suite>. One OUT per preset.",
+)
+_preset_opt = click.option(
+    "--preset",
+    type=click.Choice(["tiny", "small", "paper"]),
+    default="small",
+    show_default=True,
+    help="Clip preset AND training preset (tiny: tests and the demo).",
+)
+_lpips_opt = click.option(
+    "--lpips-weights",
+    default=None,
+    type=click.Path(exists=True, dir_okay=False),
+    help="LPIPS weights file passed to the scoring (LPIPS is n/a without it).",
+)
+_device_opt = click.option(
+    "--device",
+    default="auto",
+    show_default=True,
+    help="Training / scoring device: auto, cpu or cuda.",
+)
 
 
 @main.command()
@@ -105,25 +171,60 @@ _device_opt = click.option("--device", default="auto", show_default=True,
 @_preset_opt
 @click.option("--jobs", default=1, show_default=True, type=int, help="Local worker processes.")
 @click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
-@click.option("--seeds", default=1, show_default=True, type=click.IntRange(min=1),
-              help="Trainer seeds 0..N-1 per (scene, row), same clip; seed 0 trains into <row>, seed n into "
-                   "<row>-seed-n.")
-@click.option("--force", is_flag=True, help="Recompute metrics.json of finished runs (never retrains).")
-@click.option("--list-jobs", is_flag=True,
-              help="Print the job list as JSON lines (with each job's `python -m eval job` command) and exit.")
+@click.option(
+    "--seeds",
+    default=1,
+    show_default=True,
+    type=click.IntRange(min=1),
+    help="Trainer seeds 0..N-1 per (scene, row), same clip; seed 0 trains into <row>, seed n into "
+    "<row>-seed-n.",
+)
+@click.option(
+    "--force", is_flag=True, help="Recompute metrics.json of finished runs (never retrains)."
+)
+@click.option(
+    "--list-jobs",
+    is_flag=True,
+    help="Print the job list as JSON lines (with each job's `python -m eval job` command) and "
+    "exit.",
+)
 @click.option("--clips-only", is_flag=True, help="Only make the missing clips.")
 @_lpips_opt
 @_device_opt
-def run(suite, out, preset, jobs, scenes, seeds, force, list_jobs, clips_only, lpips_weights, device):
-    """Make missing clips, train missing runs and score missing metrics of SUITE (name or YAML path); resumable."""
+def run(
+    suite, out, preset, jobs, scenes, seeds, force, list_jobs, clips_only, lpips_weights, device
+):
+    """Make missing clips, train missing runs and score missing metrics of SUITE (name or YAML
+    path); resumable."""
     from .runner import list_jobs_jsonl, run_suite
 
     if list_jobs:
-        click.echo(list_jobs_jsonl(suite, out, preset, _scenes(scenes), lpips_weights=lpips_weights,
-                                   device=None if device == "auto" else device, seeds=seeds), nl=False)
+        click.echo(
+            list_jobs_jsonl(
+                suite,
+                out,
+                preset,
+                _scenes(scenes),
+                lpips_weights=lpips_weights,
+                device=None if device == "auto" else device,
+                seeds=seeds,
+            ),
+            nl=False,
+        )
         return
-    res = run_suite(suite, out, preset, jobs=jobs, scenes=_scenes(scenes), force=force, lpips_weights=lpips_weights,
-                    device=device, clips_only=clips_only, log=lambda s: click.echo(s, err=True), seeds=seeds)
+    res = run_suite(
+        suite,
+        out,
+        preset,
+        jobs=jobs,
+        scenes=_scenes(scenes),
+        force=force,
+        lpips_weights=lpips_weights,
+        device=device,
+        clips_only=clips_only,
+        log=lambda s: click.echo(s, err=True),
+        seeds=seeds,
+    )
     for r in res:
         click.echo(json.dumps(r))
 
@@ -132,26 +233,41 @@ def run(suite, out, preset, jobs, scenes, seeds, force, list_jobs, clips_only, l
 @click.argument("suite")
 @click.option("--scene", required=True, help="Scene name of the job.")
 @click.option("--row", required=True, help="Row name of the job (see `eval suites`).")
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0),
-              help="Trainer seed index of the job (0: the run folder <row>; n: <row>-seed-n).")
+@click.option(
+    "--seed",
+    default=0,
+    show_default=True,
+    type=click.IntRange(min=0),
+    help="Trainer seed index of the job (0: the run folder <row>; n: <row>-seed-n).",
+)
 @_out_opt
 @_preset_opt
-@click.option("--clip-only", is_flag=True, help="Only make the job's clip (run this once per clip before fan-out).")
+@click.option(
+    "--clip-only",
+    is_flag=True,
+    help="Only make the job's clip (run this once per clip before fan-out).",
+)
 @click.option("--force", is_flag=True, help="Recompute metrics.json even if it exists.")
 @_lpips_opt
 @_device_opt
 def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, device):
-    """Run ONE job of SUITE: make its clip if missing, train (resumes), score. Prints a JSON result line."""
+    """Run ONE job of SUITE: make its clip if missing, train (resumes), score. Prints a JSON result
+    line."""
     from .runner import find_job, run_job
 
     j = find_job(suite, out, preset, scene, row, seed)
-    click.echo(json.dumps(run_job(j, force=force, lpips_weights=lpips_weights, device=device, clip_only=clip_only)))
+    click.echo(
+        json.dumps(
+            run_job(j, force=force, lpips_weights=lpips_weights, device=device, clip_only=clip_only)
+        )
+    )
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) -> list:
-    """Entries {"scene", "row", "label", "seed", "run_dir", "clip_dir", "metrics" (dict or None)} of a suite's jobs,
-    for trainer seeds 0 .. seeds-1 (None: up to the largest seed with a run folder under OUT, for every row)."""
+    """Entries {"scene", "row", "label", "seed", "run_dir", "clip_dir", "metrics" (dict or None)} of
+    a suite's jobs, for trainer seeds 0 .. seeds-1 (None: up to the largest seed with a run folder
+    under OUT, for every row)."""
     from m4dgs import io as mio
 
     from .runner import job_list, seeds_present
@@ -161,15 +277,24 @@ def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) ->
     entries = []
     for j in job_list(suite, out, preset, scenes, seeds):
         mp = Path(j.run_dir) / "metrics.json"
-        entries.append({"scene": j.scene, "row": j.row, "label": j.label, "seed": j.seed, "run_dir": j.run_dir,
-                        "clip_dir": j.clip_dir, "metrics": mio.read_json(mp) if mp.exists() else None})
+        entries.append(
+            {
+                "scene": j.scene,
+                "row": j.row,
+                "label": j.label,
+                "seed": j.seed,
+                "run_dir": j.run_dir,
+                "clip_dir": j.clip_dir,
+                "metrics": mio.read_json(mp) if mp.exists() else None,
+            }
+        )
     return entries
 
 
 def collect_runs_dir(runs_dir) -> list:
-    """Entries of every run under RUNS_DIR with a metrics.json; rows = the variant names (run.json / metrics.json),
-    or the run folder names where two runs of one scene and seed share a variant. A folder named <row>-seed-<n> is
-    trainer seed n of <row> (eval run --seeds)."""
+    """Entries of every run under RUNS_DIR with a metrics.json; rows = the variant names (run.json /
+    metrics.json), or the run folder names where two runs of one scene and seed share a variant. A
+    folder named <row>-seed-<n> is trainer seed n of <row> (eval run --seeds)."""
     import re
 
     from m4dgs import io as mio
@@ -188,9 +313,18 @@ def collect_runs_dir(runs_dir) -> list:
         variant = run_meta.get("variant") or info.get("variant") or rd.name
         scene = run_meta.get("clip_name") or rd.parent.name
         sm = seed_re.search(rd.name)
-        row, seed = (rd.name[:sm.start()], int(sm.group(1))) if sm else (rd.name, 0)
-        entries.append({"scene": scene, "row": row, "label": variant, "seed": seed, "run_dir": str(rd),
-                        "clip_dir": run_meta.get("clip"), "metrics": m})
+        row, seed = (rd.name[: sm.start()], int(sm.group(1))) if sm else (rd.name, 0)
+        entries.append(
+            {
+                "scene": scene,
+                "row": row,
+                "label": variant,
+                "seed": seed,
+                "run_dir": str(rd),
+                "clip_dir": run_meta.get("clip"),
+                "metrics": m,
+            }
+        )
     seen = {}
     for e in entries:
         seen.setdefault((e["scene"], e["label"], e["seed"]), []).append(e)
@@ -200,10 +334,13 @@ def collect_runs_dir(runs_dir) -> list:
     return entries
 
 
-def build_tables(entries: list, table_defs: list, fmt: str = "markdown", reference: str | None = None) -> str:
-    """Render every table of a suite from collected entries: mean +- 95 % t-interval over the (scene, seed) runs of
-    each row, best mean in bold, the paired difference to the `reference` row (a row name; its label in the table),
-    for tables with `paper` the paper's values and the direction agreement, footnotes."""
+def build_tables(
+    entries: list, table_defs: list, fmt: str = "markdown", reference: str | None = None
+) -> str:
+    """Render every table of a suite from collected entries: mean +- 95 % t-interval over the
+    (scene, seed) runs of each row, best mean in bold, the paired difference to the `reference` row
+    (a row name; its label in the table), for tables with `paper` the paper's values and the
+    direction agreement, footnotes."""
     from eval.tables import render
 
     from .score import PSNR_CAP_DB, all_conventions
@@ -216,14 +353,22 @@ def build_tables(entries: list, table_defs: list, fmt: str = "markdown", referen
         label_of.setdefault(e["row"], e["label"])
     ref_label = label_of.get(reference) if reference is not None else None
     rows = []
-    for e in entries:  # a run without metrics.json counts as a scene without values: its row's means are n/a
+    for e in (
+        entries
+    ):  # a run without metrics.json counts as a scene without values: its row's means are n/a
         r = {"method": e["label"], "scene": e["scene"], "seed": e.get("seed", 0)}
         if e["metrics"]:
-            r.update({k: v for k, v in e["metrics"].items() if isinstance(v, (int, float)) or v is None})
+            r.update(
+                {k: v for k, v in e["metrics"].items() if isinstance(v, (int, float)) or v is None}
+            )
         rows.append(r)
     lp = any(r.get(k) is not None for r in rows for k in r if k.endswith("_lpips"))
     convs = {e["metrics"].get("ldr_convention", "ldr_png") for e in present}
-    ldr_conv = convs.pop() if len(convs) == 1 else "LDR scored with mixed conventions across runs (see metrics.json)"
+    ldr_conv = (
+        convs.pop()
+        if len(convs) == 1
+        else "LDR scored with mixed conventions across runs (see metrics.json)"
+    )
     conventions = all_conventions()
     parts = []
     for td in table_defs:
@@ -237,31 +382,75 @@ def build_tables(entries: list, table_defs: list, fmt: str = "markdown", referen
             spec.paper_source = pt.source
         if any(r.get(c.key) == PSNR_CAP_DB for r in rows for c in spec.columns if "psnr" in c.key):
             spec.conventions = list(spec.conventions) + ["psnr_cap"]
-        parts.append(render(rows, spec, FORMATS[fmt], conventions=conventions,
-                            **({"notes": True} if FORMATS[fmt] == "csv" else {})))
+        parts.append(
+            render(
+                rows,
+                spec,
+                FORMATS[fmt],
+                conventions=conventions,
+                **({"notes": True} if FORMATS[fmt] == "csv" else {}),
+            )
+        )
     missing = [e for e in entries if not e["metrics"]]
     if missing:
-        note = f"{len(missing)} of {len(entries)} runs have no metrics.json yet (e.g. {missing[0]['run_dir']})"
-        parts.append(("% " if FORMATS[fmt] == "latex" else "# " if FORMATS[fmt] == "csv" else "> ") + note + "\n")
+        note = (
+            f"{len(missing)} of {len(entries)} runs have no metrics.json yet "
+            f"(e.g. {missing[0]['run_dir']})"
+        )
+        parts.append(
+            ("% " if FORMATS[fmt] == "latex" else "# " if FORMATS[fmt] == "csv" else "> ")
+            + note
+            + "\n"
+        )
     return "\n".join(parts)
 
 
 @main.command()
 @click.argument("target")
-@click.option("--root", "out", default=DEFAULT_OUT, show_default=True, type=click.Path(file_okay=False),
-              help="Experiment root of a suite (runs in ROOT/runs/<suite>, figures to ROOT/figures/<suite>).")
-@click.option("--format", "fmt", type=click.Choice(["md", "latex", "csv"]), default="md", show_default=True,
-              help="Table format (Markdown with bold best values; LaTeX booktabs; CSV without bold).")
-@click.option("--out", "out_file", default=None, type=click.Path(dir_okay=False),
-              help="Write the tables to this file (atomically) instead of stdout.")
+@click.option(
+    "--root",
+    "out",
+    default=DEFAULT_OUT,
+    show_default=True,
+    type=click.Path(file_okay=False),
+    help="Experiment root of a suite (runs in ROOT/runs/<suite>, figures to ROOT/figures/<suite>).",
+)
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["md", "latex", "csv"]),
+    default="md",
+    show_default=True,
+    help="Table format (Markdown with bold best values; LaTeX booktabs; CSV without bold).",
+)
+@click.option(
+    "--out",
+    "out_file",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Write the tables to this file (atomically) instead of stdout.",
+)
 @click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
-@click.option("--seeds", default=None, type=click.IntRange(min=1),
-              help="Trainer seeds 0..N-1 to tabulate (default: up to the largest seed with a run folder).")
-@click.option("--no-figures", is_flag=True, help="Do not write the figures (CRF curves, loss curves, image grids).")
-@click.option("--figures-dir", default=None, type=click.Path(file_okay=False),
-              help="Folder for the figures (default ROOT/figures/<suite>, or <runs dir>/../figures/<name>).")
+@click.option(
+    "--seeds",
+    default=None,
+    type=click.IntRange(min=1),
+    help="Trainer seeds 0..N-1 to tabulate (default: up to the largest seed with a run folder).",
+)
+@click.option(
+    "--no-figures",
+    is_flag=True,
+    help="Do not write the figures (CRF curves, loss curves, image grids).",
+)
+@click.option(
+    "--figures-dir",
+    default=None,
+    type=click.Path(file_okay=False),
+    help="Folder for the figures (default ROOT/figures/<suite>, or <runs dir>/../figures/<name>).",
+)
 def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
-    """Print the paper-style tables of TARGET: a suite (name or YAML; runs under OUT) or a folder of runs."""
+    """Print the paper-style tables of TARGET: a suite (name or YAML; runs under OUT) or a folder of
+    runs."""
     from m4dgs import io as mio
 
     from .suite import TableDef, load_eval_suite
@@ -269,16 +458,26 @@ def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
     if Path(target).is_dir():
         entries = collect_runs_dir(target)
         reference = "full" if any(e["row"] == "full" for e in entries) else None
-        defs = [TableDef(f"Runs under {target}", "paper"), TableDef("Training frames", "train"),
-                TableDef("Geometry", "geometry"), TableDef("Cost", "cost")]
-        fig_dir = Path(figures_dir) if figures_dir else Path(target).resolve().parent / "figures" / Path(target).name
+        defs = [
+            TableDef(f"Runs under {target}", "paper"),
+            TableDef("Training frames", "train"),
+            TableDef("Geometry", "geometry"),
+            TableDef("Cost", "cost"),
+        ]
+        fig_dir = (
+            Path(figures_dir)
+            if figures_dir
+            else Path(target).resolve().parent / "figures" / Path(target).name
+        )
     else:
         s = load_eval_suite(target)
         entries = collect_suite(target, out, _scenes(scenes), seeds=seeds)
         defs, reference = s.tables, s.reference
         fig_dir = Path(figures_dir) if figures_dir else Path(out) / "figures" / s.name
     if not any(e["metrics"] for e in entries):
-        raise click.ClickException(f"no metrics.json found for {target} (run `eval run` / `eval score` first)")
+        raise click.ClickException(
+            f"no metrics.json found for {target} (run `eval run` / `eval score` first)"
+        )
     text = build_tables(entries, defs, fmt, reference)
     if out_file:
         mio._atomic_write_bytes(Path(out_file), text.encode())
@@ -288,7 +487,8 @@ def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
     if not no_figures:
         from .figures import suite_figures
 
-        paths = suite_figures([e for e in entries if e["metrics"] and not e.get("seed")], fig_dir)  # seed 0 only
+        # seed 0 only
+        paths = suite_figures([e for e in entries if e["metrics"] and not e.get("seed")], fig_dir)
         click.echo(f"wrote {len(paths)} figure(s) to {fig_dir}", err=True)
 
 

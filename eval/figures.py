@@ -1,14 +1,17 @@
-"""Figures of a suite (PNG, written atomically): learned CRF curves, loss curves, side-by-side image grids.
+"""Figures of a suite (PNG, written atomically): learned CRF curves, loss curves, side-by-side image
+grids.
 
-- `crf_figure`: the learned tone curves (metrics.json "crf_curve", sampled from model.tonemap_curve by eval.score)
-  of every row against the clip's true CRF (m4dgs.crf.get_crf), LDR value vs log2 exposure (as the paper's
-  "Recovered CRFs" figure; RGB mean per row, the true curve dashed).
-- `loss_figure`: every loss term of log.jsonl against the iteration (densification counters left out), log scale,
-  running mean over 1/40 of the iterations, stage 1 then stage 2 on one axis (stage 2 offset by the last stage-1
-  step; a dotted line marks the switch).
-- `image_grid`: the same test frame for GT and every row: LDR at an observed level, LDR at a novel level (when the
-  clip has one), and HDR through the mu-law curve with the GT-max normalisation of the metrics.
+- `crf_figure`: the learned tone curves (metrics.json "crf_curve", sampled from model.tonemap_curve
+  by eval.score) of every row against the clip's true CRF (m4dgs.crf.get_crf), LDR value vs log2
+  exposure (as the paper's "Recovered CRFs" figure; RGB mean per row, the true curve dashed).
+- `loss_figure`: every loss term of log.jsonl against the iteration (densification counters left
+  out), log scale, running mean over 1/40 of the iterations, stage 1 then stage 2 on one axis (stage
+  2 offset by the last stage-1 step; a dotted line marks the switch).
+- `image_grid`: the same test frame for GT and every row: LDR at an observed level, LDR at a novel
+  level (when the clip has one), and HDR through the mu-law curve with the GT-max normalisation of
+  the metrics.
 """
+
 from __future__ import annotations
 
 import io
@@ -23,14 +26,29 @@ from m4dgs import io as mio
 from m4dgs.clip import Clip, frame_name, level_name
 
 # keys of a log.jsonl record that are not loss terms (plus densification counters, see _is_loss)
-NON_LOSS_KEYS = {"stage", "step", "sec", "num_gaussians", "lr", "time", "seconds", "elapsed", "iteration"}
+NON_LOSS_KEYS = {
+    "stage",
+    "step",
+    "sec",
+    "num_gaussians",
+    "lr",
+    "time",
+    "seconds",
+    "elapsed",
+    "iteration",
+}
 COUNTER_PREFIXES = ("n_", "num_")
 COUNTER_SUFFIXES = ("_clone", "_prune", "_reset", "_split", "_removed")
 
 
 def _is_loss(key: str) -> bool:
-    """Loss terms of a log record: numeric keys that are neither bookkeeping nor densification counters."""
-    return key not in NON_LOSS_KEYS and not key.startswith(COUNTER_PREFIXES) and not key.endswith(COUNTER_SUFFIXES)
+    """Loss terms of a log record: numeric keys that are neither bookkeeping nor densification
+    counters."""
+    return (
+        key not in NON_LOSS_KEYS
+        and not key.startswith(COUNTER_PREFIXES)
+        and not key.endswith(COUNTER_SUFFIXES)
+    )
 
 
 def smooth(y: np.ndarray, window: int) -> np.ndarray:
@@ -45,7 +63,8 @@ def smooth(y: np.ndarray, window: int) -> np.ndarray:
 
 
 def _save(fig, path) -> Path:
-    """Save a matplotlib figure as PNG atomically (temp file in the same folder, then os.replace)."""
+    """Save a matplotlib figure as PNG atomically (temp file in the same folder, then
+    os.replace)."""
     import matplotlib.pyplot as plt
 
     buf = io.BytesIO()
@@ -65,14 +84,15 @@ def _plt():
     return plt
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # CRF
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> Optional[Path]:
     """Learned CRF curves vs the true CRF.
 
     Args:
-        curves: (label, crf_curve) pairs, crf_curve = metrics.json["crf_curve"] ({"log2_x", "learned" [n][C],
+        curves: (label, crf_curve) pairs, crf_curve = metrics.json["crf_curve"] ({"log2_x",
+        "learned" [n][C],
             "true" [n] or None, "crf"}).
         out_png: output path.
     Returns the path, or None when no curve is given.
@@ -82,16 +102,23 @@ def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> 
         return None
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5.2, 3.8))
-    true_done = set()  # rows of one scene may have different true CRFs (suite crf): each is drawn once
+    # rows of one scene may have different true CRFs (suite crf): each is drawn once
+    true_done = set()
     for lab, c in curves:
         z = np.asarray(c["log2_x"], np.float64)
-        line, = ax.plot(z, np.asarray(c["learned"], np.float64).reshape(len(z), -1).mean(axis=1), lw=1.4, label=lab)
+        (line,) = ax.plot(
+            z,
+            np.asarray(c["learned"], np.float64).reshape(len(z), -1).mean(axis=1),
+            lw=1.4,
+            label=lab,
+        )
         if c.get("true") is not None and c.get("crf") not in true_done:
             from m4dgs.crf import get_crf
 
             zz = np.linspace(z.min(), z.max(), 401)
             f = get_crf(c["crf"])
-            true = np.asarray(f.rgb(np.repeat(np.exp2(zz)[:, None], 3, 1))).mean(axis=1)  # mean of RGB, as learned
+            # mean of RGB, as learned
+            true = np.asarray(f.rgb(np.repeat(np.exp2(zz)[:, None], 3, 1))).mean(axis=1)
             one_true = len({d.get("crf") for _, d in curves}) == 1
             style = dict(color="k") if one_true else dict(color=line.get_color())
             ax.plot(zz, true, "--", lw=1.2, label=f"true CRF ({c['crf']})", **style)
@@ -106,9 +133,9 @@ def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> 
     return _save(fig, out_png)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # losses
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def read_log(run_dir) -> List[dict]:
     """Records of <run>/log.jsonl (an unparsable last line, from a killed run, is skipped)."""
     p = Path(run_dir) / "log.jsonl"
@@ -126,11 +153,13 @@ def read_log(run_dir) -> List[dict]:
     return out
 
 
-def loss_series(records: List[dict]) -> Tuple[Dict[str, Tuple[np.ndarray, np.ndarray]], Optional[float]]:
+def loss_series(
+    records: List[dict],
+) -> Tuple[Dict[str, Tuple[np.ndarray, np.ndarray]], Optional[float]]:
     """{term: (iterations, values)} over both stages and the stage-2 offset (None without stage 2).
 
-    Iterations: stage-1 steps as they are, stage-2 steps + the last stage-1 step. Non-positive or non-finite
-    values are dropped (log scale)."""
+    Iterations: stage-1 steps as they are, stage-2 steps + the last stage-1 step. Non-positive or
+    non-finite values are dropped (log scale)."""
     s1 = [r for r in records if r.get("stage") == "stage1"]
     off = float(max((r.get("step", 0) for r in s1), default=0))
     has2 = any(r.get("stage") == "stage2" for r in records)
@@ -148,7 +177,9 @@ def loss_series(records: List[dict]) -> Tuple[Dict[str, Tuple[np.ndarray, np.nda
             xs, ys = series.setdefault(k, ([], []))
             xs.append(it)
             ys.append(float(v))
-    return {k: (np.asarray(x), np.asarray(y)) for k, (x, y) in series.items()}, (off if has2 else None)
+    return {k: (np.asarray(x), np.asarray(y)) for k, (x, y) in series.items()}, (
+        off if has2 else None
+    )
 
 
 def loss_figure(run_dir, out_png, title: str = "") -> Optional[Path]:
@@ -162,13 +193,21 @@ def loss_figure(run_dir, out_png, title: str = "") -> Optional[Path]:
     window = max(1, n // 40)
     for k in sorted(series, key=lambda k: (k != "total", k)):
         x, y = series[k]
-        ax.plot(x, smooth(y, window), lw=1.8 if k == "total" else 1.0, label=k,
-                color="k" if k == "total" else None)
+        ax.plot(
+            x,
+            smooth(y, window),
+            lw=1.8 if k == "total" else 1.0,
+            label=k,
+            color="k" if k == "total" else None,
+        )
     if off is not None:
         ax.axvline(off, color="k", ls=":", lw=1)
         ax.text(off, ax.get_ylim()[1], " stage 2", fontsize=7, va="top")
     ax.set_yscale("log")
-    ax.set_xlabel("iteration (stage 1, then stage 2)" + (f"; running mean over {window}" if window > 1 else ""))
+    ax.set_xlabel(
+        "iteration (stage 1, then stage 2)"
+        + (f"; running mean over {window}" if window > 1 else "")
+    )
     ax.set_ylabel("loss")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
@@ -177,9 +216,9 @@ def loss_figure(run_dir, out_png, title: str = "") -> Optional[Path]:
     return _save(fig, out_png)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # image grids
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _mu(h: np.ndarray, scale: float) -> np.ndarray:
     from eval.metrics import mu_law
 
@@ -195,9 +234,11 @@ def pick_frame_and_levels(clip: Clip) -> Tuple[int, float, Optional[float]]:
     return g, obs, nov
 
 
-def image_grid(clip_dir, runs: Sequence[Tuple[str, str]], out_png, g: Optional[int] = None,
-               title: str = "") -> Optional[Path]:
-    """GT and each run's render side by side at one test frame: LDR observed / LDR novel / HDR (mu-law) rows.
+def image_grid(
+    clip_dir, runs: Sequence[Tuple[str, str]], out_png, g: Optional[int] = None, title: str = ""
+) -> Optional[Path]:
+    """GT and each run's render side by side at one test frame: LDR observed / LDR novel / HDR
+    (mu-law) rows.
 
     runs: (label, run_dir) pairs; a run lacking a render shows a blank cell.
     """
@@ -209,18 +250,41 @@ def image_grid(clip_dir, runs: Sequence[Tuple[str, str]], out_png, g: Optional[i
     gt_hdr = clip.load_gt_hdr(g)
     scale = float(gt_hdr.max())
     blank = np.ones((clip.height, clip.width, 3)) * 0.85
-    rows = [(f"LDR dt={obs:g} (observed)", lambda rd, lv=obs: Path(rd) / "renders/test/ldr" / level_name(lv)
-             / frame_name(g, "png"), clip.load_gt_ldr(obs, g) / 255.0)]
+    rows = [
+        (
+            f"LDR dt={obs:g} (observed)",
+            lambda rd, lv=obs: Path(rd)
+            / "renders/test/ldr"
+            / level_name(lv)
+            / frame_name(g, "png"),
+            clip.load_gt_ldr(obs, g) / 255.0,
+        )
+    ]
     if nov is not None:
-        rows.append((f"LDR dt={nov:g} (novel)", lambda rd, lv=nov: Path(rd) / "renders/test/ldr" / level_name(lv)
-                     / frame_name(g, "png"), clip.load_gt_ldr(nov, g) / 255.0))
-    rows.append(("HDR (mu-law, GT max)", lambda rd: Path(rd) / "renders/test/hdr" / frame_name(g, "exr"),
-                 _mu(gt_hdr, scale)))
+        rows.append(
+            (
+                f"LDR dt={nov:g} (novel)",
+                lambda rd, lv=nov: Path(rd)
+                / "renders/test/ldr"
+                / level_name(lv)
+                / frame_name(g, "png"),
+                clip.load_gt_ldr(nov, g) / 255.0,
+            )
+        )
+    rows.append(
+        (
+            "HDR (mu-law, GT max)",
+            lambda rd: Path(rd) / "renders/test/hdr" / frame_name(g, "exr"),
+            _mu(gt_hdr, scale),
+        )
+    )
     cols = [("GT", None)] + list(runs)
     plt = _plt()
     cw = 2.4
     ch = cw * clip.height / clip.width
-    fig, axes = plt.subplots(len(rows), len(cols), figsize=(cw * len(cols), ch * len(rows) + 0.5), squeeze=False)
+    fig, axes = plt.subplots(
+        len(rows), len(cols), figsize=(cw * len(cols), ch * len(rows) + 0.5), squeeze=False
+    )
     for i, (rname, pfn, gt_img) in enumerate(rows):
         for j, (lab, rd) in enumerate(cols):
             ax = axes[i][j]
@@ -248,27 +312,40 @@ def image_grid(clip_dir, runs: Sequence[Tuple[str, str]], out_png, g: Optional[i
 def suite_figures(entries: Sequence[dict], out_dir, *, loss: bool = True) -> List[Path]:
     """Every figure of a suite from its collected runs.
 
-    entries: dicts {"scene", "label", "row", "run_dir", "clip_dir", "metrics"} (eval.cli collects them).
-    Writes crf_<scene>.png, grid_<scene>.png and loss_<scene>_<row>.png under out_dir; returns the paths.
-    """
+    entries: dicts {"scene", "label", "row", "run_dir", "clip_dir", "metrics"} (eval.cli collects
+    them). Writes crf_<scene>.png, grid_<scene>.png and loss_<scene>_<row>.png under out_dir;
+    returns the paths."""
     out_dir = Path(out_dir)
     written: List[Path] = []
     scenes = list(dict.fromkeys(e["scene"] for e in entries))
     for sc in scenes:
         es = [e for e in entries if e["scene"] == sc]
-        p = crf_figure([(e["label"], (e.get("metrics") or {}).get("crf_curve")) for e in es],
-                       out_dir / f"crf_{sc}.png", title=f"Learned CRFs, {sc}")
+        p = crf_figure(
+            [(e["label"], (e.get("metrics") or {}).get("crf_curve")) for e in es],
+            out_dir / f"crf_{sc}.png",
+            title=f"Learned CRFs, {sc}",
+        )
         if p:
             written.append(p)
-        clip_dir = next((e["clip_dir"] for e in es if e.get("clip_dir") and (Path(e["clip_dir"]) / "clip.json")
-                         .exists()), None)
+        clip_dir = next(
+            (
+                e["clip_dir"]
+                for e in es
+                if e.get("clip_dir") and (Path(e["clip_dir"]) / "clip.json").exists()
+            ),
+            None,
+        )
         if clip_dir is not None:
-            p = image_grid(clip_dir, [(e["label"], e["run_dir"]) for e in es], out_dir / f"grid_{sc}.png")
+            p = image_grid(
+                clip_dir, [(e["label"], e["run_dir"]) for e in es], out_dir / f"grid_{sc}.png"
+            )
             if p:
                 written.append(p)
         if loss:
             for e in es:
-                p = loss_figure(e["run_dir"], out_dir / f"loss_{sc}_{e['row']}.png", title=f"{sc}: {e['label']}")
+                p = loss_figure(
+                    e["run_dir"], out_dir / f"loss_{sc}_{e['row']}.png", title=f"{sc}: {e['label']}"
+                )
                 if p:
                     written.append(p)
     return written

@@ -1,10 +1,12 @@
 """The paper's numbers (eval/paper_values.yaml) for the "Paper" columns of the result tables.
 
-    load_paper_values()  -> {table key: PaperTable(key, source, rows {row: {metric: value}}, paper_rows {row: label})}
-    paper_records()      -> [{"table", "row", "paper_row", "metric", "value", "source"}, ...] (flat form)
+    load_paper_values()  -> {table key: PaperTable(key, source, rows {row: {metric: value}},
+    paper_rows {row: label})} paper_records()      -> [{"table", "row", "paper_row", "metric",
+    "value", "source"}, ...] (flat form)
 
-Row names are the rows of our suites (eval/suites/*.yaml); a suite table refers to a paper table with `paper: KEY`.
-"""
+Row names are the rows of our suites (eval/suites/*.yaml); a suite table refers to a paper table
+with `paper: KEY`."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -31,12 +33,17 @@ def paper_values_path() -> Path:
 
 
 def load_paper_values(path=None) -> Dict[str, PaperTable]:
-    """Parse the paper-values file; raises ValueError naming the table/row/key of a malformed entry."""
+    """Parse the paper-values file; raises ValueError naming the table/row/key of a malformed
+    entry."""
     path = Path(path) if path is not None else paper_values_path()
     data = yaml.safe_load(path.read_text()) or {}
     out: Dict[str, PaperTable] = {}
     for key, t in data.items():
-        if not isinstance(t, dict) or not isinstance(t.get("source"), str) or not isinstance(t.get("rows"), dict):
+        if (
+            not isinstance(t, dict)
+            or not isinstance(t.get("source"), str)
+            or not isinstance(t.get("rows"), dict)
+        ):
             raise ValueError(f"{path}: table {key!r} needs 'source' (text) and 'rows' (mapping)")
         pt = PaperTable(str(key), " ".join(t["source"].split()))
         for row, vals in t["rows"].items():
@@ -56,6 +63,18 @@ def load_paper_values(path=None) -> Dict[str, PaperTable]:
 
 
 def paper_records(path=None) -> List[dict]:
-    """The paper values as flat records: table, row (our row name), paper_row, metric, value, source."""
-    return [{"table": t.key, "row": row, "paper_row": t.paper_rows[row], "metric": m, "value": v, "source": t.source}
-            for t in load_paper_values(path).values() for row, vals in t.rows.items() for m, v in vals.items()]
+    """The paper values as flat records: table, row (our row name), paper_row, metric, value,
+    source."""
+    return [
+        {
+            "table": t.key,
+            "row": row,
+            "paper_row": t.paper_rows[row],
+            "metric": m,
+            "value": v,
+            "source": t.source,
+        }
+        for t in load_paper_values(path).values()
+        for row, vals in t.rows.items()
+        for m, v in vals.items()
+    ]

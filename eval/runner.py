@@ -1,17 +1,20 @@
-"""Run an experiment suite: make missing clips, train missing runs, score missing metrics (resumable).
+"""Run an experiment suite: make missing clips, train missing runs, score missing metrics
+(resumable).
 
-The job list of a suite is (clip setting, scene, row) (eval.suite), times the trainer seeds of `seeds` (0 .. N-1;
-the clip is the same for every seed). Seed 0 trains into OUT/runs/<suite>/<scene>/<row> with the row's config as
-it is, seed n > 0 into OUT/runs/<suite>/<scene>/<row>-seed-<n> with the override `seed` = the row's seed + n.
-`run_suite` works through it locally, with a process pool for `jobs > 1`; `job_list` / `run_job` are the same work
-one job at a time, which is how the list is fanned out to a cluster (`eval run SUITE --list-jobs` prints one JSON
-line per job with its `python -m eval job ...` command line; docs/cluster.md).
+The job list of a suite is (clip setting, scene, row) (eval.suite), times the trainer seeds of
+`seeds` (0 .. N-1; the clip is the same for every seed). Seed 0 trains into
+OUT/runs/<suite>/<scene>/<row> with the row's config as it is, seed n > 0 into
+OUT/runs/<suite>/<scene>/<row>-seed-<n> with the override `seed` = the row's seed + n. `run_suite`
+works through it locally, with a process pool for `jobs > 1`; `job_list` / `run_job` are the same
+work one job at a time, which is how the list is fanned out to a cluster (`eval run SUITE
+--list-jobs` prints one JSON line per job with its `python -m eval job ...` command line;
+docs/cluster.md).
 
-Concurrency: making a clip and training a run each hold an exclusive `fcntl.flock` on a lock file beside the
-folder (`<folder>.lock`), so two workers given the same clip or run wait for each other instead of writing the
-same files (the second one then finds the work done). Locks need a file system with working flock (local disks,
-most NFS v4 set-ups).
-"""
+Concurrency: making a clip and training a run each hold an exclusive `fcntl.flock` on a lock file
+beside the folder (`<folder>.lock`), so two workers given the same clip or run wait for each other
+instead of writing the same files (the second one then finds the work done). Locks need a file
+system with working flock (local disks, most NFS v4 set-ups)."""
+
 from __future__ import annotations
 
 import contextlib
@@ -35,14 +38,15 @@ SEED_SUFFIX = "-seed-"
 
 
 def seed_run_name(row: str, seed: int) -> str:
-    """Run folder name of a row's trainer seed: the row name for seed 0 (the layout before seeds existed), else
-    `<row>-seed-<seed>`."""
+    """Run folder name of a row's trainer seed: the row name for seed 0 (the layout before seeds
+    existed), else `<row>-seed-<seed>`."""
     return row if seed == 0 else f"{row}{SEED_SUFFIX}{seed}"
 
 
 @dataclass
 class Job:
-    """One (clip setting, scene, row, trainer seed) of a suite, with its folders and the command that runs it."""
+    """One (clip setting, scene, row, trainer seed) of a suite, with its folders and the command
+    that runs it."""
 
     suite: str  # suite name or path, as given to `eval`
     suite_name: str
@@ -57,7 +61,9 @@ class Job:
     run_dir: str
     preset: str
     out: str
-    seed: int = 0  # trainer seed index (0: the row as it is; n > 0: overrides["seed"] = row seed + n)
+    seed: int = (
+        0  # trainer seed index (0: the row as it is; n > 0: overrides["seed"] = row seed + n)
+    )
 
     @property
     def id(self) -> str:
@@ -67,9 +73,24 @@ class Job:
     def clip_key(self) -> str:
         return f"{self.setting_id}/{self.scene}"
 
-    def command(self, lpips_weights: Optional[str] = None, device: Optional[str] = None) -> List[str]:
-        cmd = ["python", "-m", "eval", "job", self.suite, "--out", self.out,
-               "--preset", self.preset, "--scene", self.scene, "--row", self.row]
+    def command(
+        self, lpips_weights: Optional[str] = None, device: Optional[str] = None
+    ) -> List[str]:
+        cmd = [
+            "python",
+            "-m",
+            "eval",
+            "job",
+            self.suite,
+            "--out",
+            self.out,
+            "--preset",
+            self.preset,
+            "--scene",
+            self.scene,
+            "--row",
+            self.row,
+        ]
         if self.seed:
             cmd += ["--seed", str(self.seed)]
         if lpips_weights:
@@ -86,7 +107,8 @@ class Job:
 
 
 def _suite_ref(suite) -> tuple:
-    """(EvalSuite, the reference to put on job command lines: the built-in name, or the file's absolute path)."""
+    """(EvalSuite, the reference to put on job command lines: the built-in name, or the file's
+    absolute path)."""
     s = suite if isinstance(suite, EvalSuite) else load_eval_suite(suite)
     from .suite import suites_dir
 
@@ -94,9 +116,11 @@ def _suite_ref(suite) -> tuple:
     return s, (s.name if builtin else str(s.path.resolve()))
 
 
-def job_list(suite, out, preset: str = "small", scenes: Optional[Sequence[str]] = None, seeds: int = 1) -> List[Job]:
-    """Every job of a suite for trainer seeds 0 .. seeds-1: seed by seed, each ordered by clip setting, scene, row
-    (seeds=1 is the job list before seeds existed)."""
+def job_list(
+    suite, out, preset: str = "small", scenes: Optional[Sequence[str]] = None, seeds: int = 1
+) -> List[Job]:
+    """Every job of a suite for trainer seeds 0 .. seeds-1: seed by seed, each ordered by clip
+    setting, scene, row (seeds=1 is the job list before seeds existed)."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r} (known: {PRESETS})")
     if int(seeds) < 1:
@@ -120,10 +144,24 @@ def job_list(suite, out, preset: str = "small", scenes: Optional[Sequence[str]] 
                     ov = dict(r.overrides)
                     if seed:
                         ov["seed"] = int(ov.get("seed", 0)) + seed
-                    jobs.append(Job(ref, s.name, key, sid, scene, r.name, r.label, r.variant, ov,
-                                    str(out / "clips" / sid / scene),
-                                    str(out / "runs" / s.name / scene / seed_run_name(r.name, seed)), preset, str(out),
-                                    seed))
+                    jobs.append(
+                        Job(
+                            ref,
+                            s.name,
+                            key,
+                            sid,
+                            scene,
+                            r.name,
+                            r.label,
+                            r.variant,
+                            ov,
+                            str(out / "clips" / sid / scene),
+                            str(out / "runs" / s.name / scene / seed_run_name(r.name, seed)),
+                            preset,
+                            str(out),
+                            seed,
+                        )
+                    )
     return jobs
 
 
@@ -143,7 +181,8 @@ def folder_lock(folder: Path):
 
 
 def make_job_clip(job: Job, progress: bool = False) -> Path:
-    """Make the job's clip when clip.json is missing (benchgen.make.make_clip; resumes an unfinished one)."""
+    """Make the job's clip when clip.json is missing (benchgen.make.make_clip; resumes an unfinished
+    one)."""
     clip_dir = Path(job.clip_dir)
     if (clip_dir / "clip.json").exists():
         return clip_dir
@@ -155,33 +194,62 @@ def make_job_clip(job: Job, progress: bool = False) -> Path:
     setting = s.clips[job.setting]
     bs = load_suite(s.scenes)
     scene_path = {p.stem: p for p in bs.scenes}[job.scene]
-    ex = ExposureSettings(setting.observed if setting.observed is not None else tuple(bs.observed),
-                          setting.novel if setting.novel is not None else tuple(bs.novel),
-                          setting.schedule or bs.schedule)
+    ex = ExposureSettings(
+        setting.observed if setting.observed is not None else tuple(bs.observed),
+        setting.novel if setting.novel is not None else tuple(bs.novel),
+        setting.schedule or bs.schedule,
+    )
     with folder_lock(clip_dir):
         if not (clip_dir / "clip.json").exists():
-            make_clip(scene_path, clip_dir, preset=job.preset, settings=ex, priors=setting.priors, seed=setting.seed,
-                      crf=setting.crf or "hdrnerf", progress=progress, allow_misplaced=bs.placement == "warn")
+            make_clip(
+                scene_path,
+                clip_dir,
+                preset=job.preset,
+                settings=ex,
+                priors=setting.priors,
+                seed=setting.seed,
+                crf=setting.crf or "hdrnerf",
+                progress=progress,
+                allow_misplaced=bs.placement == "warn",
+            )
     return clip_dir
 
 
 def train_job(job: Job, device: str = "auto", progress: bool = False) -> Path:
-    """Train the job's run (m4dgs.pipeline.train resumes an interrupted run and returns at once when done)."""
+    """Train the job's run (m4dgs.pipeline.train resumes an interrupted run and returns at once when
+    done)."""
     from m4dgs.pipeline import train
 
     run_dir = Path(job.run_dir)
     with folder_lock(run_dir):
-        return Path(train(job.clip_dir, run_dir, preset=job.preset, variant=job.variant,
-                          overrides=dict(job.overrides) or None, device=device, progress=progress))
+        return Path(
+            train(
+                job.clip_dir,
+                run_dir,
+                preset=job.preset,
+                variant=job.variant,
+                overrides=dict(job.overrides) or None,
+                device=device,
+                progress=progress,
+            )
+        )
 
 
-def run_job(job: Job, *, force: bool = False, lpips_weights=None, device: str = "auto", clip_only: bool = False,
-            progress: bool = False, score_kw: Optional[dict] = None) -> dict:
+def run_job(
+    job: Job,
+    *,
+    force: bool = False,
+    lpips_weights=None,
+    device: str = "auto",
+    clip_only: bool = False,
+    progress: bool = False,
+    score_kw: Optional[dict] = None,
+) -> dict:
     """Make the clip, train and score ONE job; each step is skipped when its output exists.
 
-    force: recompute metrics.json even if it exists (never retrains: delete the run folder for that).
-    Returns {"id", "clip", "run", "metrics" (path or None), "seconds", "steps": [what was done]}.
-    """
+    force: recompute metrics.json even if it exists (never retrains: delete the run folder for
+    that). Returns {"id", "clip", "run", "metrics" (path or None), "seconds", "steps": [what was
+    done]}."""
     t0 = time.perf_counter()
     steps = []
     if not (Path(job.clip_dir) / "clip.json").exists():
@@ -200,7 +268,13 @@ def run_job(job: Job, *, force: bool = False, lpips_weights=None, device: str = 
     if force or not mpath.exists():
         from .score import score_run
 
-        score_run(run_dir, clip=job.clip_dir, lpips_weights=lpips_weights, device=device, **(score_kw or {}))
+        score_run(
+            run_dir,
+            clip=job.clip_dir,
+            lpips_weights=lpips_weights,
+            device=device,
+            **(score_kw or {}),
+        )
         steps.append("score")
     res.update(metrics=str(mpath), seconds=round(time.perf_counter() - t0, 2), steps=steps)
     return res
@@ -220,22 +294,38 @@ def _run_job_kw(job: Job, kw: dict) -> dict:
     return run_job(job, **kw)
 
 
-def run_suite(suite, out, preset: str = "small", jobs: int = 1, scenes: Optional[Sequence[str]] = None,
-              force: bool = False, *, lpips_weights=None, device: str = "auto", progress: bool = True,
-              clips_only: bool = False, score_kw: Optional[dict] = None, log=None, seeds: int = 1) -> List[dict]:
+def run_suite(
+    suite,
+    out,
+    preset: str = "small",
+    jobs: int = 1,
+    scenes: Optional[Sequence[str]] = None,
+    force: bool = False,
+    *,
+    lpips_weights=None,
+    device: str = "auto",
+    progress: bool = True,
+    clips_only: bool = False,
+    score_kw: Optional[dict] = None,
+    log=None,
+    seeds: int = 1,
+) -> List[dict]:
     """Make every missing clip, then train and score every (scene, row, seed) of a suite; resumable.
 
-    jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool of `jobs`
-    workers, each with cpu_count / jobs torch threads. Returns the per-job results (run_job) in job order.
-    """
+    jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool
+    of `jobs` workers, each with cpu_count / jobs torch threads. Returns the per-job results
+    (run_job) in job order."""
     jl = job_list(suite, out, preset, scenes, seeds)
     say = log or (lambda msg: print(msg, file=sys.stderr))
     firsts: Dict[str, Job] = {}
     for j in jl:
         firsts.setdefault(j.clip_key, j)
     todo = [j for j in firsts.values() if not (Path(j.clip_dir) / "clip.json").exists()]
-    say(f"[eval run] {len(jl)} jobs, {len(firsts)} clips ({len(todo)} to make), preset {preset}, jobs {jobs}, "
-        f"seeds {seeds}")
+    say(
+        f"[eval run] {len(jl)} jobs, {len(firsts)} clips ({len(todo)} to make), preset {preset}, "
+        f"jobs {jobs}, "
+        f"seeds {seeds}"
+    )
     kw = dict(force=force, lpips_weights=lpips_weights, device=device, score_kw=score_kw)
     if jobs <= 1:
         for j in todo:
@@ -260,16 +350,22 @@ def run_suite(suite, out, preset: str = "small", jobs: int = 1, scenes: Optional
         results = []
         for j, f in zip(jl, futs):
             r = f.result()
-            say(f"[eval run] done {j.id} ({', '.join(r['steps']) or 'nothing to do'}, {r['seconds']} s)")
+            say(
+                f"[eval run] done {j.id} ({', '.join(r['steps']) or 'nothing to do'}, "
+                f"{r['seconds']} s)"
+            )
             results.append(r)
         return results
 
 
-def list_jobs_jsonl(suite, out, preset: str = "small", scenes=None, lpips_weights=None, device=None,
-                    seeds: int = 1) -> str:
+def list_jobs_jsonl(
+    suite, out, preset: str = "small", scenes=None, lpips_weights=None, device=None, seeds: int = 1
+) -> str:
     """The job list as JSON lines (one job per line, with its `python -m eval job ...` command)."""
-    return "".join(json.dumps(j.to_json(lpips_weights=lpips_weights, device=device)) + "\n"
-                   for j in job_list(suite, out, preset, scenes, seeds))
+    return "".join(
+        json.dumps(j.to_json(lpips_weights=lpips_weights, device=device)) + "\n"
+        for j in job_list(suite, out, preset, scenes, seeds)
+    )
 
 
 def find_job(suite, out, preset: str, scene: str, row: str, seed: int = 0) -> Job:
@@ -283,7 +379,8 @@ def find_job(suite, out, preset: str, scene: str, row: str, seed: int = 0) -> Jo
 
 
 def seeds_present(suite, out, preset: str = "small", scenes=None) -> int:
-    """1 + the largest trainer seed that has a run folder of this suite under OUT (1 when only seed 0 exists)."""
+    """1 + the largest trainer seed that has a run folder of this suite under OUT (1 when only seed
+    0 exists)."""
     import re
 
     top = 0

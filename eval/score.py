@@ -1,40 +1,50 @@
-"""Score one run against its clip: `score_run(run_dir) -> dict`, written to <run>/metrics.json (docs/eval.md).
+"""Score one run against its clip: `score_run(run_dir) -> dict`, written to <run>/metrics.json
+(docs/eval.md).
 
-What is scored (keys of metrics.json; None where a metric cannot be computed: no ground truth, no LPIPS weights,
-no model, no file):
+What is scored (keys of metrics.json; None where a metric cannot be computed: no ground truth, no
+LPIPS weights, no model, no file):
 
-- LDR test frames at every OBSERVED level (ldr_oe_*) and every NOVEL level (ldr_ne_*): psnr, ssim, lpips; the mean
-  over frames then over levels (equal frame counts, so the mean over all images); `per_level` has each level.
+- LDR test frames at every OBSERVED level (ldr_oe_*) and every NOVEL level (ldr_ne_*): psnr, ssim,
+  lpips; the mean over frames then over levels (equal frame counts, so the mean over all images);
+  `per_level` has each level.
 - LDR training frames against the input video (ldr_train_*; the paper's GFlow comparison).
-- HDR test frames: hdr_psnr / hdr_ssim / hdr_lpips (mu-law, GT-max), hdr_psnr_ownmax (labelled extra),
-  pu21_psnr, hdr_flip (only with flip=True: slow); HDR training frames: hdr_train_psnr / hdr_train_ssim.
-- HDR-TAE on the rendered TRAINING frames with the exact ground-truth flow and visibility between consecutive
-  training frames (gt/flow.npz); without it (real clips) DIS flow on the tone-mapped renders. hdr_tae_train_test
-  (all frames, DIS flow; optional), hdr_t_std.
-- Cameras (cameras.json and cameras_ba.json vs gt/cameras.json, Sim(3) over all common frames): ate, rpe_trans,
-  rpe_rot, ate_ba, rpe_trans_ba, rpe_rot_ba.
-- depth_absrel: rendered test depth vs gt depth, ONE median scale over all test frames (the reconstruction has one
-  global scale).
-- track_epe / track_epe_median / track_delta_avg: model.track_2d from the first frame vs gt tracks (<= 256 gt
-  tracks visible at the first frame, seeded sample).
-- dyn_ldr_psnr (observed levels) / dyn_hdr_psnr (mu-law): PSNR over the gt dynamic-mask pixels of the test frames.
-- mask_precision / mask_recall / mask_iou: the run's dynamic masks (model/camera_init.pt "masks", one per training
-  frame; epipolar, or their union with the rigidity masks of m4dgs.rigidity) against the gt dynamic masks, pooled
-  over all training-frame pixels. Low recall means moving objects that the video-to-world transform will treat as
-  static (e.g. motion along the epipolar lines).
-- crf_rmse and crf_curve: the learned tone curve (model.tonemap_curve) vs the clip's true CRF over log2 x in
-  [-10, 10]; crf_error (eval.metrics.crf): mean |learned - true| in 8-bit codes over the exposure range the training
-  frames recorded unclipped, per channel, then the mean over RGB (None without a model or a true CRF).
-- train_seconds / train_minutes, num_gaussians, peak_memory_mib (run.json); fps at the clip resolution and
-  fps_864x480 (model.render timed with eval.metrics.measure_fps).
-- conventions (key -> sentence of every convention used) and options (roundtrip, LPIPS weights, ...).
+- HDR test frames: hdr_psnr / hdr_ssim / hdr_lpips (mu-law, GT-max), hdr_psnr_ownmax (labelled
+  extra), pu21_psnr, hdr_flip (only with flip=True: slow); HDR training frames: hdr_train_psnr /
+  hdr_train_ssim.
+- HDR-TAE on the rendered TRAINING frames with the exact ground-truth flow and visibility between
+  consecutive training frames (gt/flow.npz); without it (real clips) DIS flow on the tone-mapped
+  renders. hdr_tae_train_test (all frames, DIS flow; optional), hdr_t_std.
+- Cameras (cameras.json and cameras_ba.json vs gt/cameras.json, Sim(3) over all common frames): ate,
+  rpe_trans, rpe_rot, ate_ba, rpe_trans_ba, rpe_rot_ba.
+- depth_absrel: rendered test depth vs gt depth, ONE median scale over all test frames (the
+  reconstruction has one global scale).
+- track_epe / track_epe_median / track_delta_avg: model.track_2d from the first frame vs gt tracks
+  (<= 256 gt tracks visible at the first frame, seeded sample).
+- dyn_ldr_psnr (observed levels) / dyn_hdr_psnr (mu-law): PSNR over the gt dynamic-mask pixels of
+  the test frames.
+- mask_precision / mask_recall / mask_iou: the run's dynamic masks (model/camera_init.pt "masks",
+  one per training frame; epipolar, or their union with the rigidity masks of m4dgs.rigidity)
+  against the gt dynamic masks, pooled over all training-frame pixels. Low recall means moving
+  objects that the video-to-world transform will treat as static (e.g. motion along the epipolar
+  lines).
+- crf_rmse and crf_curve: the learned tone curve (model.tonemap_curve) vs the clip's true CRF over
+  log2 x in
+  [-10, 10]; crf_error (eval.metrics.crf): mean |learned - true| in 8-bit codes over the exposure
+  range the training
+  frames recorded unclipped, per channel, then the mean over RGB (None without a model or a true
+  CRF).
+- train_seconds / train_minutes, num_gaussians, peak_memory_mib (run.json); fps at the clip
+  resolution and fps_864x480 (model.render timed with eval.metrics.measure_fps).
+- conventions (key -> sentence of every convention used) and options (roundtrip, LPIPS weights,
+  ...).
 
-PSNR of identical images is +inf; every PSNR is capped at PSNR_CAP_DB = 100 dB per image before averaging (so a
-perfect render reads 100.00 and JSON stays standard). NaN is stored as None.
+PSNR of identical images is +inf; every PSNR is capped at PSNR_CAP_DB = 100 dB per image before
+averaging (so a perfect render reads 100.00 and JSON stays standard). NaN is stored as None.
 
-LDR renders are read from the 8-bit PNG files written by m4dgs.render, so LDR is scored on 8-bit renders (the PNG
-round-trip convention; `roundtrip="jpeg"` adds a JPEG round trip to compare with the authors' numbers).
-"""
+LDR renders are read from the 8-bit PNG files written by m4dgs.render, so LDR is scored on 8-bit
+renders (the PNG round-trip convention; `roundtrip="jpeg"` adds a JPEG round trip to compare with
+the authors' numbers)."""
+
 from __future__ import annotations
 
 import math
@@ -50,23 +60,31 @@ from m4dgs.clip import Cameras, Clip, frame_name, level_name
 PSNR_CAP_DB = 100.0
 CHUNK = 8  # frames per batch when scoring (bounds memory at 864x480)
 TRACK_SAMPLES = 256
-CRF_LOG2_RANGE = (-10.0, 10.0)  # the tone mapper's input axis range used by the authors' monotonicity penalty
+CRF_LOG2_RANGE = (
+    -10.0,
+    10.0,
+)  # the tone mapper's input axis range used by the authors' monotonicity penalty
 CRF_SAMPLES = 81
 FPS_SIZE = (864, 480)
 
 SCORE_CONVENTIONS = {
     "psnr_cap": f"PSNR capped at {PSNR_CAP_DB:g} dB per image (identical images) before averaging",
-    "depth_absrel_clip": "Depth AbsRel: rendered test z-depth vs GT, one median scale over all test frames, mean "
-                         "|s d - gt| / gt over gt > 0",
-    "crf_rmse": f"CRF RMSE: learned tone curve vs the true CRF, RMSE over RGB and {CRF_SAMPLES} log2 exposures in "
-                f"[{CRF_LOG2_RANGE[0]:g}, {CRF_LOG2_RANGE[1]:g}]",
-    "track_first_frame": f"Tracks: up to {TRACK_SAMPLES} GT tracks visible at the first frame (seed 0), induced by "
-                         "the dynamic Gaussians' motion (model.track_2d)",
+    "depth_absrel_clip": "Depth AbsRel: rendered test z-depth vs GT, one median scale over all "
+    "test frames, mean "
+    "|s d - gt| / gt over gt > 0",
+    "crf_rmse": f"CRF RMSE: learned tone curve vs the true CRF, RMSE over RGB and {CRF_SAMPLES} "
+    "log2 exposures in "
+    f"[{CRF_LOG2_RANGE[0]:g}, {CRF_LOG2_RANGE[1]:g}]",
+    "track_first_frame": f"Tracks: up to {TRACK_SAMPLES} GT tracks visible at the first frame "
+    "(seed 0), induced by "
+    "the dynamic Gaussians' motion (model.track_2d)",
     "cameras_all_frames": "Cameras: Sim(3) alignment over every frame present in both trajectories",
     "hdr_tae_train": "HDR-TAE on the rendered training frames",
-    "hdr_tae_interior": "HDR-TAE on the rendered training frames without occlusion-edge pixels (gt depth)",
-    "dyn_masks": "Dynamic masks: the run's dynamic masks (config masks.method) vs GT dynamic masks on the training "
-                 "frames, pixel counts pooled over frames (precision, recall, IoU)",
+    "hdr_tae_interior": "HDR-TAE on the rendered training frames without occlusion-edge pixels "
+    "(gt depth)",
+    "dyn_masks": "Dynamic masks: the run's dynamic masks (config masks.method) vs GT dynamic "
+    "masks on the training "
+    "frames, pixel counts pooled over frames (precision, recall, IoU)",
 }
 
 
@@ -77,9 +95,9 @@ def all_conventions() -> Dict[str, str]:
     return {**CONVENTIONS, **SCORE_CONVENTIONS}
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # small helpers
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _clean(v):
     """JSON-safe number: NaN -> None, +-inf -> +-PSNR_CAP_DB (only PSNRs can be infinite)."""
     if v is None:
@@ -112,7 +130,7 @@ def _weighted(pairs: List[tuple]) -> Optional[float]:
 
 def _chunks(seq: List, n: int = CHUNK):
     for i in range(0, len(seq), n):
-        yield seq[i:i + n]
+        yield seq[i : i + n]
 
 
 def read_run_info(run_dir) -> dict:
@@ -121,12 +139,15 @@ def read_run_info(run_dir) -> dict:
 
 
 def resolve_clip_dir(run_dir, clip=None) -> Path:
-    """The run's clip folder: `clip` if given, else run.json "clip" (absolute, relative to the run, or to the cwd)."""
+    """The run's clip folder: `clip` if given, else run.json "clip" (absolute, relative to the run,
+    or to the cwd)."""
     if clip is not None:
         return Path(clip)
     info = read_run_info(run_dir)
     if "clip" not in info:
-        raise FileNotFoundError(f"{Path(run_dir) / 'run.json'}: no 'clip' entry; pass the clip folder explicitly")
+        raise FileNotFoundError(
+            f"{Path(run_dir) / 'run.json'}: no 'clip' entry; pass the clip folder explicitly"
+        )
     p = Path(info["clip"])
     if p.is_absolute():
         return p
@@ -147,8 +168,9 @@ def render_paths(run_dir, clip: Clip) -> Dict[str, List[Path]]:
     if clip.test_frames:
         out["test_hdr"] = [r / "test/hdr" / frame_name(g, "exr") for g in clip.test_frames]
         for lv in list(ex.observed) + list(ex.novel):
-            out[f"test_ldr_{level_name(lv)}"] = [r / "test/ldr" / level_name(lv) / frame_name(g, "png")
-                                                 for g in clip.test_frames]
+            out[f"test_ldr_{level_name(lv)}"] = [
+                r / "test/ldr" / level_name(lv) / frame_name(g, "png") for g in clip.test_frames
+            ]
     return out
 
 
@@ -157,15 +179,23 @@ def missing_renders(run_dir, clip: Clip) -> List[Path]:
 
 
 def ensure_renders(run_dir, clip: Clip, progress: bool = False, device: str = "cpu") -> bool:
-    """Render what is missing through m4dgs.render.render_run; returns True when it had to render."""
+    """Render what is missing through m4dgs.render.render_run; returns True when it had to
+    render."""
     if not missing_renders(run_dir, clip):
         return False
     from m4dgs.render import render_run
 
-    render_run(run_dir, overwrite=False, progress=progress, **({"device": device} if device != "cpu" else {}))
+    render_run(
+        run_dir,
+        overwrite=False,
+        progress=progress,
+        **({"device": device} if device != "cpu" else {}),
+    )
     still = missing_renders(run_dir, clip)
     if still:
-        raise FileNotFoundError(f"{run_dir}: render_run left {len(still)} render(s) missing, e.g. {still[0]}")
+        raise FileNotFoundError(
+            f"{run_dir}: render_run left {len(still)} render(s) missing, e.g. {still[0]}"
+        )
     return True
 
 
@@ -175,11 +205,12 @@ def _ldr_pred(path: Path, rt):
     return roundtrip(mio.read_png(path), rt)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # metric groups
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _score_ldr_set(preds: List[Path], gts: List, rt, lpips_w) -> dict:
-    """PSNR (capped per image) / SSIM / LPIPS of rendered PNGs vs gt images (paths or arrays), chunked."""
+    """PSNR (capped per image) / SSIM / LPIPS of rendered PNGs vs gt images (paths or arrays),
+    chunked."""
     from eval.metrics import lpips_metric, psnr_per_image, ssim
 
     ps, ss, ls = [], [], []
@@ -192,13 +223,26 @@ def _score_ldr_set(preds: List[Path], gts: List, rt, lpips_w) -> dict:
             from eval.metrics import roundtrip
 
             ls.append((lpips_metric(roundtrip(p, rt), g, lpips_w), len(idx)))
-    return {"psnr": _capped_mean(ps), "ssim": _weighted(ss), "lpips": _weighted(ls) if lpips_w is not None else None,
-            "frames": len(preds)}
+    return {
+        "psnr": _capped_mean(ps),
+        "ssim": _weighted(ss),
+        "lpips": _weighted(ls) if lpips_w is not None else None,
+        "frames": len(preds),
+    }
 
 
-def _score_hdr_set(preds: List[Path], gt_fn, frames: List[int], lpips_w, flip: bool, full: bool) -> dict:
+def _score_hdr_set(
+    preds: List[Path], gt_fn, frames: List[int], lpips_w, flip: bool, full: bool
+) -> dict:
     """mu-law PSNR/SSIM/LPIPS (GT-max), own-max PSNR, PU21, FLIP over HDR frames, chunked."""
-    from eval.metrics import hdr_flip, hdr_ssim, hdr_tonemap_pair, lpips_metric, psnr_per_image, pu21_psnr
+    from eval.metrics import (
+        hdr_flip,
+        hdr_ssim,
+        hdr_tonemap_pair,
+        lpips_metric,
+        psnr_per_image,
+        pu21_psnr,
+    )
 
     ps, po, ss, ls, pu, fl = [], [], [], [], [], []
     for idx in _chunks(list(range(len(preds)))):
@@ -217,13 +261,18 @@ def _score_hdr_set(preds: List[Path], gt_fn, frames: List[int], lpips_w, flip: b
                 fl.append((hdr_flip(p, g), len(idx)))
     out = {"psnr": _capped_mean(ps), "ssim": _weighted(ss)}
     if full:
-        out.update(psnr_ownmax=_capped_mean(po), pu21_psnr=_weighted(pu),
-                   lpips=_weighted(ls) if lpips_w is not None else None, flip=_weighted(fl) if flip else None)
+        out.update(
+            psnr_ownmax=_capped_mean(po),
+            pu21_psnr=_weighted(pu),
+            lpips=_weighted(ls) if lpips_w is not None else None,
+            flip=_weighted(fl) if flip else None,
+        )
     return out
 
 
 def _tae_pairwise(frames: List[int], load, flow_fn) -> Optional[float]:
-    """HDR-TAE over consecutive frames, one pair in memory at a time. flow_fn(a, b, Ha, Hb) -> (ff, fb, vf, vb)."""
+    """HDR-TAE over consecutive frames, one pair in memory at a time. flow_fn(a, b, Ha, Hb) -> (ff,
+    fb, vf, vb)."""
     from eval.metrics import hdr_tae_pairs
 
     vals, prev = [], None
@@ -231,8 +280,13 @@ def _tae_pairwise(frames: List[int], load, flow_fn) -> Optional[float]:
         ha = prev if prev is not None else load(a)
         hb = load(b)
         ff, fb, vf, vb = flow_fn(a, b, ha, hb)
-        v = hdr_tae_pairs(np.stack([ha, hb]), ff[None], fb[None],
-                          None if vf is None else vf[None], None if vb is None else vb[None])[0]
+        v = hdr_tae_pairs(
+            np.stack([ha, hb]),
+            ff[None],
+            fb[None],
+            None if vf is None else vf[None],
+            None if vb is None else vb[None],
+        )[0]
         if not math.isnan(v):
             vals.append(v)
         prev = hb
@@ -264,8 +318,9 @@ def _cameras(run_dir: Path, clip: Clip, name: str) -> Dict[str, Optional[float]]
 
 
 def _mask_metrics(run_dir: Path, clip: Clip) -> Optional[Dict[str, Optional[float]]]:
-    """Precision / recall / IoU of the run's dynamic masks (model/camera_init.pt "masks" [T, H, W], training-frame
-    order) against the gt dynamic masks, pooled over all pixels of all training frames; None without either."""
+    """Precision / recall / IoU of the run's dynamic masks (model/camera_init.pt "masks" [T, H, W],
+    training-frame order) against the gt dynamic masks, pooled over all pixels of all training
+    frames; None without either."""
     p = run_dir / "model" / "camera_init.pt"
     if not p.exists() or not clip.has_gt or not (clip.root / "gt/masks/dynamic").is_dir():
         return None
@@ -277,14 +332,19 @@ def _mask_metrics(run_dir: Path, clip: Clip) -> Optional[Dict[str, Optional[floa
     est = _to_numpy(est) > 0.5
     train = clip.train_frames
     if est.shape[0] != len(train):
-        raise ValueError(f"{p}: 'masks' has {est.shape[0]} frames, the clip has {len(train)} training frames")
+        raise ValueError(
+            f"{p}: 'masks' has {est.shape[0]} frames, the clip has {len(train)} training frames"
+        )
     gt = np.stack([clip.load_gt_dynamic_mask(g) for g in train])
     if gt.shape != est.shape:
         raise ValueError(f"{p}: 'masks' is {est.shape[1:]}, the clip's gt masks are {gt.shape[1:]}")
     tp = float(np.logical_and(est, gt).sum())
     n_est, n_gt, union = float(est.sum()), float(gt.sum()), float(np.logical_or(est, gt).sum())
-    return {"mask_precision": tp / n_est if n_est else None, "mask_recall": tp / n_gt if n_gt else None,
-            "mask_iou": tp / union if union else None}
+    return {
+        "mask_precision": tp / n_est if n_est else None,
+        "mask_recall": tp / n_gt if n_gt else None,
+        "mask_iou": tp / union if union else None,
+    }
 
 
 def _to_numpy(x) -> np.ndarray:
@@ -294,7 +354,8 @@ def _to_numpy(x) -> np.ndarray:
 
 
 def _load_model(run_dir: Path, device: str):
-    """(model, None) or (None, reason) when the trained model cannot be loaded (module or checkpoint missing)."""
+    """(model, None) or (None, reason) when the trained model cannot be loaded (module or checkpoint
+    missing)."""
     try:
         from m4dgs.model import load_model
     except ImportError as e:
@@ -335,7 +396,9 @@ def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
             true_crf = None
     if true_crf is not None:
         true = np.asarray(true_crf(np.exp2(z)), np.float64)
-        true_rgb = np.asarray(true_crf.rgb(np.repeat(np.exp2(z)[:, None], learned.shape[1], 1)), np.float64)
+        true_rgb = np.asarray(
+            true_crf.rgb(np.repeat(np.exp2(z)[:, None], learned.shape[1], 1)), np.float64
+        )
         out["crf_rmse"] = float(np.sqrt(np.mean((learned - true_rgb) ** 2)))
         if clip.has_gt and clip.train_frames:
             from eval.metrics import crf_error, observed_exposure_range
@@ -350,8 +413,12 @@ def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
             ce = crf_error(curve, true_crf, ranges)
             out["crf_error"] = ce.pop("crf_error")
             out["crf_error_detail"] = ce
-    out["crf_curve"] = {"log2_x": z.tolist(), "learned": learned.tolist(),
-                        "true": None if true is None else true.tolist(), "crf": clip.meta.crf}
+    out["crf_curve"] = {
+        "log2_x": z.tolist(),
+        "learned": learned.tolist(),
+        "true": None if true is None else true.tolist(),
+        "crf": clip.meta.crf,
+    }
     # induced 2D tracks vs gt tracks
     if hasattr(model, "track_2d") and clip.has_gt and (clip.root / "gt/tracks.npz").exists():
         ts = clip.load_gt_tracks()
@@ -363,7 +430,8 @@ def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
             with torch.no_grad():
                 pred = _to_numpy(model.track_2d(uv, int(ts.frames[0]), [int(g) for g in ts.frames]))
             gt_tr, vis = ts.tracks[idx].astype(np.float64), ts.visible[idx]
-            ok = np.isfinite(pred).all(-1)  # NaN: the model has no surface at the query (or it went behind the camera)
+            # NaN: the model has no surface at the query (or it went behind the camera)
+            ok = np.isfinite(pred).all(-1)
             out["track_coverage"] = float((ok & vis).sum() / max(int(vis.sum()), 1))
             vis = vis & ok
             pred = np.where(ok[..., None], pred, 0.0)
@@ -393,31 +461,80 @@ def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
     return out
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # the entry point
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 METRIC_KEYS = [
-    "ldr_oe_psnr", "ldr_oe_ssim", "ldr_oe_lpips", "ldr_ne_psnr", "ldr_ne_ssim", "ldr_ne_lpips",
-    "ldr_train_psnr", "ldr_train_ssim", "ldr_train_lpips",
-    "hdr_psnr", "hdr_ssim", "hdr_lpips", "hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_train_psnr",
-    "hdr_train_ssim", "hdr_tae", "hdr_tae_interior", "hdr_tae_train_test", "hdr_t_std",
-    "ate", "rpe_trans", "rpe_rot", "ate_ba", "rpe_trans_ba", "rpe_rot_ba", "depth_absrel",
-    "track_epe", "track_epe_median", "track_delta_avg", "dyn_ldr_psnr", "dyn_hdr_psnr",
-    "mask_precision", "mask_recall", "mask_iou", "crf_rmse", "crf_error",
-    "train_seconds", "train_minutes", "fps", "fps_864x480", "num_gaussians", "peak_memory_mib",
+    "ldr_oe_psnr",
+    "ldr_oe_ssim",
+    "ldr_oe_lpips",
+    "ldr_ne_psnr",
+    "ldr_ne_ssim",
+    "ldr_ne_lpips",
+    "ldr_train_psnr",
+    "ldr_train_ssim",
+    "ldr_train_lpips",
+    "hdr_psnr",
+    "hdr_ssim",
+    "hdr_lpips",
+    "hdr_psnr_ownmax",
+    "pu21_psnr",
+    "hdr_flip",
+    "hdr_train_psnr",
+    "hdr_train_ssim",
+    "hdr_tae",
+    "hdr_tae_interior",
+    "hdr_tae_train_test",
+    "hdr_t_std",
+    "ate",
+    "rpe_trans",
+    "rpe_rot",
+    "ate_ba",
+    "rpe_trans_ba",
+    "rpe_rot_ba",
+    "depth_absrel",
+    "track_epe",
+    "track_epe_median",
+    "track_delta_avg",
+    "dyn_ldr_psnr",
+    "dyn_hdr_psnr",
+    "mask_precision",
+    "mask_recall",
+    "mask_iou",
+    "crf_rmse",
+    "crf_error",
+    "train_seconds",
+    "train_minutes",
+    "fps",
+    "fps_864x480",
+    "num_gaussians",
+    "peak_memory_mib",
 ]
 
 
-def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool = False, fps: bool = True, *,
-              tae_train_test: bool = False, device: str = "auto", model: bool = True, write: bool = True,
-              progress: bool = False) -> dict:
-    """Score a run folder against its clip and write <run>/metrics.json (atomic). Returns the metrics dict.
+def score_run(
+    run_dir,
+    clip=None,
+    lpips_weights=None,
+    roundtrip=None,
+    flip: bool = False,
+    fps: bool = True,
+    *,
+    tae_train_test: bool = False,
+    device: str = "auto",
+    model: bool = True,
+    write: bool = True,
+    progress: bool = False,
+) -> dict:
+    """Score a run folder against its clip and write <run>/metrics.json (atomic). Returns the
+    metrics dict.
 
     Args:
-        run_dir: the run folder (DESIGN.md "Runs").
-        clip: clip folder (default: run.json "clip").
-        lpips_weights: path of the LPIPS weights file (eval.metrics.lpips); None -> every *_lpips is None.
-        roundtrip: None | "png" | "jpeg": 8-bit round trip of the LDR predictions (renders are PNG already).
+        run_dir: the run folder (DESIGN.md "Runs"). clip: clip folder (default: run.json "clip").
+        lpips_weights: path of the LPIPS weights file (eval.metrics.lpips); None -> every *_lpips is
+        None.
+        roundtrip: None | "png" | "jpeg": 8-bit round trip of the LDR predictions (renders are PNG
+        already).
         flip: also compute HDR-FLIP (slow: ~1 s per 864x480 frame).
         fps: time model.render at the clip resolution and at 864x480.
         tae_train_test: also HDR-TAE over all frames (train + test, DIS flow on the renders).
@@ -438,8 +555,13 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
         from eval.metrics import load_lpips_weights
 
         lp_w = load_lpips_weights(lpips_weights)
-    conv_keys = ["psnr", "psnr_cap", "ssim", "ldr_jpeg" if roundtrip == "jpeg" else "ldr_png",
-                 "lpips" if lp_w is not None else "lpips_na"]
+    conv_keys = [
+        "psnr",
+        "psnr_cap",
+        "ssim",
+        "ldr_jpeg" if roundtrip == "jpeg" else "ldr_png",
+        "lpips" if lp_w is not None else "lpips_na",
+    ]
     m: Dict[str, object] = {k: None for k in METRIC_KEYS}
     ex = clip_obj.meta.exposures
     R = run_dir / "renders"
@@ -447,7 +569,8 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
     test = clip_obj.test_frames
     train = clip_obj.train_frames
 
-    # LDR test frames per level -------------------------------------------------------------------------------
+    # LDR test frames per level
+    # -------------------------------------------------------------------------------
     per_level = {}
     if has_gt and test:
         for kind, levels in (("observed", ex.observed), ("novel", ex.novel)):
@@ -463,26 +586,55 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
                 m[f"{pre}_psnr"] = _mean(v["psnr"] for v in lv)
                 m[f"{pre}_ssim"] = _mean(v["ssim"] for v in lv)
                 m[f"{pre}_lpips"] = _mean(v["lpips"] for v in lv) if lp_w is not None else None
-    # LDR training frames vs the input video -------------------------------------------------------------------
-    tr = _score_ldr_set([R / "train/ldr" / frame_name(g, "png") for g in train],
-                        [(lambda g=g: clip_obj.load_ldr(g)) for g in train], roundtrip, lp_w)
-    m["ldr_train_psnr"], m["ldr_train_ssim"], m["ldr_train_lpips"] = tr["psnr"], tr["ssim"], tr["lpips"]
+    # LDR training frames vs the input video
+    # -------------------------------------------------------------------
+    tr = _score_ldr_set(
+        [R / "train/ldr" / frame_name(g, "png") for g in train],
+        [(lambda g=g: clip_obj.load_ldr(g)) for g in train],
+        roundtrip,
+        lp_w,
+    )
+    m["ldr_train_psnr"], m["ldr_train_ssim"], m["ldr_train_lpips"] = (
+        tr["psnr"],
+        tr["ssim"],
+        tr["lpips"],
+    )
 
-    # HDR -------------------------------------------------------------------------------------------------------
+    # HDR
+    # ----------------------------------------------------------------------------------------------
     if has_gt:
         conv_keys += ["hdr_mu_law", "hdr_mu_law_own", "pu21"]
         if test:
-            h = _score_hdr_set([R / "test/hdr" / frame_name(g, "exr") for g in test], clip_obj.load_gt_hdr, test,
-                               lp_w, flip, full=True)
-            m.update(hdr_psnr=h["psnr"], hdr_ssim=h["ssim"], hdr_lpips=h["lpips"], hdr_psnr_ownmax=h["psnr_ownmax"],
-                     pu21_psnr=h["pu21_psnr"], hdr_flip=h["flip"])
+            h = _score_hdr_set(
+                [R / "test/hdr" / frame_name(g, "exr") for g in test],
+                clip_obj.load_gt_hdr,
+                test,
+                lp_w,
+                flip,
+                full=True,
+            )
+            m.update(
+                hdr_psnr=h["psnr"],
+                hdr_ssim=h["ssim"],
+                hdr_lpips=h["lpips"],
+                hdr_psnr_ownmax=h["psnr_ownmax"],
+                pu21_psnr=h["pu21_psnr"],
+                hdr_flip=h["flip"],
+            )
             if flip:
                 conv_keys.append("hdr_flip")
-        h = _score_hdr_set([R / "train/hdr" / frame_name(g, "exr") for g in train], clip_obj.load_gt_hdr, train,
-                           None, False, full=False)
+        h = _score_hdr_set(
+            [R / "train/hdr" / frame_name(g, "exr") for g in train],
+            clip_obj.load_gt_hdr,
+            train,
+            None,
+            False,
+            full=False,
+        )
         m["hdr_train_psnr"], m["hdr_train_ssim"] = h["psnr"], h["ssim"]
 
-    # temporal ------------------------------------------------------------------------------------------------------
+    # temporal
+    # ----------------------------------------------------------------------------------------------
     def load_train(g):
         return mio.read_exr(R / "train/hdr" / frame_name(g, "exr"))
 
@@ -500,10 +652,19 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
         if all((clip_obj.root / "gt/depth" / frame_name(g, "exr")).exists() for g in train):
             from eval.metrics.temporal import depth_edges, interior_visibility
 
-            def interior_flows(a, b, ha, hb):  # the same pairs without occlusion-edge pixels (gt depth)
+            # the same pairs without occlusion-edge pixels (gt depth)
+            def interior_flows(a, b, ha, hb):
                 fab, fba, vab, vba = flows(a, b, ha, hb)
-                ea, eb = depth_edges(clip_obj.load_gt_depth(a)), depth_edges(clip_obj.load_gt_depth(b))
-                return fab, fba, interior_visibility(vab, fab, ea, eb), interior_visibility(vba, fba, eb, ea)
+                ea, eb = (
+                    depth_edges(clip_obj.load_gt_depth(a)),
+                    depth_edges(clip_obj.load_gt_depth(b)),
+                )
+                return (
+                    fab,
+                    fba,
+                    interior_visibility(vab, fab, ea, eb),
+                    interior_visibility(vba, fba, eb, ea),
+                )
 
             m["hdr_tae_interior"] = _tae_pairwise(train, load_train, interior_flows)
             conv_keys.append("hdr_tae_interior")
@@ -511,6 +672,7 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
         m["hdr_tae"] = _tae_pairwise(train, load_train, _dis_flows)
         conv_keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_dis_flow"]
     if tae_train_test:
+
         def load_any(g):
             sub = "train" if g in set(train) else "test"
             return mio.read_exr(R / sub / "hdr" / frame_name(g, "exr"))
@@ -524,7 +686,8 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
     m["hdr_t_std"] = hdr_t_std(means.reshape(-1, 1, 1, 1))
     conv_keys.append("hdr_t_std")
 
-    # cameras --------------------------------------------------------------------------------------------------
+    # cameras
+    # ----------------------------------------------------------------------------------------------
     cam = _cameras(run_dir, clip_obj, "cameras.json")
     m.update(cam)
     cba = _cameras(run_dir, clip_obj, "cameras_ba.json")
@@ -536,14 +699,17 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
         m.update(mk)
         conv_keys.append("dyn_masks")
 
-    # depth and dynamic regions --------------------------------------------------------------------------------
+    # depth and dynamic regions
+    # --------------------------------------------------------------------------------
     if has_gt and test:
         dpaths = [R / "test/depth" / frame_name(g, "exr") for g in test]
         if all(p.exists() for p in dpaths):
             from eval.metrics import depth_absrel
 
-            m["depth_absrel"] = depth_absrel(np.stack([mio.read_exr(p) for p in dpaths]),
-                                             np.stack([clip_obj.load_gt_depth(g) for g in test]))
+            m["depth_absrel"] = depth_absrel(
+                np.stack([mio.read_exr(p) for p in dpaths]),
+                np.stack([clip_obj.load_gt_depth(g) for g in test]),
+            )
             conv_keys.append("depth_absrel_clip")
         if (clip_obj.root / "gt/masks/dynamic").is_dir():
             from eval.metrics import hdr_tonemap_pair, masked_psnr
@@ -554,19 +720,24 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
                 for lv in ex.observed:
                     for g in test:
                         if masks[g].any():
-                            p = _ldr_pred(R / "test/ldr" / level_name(lv) / frame_name(g, "png"), roundtrip)
+                            p = _ldr_pred(
+                                R / "test/ldr" / level_name(lv) / frame_name(g, "png"), roundtrip
+                            )
                             dl.append(masked_psnr(p, clip_obj.load_gt_ldr(lv, g), masks[g]))
                 m["dyn_ldr_psnr"] = _capped_mean(dl)
                 dh = []
                 for g in test:
                     if masks[g].any():
-                        tp, tg = hdr_tonemap_pair(mio.read_exr(R / "test/hdr" / frame_name(g, "exr")),
-                                                  clip_obj.load_gt_hdr(g))
+                        tp, tg = hdr_tonemap_pair(
+                            mio.read_exr(R / "test/hdr" / frame_name(g, "exr")),
+                            clip_obj.load_gt_hdr(g),
+                        )
                         dh.append(masked_psnr(tp, tg, masks[g]))
                 m["dyn_hdr_psnr"] = _capped_mean(dh)
                 conv_keys.append("masked")
 
-    # run.json ---------------------------------------------------------------------------------------------------
+    # run.json
+    # ----------------------------------------------------------------------------------------------
     info = read_run_info(run_dir)
     if info.get("train_seconds") is not None:
         m["train_seconds"] = float(info["train_seconds"])
@@ -577,7 +748,8 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
     if info.get("peak_memory_mib") is not None:
         conv_keys.append("peak_mem")
 
-    # model-based metrics ----------------------------------------------------------------------------------------
+    # model-based metrics
+    # ----------------------------------------------------------------------------------------
     model_note = "not loaded (model=False)"
     if model:
         dev = _resolve_device(device)
@@ -601,21 +773,34 @@ def score_run(run_dir, clip=None, lpips_weights=None, roundtrip=None, flip: bool
             if fps:
                 conv_keys.append("fps")
 
-    # finish -------------------------------------------------------------------------------------------------------
+    # finish
+    # ----------------------------------------------------------------------------------------------
     for k in METRIC_KEYS:
         m[k] = _clean(m[k])
-    m["per_level"] = {k: {kk: (_clean(vv) if kk not in ("kind", "frames") else vv) for kk, vv in v.items()}
-                      for k, v in per_level.items()}
+    m["per_level"] = {
+        k: {kk: (_clean(vv) if kk not in ("kind", "frames") else vv) for kk, vv in v.items()}
+        for k, v in per_level.items()
+    }
     allc = all_conventions()
     m["conventions"] = {k: allc[k] for k in dict.fromkeys(conv_keys)}
     m["ldr_convention"] = "ldr_jpeg" if roundtrip == "jpeg" else "ldr_png"
     m["options"] = {
-        "roundtrip": roundtrip, "lpips_weights": None if lpips_weights is None else str(Path(lpips_weights).resolve()),
-        "flip": bool(flip), "fps": bool(fps), "tae_train_test": bool(tae_train_test), "model": model_note,
-        "rendered_missing": rendered, "psnr_cap_db": PSNR_CAP_DB,
+        "roundtrip": roundtrip,
+        "lpips_weights": None if lpips_weights is None else str(Path(lpips_weights).resolve()),
+        "flip": bool(flip),
+        "fps": bool(fps),
+        "tae_train_test": bool(tae_train_test),
+        "model": model_note,
+        "rendered_missing": rendered,
+        "psnr_cap_db": PSNR_CAP_DB,
     }
-    m["run"] = {"variant": info.get("variant"), "preset": info.get("preset"), "clip": str(clip_obj.root),
-                "clip_name": clip_obj.meta.name, "has_gt": has_gt}
+    m["run"] = {
+        "variant": info.get("variant"),
+        "preset": info.get("preset"),
+        "clip": str(clip_obj.root),
+        "clip_name": clip_obj.meta.name,
+        "has_gt": has_gt,
+    }
     m["score_seconds"] = round(time.perf_counter() - t0, 3)
     if write:
         mio.write_json(run_dir / "metrics.json", m)

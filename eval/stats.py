@@ -1,15 +1,16 @@
-"""Interval statistics of the result tables: Student-t confidence intervals, paired differences, and the agreement
-of a difference's direction with the paper's.
+"""Interval statistics of the result tables: Student-t confidence intervals, paired differences, and
+the agreement of a difference's direction with the paper's.
 
-A table cell aggregates the n values of one row (method) and one metric over the runs of a suite, one run per
-(scene, trainer seed). The cell shows the mean and the half-width of the Student-t confidence interval of the mean,
-t_{(1 + level) / 2, n - 1} * s / sqrt(n) with s the sample standard deviation (n - 1 denominator); the runs are
-treated as independent samples (scene-to-scene variation then dominates the width). n < 2 has no interval.
+A table cell aggregates the n values of one row (method) and one metric over the runs of a suite,
+one run per (scene, trainer seed). The cell shows the mean and the half-width of the Student-t
+confidence interval of the mean, t_{(1 + level) / 2, n - 1} * s / sqrt(n) with s the sample standard
+deviation (n - 1 denominator); the runs are treated as independent samples (scene-to-scene variation
+then dominates the width). n < 2 has no interval.
 
-The paired difference of a row to the reference row pairs the runs by (scene, seed): d_k = row_k - reference_k over
-the pairs both rows have, and the same t-interval of the mean of d (scipy.stats.ttest_rel's interval). It is
-"significant" when its interval excludes 0.
-"""
+The paired difference of a row to the reference row pairs the runs by (scene, seed): d_k = row_k -
+reference_k over the pairs both rows have, and the same t-interval of the mean of d
+(scipy.stats.ttest_rel's interval). It is "significant" when its interval excludes 0."""
+
 from __future__ import annotations
 
 import math
@@ -52,7 +53,9 @@ class Interval:
 
 def mean_ci(values: Iterable[float], level: float = LEVEL) -> Interval:
     """Mean and Student-t confidence half-width of the mean of `values` (NaN / None dropped)."""
-    xs = [float(v) for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
+    xs = [
+        float(v) for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))
+    ]
     n = len(xs)
     if n == 0:
         return Interval(None, None, 0)
@@ -66,9 +69,12 @@ def mean_ci(values: Iterable[float], level: float = LEVEL) -> Interval:
     return Interval(m, half, n)
 
 
-def paired_diff(values: Mapping[Hashable, float], reference: Mapping[Hashable, float],
-                level: float = LEVEL) -> Interval:
-    """Interval of the mean of values[k] - reference[k] over the keys (e.g. (scene, seed)) both have a value for."""
+def paired_diff(
+    values: Mapping[Hashable, float], reference: Mapping[Hashable, float], level: float = LEVEL
+) -> Interval:
+    """Interval of the mean of values[k] - reference[k] over the keys (e.g. (scene, seed)) both have
+    a value for."""
+
     def ok(v):
         return v is not None and not (isinstance(v, float) and math.isnan(v))
 
@@ -76,27 +82,35 @@ def paired_diff(values: Mapping[Hashable, float], reference: Mapping[Hashable, f
     return mean_ci([float(values[k]) - float(reference[k]) for k in keys], level)
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # agreement with the paper
-# ---------------------------------------------------------------------------------------------------------------------
-AGREE, DISAGREE, NOT_SIGNIFICANT, PAPER_TIE, NA = "agree", "disagree", "not significant", "paper tie", "n/a"
+# --------------------------------------------------------------------------------------------------
+AGREE, DISAGREE, NOT_SIGNIFICANT, PAPER_TIE, NA = (
+    "agree",
+    "disagree",
+    "not significant",
+    "paper tie",
+    "n/a",
+)
 
 
 def sign_text(x: Optional[float]) -> str:
-    """"+", "-" or "0" (n/a for None)."""
+    """ "+", "-" or "0" (n/a for None)."""
     if x is None:
         return NA
     return "+" if x > 0 else "-" if x < 0 else "0"
 
 
-def agreement(paper_diff: Optional[float], ours: Optional[Interval], tol: float = 1e-9) -> Tuple[str, str, str]:
+def agreement(
+    paper_diff: Optional[float], ours: Optional[Interval], tol: float = 1e-9
+) -> Tuple[str, str, str]:
     """(paper's direction, our direction, verdict) of a difference row - reference.
 
-    paper_diff: the paper's row value minus its reference value (None when the paper lacks one of them); ours: our
-    paired-difference interval. Our direction is "n.s." when our interval includes 0 (or "n/a" without one). Verdict:
-    "agree" (same sign, ours significant), "disagree" (opposite signs, ours significant), "not significant" (our
-    interval includes 0), "paper tie" (the paper's two values are equal as printed, ours significant), "n/a".
-    """
+    paper_diff: the paper's row value minus its reference value (None when the paper lacks one of
+    them); ours: our paired-difference interval. Our direction is "n.s." when our interval includes
+    0 (or "n/a" without one). Verdict: "agree" (same sign, ours significant), "disagree" (opposite
+    signs, ours significant), "not significant" (our interval includes 0), "paper tie" (the paper's
+    two values are equal as printed, ours significant), "n/a"."""
     p = None if paper_diff is None else (0.0 if abs(paper_diff) <= tol else paper_diff)
     if ours is None or ours.mean is None or ours.half is None:
         return sign_text(p), NA, NA
@@ -111,7 +125,8 @@ def agreement(paper_diff: Optional[float], ours: Optional[Interval], tol: float 
 
 
 def by_key(rows: Iterable[dict], key: str) -> Dict[Tuple, float]:
-    """{(scene, seed): value} of one metric over table rows (seed defaults to 0; duplicates averaged)."""
+    """{(scene, seed): value} of one metric over table rows (seed defaults to 0; duplicates
+    averaged)."""
     acc: Dict[Tuple, list] = {}
     for r in rows:
         v = r.get(key)

@@ -2,27 +2,34 @@
 
 A suite file names
 
-- ``scenes``: the benchgen scene suite (``syn-exp-3``, ``tiny``, or a path to a benchgen suite YAML);
-- ``clips``: named clip settings (optional; default one setting ``default`` = the scene suite as it is). A setting may
-  change the exposure ``schedule`` (alternating | random-order | random-values), the prior ``priors`` profile
-  (oracle | realistic | harsh), the ``observed`` / ``novel`` levels, the ``seed`` and the camera response ``crf``
+- ``scenes``: the benchgen scene suite (``syn-exp-3``, ``tiny``, or a path to a benchgen suite
+  YAML);
+- ``clips``: named clip settings (optional; default one setting ``default`` = the scene suite as it
+  is). A setting may
+  change the exposure ``schedule`` (alternating | random-order | random-values), the prior
+  ``priors`` profile
+  (oracle | realistic | harsh), the ``observed`` / ``novel`` levels, the ``seed`` and the camera
+  response ``crf``
   (a name of ``m4dgs.crf.CLIP_CRFS``; default the paper's ``hdrnerf``);
-- ``rows``: the table rows, each ``{name, label, variant, overrides, clip}``: ``name`` is the run folder
-  (default: the variant), ``label`` the text in the table (default: the name), ``variant`` a name of
-  ``m4dgs.variants.VARIANTS`` (default ``full``), ``overrides`` extra dotted config overrides
-  (e.g. ``{"exposure.perturb_ev": 0.5}``), ``clip`` the clip setting (default ``default``);
-- ``tables``: each ``{title, columns, paper}`` with ``columns`` a layout name of ``LAYOUTS`` (``paper`` is
-  ``eval.tables.paper_table_spec``) or a list of metric keys of ``metric_columns()``, and ``paper`` (optional) a
-  table of ``eval/paper_values.yaml`` whose values are shown beside ours with the direction agreement;
-- ``reference``: the row every other row is compared with (paired differences; default the row named ``full``).
+- ``rows``: the table rows, each ``{name, label, variant, overrides, clip}``: ``name`` is the run
+  folder (default: the variant), ``label`` the text in the table (default: the name), ``variant`` a
+  name of ``m4dgs.variants.VARIANTS`` (default ``full``), ``overrides`` extra dotted config
+  overrides (e.g. ``{"exposure.perturb_ev": 0.5}``), ``clip`` the clip setting (default
+  ``default``);
+- ``tables``: each ``{title, columns, paper}`` with ``columns`` a layout name of ``LAYOUTS``
+  (``paper`` is ``eval.tables.paper_table_spec``) or a list of metric keys of ``metric_columns()``,
+  and ``paper`` (optional) a table of ``eval/paper_values.yaml`` whose values are shown beside ours
+  with the direction agreement;
+- ``reference``: the row every other row is compared with (paired differences; default the row named
+  ``full``).
 
 The job list is (clip setting, scene, row). Clips are made once per distinct clip setting:
-``OUT/clips/<setting id>/<scene>`` where the setting id is the scene suite's name, followed by the non-default
-values (``syn-exp-3``, ``syn-exp-3-random-order``, ``syn-exp-3-priors-oracle``), so suites that use the same clips
-share them. Runs go to ``OUT/runs/<suite>/<scene>/<row name>`` (trainer seed 0) and
-``OUT/runs/<suite>/<scene>/<row name>-seed-<n>`` (seed n > 0, ``eval run --seeds``), so row names may not end in
-``-seed-<n>``. Use one OUT per preset.
-"""
+``OUT/clips/<setting id>/<scene>`` where the setting id is the scene suite's name, followed by the
+non-default values (``syn-exp-3``, ``syn-exp-3-random-order``, ``syn-exp-3-priors-oracle``), so
+suites that use the same clips share them. Runs go to ``OUT/runs/<suite>/<scene>/<row name>``
+(trainer seed 0) and ``OUT/runs/<suite>/<scene>/<row name>-seed-<n>`` (seed n > 0, ``eval run
+--seeds``), so row names may not end in ``-seed-<n>``. Use one OUT per preset."""
+
 from __future__ import annotations
 
 import re
@@ -60,7 +67,8 @@ class ClipSetting:
     crf: Optional[str] = None  # camera response (m4dgs.crf.CLIP_CRFS); None = the paper's hdrnerf
 
     def setting_id(self, scene_suite: str) -> str:
-        """Folder name under OUT/clips: the scene suite plus every non-default value (shared across suites)."""
+        """Folder name under OUT/clips: the scene suite plus every non-default value (shared across
+        suites)."""
         parts = [Path(scene_suite).stem]
         if self.schedule not in (None, "alternating"):
             parts.append(self.schedule)
@@ -92,7 +100,9 @@ class Row:
 class TableDef:
     title: str
     columns: Any  # layout name (str) or list of metric keys
-    paper: Optional[str] = None  # key of eval/paper_values.yaml: "Paper" and agreement columns (eval.paper)
+    paper: Optional[str] = (
+        None  # key of eval/paper_values.yaml: "Paper" and agreement columns (eval.paper)
+    )
 
 
 @dataclass
@@ -104,26 +114,32 @@ class EvalSuite:
     rows: List[Row]
     tables: List[TableDef]
     path: Path = Path()
-    reference: Optional[str] = None  # row of the paired differences in the tables (default: the row named "full")
+    reference: Optional[str] = (
+        None  # row of the paired differences in the tables (default: the row named "full")
+    )
 
     def row(self, name: str) -> Row:
         for r in self.rows:
             if r.name == name:
                 return r
-        raise KeyError(f"suite {self.name!r} has no row {name!r} (rows: {[r.name for r in self.rows]})")
+        raise KeyError(
+            f"suite {self.name!r} has no row {name!r} (rows: {[r.name for r in self.rows]})"
+        )
 
     @property
     def variants(self) -> List[str]:
         return sorted({r.variant for r in self.rows})
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # table columns
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def metric_columns() -> Dict[str, "Column"]:  # noqa: F821
-    """Every metrics.json key a table may show -> eval.tables.Column (header, direction, format, group, convention).
+    """Every metrics.json key a table may show -> eval.tables.Column (header, direction, format,
+    group, convention).
 
-    The paper's main-table columns come from eval.tables.paper_table_spec (one definition for both)."""
+    The paper's main-table columns come from eval.tables.paper_table_spec (one definition for
+    both)."""
     from eval.tables import Column, paper_table_spec
 
     cols = {c.key: c for c in paper_table_spec().columns}
@@ -165,28 +181,79 @@ def metric_columns() -> Dict[str, "Column"]:  # noqa: F821
 
 
 LAYOUTS: Dict[str, List[str]] = {
-    # the paper's main synthetic table (Table 1 / appendix exposure tables): eval.tables.paper_table_spec
-    "paper": ["ldr_oe_psnr", "ldr_oe_ssim", "ldr_oe_lpips", "ldr_ne_psnr", "ldr_ne_ssim", "ldr_ne_lpips",
-              "hdr_psnr", "hdr_ssim", "hdr_lpips", "hdr_tae"],
+    # the paper's main synthetic table (Table 1 / appendix exposure tables):
+    # eval.tables.paper_table_spec
+    "paper": [
+        "ldr_oe_psnr",
+        "ldr_oe_ssim",
+        "ldr_oe_lpips",
+        "ldr_ne_psnr",
+        "ldr_ne_ssim",
+        "ldr_ne_lpips",
+        "hdr_psnr",
+        "hdr_ssim",
+        "hdr_lpips",
+        "hdr_tae",
+    ],
     # the paper's ablation tables (rows a-f, control points): "all metrics PSNR except HDR-TAE"
     "ablation": ["ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae"],
     # exposure studies (schedules / perturbation): the ablation layout plus the learned-CRF error
     "exposure": ["ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "crf_rmse", "crf_error"],
-    # camera-response study (suite crf): image metrics plus the learned-vs-true response over the observed range
-    "crf": ["ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_ssim", "hdr_tae", "crf_error", "crf_rmse"],
+    # camera-response study (suite crf): image metrics plus the learned-vs-true response over the
+    # observed range
+    "crf": [
+        "ldr_oe_psnr",
+        "ldr_ne_psnr",
+        "hdr_psnr",
+        "hdr_ssim",
+        "hdr_tae",
+        "crf_error",
+        "crf_rmse",
+    ],
     # the GFlow comparison (appendix): training frames
-    "train": ["ldr_train_psnr", "ldr_train_ssim", "ldr_train_lpips", "hdr_train_psnr", "hdr_train_ssim", "hdr_tae"],
+    "train": [
+        "ldr_train_psnr",
+        "ldr_train_ssim",
+        "ldr_train_lpips",
+        "hdr_train_psnr",
+        "hdr_train_ssim",
+        "hdr_tae",
+    ],
     # beyond the paper
-    "geometry": ["ate", "rpe_trans", "rpe_rot", "ate_ba", "depth_absrel", "track_epe", "track_epe_median",
-                 "track_delta_avg", "mask_recall", "mask_iou"],
-    "hdr-extra": ["hdr_psnr_ownmax", "pu21_psnr", "hdr_flip", "hdr_t_std", "hdr_tae_interior", "dyn_ldr_psnr", "dyn_hdr_psnr", "crf_rmse",
-                  "crf_error"],
+    "geometry": [
+        "ate",
+        "rpe_trans",
+        "rpe_rot",
+        "ate_ba",
+        "depth_absrel",
+        "track_epe",
+        "track_epe_median",
+        "track_delta_avg",
+        "mask_recall",
+        "mask_iou",
+    ],
+    "hdr-extra": [
+        "hdr_psnr_ownmax",
+        "pu21_psnr",
+        "hdr_flip",
+        "hdr_t_std",
+        "hdr_tae_interior",
+        "dyn_ldr_psnr",
+        "dyn_hdr_psnr",
+        "crf_rmse",
+        "crf_error",
+    ],
     "cost": ["train_minutes", "fps", "fps_864x480", "num_gaussians", "peak_memory_mib"],
 }
 
 
-def table_spec(table: TableDef, *, lpips_available: bool = True, ldr_convention: str = "ldr_float",
-               methods: Optional[List[str]] = None):
+def table_spec(
+    table: TableDef,
+    *,
+    lpips_available: bool = True,
+    ldr_convention: str = "ldr_float",
+    methods: Optional[List[str]] = None,
+):
     """eval.tables.TableSpec of a suite table (the `paper` layout is paper_table_spec itself)."""
     import dataclasses
 
@@ -194,7 +261,9 @@ def table_spec(table: TableDef, *, lpips_available: bool = True, ldr_convention:
 
     lp_key = "lpips" if lpips_available else "lpips_na"
     if table.columns == "paper":
-        spec = paper_table_spec(table.title, ldr_convention=ldr_convention, lpips_available=lpips_available)
+        spec = paper_table_spec(
+            table.title, ldr_convention=ldr_convention, lpips_available=lpips_available
+        )
         spec.methods = methods
         return spec
     keys = LAYOUTS[table.columns] if isinstance(table.columns, str) else list(table.columns)
@@ -209,9 +278,9 @@ def table_spec(table: TableDef, *, lpips_available: bool = True, ldr_convention:
     return TableSpec(columns=cols, title=table.title, conventions=conv, methods=methods)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # loading
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def suites_dir() -> Path:
     """Folder of the shipped eval suites (package data of `eval`)."""
     return Path(str(resources.files("eval"))) / "suites"
@@ -228,13 +297,17 @@ def find_suite(name_or_path) -> Path:
     cand = suites_dir() / f"{name_or_path}.yaml"
     if cand.exists():
         return cand
-    raise SuiteError(name_or_path, "<suite>", f"not a suite file nor a built-in suite {builtin_suites()}")
+    raise SuiteError(
+        name_or_path, "<suite>", f"not a suite file nor a built-in suite {builtin_suites()}"
+    )
 
 
 def _levels(v, path, key):
     if v is None:
         return None
-    if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in v):
+    if not isinstance(v, list) or not all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in v
+    ):
         raise SuiteError(path, key, f"expected a list of positive numbers, got {v!r}")
     return tuple(float(x) for x in v)
 
@@ -246,8 +319,11 @@ def _parse_clip(key: str, d: Any, path) -> ClipSetting:
         raise SuiteError(path, f"clips.{key}", "expected a mapping")
     unknown = sorted(set(d) - {"schedule", "priors", "observed", "novel", "seed", "crf"})
     if unknown:
-        raise SuiteError(path, f"clips.{key}.{unknown[0]}",
-                         "unknown key (schedule, priors, observed, novel, seed, crf)")
+        raise SuiteError(
+            path,
+            f"clips.{key}.{unknown[0]}",
+            "unknown key (schedule, priors, observed, novel, seed, crf)",
+        )
     from m4dgs.crf import CLIP_CRFS
 
     crf = d.get("crf")
@@ -255,22 +331,36 @@ def _parse_clip(key: str, d: Any, path) -> ClipSetting:
         raise SuiteError(path, f"clips.{key}.crf", f"expected one of {CLIP_CRFS}, got {crf!r}")
     sched = d.get("schedule")
     if sched is not None and sched not in SCHEDULES:
-        raise SuiteError(path, f"clips.{key}.schedule", f"expected one of {SCHEDULES}, got {sched!r}")
+        raise SuiteError(
+            path, f"clips.{key}.schedule", f"expected one of {SCHEDULES}, got {sched!r}"
+        )
     pri = d.get("priors", DEFAULT_PRIORS)
     if pri not in PRIOR_PROFILES:
-        raise SuiteError(path, f"clips.{key}.priors", f"expected one of {PRIOR_PROFILES}, got {pri!r}")
+        raise SuiteError(
+            path, f"clips.{key}.priors", f"expected one of {PRIOR_PROFILES}, got {pri!r}"
+        )
     seed = d.get("seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool):
         raise SuiteError(path, f"clips.{key}.seed", f"expected an integer, got {seed!r}")
-    return ClipSetting(key, sched, pri, _levels(d.get("observed"), path, f"clips.{key}.observed"),
-                       _levels(d.get("novel"), path, f"clips.{key}.novel"), seed, crf)
+    return ClipSetting(
+        key,
+        sched,
+        pri,
+        _levels(d.get("observed"), path, f"clips.{key}.observed"),
+        _levels(d.get("novel"), path, f"clips.{key}.novel"),
+        seed,
+        crf,
+    )
 
 
 def parse_suite(d: dict, path="<suite>") -> EvalSuite:
-    """Validate a suite mapping (as read from YAML) -> EvalSuite. Raises SuiteError naming the key."""
+    """Validate a suite mapping (as read from YAML) -> EvalSuite. Raises SuiteError naming the
+    key."""
     if not isinstance(d, dict):
         raise SuiteError(path, "<root>", "expected a mapping")
-    unknown = sorted(set(d) - {"name", "description", "scenes", "clips", "rows", "tables", "reference"})
+    unknown = sorted(
+        set(d) - {"name", "description", "scenes", "clips", "rows", "tables", "reference"}
+    )
     if unknown:
         raise SuiteError(path, unknown[0], "unknown key")
     for k in ("name", "scenes", "rows"):
@@ -291,25 +381,36 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
             raise SuiteError(path, f"rows[{i}]", "expected a mapping")
         bad = sorted(set(r) - {"name", "label", "variant", "overrides", "clip"})
         if bad:
-            raise SuiteError(path, f"rows[{i}].{bad[0]}", "unknown key (name, label, variant, overrides, clip)")
+            raise SuiteError(
+                path, f"rows[{i}].{bad[0]}", "unknown key (name, label, variant, overrides, clip)"
+            )
         variant = str(r.get("variant", "full"))
         rname = str(r.get("name", variant))
         if not _NAME_RE.match(rname):
             raise SuiteError(path, f"rows[{i}].name", f"expected a folder-safe name, got {rname!r}")
         if rname in seen:
             raise SuiteError(path, f"rows[{i}].name", f"duplicate row name {rname!r}")
-        if _SEED_SUFFIX_RE.search(rname):  # reserved for the run folders of trainer seeds > 0 (eval.runner)
-            raise SuiteError(path, f"rows[{i}].name", f"a row name may not end in '-seed-<n>', got {rname!r}")
+        # reserved for the run folders of trainer seeds > 0 (eval.runner)
+        if _SEED_SUFFIX_RE.search(rname):
+            raise SuiteError(
+                path, f"rows[{i}].name", f"a row name may not end in '-seed-<n>', got {rname!r}"
+            )
         seen.add(rname)
         ov = r.get("overrides") or {}
         if not isinstance(ov, dict):
-            raise SuiteError(path, f"rows[{i}].overrides", "expected a mapping of dotted config keys -> values")
+            raise SuiteError(
+                path, f"rows[{i}].overrides", "expected a mapping of dotted config keys -> values"
+            )
         clip = str(r.get("clip", "default"))
         if clip not in clips:
-            raise SuiteError(path, f"rows[{i}].clip", f"unknown clip setting {clip!r} (have {sorted(clips)})")
+            raise SuiteError(
+                path, f"rows[{i}].clip", f"unknown clip setting {clip!r} (have {sorted(clips)})"
+            )
         rows.append(Row(rname, str(r.get("label", rname)), variant, dict(ov), clip))
     tables = []
-    for i, t in enumerate(d.get("tables") or [{"title": d.get("description", name), "columns": "paper"}]):
+    for i, t in enumerate(
+        d.get("tables") or [{"title": d.get("description", name), "columns": "paper"}]
+    ):
         if not isinstance(t, dict) or "columns" not in t:
             raise SuiteError(path, f"tables[{i}]", "expected {title, columns}")
         bad = sorted(set(t) - {"title", "columns", "paper"})
@@ -320,25 +421,46 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
 
             known = load_paper_values()
             if t["paper"] not in known:
-                raise SuiteError(path, f"tables[{i}].paper",
-                                 f"unknown paper table {t['paper']!r} (have {sorted(known)})")
+                raise SuiteError(
+                    path,
+                    f"tables[{i}].paper",
+                    f"unknown paper table {t['paper']!r} (have {sorted(known)})",
+                )
         cols = t["columns"]
         if isinstance(cols, str):
             if cols not in LAYOUTS:
-                raise SuiteError(path, f"tables[{i}].columns", f"unknown layout {cols!r} (have {sorted(LAYOUTS)})")
+                raise SuiteError(
+                    path,
+                    f"tables[{i}].columns",
+                    f"unknown layout {cols!r} (have {sorted(LAYOUTS)})",
+                )
         elif isinstance(cols, list):
             reg = metric_columns()
             for k in cols:
                 if k not in reg:
                     raise SuiteError(path, f"tables[{i}].columns", f"unknown metric column {k!r}")
         else:
-            raise SuiteError(path, f"tables[{i}].columns", "expected a layout name or a list of metric keys")
-        tables.append(TableDef(str(t.get("title", name)), cols, None if t.get("paper") is None else str(t["paper"])))
+            raise SuiteError(
+                path, f"tables[{i}].columns", "expected a layout name or a list of metric keys"
+            )
+        tables.append(
+            TableDef(
+                str(t.get("title", name)), cols, None if t.get("paper") is None else str(t["paper"])
+            )
+        )
     reference = d.get("reference", "full" if "full" in seen else None)
     if reference is not None and str(reference) not in seen:
         raise SuiteError(path, "reference", f"not a row name: {reference!r} (rows: {sorted(seen)})")
-    return EvalSuite(name, str(d.get("description", "")), str(d["scenes"]), clips, rows, tables, Path(str(path)),
-                     None if reference is None else str(reference))
+    return EvalSuite(
+        name,
+        str(d.get("description", "")),
+        str(d["scenes"]),
+        clips,
+        rows,
+        tables,
+        Path(str(path)),
+        None if reference is None else str(reference),
+    )
 
 
 def load_eval_suite(name_or_path) -> EvalSuite:
@@ -366,7 +488,8 @@ def known_variants() -> Optional[List[str]]:
 
 
 def check_variants(suite: EvalSuite) -> List[str]:
-    """Variant names of the suite unknown to m4dgs.variants ([] when all are known or the module is missing)."""
+    """Variant names of the suite unknown to m4dgs.variants ([] when all are known or the module is
+    missing)."""
     known = known_variants()
     if known is None:
         return []

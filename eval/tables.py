@@ -1,27 +1,31 @@
 """Paper-style result tables (pure formatting; no I/O, no metric computation).
 
-Input: rows = list of dicts {"method": str, "scene": str, <metric key>: float | None, ...} and a TableSpec (columns:
-metric key, header, higher_is_better, format, optional group such as "LDR-OE" / "HDR"). Output: the per-method mean
-over scenes, the best value per column in bold (ties at the displayed precision all bold; None / NaN shown as "n/a"
-and never best), rendered as Markdown (default), LaTeX (booktabs, \\textbf) or CSV (no bold), with a footnote block
-listing the metric conventions (eval.metrics.CONVENTIONS keys or literal strings).
+Input: rows = list of dicts {"method": str, "scene": str, <metric key>: float | None, ...} and a
+TableSpec (columns: metric key, header, higher_is_better, format, optional group such as "LDR-OE" /
+"HDR"). Output: the per-method mean over scenes, the best value per column in bold (ties at the
+displayed precision all bold; None / NaN shown as "n/a" and never best), rendered as Markdown
+(default), LaTeX (booktabs, \\textbf) or CSV (no bold), with a footnote block listing the metric
+conventions (eval.metrics.CONVENTIONS keys or literal strings).
 
-Mean over scenes: a method missing a value (None / NaN / absent) for any scene gets "n/a" for that column, unless
-the spec sets `partial_means=True` (then the mean is over the scenes that have the value, and the footnote says so).
+Mean over scenes: a method missing a value (None / NaN / absent) for any scene gets "n/a" for that
+column, unless the spec sets `partial_means=True` (then the mean is over the scenes that have the
+value, and the footnote says so).
 
-Rows may carry a "seed" (trainer seed, default 0): a method's values are then its (scene, seed) runs. Optional
-statistics (eval.stats), each switched on in the TableSpec:
+Rows may carry a "seed" (trainer seed, default 0): a method's values are then its (scene, seed)
+runs. Optional statistics (eval.stats), each switched on in the TableSpec:
 
-- `intervals`: cells read "mean ± h", h the half-width of the Student-t 95 % interval of the mean over the method's
-  n runs (n/a for n < 2), and an "n" column counts the runs;
-- `reference`: a method; every metric gets a "Δ" column with the paired difference row - reference over the
-  (scene, seed) runs both have, mean ± its t-interval, marked † when the interval excludes 0 ("ref" in its own row);
-- `paper`: {method: {metric key: value}} typed from the paper; every metric gets a "Paper" column and a
-  "paper / ours / agree" column: the sign of (row - reference) in the paper, ours ("n.s." when our interval
-  includes 0), and agree / disagree / not significant (eval.stats.agreement).
+- `intervals`: cells read "mean ± h", h the half-width of the Student-t 95 % interval of the mean
+  over the method's n runs (n/a for n < 2), and an "n" column counts the runs;
+- `reference`: a method; every metric gets a "Δ" column with the paired difference row - reference
+  over the (scene, seed) runs both have, mean ± its t-interval, marked † when the interval excludes
+  0 ("ref" in its own row);
+- `paper`: {method: {metric key: value}} typed from the paper; every metric gets a "Paper" column
+  and a "paper / ours / agree" column: the sign of (row - reference) in the paper, ours ("n.s." when
+  our interval includes 0), and agree / disagree / not significant (eval.stats.agreement).
 
 The best value stays bold, judged on the means.
 """
+
 from __future__ import annotations
 
 import csv
@@ -34,7 +38,8 @@ NA = "n/a"
 
 @dataclass
 class Column:
-    """One table column: `key` in the rows, `header` text, direction, python format spec, optional group/convention."""
+    """One table column: `key` in the rows, `header` text, direction, python format spec, optional
+    group/convention."""
 
     key: str
     header: str
@@ -50,7 +55,8 @@ class Column:
 
 @dataclass
 class TableSpec:
-    """A table: its columns, optional title, extra convention notes, method order and scene filter."""
+    """A table: its columns, optional title, extra convention notes, method order and scene
+    filter."""
 
     columns: list
     title: str | None = None
@@ -61,7 +67,9 @@ class TableSpec:
     method_header: str = "Method"
     intervals: bool = False  # "mean ± CI half-width" cells and an "n" column (eval.stats.mean_ci)
     reference: str | None = None  # method of the paired differences: a "Δ" column per metric
-    paper: dict | None = None  # {method: {key: value}} from the paper: "Paper" and agreement columns per metric
+    paper: dict | None = (
+        None  # {method: {key: value}} from the paper: "Paper" and agreement columns per metric
+    )
     paper_source: str | None = None  # the paper table those values come from (footnote)
     level: float = 0.95  # confidence level of the intervals
 
@@ -77,7 +85,8 @@ def _missing(v) -> bool:
 
 
 def aggregate(rows: list, spec: TableSpec) -> list:
-    """Per-method mean over scenes -> list of {"method", "n_scenes", <key>: float | None} in the table's row order."""
+    """Per-method mean over scenes -> list of {"method", "n_scenes", <key>: float | None} in the
+    table's row order."""
     rows = [r for r in rows if spec.scenes is None or r.get("scene") in spec.scenes]
     order = list(spec.methods) if spec.methods is not None else []
     for r in rows:
@@ -86,8 +95,11 @@ def aggregate(rows: list, spec: TableSpec) -> list:
     out = []
     for m in order:
         mrows = [r for r in rows if r["method"] == m]
-        agg = {"method": m, "n_scenes": len({r.get("scene") for r in mrows}),
-               "n_runs": sum(any(not _missing(r.get(c.key)) for c in spec.columns) for r in mrows)}
+        agg = {
+            "method": m,
+            "n_scenes": len({r.get("scene") for r in mrows}),
+            "n_runs": sum(any(not _missing(r.get(c.key)) for c in spec.columns) for r in mrows),
+        }
         for c in spec.columns:
             vals = [r.get(c.key) for r in mrows]
             present = [float(v) for v in vals if not _missing(v)]
@@ -101,8 +113,9 @@ def aggregate(rows: list, spec: TableSpec) -> list:
 
 @dataclass
 class CellStats:
-    """Statistics of one (method, metric) cell: the interval of the mean (None where the mean is n/a), the paired
-    difference to the reference (None: no reference or n/a), the paper's value and the agreement triple."""
+    """Statistics of one (method, metric) cell: the interval of the mean (None where the mean is
+    n/a), the paired difference to the reference (None: no reference or n/a), the paper's value and
+    the agreement triple."""
 
     ci: object = None  # eval.stats.Interval
     diff: object = None  # eval.stats.Interval
@@ -139,15 +152,17 @@ def cell_stats(rows: list, spec: TableSpec, agg: list | None = None) -> list:
             st.paper = paper.get(m, {}).get(c.key)
             if spec.paper is not None and has_ref and m != spec.reference:
                 pr = paper.get(spec.reference, {}).get(c.key)
-                st.agree = agreement(None if st.paper is None or pr is None else st.paper - pr, st.diff)
+                st.agree = agreement(
+                    None if st.paper is None or pr is None else st.paper - pr, st.diff
+                )
             line.append(st)
         out.append(line)
     return out
 
 
 def _subcolumns(agg: list, spec: TableSpec) -> list:
-    """Sub-columns of every metric: "value", then "diff" (with a reference row), "paper" and "agree" (with paper
-    values)."""
+    """Sub-columns of every metric: "value", then "diff" (with a reference row), "paper" and "agree"
+    (with paper values)."""
     sub = ["value"]
     if _has_reference(agg, spec):
         sub.append("diff")
@@ -168,7 +183,9 @@ def _paper_fmt(v, fmt: str) -> str:
     return format(v, fmt)
 
 
-def _sub_cell(kind: str, st: CellStats, c: "Column", value_text: str, style: str, intervals: bool) -> str:
+def _sub_cell(
+    kind: str, st: CellStats, c: "Column", value_text: str, style: str, intervals: bool
+) -> str:
     """Text of one sub-column cell; value_text is the (possibly bold) formatted mean."""
     pm, dagger = _SYMBOLS[style]
     if kind == "value":
@@ -196,7 +213,11 @@ def _sub_header(kind: str, c: "Column", latex: bool) -> str:
         return (latex_escape(c.header) if latex else name) + _arrow(c, latex)
     if latex:
         return {"diff": "$\\Delta$", "paper": "Paper", "agree": "paper / ours / agree"}[kind]
-    return {"diff": f"Δ {name}", "paper": f"Paper {name}", "agree": f"{name}: paper / ours / agree"}[kind]
+    return {
+        "diff": f"Δ {name}",
+        "paper": f"Paper {name}",
+        "agree": f"{name}: paper / ours / agree",
+    }[kind]
 
 
 def _fmt(v, fmt: str) -> str:
@@ -208,10 +229,13 @@ def _fmt(v, fmt: str) -> str:
 
 
 def best_flags(agg: list, spec: TableSpec) -> list:
-    """[row][col] True where the value is the column's best at the displayed precision (ties all True)."""
+    """[row][col] True where the value is the column's best at the displayed precision (ties all
+    True)."""
     flags = [[False] * len(spec.columns) for _ in agg]
     for j, c in enumerate(spec.columns):
-        shown = [(i, float(_fmt(r[c.key], c.fmt))) for i, r in enumerate(agg) if not _missing(r[c.key])]
+        shown = [
+            (i, float(_fmt(r[c.key], c.fmt))) for i, r in enumerate(agg) if not _missing(r[c.key])
+        ]
         if not shown:
             continue
         best = max(v for _, v in shown) if c.higher_is_better else min(v for _, v in shown)
@@ -222,8 +246,9 @@ def best_flags(agg: list, spec: TableSpec) -> list:
 
 
 def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None = None) -> list:
-    """Convention sentences for the table: each column's, then the spec's extras, de-duplicated, in order, then the
-    statistics notes (intervals, paired differences, paper values; `agg` tells whether the reference row is there)."""
+    """Convention sentences for the table: each column's, then the spec's extras, de-duplicated, in
+    order, then the statistics notes (intervals, paired differences, paper values; `agg` tells
+    whether the reference row is there)."""
     if conventions is None:
         from eval.metrics import CONVENTIONS as conventions  # noqa: N811
     notes = []
@@ -237,19 +262,35 @@ def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None
         notes.append("Means over scenes; n/a where a method lacks the value for a scene.")
     pct = f"{100 * spec.level:g} %"
     if spec.intervals:
-        notes.append(f"mean ± h: h is the half-width of the Student-t {pct} confidence interval of the mean over the "
-                     "n runs of a row (scenes x trainer seeds, treated as independent samples; t quantile with n - 1 "
-                     "degrees of freedom); n/a for n < 2.")
-    ref = spec.reference if (spec.reference is not None and (agg is None or _has_reference(agg, spec))) else None
+        notes.append(
+            f"mean ± h: h is the half-width of the Student-t {pct} confidence interval of the "
+            "mean over the "
+            "n runs of a row (scenes x trainer seeds, treated as independent samples; t quantile "
+            "with n - 1 "
+            "degrees of freedom); n/a for n < 2."
+        )
+    ref = (
+        spec.reference
+        if (spec.reference is not None and (agg is None or _has_reference(agg, spec)))
+        else None
+    )
     if ref is not None:
-        notes.append(f"Δ: paired difference row - {ref} over the (scene, seed) runs both rows have, mean ± the "
-                     f"Student-t {pct} interval of the mean difference; † where that interval excludes 0.")
+        notes.append(
+            f"Δ: paired difference row - {ref} over the (scene, seed) runs both rows have, mean ± "
+            "the "
+            f"Student-t {pct} interval of the mean difference; † where that interval excludes 0."
+        )
     if spec.paper is not None:
         src = f" ({spec.paper_source})" if spec.paper_source else ""
-        notes.append(f"Paper: the paper's value{src}, n/a where the paper has none. paper / ours / agree: the sign of "
-                     f"(row - {ref or 'reference'}) in the paper and in our mean difference (n.s. where our interval "
-                     "includes 0), then agree, disagree, not significant, or paper tie (the paper's two values are "
-                     "equal as printed).")
+        notes.append(
+            f"Paper: the paper's value{src}, n/a where the paper has none. paper / ours / agree: "
+            "the sign of "
+            f"(row - {ref or 'reference'}) in the paper and in our mean difference (n.s. where "
+            "our interval "
+            "includes 0), then agree, disagree, not significant, or paper tie (the paper's two "
+            "values are "
+            "equal as printed)."
+        )
     return notes
 
 
@@ -259,14 +300,19 @@ def _arrow(c: Column, latex: bool) -> str:
     return "↑" if c.higher_is_better else "↓"
 
 
-def render_markdown(rows: list, spec: TableSpec, *, conventions: dict | None = None, notes: bool = True) -> str:
+def render_markdown(
+    rows: list, spec: TableSpec, *, conventions: dict | None = None, notes: bool = True
+) -> str:
     """GitHub Markdown table; bold as **x**; group names prefixed to headers ("HDR PSNR↑")."""
     agg = aggregate(rows, spec)
     flags = best_flags(agg, spec)
     stats = cell_stats(rows, spec, agg)
     sub = _subcolumns(agg, spec)
-    heads = [spec.method_header] + (["n"] if spec.intervals else []) + [
-        _sub_header(k, c, False) for c in spec.columns for k in sub]
+    heads = (
+        [spec.method_header]
+        + (["n"] if spec.intervals else [])
+        + [_sub_header(k, c, False) for c in spec.columns for k in sub]
+    )
     lines = []
     if spec.title:
         lines += [f"**{spec.title}**", ""]
@@ -285,9 +331,21 @@ def render_markdown(rows: list, spec: TableSpec, *, conventions: dict | None = N
     return "\n".join(lines) + "\n"
 
 
-_LATEX_ESC = {"&": "\\&", "%": "\\%", "$": "\\$", "#": "\\#", "_": "\\_", "{": "\\{", "}": "\\}",
-              "~": "\\textasciitilde{}", "^": "\\textasciicircum{}", "\\": "\\textbackslash{}",
-              "±": "$\\pm$", "Δ": "$\\Delta$", "†": "$^\\dagger$"}
+_LATEX_ESC = {
+    "&": "\\&",
+    "%": "\\%",
+    "$": "\\$",
+    "#": "\\#",
+    "_": "\\_",
+    "{": "\\{",
+    "}": "\\}",
+    "~": "\\textasciitilde{}",
+    "^": "\\textasciicircum{}",
+    "\\": "\\textbackslash{}",
+    "±": "$\\pm$",
+    "Δ": "$\\Delta$",
+    "†": "$^\\dagger$",
+}
 
 
 def latex_escape(s: str) -> str:
@@ -305,8 +363,11 @@ def _groups(spec: TableSpec) -> list:
     return runs
 
 
-def render_latex(rows: list, spec: TableSpec, *, conventions: dict | None = None, notes: bool = True) -> str:
-    """booktabs tabular (l + one r per column), a \\multicolumn group row when groups are set, \\textbf for the best."""
+def render_latex(
+    rows: list, spec: TableSpec, *, conventions: dict | None = None, notes: bool = True
+) -> str:
+    """booktabs tabular (l + one r per column), a \\multicolumn group row when groups are set,
+    \\textbf for the best."""
     agg = aggregate(rows, spec)
     flags = best_flags(agg, spec)
     stats = cell_stats(rows, spec, agg)
@@ -329,21 +390,35 @@ def render_latex(rows: list, spec: TableSpec, *, conventions: dict | None = None
             rules.append(f"\\cmidrule(lr){{{first + j * k}-{first + j * k + k - 1}}}")
         lines.append(" & ".join(cells) + " \\\\")
         lines.append(" ".join(rules))
-        heads = [latex_escape(spec.method_header)] + lead + [
-            "ours" if s_ == "value" else _sub_header(s_, c, True) for c in spec.columns for s_ in sub]
+        heads = (
+            [latex_escape(spec.method_header)]
+            + lead
+            + [
+                "ours" if s_ == "value" else _sub_header(s_, c, True)
+                for c in spec.columns
+                for s_ in sub
+            ]
+        )
     else:
         runs = _groups(spec)
         if any(g for g, _, _ in runs):
             cells, rules = [""] + [""] * len(lead), []
             for g, start, cnt in runs:
-                cells.append(f"\\multicolumn{{{cnt}}}{{c}}{{{latex_escape(g)}}}" if g else " & ".join([""] * cnt))
+                cells.append(
+                    f"\\multicolumn{{{cnt}}}{{c}}{{{latex_escape(g)}}}"
+                    if g
+                    else " & ".join([""] * cnt)
+                )
                 if g:
                     rules.append(f"\\cmidrule(lr){{{start + first}-{start + cnt + first - 1}}}")
             lines.append(" & ".join(cells) + " \\\\")
             if rules:
                 lines.append(" ".join(rules))
-        heads = [latex_escape(spec.method_header)] + lead + [latex_escape(c.header) + _arrow(c, True)
-                                                             for c in spec.columns]
+        heads = (
+            [latex_escape(spec.method_header)]
+            + lead
+            + [latex_escape(c.header) + _arrow(c, True) for c in spec.columns]
+        )
     lines.append(" & ".join(heads) + " \\\\")
     lines.append("\\midrule")
     for r, fl, st in zip(agg, flags, stats):
@@ -361,13 +436,16 @@ def render_latex(rows: list, spec: TableSpec, *, conventions: dict | None = None
     return "\n".join(lines) + "\n"
 
 
-def render_csv(rows: list, spec: TableSpec, *, conventions: dict | None = None, notes: bool = False) -> str:
-    """CSV: header row (method, n_scenes, then "<group> <header>"), one row per method, values at the column
-    precision, "n/a" for missing, no bold. `notes=True` appends the footnotes as '# ' comment lines.
+def render_csv(
+    rows: list, spec: TableSpec, *, conventions: dict | None = None, notes: bool = False
+) -> str:
+    """CSV: header row (method, n_scenes, then "<group> <header>"), one row per method, values at
+    the column precision, "n/a" for missing, no bold. `notes=True` appends the footnotes as '# '
+    comment lines.
 
-    With the spec's statistics: an "n_runs" column, and after each metric "<name> ci95" (half-width), "Δ <name>",
-    "Δ <name> ci95", "Δ <name> excludes 0" (yes / no), "Paper <name>" and "<name> paper/ours/agree" (one field,
-    ' / '-separated), each only when switched on."""
+    With the spec's statistics: an "n_runs" column, and after each metric "<name> ci95"
+    (half-width), "Δ <name>", "Δ <name> ci95", "Δ <name> excludes 0" (yes / no), "Paper <name>" and
+    "<name> paper/ours/agree" (one field, ' / '-separated), each only when switched on."""
     agg = aggregate(rows, spec)
     stats = cell_stats(rows, spec, agg)
     sub = _subcolumns(agg, spec)
@@ -398,10 +476,16 @@ def render_csv(rows: list, spec: TableSpec, *, conventions: dict | None = None, 
                 elif d is None or d.mean is None:
                     line += [NA, NA, NA]
                 else:
-                    line += [format(d.mean, "+" + c.fmt), num(d.half, c.fmt),
-                             NA if d.excludes_zero is None else ("yes" if d.excludes_zero else "no")]
+                    line += [
+                        format(d.mean, "+" + c.fmt),
+                        num(d.half, c.fmt),
+                        NA if d.excludes_zero is None else ("yes" if d.excludes_zero else "no"),
+                    ]
             if "paper" in sub:
-                line += [_paper_fmt(cs.paper, c.fmt), _sub_cell("agree", cs, c, "", "markdown", False)]
+                line += [
+                    _paper_fmt(cs.paper, c.fmt),
+                    _sub_cell("agree", cs, c, "", "markdown", False),
+                ]
         w.writerow(line)
     text = buf.getvalue()
     if notes:
@@ -411,21 +495,38 @@ def render_csv(rows: list, spec: TableSpec, *, conventions: dict | None = None, 
 
 def render(rows: list, spec: TableSpec, fmt: str = "markdown", **kw) -> str:
     """Dispatch on fmt in {"markdown", "latex", "csv"}."""
-    fns = {"markdown": render_markdown, "md": render_markdown, "latex": render_latex, "tex": render_latex,
-           "csv": render_csv}
+    fns = {
+        "markdown": render_markdown,
+        "md": render_markdown,
+        "latex": render_latex,
+        "tex": render_latex,
+        "csv": render_csv,
+    }
     if fmt not in fns:
         raise ValueError(f"table format must be one of markdown/latex/csv, got {fmt!r}")
     return fns[fmt](rows, spec, **kw)
 
 
-def paper_table_spec(title: str | None = None, *, ldr_convention: str = "ldr_float", lpips_available: bool = True,
-                     lpips_normalized: bool = True) -> TableSpec:
-    """The layout of the paper's main synthetic table (LDR-OE, LDR-NE, HDR: PSNR/SSIM/LPIPS; HDR-TAE)."""
-    lp_conv = ("lpips" if lpips_normalized else "lpips_unnormalized") if lpips_available else "lpips_na"
+def paper_table_spec(
+    title: str | None = None,
+    *,
+    ldr_convention: str = "ldr_float",
+    lpips_available: bool = True,
+    lpips_normalized: bool = True,
+) -> TableSpec:
+    """The layout of the paper's main synthetic table (LDR-OE, LDR-NE, HDR: PSNR/SSIM/LPIPS;
+    HDR-TAE)."""
+    lp_conv = (
+        ("lpips" if lpips_normalized else "lpips_unnormalized") if lpips_available else "lpips_na"
+    )
     cols = []
     for grp, pre in (("LDR-OE", "ldr_oe"), ("LDR-NE", "ldr_ne"), ("HDR", "hdr")):
-        cols += [Column(f"{pre}_psnr", "PSNR", True, ".2f", grp, "hdr_mu_law" if pre == "hdr" else "psnr"),
-                 Column(f"{pre}_ssim", "SSIM", True, ".4f", grp, "ssim"),
-                 Column(f"{pre}_lpips", "LPIPS", False, ".4f", grp, lp_conv)]
+        cols += [
+            Column(
+                f"{pre}_psnr", "PSNR", True, ".2f", grp, "hdr_mu_law" if pre == "hdr" else "psnr"
+            ),
+            Column(f"{pre}_ssim", "SSIM", True, ".4f", grp, "ssim"),
+            Column(f"{pre}_lpips", "LPIPS", False, ".4f", grp, lp_conv),
+        ]
     cols.append(Column("hdr_tae", "HDR-TAE", False, ".4f", None, "hdr_tae"))
     return TableSpec(columns=cols, title=title, conventions=[ldr_convention])

@@ -1,20 +1,22 @@
 """Camera conventions, in one place (DESIGN.md "Conventions").
 
-- OpenCV camera frame: x right, y down, z forward. Extrinsics are camera-to-world 4x4 matrices (`c2w`), so a
-  camera-space point p_c maps to the world as p_w = R p_c + T with [R | T] = c2w[:3] (the paper's
-  mu_w = R_t pi^-1(mu_v) + T_t, section 3.3.2).
-- Intrinsics K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; continuous pixel coordinates with pixel centres
-  at integer + 0.5, so pixel (i, j) (column, row) covers [i, i+1) x [j, j+1) and its centre is (i+0.5, j+0.5).
+- OpenCV camera frame: x right, y down, z forward. Extrinsics are camera-to-world 4x4 matrices
+  (`c2w`), so a camera-space point p_c maps to the world as p_w = R p_c + T with [R | T] = c2w[:3]
+  (the paper's mu_w = R_t pi^-1(mu_v) + T_t, section 3.3.2).
+- Intrinsics K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] in pixels; continuous pixel coordinates with
+  pixel centres at integer + 0.5, so pixel (i, j) (column, row) covers [i, i+1) x [j, j+1) and its
+  centre is (i+0.5, j+0.5).
 - Depth is z-depth along the optical axis.
-- Video (orthographic) space of stage 1 (paper appendix "Video Gaussian Representation"): x, y in [-1, 1] are the
-  normalised image coordinates, u = (x + 1) * W / 2, v = (y + 1) * H / 2 (continuous pixels), z = depth. The matching
-  rasterizer camera is orthographic with K_ortho = [[W/2, 0, W/2], [0, H/2, H/2], [0, 0, 1]], whose projection Jacobian
-  is the paper's J_ortho = [[W/2, 0, 0], [0, H/2, 0]].
+- Video (orthographic) space of stage 1 (paper appendix "Video Gaussian Representation"): x, y in
+  [-1, 1] are the normalised image coordinates, u = (x + 1) * W / 2, v = (y + 1) * H / 2 (continuous
+  pixels), z = depth. The matching rasterizer camera is orthographic with K_ortho = [[W/2, 0, W/2],
+  [0, H/2, H/2], [0, 0, 1]], whose projection Jacobian is the paper's J_ortho = [[W/2, 0, 0], [0,
+  H/2, 0]].
 - Quaternions are (w, x, y, z), Hamilton convention, rotating column vectors.
 
-All functions accept torch tensors (batched over leading dims, differentiable) and numpy arrays (converted, returned
-as numpy).
-"""
+All functions accept torch tensors (batched over leading dims, differentiable) and numpy arrays
+(converted, returned as numpy)."""
+
 from __future__ import annotations
 
 from typing import Tuple
@@ -34,9 +36,9 @@ def _ret(x: torch.Tensor, was_numpy: bool):
     return x.detach().cpu().numpy() if was_numpy else x
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Quaternions and rotations
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def quat_normalize(q):
     """Unit quaternion [..., 4] (w, x, y, z)."""
     t, np_in = _as_torch(q)
@@ -44,15 +46,22 @@ def quat_normalize(q):
 
 
 def quat_to_rotmat(q):
-    """Rotation matrix [..., 3, 3] from a (not necessarily unit) quaternion [..., 4] (w, x, y, z)."""
+    """Rotation matrix [..., 3, 3] from a (not necessarily unit) quaternion [..., 4] (w, x, y,
+    z)."""
     t, np_in = _as_torch(q)
     t = t / t.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     w, x, y, z = t.unbind(-1)
     r = torch.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
         ],
         dim=-1,
     )
@@ -79,10 +88,42 @@ def rotmat_to_quat(R):
     # each candidate row gives the quaternion scaled by 4 * component
     qs = torch.stack(
         [
-            torch.stack([cand[:, 0], m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], -1),
-            torch.stack([m[:, 2, 1] - m[:, 1, 2], cand[:, 1], m[:, 1, 0] + m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0]], -1),
-            torch.stack([m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] + m[:, 0, 1], cand[:, 2], m[:, 2, 1] + m[:, 1, 2]], -1),
-            torch.stack([m[:, 1, 0] - m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0], m[:, 2, 1] + m[:, 1, 2], cand[:, 3]], -1),
+            torch.stack(
+                [
+                    cand[:, 0],
+                    m[:, 2, 1] - m[:, 1, 2],
+                    m[:, 0, 2] - m[:, 2, 0],
+                    m[:, 1, 0] - m[:, 0, 1],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[:, 2, 1] - m[:, 1, 2],
+                    cand[:, 1],
+                    m[:, 1, 0] + m[:, 0, 1],
+                    m[:, 0, 2] + m[:, 2, 0],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[:, 0, 2] - m[:, 2, 0],
+                    m[:, 1, 0] + m[:, 0, 1],
+                    cand[:, 2],
+                    m[:, 2, 1] + m[:, 1, 2],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[:, 1, 0] - m[:, 0, 1],
+                    m[:, 0, 2] + m[:, 2, 0],
+                    m[:, 2, 1] + m[:, 1, 2],
+                    cand[:, 3],
+                ],
+                -1,
+            ),
         ],
         dim=1,
     )  # [B, 4 branches, 4]
@@ -112,10 +153,11 @@ def quat_multiply(a, b):
 
 
 def slerp(q0, q1, s):
-    """Spherical linear interpolation between unit quaternions q0, q1 [..., 4] at fraction s (scalar or [...]).
+    """Spherical linear interpolation between unit quaternions q0, q1 [..., 4] at fraction s (scalar
+    or [...]).
 
-    Takes the short arc (q1 is sign-flipped when <q0, q1> < 0); falls back to normalised lerp for nearly equal inputs.
-    """
+    Takes the short arc (q1 is sign-flipped when <q0, q1> < 0); falls back to normalised lerp for
+    nearly equal inputs."""
     t0, np_in = _as_torch(q0)
     t1, _ = _as_torch(q1, t0.dtype)
     s_t = torch.as_tensor(s, dtype=t0.dtype, device=t0.device)
@@ -129,15 +171,23 @@ def slerp(q0, q1, s):
     theta = torch.arccos(d)
     sin_t = torch.sin(theta)
     small = sin_t < 1e-6
-    w0 = torch.where(small, 1 - s_t, torch.sin((1 - s_t) * theta) / torch.where(small, torch.ones_like(sin_t), sin_t))
-    w1 = torch.where(small, s_t.expand_as(sin_t), torch.sin(s_t * theta) / torch.where(small, torch.ones_like(sin_t), sin_t))
+    w0 = torch.where(
+        small,
+        1 - s_t,
+        torch.sin((1 - s_t) * theta) / torch.where(small, torch.ones_like(sin_t), sin_t),
+    )
+    w1 = torch.where(
+        small,
+        s_t.expand_as(sin_t),
+        torch.sin(s_t * theta) / torch.where(small, torch.ones_like(sin_t), sin_t),
+    )
     q = w0 * t0 + w1 * t1
     return _ret(q / q.norm(dim=-1, keepdim=True), np_in)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Extrinsics
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def make_c2w(R, T):
     """4x4 camera-to-world [..., 4, 4] from rotation [..., 3, 3] and camera centre [..., 3]."""
     tR, np_in = _as_torch(R)
@@ -149,7 +199,8 @@ def make_c2w(R, T):
 
 
 def invert_rigid(M):
-    """Inverse of rigid 4x4 transforms [..., 4, 4] (c2w <-> w2c) without a general matrix inverse."""
+    """Inverse of rigid 4x4 transforms [..., 4, 4] (c2w <-> w2c) without a general matrix
+    inverse."""
     t, np_in = _as_torch(M)
     R = t[..., :3, :3]
     T = t[..., :3, 3]
@@ -169,7 +220,8 @@ def transform_points(M, p):
 
 
 def interpolate_pose(c2w0, c2w1, s):
-    """Pose between two cameras: rotation by slerp, centre by lerp, at fraction s in [0, 1]. [..., 4, 4]."""
+    """Pose between two cameras: rotation by slerp, centre by lerp, at fraction s in [0, 1]. [...,
+    4, 4]."""
     t0, np_in = _as_torch(c2w0)
     t1, _ = _as_torch(c2w1, t0.dtype)
     q = slerp(rotmat_to_quat(t0[..., :3, :3]), rotmat_to_quat(t1[..., :3, :3]), s)
@@ -181,7 +233,8 @@ def interpolate_pose(c2w0, c2w1, s):
 
 
 def interpolate_trajectory(times_known, c2w_known, times_query):
-    """Poses at query times from poses at sorted known times (piecewise slerp + lerp, clamped at the ends).
+    """Poses at query times from poses at sorted known times (piecewise slerp + lerp, clamped at the
+    ends).
 
     Args:
         times_known: [K] increasing; c2w_known: [K, 4, 4]; times_query: [Q].
@@ -200,27 +253,30 @@ def interpolate_trajectory(times_known, c2w_known, times_query):
     return _ret(interpolate_pose(ck[idx - 1], ck[idx], s), np_in)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Intrinsics and projection
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def make_K(fx, fy, cx, cy):
     """3x3 intrinsics (float64 numpy)."""
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=np.float64)
 
 
 def K_from_fov(width: int, height: int, fov_x_deg: float) -> np.ndarray:
-    """Pinhole intrinsics with square pixels, principal point at the image centre, horizontal field of view."""
+    """Pinhole intrinsics with square pixels, principal point at the image centre, horizontal field
+    of view."""
     fx = (width / 2.0) / np.tan(np.deg2rad(fov_x_deg) / 2.0)
     return make_K(fx, fx, width / 2.0, height / 2.0)
 
 
 def K_ortho(width: int, height: int) -> np.ndarray:
-    """Orthographic 'intrinsics' of video space: u = W/2 x + W/2, v = H/2 y + H/2 (paper's J_ortho)."""
+    """Orthographic 'intrinsics' of video space: u = W/2 x + W/2, v = H/2 y + H/2 (paper's
+    J_ortho)."""
     return make_K(width / 2.0, height / 2.0, width / 2.0, height / 2.0)
 
 
 def project_pinhole(points_cam, K):
-    """Continuous pixel coordinates [..., 2] of camera-space points [..., 3] (z > 0), u = fx x / z + cx."""
+    """Continuous pixel coordinates [..., 2] of camera-space points [..., 3] (z > 0), u = fx x / z +
+    cx."""
     tp, np_in = _as_torch(points_cam)
     tK, _ = _as_torch(K, tp.dtype)
     tK = tK.to(tp)
@@ -266,7 +322,8 @@ def ortho_to_pixel(xy, width: int, height: int):
 
 
 def video_to_camera(points_video, K, width: int, height: int):
-    """Camera-space points [..., 3] from video-space points (x, y in [-1, 1], z = depth) with pinhole K.
+    """Camera-space points [..., 3] from video-space points (x, y in [-1, 1], z = depth) with
+    pinhole K.
 
     pi_K^-1 of the paper (section 3.3.2): the video point's pixel is unprojected at its depth.
     """
@@ -276,18 +333,20 @@ def video_to_camera(points_video, K, width: int, height: int):
 
 
 def camera_to_video(points_cam, K, width: int, height: int):
-    """Video-space points [..., 3] (x, y in [-1, 1], z = depth) from camera-space points [..., 3]."""
+    """Video-space points [..., 3] (x, y in [-1, 1], z = depth) from camera-space points [...,
+    3]."""
     tp, np_in = _as_torch(points_cam)
     uv = project_pinhole(tp, K)
     xy = pixel_to_ortho(uv, width, height)
     return _ret(torch.cat([xy, tp[..., 2:3]], dim=-1), np_in)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Similarity alignment (trajectory evaluation, BA initialisation)
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def umeyama_sim3(src, dst, with_scale: bool = True, weights=None) -> Tuple:
-    """Least-squares similarity transform s, R, t minimising sum_i w_i |s R src_i + t - dst_i|^2 (Umeyama 1991).
+    """Least-squares similarity transform s, R, t minimising sum_i w_i |s R src_i + t - dst_i|^2
+    (Umeyama 1991).
 
     Args:
         src, dst: [N, 3] corresponding points (N >= 3, not collinear for a unique rotation).
@@ -300,7 +359,11 @@ def umeyama_sim3(src, dst, with_scale: bool = True, weights=None) -> Tuple:
     td, _ = _as_torch(dst, ts.dtype)
     td = td.to(ts)
     n = ts.shape[0]
-    w = torch.ones(n, dtype=ts.dtype, device=ts.device) if weights is None else _as_torch(weights, ts.dtype)[0].to(ts)
+    w = (
+        torch.ones(n, dtype=ts.dtype, device=ts.device)
+        if weights is None
+        else _as_torch(weights, ts.dtype)[0].to(ts)
+    )
     w = w / w.sum()
     mu_s = (w[:, None] * ts).sum(0)
     mu_d = (w[:, None] * td).sum(0)
@@ -312,7 +375,11 @@ def umeyama_sim3(src, dst, with_scale: bool = True, weights=None) -> Tuple:
         D[2, 2] = -1
     R = U @ D @ Vh
     var_s = (w * (xs**2).sum(-1)).sum()
-    s = (S * D.diagonal()).sum() / var_s if with_scale else torch.ones((), dtype=ts.dtype, device=ts.device)
+    s = (
+        (S * D.diagonal()).sum() / var_s
+        if with_scale
+        else torch.ones((), dtype=ts.dtype, device=ts.device)
+    )
     t = mu_d - s * (R @ mu_s)
     if np_in:
         return float(s), R.cpu().numpy(), t.cpu().numpy()

@@ -1,10 +1,11 @@
 """`m4dgs`: train Mono4DGS-HDR on a clip, render a run, export Gaussians.
 
-    m4dgs train --clip bench/syn-exp-3/<scene> --preset small --variant full --out runs/<scene>/full
-    m4dgs render runs/<scene>/full --videos
-    m4dgs export-ply runs/<scene>/full --frame 10 --out scene.ply
-    m4dgs variants --preset paper
+m4dgs train --clip bench/syn-exp-3/<scene> --preset small --variant full --out runs/<scene>/full
+m4dgs render runs/<scene>/full --videos
+m4dgs export-ply runs/<scene>/full --frame 10 --out scene.ply
+m4dgs variants --preset paper
 """
+
 from __future__ import annotations
 
 import os
@@ -33,45 +34,104 @@ def main():
 
 
 @main.command()
-@click.option("--clip", "clip_dir", required=True, type=click.Path(exists=True, file_okay=False),
-              help="Clip folder (clip.json, input/, priors/; see docs/clip-format.md). Ground truth is never read.")
-@click.option("--preset", type=click.Choice(["tiny", "small", "paper"]), default="small", show_default=True,
-              help="Iteration counts and sizes: tiny (tests, seconds), small (CPU, minutes), paper (4K + 11K iterations).")
-@click.option("--variant", default="full", show_default=True,
-              help="Full method, a paper ablation or an adapted baseline (see `m4dgs variants`).")
-@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
-              help="Run folder. Default: runs/<clip name>/<variant>.")
-@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-              help="Config override by dotted path, repeatable, e.g. --set stage1.iterations=500 --set exposure.perturb_ev=0.5.")
-@click.option("--device", default="auto", show_default=True, help="auto (CUDA when available), cpu, cuda, cuda:1 ...")
-@click.option("--backend", type=click.Choice(["auto", "gsplat", "cpu", "torch"]), default=None,
-              help="Rasterizer backend (default from the config: auto = gsplat on CUDA, C++ on CPU).")
-@click.option("--force", is_flag=True, help="Delete an existing run folder first (otherwise it is resumed).")
+@click.option(
+    "--clip",
+    "clip_dir",
+    required=True,
+    type=click.Path(exists=True, file_okay=False),
+    help="Clip folder (clip.json, input/, priors/; see docs/clip-format.md). Ground truth is "
+    "never read.",
+)
+@click.option(
+    "--preset",
+    type=click.Choice(["tiny", "small", "paper"]),
+    default="small",
+    show_default=True,
+    help="Iteration counts and sizes: tiny (tests, seconds), small (CPU, minutes), paper (4K + "
+    "11K iterations).",
+)
+@click.option(
+    "--variant",
+    default="full",
+    show_default=True,
+    help="Full method, a paper ablation or an adapted baseline (see `m4dgs variants`).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    default=None,
+    type=click.Path(file_okay=False),
+    help="Run folder. Default: runs/<clip name>/<variant>.",
+)
+@click.option(
+    "--set",
+    "sets",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Config override by dotted path, repeatable, e.g. --set stage1.iterations=500 --set "
+    "exposure.perturb_ev=0.5.",
+)
+@click.option(
+    "--device",
+    default="auto",
+    show_default=True,
+    help="auto (CUDA when available), cpu, cuda, cuda:1 ...",
+)
+@click.option(
+    "--backend",
+    type=click.Choice(["auto", "gsplat", "cpu", "torch"]),
+    default=None,
+    help="Rasterizer backend (default from the config: auto = gsplat on CUDA, C++ on CPU).",
+)
+@click.option(
+    "--force", is_flag=True, help="Delete an existing run folder first (otherwise it is resumed)."
+)
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quiet):
-    """Train on a clip: camera init, stage 1, video-to-world, stage 2, renders. Resumes an interrupted run."""
+    """Train on a clip: camera init, stage 1, video-to-world, stage 2, renders. Resumes an
+    interrupted run."""
     from .pipeline import train as run_train
     from .variants import VARIANTS
 
     if variant not in VARIANTS:
-        raise click.BadParameter(f"unknown variant {variant!r}; known: {', '.join(VARIANTS)}", param_hint="--variant")
+        raise click.BadParameter(
+            f"unknown variant {variant!r}; known: {', '.join(VARIANTS)}", param_hint="--variant"
+        )
     out = Path(out_dir) if out_dir else Path("runs") / Path(clip_dir).name / variant
     if force and out.exists():
         shutil.rmtree(out)
-    p = run_train(clip_dir, out, preset=preset, variant=variant, overrides=_parse_sets(sets), device=device,
-                  progress=not quiet, backend=backend)
+    p = run_train(
+        clip_dir,
+        out,
+        preset=preset,
+        variant=variant,
+        overrides=_parse_sets(sets),
+        device=device,
+        progress=not quiet,
+        backend=backend,
+    )
     click.echo(str(p))
 
 
 @main.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
 @click.option("--overwrite", is_flag=True, help="Re-render files that exist.")
-@click.option("--videos/--no-videos", default=False, show_default=True,
-              help="Also write fix-view-change-time, fix-time-change-view and exposure-sweep videos (mp4).")
-@click.option("--tracks/--no-tracks", default=False, show_default=True, help="Also write induced 2D/3D tracks.")
+@click.option(
+    "--videos/--no-videos",
+    default=False,
+    show_default=True,
+    help="Also write fix-view-change-time, fix-time-change-view and exposure-sweep videos (mp4).",
+)
+@click.option(
+    "--tracks/--no-tracks",
+    default=False,
+    show_default=True,
+    help="Also write induced 2D/3D tracks.",
+)
 @click.option("--device", default="cpu", show_default=True)
 def render(run_dir, overwrite, videos, tracks, device):
-    """Render the train/test frames of a run (HDR EXR, LDR PNG at every level, depth) and optional videos."""
+    """Render the train/test frames of a run (HDR EXR, LDR PNG at every level, depth) and optional
+    videos."""
     from .render import render_run
 
     n = render_run(run_dir, overwrite=overwrite, device=device)
@@ -89,10 +149,24 @@ def render(run_dir, overwrite, videos, tracks, device):
 
 @main.command("export-ply")
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
-@click.option("--frame", "g", default=0, show_default=True, type=int, help="Global frame index whose time is exported.")
-@click.option("--exposure", default=None, type=float,
-              help="Exposure dt used to bake the learned tone mapper into LDR colours (default: the unit exposure 1).")
-@click.option("--out", "out_path", required=True, type=click.Path(dir_okay=False), help="Output .ply file.")
+@click.option(
+    "--frame",
+    "g",
+    default=0,
+    show_default=True,
+    type=int,
+    help="Global frame index whose time is exported.",
+)
+@click.option(
+    "--exposure",
+    default=None,
+    type=float,
+    help="Exposure dt used to bake the learned tone mapper into LDR colours (default: the unit "
+    "exposure 1).",
+)
+@click.option(
+    "--out", "out_path", required=True, type=click.Path(dir_okay=False), help="Output .ply file."
+)
 def export_ply_cmd(run_dir, g, exposure, out_path):
     """Export the Gaussians at one time as a standard 3DGS .ply (opens in common splat viewers)."""
     from .export import export_run_ply
@@ -102,11 +176,17 @@ def export_ply_cmd(run_dir, g, exposure, out_path):
 
 
 @main.command()
-@click.option("--preset", type=click.Choice(["tiny", "small", "paper"]), default="small", show_default=True,
-              help="Preset whose iteration budgets are listed.")
+@click.option(
+    "--preset",
+    type=click.Choice(["tiny", "small", "paper"]),
+    default="small",
+    show_default=True,
+    help="Preset whose iteration budgets are listed.",
+)
 def variants(preset):
-    """List the variants (full method, ablations, adapted baselines) with their stage-1 / stage-2 / total
-    iterations under a preset. Every variant gets full's total; one without stage 1 spends it in stage 2."""
+    """List the variants (full method, ablations, adapted baselines) with their stage-1 / stage-2 /
+    total iterations under a preset. Every variant gets full's total; one without stage 1 spends it
+    in stage 2."""
     from .variants import VARIANTS, budget, describe
 
     click.echo(f"{'variant':24s} {'stage1':>7s} {'stage2':>7s} {'total':>7s}  (preset {preset})")

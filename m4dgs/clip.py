@@ -1,28 +1,31 @@
 """The clip folder contract (DESIGN.md "The clip folder"), schema version 1.
 
-A clip is one input video with its priors and, for synthetic clips, the ground truth kept apart for evaluation::
+A clip is one input video with its priors and, for synthetic clips, the ground truth kept apart for
+evaluation::
 
     <clip>/
       clip.json                 ClipMeta (below), written last by ClipWriter.finalize()
-      input/ldr/<g>.png         8-bit training frames (g = global frame index, 5 digits), exposure dt from clip.json
-      priors/depth/<g>.exr      depth prior per training frame, channel "Z" ([H, W] float32; any scale)
-      priors/tracks.npz         TrackSet over the training frames: tracks [N, T, 2] float32 pixels, visible [N, T]
+      input/ldr/<g>.png         8-bit training frames (g = global frame index, 5 digits), exposure
+      dt from clip.json priors/depth/<g>.exr      depth prior per training frame, channel "Z" ([H,
+      W] float32; any scale) priors/tracks.npz         TrackSet over the training frames: tracks [N,
+      T, 2] float32 pixels, visible [N, T]
                                 bool, frames [T] int64 (global indices)
-      priors/flow.npz           FlowSet between training frames of the same exposure level: pairs [P, 2] int64
-                                (a, b global indices; both directions are separate pairs), flow [P, H, W, 2] float32
-                                F_{a->b}, valid [P, H, W] bool
+      priors/flow.npz           FlowSet between training frames of the same exposure level: pairs
+      [P, 2] int64
+                                (a, b global indices; both directions are separate pairs), flow [P,
+                                H, W, 2] float32 F_{a->b}, valid [P, H, W] bool
       gt/                       evaluation only; absent for real clips
         hdr/<g>.exr             linear HDR radiance, every frame (train and test), [H, W, 3] float32
-        ldr/<level>/<g>.png     test frames at every observed and novel level (<level> = level_name(dt))
-        depth/<g>.exr           z-depth, every frame
-        cameras.json            Cameras: frames, K [G][3][3], c2w [G][4][4] (OpenCV, camera-to-world)
-        flow.npz                FlowSet between consecutive training frames (both directions) + exact visibility
-        tracks.npz              TrackSet over ALL frames with points3d [N, G, 3] (world) and dynamic [N] bool
+        ldr/<level>/<g>.png     test frames at every observed and novel level (<level> =
+        level_name(dt)) depth/<g>.exr           z-depth, every frame cameras.json
+        Cameras: frames, K [G][3][3], c2w [G][4][4] (OpenCV, camera-to-world) flow.npz
+        FlowSet between consecutive training frames (both directions) + exact visibility tracks.npz
+        TrackSet over ALL frames with points3d [N, G, 3] (world) and dynamic [N] bool
         masks/dynamic/<g>.png   dynamic-object mask (0 / 255)
 
-Pixel coordinates are continuous with pixel centres at integer + 0.5 (see m4dgs.camera). Errors raised by the
-reader name the file and the field (`ClipError`).
-"""
+Pixel coordinates are continuous with pixel centres at integer + 0.5 (see m4dgs.camera). Errors
+raised by the reader name the file and the field (`ClipError`)."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -59,9 +62,9 @@ def level_name(dt: float) -> str:
     return f"{float(dt):g}"
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Metadata
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 @dataclass
 class Split:
     train: List[int]
@@ -70,7 +73,8 @@ class Split:
 
 @dataclass
 class Exposures:
-    train_dt: List[float]  # exposure time of each training frame, aligned with split.train (as written on the input)
+    # exposure time of each training frame, aligned with split.train (as written on the input)
+    train_dt: List[float]
     observed: List[float]  # observed exposure levels (the ones used for training; LDR-OE)
     novel: List[float]  # novel exposure levels (test only; LDR-NE); empty for real clips
     schedule: str = "alternating"  # alternating | random-order | random-values | real
@@ -86,11 +90,14 @@ class ClipMeta:
     split: Split
     exposures: Exposures
     crf: Optional[str] = "hdrnerf"  # name of the true CRF (synthetic) or None (real)
-    unit_exposure_value: float = 0.73  # C0 of the unit-exposure loss (paper appendix: 0.73 synthetic, 0.5 real)
+    # C0 of the unit-exposure loss (paper appendix: 0.73 synthetic, 0.5 real)
+    unit_exposure_value: float = 0.73
     hdr_scale: Optional[float] = None  # global HDR scale applied by the generator (synthetic)
     generator: Dict[str, Any] = field(default_factory=dict)
-    priors: Dict[str, Any] = field(default_factory=dict)  # prior profile, seed, parameters / external model names
-    gt: Dict[str, Any] = field(default_factory=dict)  # ground-truth notes (render noise, HDR-TAE floor, ...)
+    # prior profile, seed, parameters / external model names
+    priors: Dict[str, Any] = field(default_factory=dict)
+    # ground-truth notes (render noise, HDR-TAE floor, ...)
+    gt: Dict[str, Any] = field(default_factory=dict)
     schema_version: int = SCHEMA_VERSION
 
     @property
@@ -131,13 +138,17 @@ def _positive_float_list(v, path, name, allow_empty=False):
     out = []
     for i, x in enumerate(v):
         if not isinstance(x, (int, float)) or isinstance(x, bool) or not math.isfinite(x) or x <= 0:
-            raise ClipError(path, f"{name}[{i}]", f"exposure must be a finite number > 0, got {x!r}")
+            raise ClipError(
+                path, f"{name}[{i}]", f"exposure must be a finite number > 0, got {x!r}"
+            )
         out.append(float(x))
     return out
 
 
 def _int_list(v, path, name):
-    if not isinstance(v, list) or not all(isinstance(x, int) and not isinstance(x, bool) for x in v):
+    if not isinstance(v, list) or not all(
+        isinstance(x, int) and not isinstance(x, bool) for x in v
+    ):
         raise ClipError(path, name, f"expected a list of integers, got {v!r}")
     return list(v)
 
@@ -147,7 +158,11 @@ def _parse_meta(d: dict, path) -> ClipMeta:
         raise ClipError(path, "<root>", "expected a JSON object")
     ver = _req(d, "schema_version", path)
     if ver not in SUPPORTED_SCHEMA_VERSIONS:
-        raise ClipError(path, "schema_version", f"unknown schema version {ver!r} (this reader supports {SUPPORTED_SCHEMA_VERSIONS})")
+        raise ClipError(
+            path,
+            "schema_version",
+            f"unknown schema version {ver!r} (this reader supports {SUPPORTED_SCHEMA_VERSIONS})",
+        )
     name = _req(d, "name", path)
     width = _positive_int(_req(d, "width", path), path, "width")
     height = _positive_int(_req(d, "height", path), path, "height")
@@ -170,10 +185,18 @@ def _parse_meta(d: dict, path) -> ClipMeta:
         if sorted(set(lst)) != lst:
             raise ClipError(path, nm, "indices must be increasing and unique")
     ex = _req(d, "exposures", path)
-    train_dt = _positive_float_list(_req(ex, "train_dt", path, "exposures."), path, "exposures.train_dt")
+    train_dt = _positive_float_list(
+        _req(ex, "train_dt", path, "exposures."), path, "exposures.train_dt"
+    )
     if len(train_dt) != len(train):
-        raise ClipError(path, "exposures.train_dt", f"has {len(train_dt)} values for {len(train)} training frames")
-    observed = _positive_float_list(_req(ex, "observed", path, "exposures."), path, "exposures.observed")
+        raise ClipError(
+            path,
+            "exposures.train_dt",
+            f"has {len(train_dt)} values for {len(train)} training frames",
+        )
+    observed = _positive_float_list(
+        _req(ex, "observed", path, "exposures."), path, "exposures.observed"
+    )
     novel = _positive_float_list(ex.get("novel", []), path, "exposures.novel", allow_empty=True)
     schedule = ex.get("schedule", "alternating")
     uev = d.get("unit_exposure_value", 0.73)
@@ -187,22 +210,32 @@ def _parse_meta(d: dict, path) -> ClipMeta:
     if unknown:
         raise ClipError(path, unknown[0], "unknown field (schema version 1)")
     return ClipMeta(
-        name=str(name), width=width, height=height, fps=float(fps), frames=frames,
+        name=str(name),
+        width=width,
+        height=height,
+        fps=float(fps),
+        frames=frames,
         split=Split(train=train, test=test),
-        exposures=Exposures(train_dt=train_dt, observed=observed, novel=novel, schedule=str(schedule)),
-        crf=d.get("crf"), unit_exposure_value=float(uev), hdr_scale=None if hs is None else float(hs),
-        generator=dict(d.get("generator", {})), priors=dict(d.get("priors", {})), gt=dict(d.get("gt", {})),
+        exposures=Exposures(
+            train_dt=train_dt, observed=observed, novel=novel, schedule=str(schedule)
+        ),
+        crf=d.get("crf"),
+        unit_exposure_value=float(uev),
+        hdr_scale=None if hs is None else float(hs),
+        generator=dict(d.get("generator", {})),
+        priors=dict(d.get("priors", {})),
+        gt=dict(d.get("gt", {})),
         schema_version=ver,
     )
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Array bundles
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 @dataclass
 class TrackSet:
-    """Point tracks. tracks [N, T, 2] pixels (centres at +0.5), visible [N, T] bool, frames [T] global indices;
-    optional points3d [N, T, 3] (world) and dynamic [N] bool (ground truth only)."""
+    """Point tracks. tracks [N, T, 2] pixels (centres at +0.5), visible [N, T] bool, frames [T]
+    global indices; optional points3d [N, T, 3] (world) and dynamic [N] bool (ground truth only)."""
 
     tracks: np.ndarray
     visible: np.ndarray
@@ -211,7 +244,11 @@ class TrackSet:
     dynamic: Optional[np.ndarray] = None
 
     def to_arrays(self) -> dict:
-        d = {"tracks": self.tracks.astype(np.float32), "visible": self.visible.astype(bool), "frames": np.asarray(self.frames, np.int64)}
+        d = {
+            "tracks": self.tracks.astype(np.float32),
+            "visible": self.visible.astype(bool),
+            "frames": np.asarray(self.frames, np.int64),
+        }
         if self.points3d is not None:
             d["points3d"] = self.points3d.astype(np.float32)
         if self.dynamic is not None:
@@ -221,8 +258,9 @@ class TrackSet:
 
 @dataclass
 class FlowSet:
-    """Optical flow between frame pairs. pairs [P, 2] (a, b) global indices, flow [P, H, W, 2] F_{a->b} in pixels,
-    valid [P, H, W] bool (prior: confidence mask; ground truth: exact visibility of a's pixel in b)."""
+    """Optical flow between frame pairs. pairs [P, 2] (a, b) global indices, flow [P, H, W, 2]
+    F_{a->b} in pixels, valid [P, H, W] bool (prior: confidence mask; ground truth: exact visibility
+    of a's pixel in b)."""
 
     pairs: np.ndarray
     flow: np.ndarray
@@ -240,7 +278,11 @@ class FlowSet:
         return self.flow[i], self.valid[i]
 
     def to_arrays(self) -> dict:
-        return {"pairs": np.asarray(self.pairs, np.int64), "flow": self.flow.astype(np.float32), "valid": self.valid.astype(bool)}
+        return {
+            "pairs": np.asarray(self.pairs, np.int64),
+            "flow": self.flow.astype(np.float32),
+            "valid": self.valid.astype(bool),
+        }
 
 
 @dataclass
@@ -252,7 +294,11 @@ class Cameras:
     c2w: np.ndarray
 
     def to_json(self) -> dict:
-        return {"frames": [int(g) for g in self.frames], "K": np.asarray(self.K).tolist(), "c2w": np.asarray(self.c2w).tolist()}
+        return {
+            "frames": [int(g) for g in self.frames],
+            "K": np.asarray(self.K).tolist(),
+            "c2w": np.asarray(self.c2w).tolist(),
+        }
 
     @staticmethod
     def from_json(d: dict, path="cameras.json") -> "Cameras":
@@ -275,7 +321,9 @@ class Cameras:
         return Cameras(frames=frames, K=K, c2w=c2w)
 
 
-def _check_array(arr: np.ndarray, path, name: str, shape: Sequence[Optional[int]], finite: bool = True, mask=None):
+def _check_array(
+    arr: np.ndarray, path, name: str, shape: Sequence[Optional[int]], finite: bool = True, mask=None
+):
     if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
         want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
         raise ClipError(path, name, f"expected shape {want}, got {tuple(arr.shape)}")
@@ -295,7 +343,12 @@ def _load_npz_fields(path: Path, fields: Sequence[str]) -> dict:
     return d
 
 
-def load_trackset(path, num_frames: Optional[int] = None, width: Optional[int] = None, height: Optional[int] = None) -> TrackSet:
+def load_trackset(
+    path,
+    num_frames: Optional[int] = None,
+    width: Optional[int] = None,
+    height: Optional[int] = None,
+) -> TrackSet:
     path = Path(path)
     d = _load_npz_fields(path, ("tracks", "visible", "frames"))
     tr, vis, fr = d["tracks"], d["visible"], d["frames"]
@@ -310,11 +363,18 @@ def load_trackset(path, num_frames: Optional[int] = None, width: Optional[int] =
     dyn = d.get("dynamic")
     if dyn is not None:
         _check_array(dyn, path, "dynamic", (N,))
-    return TrackSet(tracks=tr.astype(np.float32), visible=vis.astype(bool), frames=fr.astype(np.int64),
-                    points3d=None if p3 is None else p3.astype(np.float32), dynamic=None if dyn is None else dyn.astype(bool))
+    return TrackSet(
+        tracks=tr.astype(np.float32),
+        visible=vis.astype(bool),
+        frames=fr.astype(np.int64),
+        points3d=None if p3 is None else p3.astype(np.float32),
+        dynamic=None if dyn is None else dyn.astype(bool),
+    )
 
 
-def load_flowset(path, width: int, height: int, allowed_frames: Optional[Sequence[int]] = None) -> FlowSet:
+def load_flowset(
+    path, width: int, height: int, allowed_frames: Optional[Sequence[int]] = None
+) -> FlowSet:
     path = Path(path)
     d = _load_npz_fields(path, ("pairs", "flow", "valid"))
     pairs, flow, valid = d["pairs"], d["flow"], d["valid"]
@@ -326,21 +386,29 @@ def load_flowset(path, width: int, height: int, allowed_frames: Optional[Sequenc
         allowed = set(int(g) for g in allowed_frames)
         for i, (a, b) in enumerate(pairs.tolist()):
             if a not in allowed or b not in allowed:
-                raise ClipError(path, f"pairs[{i}]", f"pair ({a}, {b}) names a frame outside {sorted(allowed)[:4]}...")
-    return FlowSet(pairs=pairs.astype(np.int64), flow=flow.astype(np.float32), valid=valid.astype(bool))
+                raise ClipError(
+                    path,
+                    f"pairs[{i}]",
+                    f"pair ({a}, {b}) names a frame outside {sorted(allowed)[:4]}...",
+                )
+    return FlowSet(
+        pairs=pairs.astype(np.int64), flow=flow.astype(np.float32), valid=valid.astype(bool)
+    )
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Reader
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 class Clip:
-    """Read-only view of a clip folder. `Clip.open(path)` validates clip.json; `validate()` checks every file."""
+    """Read-only view of a clip folder. `Clip.open(path)` validates clip.json; `validate()` checks
+    every file."""
 
     def __init__(self, root: Path, meta: ClipMeta):
         self.root = Path(root)
         self.meta = meta
 
-    # -- construction ------------------------------------------------------------------------------------------
+    # -- construction
+    # ------------------------------------------------------------------------------------------
     @staticmethod
     def open(root, validate: str = "meta") -> "Clip":
         """Open a clip. validate: 'meta' (clip.json only, cheap), 'full' (every file), or 'none'."""
@@ -356,7 +424,8 @@ class Clip:
             clip.validate()
         return clip
 
-    # -- paths -------------------------------------------------------------------------------------------------
+    # -- paths
+    # ----------------------------------------------------------------------------------------------
     def path(self, *parts) -> Path:
         return self.root.joinpath(*parts)
 
@@ -384,7 +453,8 @@ class Clip:
     def train_dt(self) -> np.ndarray:
         return np.asarray(self.meta.exposures.train_dt, np.float64)
 
-    # -- inputs and priors ---------------------------------------------------------------------------------------
+    # -- inputs and priors
+    # ---------------------------------------------------------------------------------------
     def _img(self, rel: Path, channels: int) -> np.ndarray:
         p = self.root / rel
         if not p.exists():
@@ -404,7 +474,9 @@ class Clip:
         if arr.shape != want:
             raise ClipError(p, "pixels", f"expected shape {want}, got {arr.shape}")
         if not np.isfinite(arr).all():
-            raise ClipError(p, "pixels", f"contains NaN or inf ({int((~np.isfinite(arr)).sum())} values)")
+            raise ClipError(
+                p, "pixels", f"contains NaN or inf ({int((~np.isfinite(arr)).sum())} values)"
+            )
         if nonneg and (arr < 0).any():
             raise ClipError(p, "pixels", "contains negative radiance")
         return arr
@@ -420,19 +492,26 @@ class Clip:
     def load_tracks_prior(self) -> TrackSet:
         ts = load_trackset(self.root / "priors/tracks.npz", num_frames=len(self.train_frames))
         if ts.frames.tolist() != self.train_frames:
-            raise ClipError(self.root / "priors/tracks.npz", "frames", "must equal split.train of clip.json")
+            raise ClipError(
+                self.root / "priors/tracks.npz", "frames", "must equal split.train of clip.json"
+            )
         return ts
 
     def load_flow_prior(self) -> FlowSet:
-        return load_flowset(self.root / "priors/flow.npz", self.width, self.height, self.train_frames)
+        return load_flowset(
+            self.root / "priors/flow.npz", self.width, self.height, self.train_frames
+        )
 
     def has_flow_prior(self) -> bool:
         return (self.root / "priors/flow.npz").exists()
 
-    # -- ground truth --------------------------------------------------------------------------------------------
+    # -- ground truth
+    # --------------------------------------------------------------------------------------------
     def _need_gt(self):
         if not self.has_gt:
-            raise ClipError(self.root / "gt", "<folder>", "this clip has no ground truth (real clip?)")
+            raise ClipError(
+                self.root / "gt", "<folder>", "this clip has no ground truth (real clip?)"
+            )
 
     def load_gt_hdr(self, g: int) -> np.ndarray:
         self._need_gt()
@@ -468,9 +547,11 @@ class Clip:
         self._need_gt()
         return self._img(Path("gt/masks/dynamic") / frame_name(g, "png"), 1) > 127
 
-    # -- validation ------------------------------------------------------------------------------------------------
+    # -- validation
+    # ----------------------------------------------------------------------------------------------
     def validate(self) -> None:
-        """Check every file of the contract; raises ClipError naming the first offending file and field."""
+        """Check every file of the contract; raises ClipError naming the first offending file and
+        field."""
         for g in self.train_frames:
             self.load_ldr(g)
             self.load_depth_prior(g)
@@ -492,14 +573,14 @@ class Clip:
                 self.load_gt_tracks()
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Writer
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 class ClipWriter:
     """Writes a clip folder file by file (each write atomic); `finalize()` writes clip.json last.
 
-    A folder without clip.json is an unfinished clip: `exists(rel)` lets a generator skip finished files and resume.
-    """
+    A folder without clip.json is an unfinished clip: `exists(rel)` lets a generator skip finished
+    files and resume."""
 
     def __init__(self, root, meta: ClipMeta):
         self.root = Path(root)
@@ -552,7 +633,10 @@ class ClipWriter:
 
     def write_gt_dynamic_mask(self, g: int, mask: np.ndarray) -> None:
         self._shape_hw(mask, f"gt/masks/dynamic/{g}", 1)
-        mio.write_png(self.root / "gt/masks/dynamic" / frame_name(g, "png"), np.where(mask, 255, 0).astype(np.uint8))
+        mio.write_png(
+            self.root / "gt/masks/dynamic" / frame_name(g, "png"),
+            np.where(mask, 255, 0).astype(np.uint8),
+        )
 
     def finalize(self) -> Path:
         """Write clip.json (atomically, last) and return its path."""

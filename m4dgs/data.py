@@ -1,9 +1,10 @@
 """Training inputs of one clip as tensors: LDR frames, exposures, priors (never ground truth).
 
-Time axis: the trainer measures time in training-frame indices 0..T-1 (the spline knots live there). A global frame g
-maps to the fractional index obtained by linear interpolation over the training frames, so with the default split
-(even g train, odd g test) the test frame between training frames i and i + 1 sits at t = i + 0.5.
-"""
+Time axis: the trainer measures time in training-frame indices 0..T-1 (the spline knots live there).
+A global frame g maps to the fractional index obtained by linear interpolation over the training
+frames, so with the default split (even g train, odd g test) the test frame between training frames
+i and i + 1 sits at t = i + 0.5."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -17,7 +18,8 @@ from .clip import Clip
 
 @dataclass
 class TrainingData:
-    """Everything the trainer may see. Shapes: T training frames, H x W pixels, N tracks, P flow pairs."""
+    """Everything the trainer may see. Shapes: T training frames, H x W pixels, N tracks, P flow
+    pairs."""
 
     clip_name: str
     frames: List[int]  # [T] global indices of the training frames
@@ -50,12 +52,15 @@ class TrainingData:
 
 
 def frame_time(clip: Clip, g: float) -> float:
-    """Fractional training-frame index of global frame g (linear interpolation over the training frames)."""
+    """Fractional training-frame index of global frame g (linear interpolation over the training
+    frames)."""
     train = np.asarray(clip.train_frames, np.float64)
     return float(np.interp(g, train, np.arange(len(train), dtype=np.float64)))
 
 
-def load_training_data(clip: Clip, device="cpu", max_tracks: Optional[int] = None, seed: int = 0) -> TrainingData:
+def load_training_data(
+    clip: Clip, device="cpu", max_tracks: Optional[int] = None, seed: int = 0
+) -> TrainingData:
     """Read a clip's training inputs into tensors on `device` (float32).
 
     Args:
@@ -70,7 +75,9 @@ def load_training_data(clip: Clip, device="cpu", max_tracks: Optional[int] = Non
     keep = vis.sum(1) >= 2  # a track seen once carries no motion
     tracks, vis = tracks[keep], vis[keep]
     if max_tracks is not None and tracks.shape[0] > max_tracks:
-        idx = np.sort(np.random.default_rng(seed).choice(tracks.shape[0], max_tracks, replace=False))
+        idx = np.sort(
+            np.random.default_rng(seed).choice(tracks.shape[0], max_tracks, replace=False)
+        )
         tracks, vis = tracks[idx], vis[idx]
     index = {g: i for i, g in enumerate(frames)}
     flow = valid = None

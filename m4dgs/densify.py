@@ -1,27 +1,29 @@
-"""Adaptive density control of Gaussians (3DGS-style clone / split / prune / opacity reset) as a strategy object.
+"""Adaptive density control of Gaussians (3DGS-style clone / split / prune / opacity reset) as a
+strategy object.
 
-Paper: "We follow the same densification strategy as 3DGS for all Gaussians at both stages" (appendix), stage 1
-densifies for 3K iterations every 200 steps and resets opacities every 1K steps; stage 2 densifies for 8K iterations,
-static Gaussians every 400 steps, dynamic ones every 200 steps, opacity resets every 2K (sec. "Implementation
-Details"). Thresholds from the authors' code: gradient threshold 2e-4 (their code raises it by a quantile schedule; here
-an option), clone/split boundary on the largest scale 0.01 (video-space units in stage 1), split into 2 with scales
-/ 1.6, prune opacity < 0.005, reset opacity to 0.01, at most 150k Gaussians.
+Paper: "We follow the same densification strategy as 3DGS for all Gaussians at both stages"
+(appendix), stage 1 densifies for 3K iterations every 200 steps and resets opacities every 1K steps;
+stage 2 densifies for 8K iterations, static Gaussians every 400 steps, dynamic ones every 200 steps,
+opacity resets every 2K (sec. "Implementation Details"). Thresholds from the authors' code: gradient
+threshold 2e-4 (their code raises it by a quantile schedule; here an option), clone/split boundary
+on the largest scale 0.01 (video-space units in stage 1), split into 2 with scales / 1.6, prune
+opacity < 0.005, reset opacity to 0.01, at most 150k Gaussians.
 
-The strategy works on any dict of per-Gaussian parameters whose first dimension is N (any trailing shape: spline
-control points [N, K, 3], rotation polynomial coefficients [N, J, 4], features [N, C], opacity logits [N] ...), and
-keeps the Adam state (exp_avg, exp_avg_sq) row-aligned with the parameters: new rows get zero moments, removed rows
-are dropped. A `GaussianLayout` says which keys hold positions (offset when splitting), scales and opacities and how
-they are activated. Stage 2 uses one strategy per Gaussian set (static and dynamic), each with its own config.
+The strategy works on any dict of per-Gaussian parameters whose first dimension is N (any trailing
+shape: spline control points [N, K, 3], rotation polynomial coefficients [N, J, 4], features [N, C],
+opacity logits [N] ...), and keeps the Adam state (exp_avg, exp_avg_sq) row-aligned with the
+parameters: new rows get zero moments, removed rows are dropped. A `GaussianLayout` says which keys
+hold positions (offset when splitting), scales and opacities and how they are activated. Stage 2
+uses one strategy per Gaussian set (static and dynamic), each with its own config.
 
 Typical loop (gsplat-like):
 
-    strategy = Strategy(cfg, layout); state = strategy.initialize_state()
-    info = render(...)                                   # info["means2d"] [N, 2] in pixels, info["radii"]
-    strategy.step_pre_backward(params, optimizers, state, step, info)
-    loss.backward()
-    strategy.step_post_backward(params, optimizers, state, step, info)   # info also needs "width", "height"
-    optimizer.step()
+    strategy = Strategy(cfg, layout); state = strategy.initialize_state() info = render(...)
+    # info["means2d"] [N, 2] in pixels, info["radii"] strategy.step_pre_backward(params, optimizers,
+    state, step, info) loss.backward() strategy.step_post_backward(params, optimizers, state, step,
+    info)   # info also needs "width", "height" optimizer.step()
 """
+
 from __future__ import annotations
 
 import math
@@ -34,16 +36,23 @@ from torch import nn
 from m4dgs.camera import quat_to_rotmat
 
 Tensor = torch.Tensor
-Optimizers = Union[torch.optim.Optimizer, Mapping[str, torch.optim.Optimizer], Iterable[torch.optim.Optimizer]]
+Optimizers = Union[
+    torch.optim.Optimizer, Mapping[str, torch.optim.Optimizer], Iterable[torch.optim.Optimizer]
+]
 
 
 @dataclass
 class DensifyConfig:
-    """Densification schedule and thresholds (appendix "Gaussian Densification", "Implementation Details")."""
+    """Densification schedule and thresholds (appendix "Gaussian Densification", "Implementation
+    Details")."""
 
-    grad_threshold: float = 2e-4  # 3DGS: mean 2D positional gradient (NDC units) above which a Gaussian grows
-    grad_quantile: Optional[float] = None  # authors' code: threshold = max(grad_threshold, quantile(grads, q)); None = off
-    clone_split_scale: float = 0.01  # largest scale <= this: clone, else split (authors: 0.01 in video-space units)
+    # 3DGS: mean 2D positional gradient (NDC units) above which a Gaussian grows
+    grad_threshold: float = 2e-4
+    grad_quantile: Optional[float] = (
+        None  # authors' code: threshold = max(grad_threshold, quantile(grads, q)); None = off
+    )
+    # largest scale <= this: clone, else split (authors: 0.01 in video-space units)
+    clone_split_scale: float = 0.01
     split_count: int = 2  # split one Gaussian into this many samples (3DGS: 2)
     split_scale_factor: float = 1.6  # split samples get scales / 1.6 (3DGS)
     prune_opacity: float = 0.005  # prune Gaussians with opacity below this (3DGS)
@@ -53,9 +62,12 @@ class DensifyConfig:
     stop_iter: int = 3_000  # stage 1: 3K densification iterations (paper)
     every: int = 200  # stage 1: densify every 200 steps (paper)
     reset_every: int = 1_000  # stage 1: opacity reset every 1K steps (paper)
-    pause_after_reset: int = 0  # skip densification this many steps after a reset (gsplat option; 0 = 3DGS)
-    prune_scale: Optional[float] = None  # 3DGS prunes largest scale > 0.1 x scene extent; None = off (bounded scales)
-    prune_radius2d: Optional[float] = None  # 3DGS prunes screen radius > 20 px after the first reset; None = off
+    # skip densification this many steps after a reset (gsplat option; 0 = 3DGS)
+    pause_after_reset: int = 0
+    # 3DGS prunes largest scale > 0.1 x scene extent; None = off (bounded scales)
+    prune_scale: Optional[float] = None
+    # 3DGS prunes screen radius > 20 px after the first reset; None = off
+    prune_radius2d: Optional[float] = None
 
 
 def _exp(x: Tensor) -> Tensor:
@@ -70,11 +82,12 @@ def _log(x: Tensor) -> Tensor:
 class GaussianLayout:
     """Where the densification-relevant quantities live in a parameter dict.
 
-    position_keys: keys whose trailing dimension is 3 and that are offset by the split samples (a static mean [N, 3]
+    position_keys: keys whose trailing dimension is 3 and that are offset by the split samples (a
+    static mean [N, 3]
         or spline control points [N, K, 3]: every control point moves by the same sample).
     scale_key / scale_fn / scale_inv_fn: raw scale parameter [N, 3] and its activation / inverse.
-    opacity_key: opacity logits [N] (sigmoid activation).
-    rotation_fn: params -> [N, 4] wxyz quaternion (any norm) orienting the split samples; default reads
+    opacity_key: opacity logits [N] (sigmoid activation). rotation_fn: params -> [N, 4] wxyz
+    quaternion (any norm) orienting the split samples; default reads
         `rotation_key` as [N, 4].
     """
 
@@ -92,9 +105,9 @@ class GaussianLayout:
         return params[self.rotation_key]
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # parameter / optimizer surgery
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _optimizer_list(optimizers: Optimizers) -> list:
     if optimizers is None:
         return []
@@ -112,12 +125,12 @@ def update_params_and_optimizers(
     state_fn: Callable[[str, str, Tensor], Tensor],
     names: Optional[Iterable[str]] = None,
 ) -> None:
-    """Replace each parameter by `param_fn(name, old)` and its optimizer state rows by `state_fn(name, key, old)`.
+    """Replace each parameter by `param_fn(name, old)` and its optimizer state rows by
+    `state_fn(name, key, old)`.
 
-    The new nn.Parameter takes the old one's place in `params` and in every optimizer param group that held it; the
-    optimizer's per-parameter state (tensors whose first dimension is N, e.g. Adam's exp_avg / exp_avg_sq) is mapped
-    by state_fn, scalar entries (Adam's "step") are kept.
-    """
+    The new nn.Parameter takes the old one's place in `params` and in every optimizer param group
+    that held it; the optimizer's per-parameter state (tensors whose first dimension is N, e.g.
+    Adam's exp_avg / exp_avg_sq) is mapped by state_fn, scalar entries (Adam's "step") are kept."""
     opts = _optimizer_list(optimizers)
     for name in list(names) if names is not None else list(params.keys()):
         old = params[name]
@@ -156,7 +169,9 @@ def duplicate_gaussians(params, optimizers, mask: Tensor) -> None:
 def remove_gaussians(params, optimizers, mask: Tensor) -> None:
     """Drop every Gaussian in `mask` [N] bool, with its optimizer rows."""
     keep = torch.where(~mask)[0]
-    update_params_and_optimizers(params, optimizers, lambda name, p: p[keep], lambda name, key, v: v[keep])
+    update_params_and_optimizers(
+        params, optimizers, lambda name, p: p[keep], lambda name, key, v: v[keep]
+    )
 
 
 def split_gaussians(
@@ -171,17 +186,18 @@ def split_gaussians(
 ) -> None:
     """Replace each Gaussian in `mask` by `count` samples drawn from it (3DGS split).
 
-    Sample positions: mu + R (s * eps), eps ~ N(0, I), with R, s the Gaussian's rotation and scales; for trajectory
-    parameters (control points) the same offset moves every control point. The samples' scales are s / scale_factor;
-    all other attributes are copied. The split Gaussians are removed; the samples are appended (zero optimizer rows).
-    """
+    Sample positions: mu + R (s * eps), eps ~ N(0, I), with R, s the Gaussian's rotation and scales;
+    for trajectory parameters (control points) the same offset moves every control point. The
+    samples' scales are s / scale_factor; all other attributes are copied. The split Gaussians are
+    removed; the samples are appended (zero optimizer rows)."""
     sel = torch.where(mask)[0]
     rest = torch.where(~mask)[0]
     m = sel.numel()
     scales = layout.scale_fn(params[layout.scale_key].detach()[sel])  # [M, 3]
     rots = quat_to_rotmat(layout.rotations(params).detach()[sel]).to(scales.dtype)  # [M, 3, 3]
     eps = torch.randn((count, m, 3), dtype=scales.dtype, device=scales.device, generator=generator)
-    offsets = torch.einsum("mij,cmj->cmi", rots, scales[None] * eps).reshape(count * m, 3)  # sample-major
+    # sample-major
+    offsets = torch.einsum("mij,cmj->cmi", rots, scales[None] * eps).reshape(count * m, 3)
 
     def param_fn(name: str, p: Tensor) -> Tensor:
         src = p[sel]
@@ -201,7 +217,8 @@ def split_gaussians(
 
 
 def reset_opacity(params, optimizers, opacity_key: str, value: float) -> None:
-    """Clamp opacities to at most `value` (3DGS opacity reset); the opacity optimizer state is zeroed."""
+    """Clamp opacities to at most `value` (3DGS opacity reset); the opacity optimizer state is
+    zeroed."""
     logit = math.log(value / (1.0 - value))
     update_params_and_optimizers(
         params,
@@ -212,17 +229,21 @@ def reset_opacity(params, optimizers, opacity_key: str, value: float) -> None:
     )
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # strategy
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 class Strategy:
     """3DGS adaptive density control for one set of Gaussians (see module docstring).
 
-    State (`initialize_state()`): "grad2d" [N] accumulated 2D gradient norms, "count" [N] visibility counts, "radii"
-    [N] largest screen radius seen (pixels); created lazily at the first update.
-    """
+    State (`initialize_state()`): "grad2d" [N] accumulated 2D gradient norms, "count" [N] visibility
+    counts, "radii" [N] largest screen radius seen (pixels); created lazily at the first update."""
 
-    def __init__(self, cfg: Optional[DensifyConfig] = None, layout: Optional[GaussianLayout] = None, seed: int = 0):
+    def __init__(
+        self,
+        cfg: Optional[DensifyConfig] = None,
+        layout: Optional[GaussianLayout] = None,
+        seed: int = 0,
+    ):
         self.cfg = cfg or DensifyConfig()
         self.layout = layout or GaussianLayout()
         self.seed = seed
@@ -248,26 +269,38 @@ class Strategy:
             needed.append(lay.rotation_key)
         missing = [k for k in needed if k not in params]
         if missing:
-            raise ValueError(f"densification: parameter dict lacks {missing} (has {sorted(params)})")
+            raise ValueError(
+                f"densification: parameter dict lacks {missing} (has {sorted(params)})"
+            )
         sizes = {k: v.shape[0] for k, v in params.items()}
         if len(set(sizes.values())) > 1:
-            raise ValueError(f"densification: parameters disagree on the number of Gaussians: {sizes}")
+            raise ValueError(
+                f"densification: parameters disagree on the number of Gaussians: {sizes}"
+            )
 
-    # --- hooks -------------------------------------------------------------------------------------------------------
-    def step_pre_backward(self, params, optimizers, state, step: int, info: Mapping[str, Any]) -> None:
+    # --- hooks
+    # ----------------------------------------------------------------------------------------------
+    def step_pre_backward(
+        self, params, optimizers, state, step: int, info: Mapping[str, Any]
+    ) -> None:
         """Ask autograd to keep the gradient of the projected means (info["means2d"])."""
         means2d = info.get("means2d")
         if means2d is not None and means2d.requires_grad and not means2d.is_leaf:
             means2d.retain_grad()
 
-    def step_post_backward(self, params, optimizers, state, step: int, info: Mapping[str, Any]) -> Dict[str, int]:
+    def step_post_backward(
+        self, params, optimizers, state, step: int, info: Mapping[str, Any]
+    ) -> Dict[str, int]:
         """Accumulate statistics and, on schedule, clone / split / prune and reset opacities.
 
         Args:
-            info: "means2d" (tensor whose .grad holds d loss / d pixel position, [N, 2] or [C, N, 2]) or
-                "means2d_grad" (that gradient directly), "radii" ([N], [N, 2] or with a leading C), "width", "height".
+            info: "means2d" (tensor whose .grad holds d loss / d pixel position, [N, 2] or [C, N,
+            2]) or
+                "means2d_grad" (that gradient directly), "radii" ([N], [N, 2] or with a leading C),
+                "width", "height".
         Returns:
-            counts of this step's operations: {"clone", "split", "prune", "reset"} (zeros when nothing happened).
+            counts of this step's operations: {"clone", "split", "prune", "reset"} (zeros when
+            nothing happened).
         """
         cfg = self.cfg
         out = {"clone": 0, "split": 0, "prune": 0, "reset": 0}
@@ -293,27 +326,43 @@ class Strategy:
             out["reset"] = 1
         return out
 
-    # --- internals ---------------------------------------------------------------------------------------------------
+    # --- internals
+    # ----------------------------------------------------------------------------------------------
     def _update_state(self, params, state, info) -> None:
         grads = info.get("means2d_grad")
         if grads is None:
             means2d = info["means2d"]
             grads = means2d.grad
             if grads is None:
-                raise ValueError("densification: info['means2d'] has no gradient; call step_pre_backward before backward")
+                raise ValueError(
+                    "densification: info['means2d'] has no gradient; call step_pre_backward "
+                    "before backward"
+                )
         if "width" not in info or "height" not in info:
-            raise ValueError("densification: info needs 'width' and 'height' (image size in pixels)")
+            raise ValueError(
+                "densification: info needs 'width' and 'height' (image size in pixels)"
+            )
         width, height = float(info["width"]), float(info["height"])
         grads = grads.detach()
         n = grads.shape[-2]
         n_params = next(iter(params.values())).shape[0]
         if n != n_params:
-            raise ValueError(f"densification: means2d gradient covers {n} Gaussians, the parameters hold {n_params}")
+            raise ValueError(
+                f"densification: means2d gradient covers {n} Gaussians, the parameters hold "
+                f"{n_params}"
+            )
         if info["radii"].numel() not in (grads.numel(), grads.numel() // 2):
-            raise ValueError(f"densification: radii shape {tuple(info['radii'].shape)} does not match {n} Gaussians")
+            raise ValueError(
+                f"densification: radii shape {tuple(info['radii'].shape)} does not match {n} "
+                "Gaussians"
+            )
         grads = grads.reshape(-1, n, 2)
-        # pixel-space gradient -> NDC units of 3DGS (the threshold 2e-4 is in those units), as gsplat does
-        scale = torch.tensor([width / 2.0, height / 2.0], dtype=grads.dtype, device=grads.device) * grads.shape[0]
+        # pixel-space gradient -> NDC units of 3DGS (the threshold 2e-4 is in those units), as
+        # gsplat does
+        scale = (
+            torch.tensor([width / 2.0, height / 2.0], dtype=grads.dtype, device=grads.device)
+            * grads.shape[0]
+        )
         norms = (grads * scale).norm(dim=-1)  # [C, N]
         radii = info["radii"].detach()
         if radii.numel() == grads.numel():  # per-axis radii [..., N, 2] (gsplat >= 1.5)
@@ -336,7 +385,8 @@ class Strategy:
         state["radii"] = torch.maximum(state["radii"], (rmax.float() * vis).max(0).values)
 
     def grow(self, params, optimizers, state, step: int) -> tuple[int, int]:
-        """Clone small and split large Gaussians whose mean 2D gradient exceeds the threshold (respecting the cap)."""
+        """Clone small and split large Gaussians whose mean 2D gradient exceeds the threshold
+        (respecting the cap)."""
         cfg, lay = self.cfg, self.layout
         count = state["count"]
         avg = state["grad2d"] / count.clamp_min(1.0)
@@ -366,7 +416,9 @@ class Strategy:
             duplicate_gaussians(params, optimizers, clone_mask)
             for key in ("grad2d", "count", "radii"):
                 state[key] = torch.cat([state[key], state[key][clone_mask]])
-            split_mask = torch.cat([split_mask, torch.zeros(n_clone, dtype=torch.bool, device=split_mask.device)])
+            split_mask = torch.cat(
+                [split_mask, torch.zeros(n_clone, dtype=torch.bool, device=split_mask.device)]
+            )
         if n_split:
             dev = params[lay.scale_key].device
             split_gaussians(
@@ -384,8 +436,8 @@ class Strategy:
         return n_clone, n_split
 
     def remove(self, params, optimizers, state, mask: Tensor) -> int:
-        """Remove the Gaussians in `mask` [N] bool, keeping parameters, optimizer rows and statistics aligned (e.g.
-        the stage-2 removal of mistakenly densified dynamic Gaussians)."""
+        """Remove the Gaussians in `mask` [N] bool, keeping parameters, optimizer rows and
+        statistics aligned (e.g. the stage-2 removal of mistakenly densified dynamic Gaussians)."""
         n_remove = int(mask.sum())
         if n_remove:
             remove_gaussians(params, optimizers, mask)
@@ -397,11 +449,16 @@ class Strategy:
     def prune(self, params, optimizers, state, step: int) -> int:
         """Remove transparent Gaussians (and, when enabled, too large ones)."""
         cfg, lay = self.cfg, self.layout
-        opac = torch.sigmoid(params[lay.opacity_key].detach()).reshape(params[lay.opacity_key].shape[0], -1)[:, 0]
+        opac = torch.sigmoid(params[lay.opacity_key].detach()).reshape(
+            params[lay.opacity_key].shape[0], -1
+        )[:, 0]
         mask = opac < cfg.prune_opacity
         if step > cfg.reset_every:
             if cfg.prune_scale is not None:
-                mask |= lay.scale_fn(params[lay.scale_key].detach()).max(dim=-1).values > cfg.prune_scale
+                mask |= (
+                    lay.scale_fn(params[lay.scale_key].detach()).max(dim=-1).values
+                    > cfg.prune_scale
+                )
             if cfg.prune_radius2d is not None and state.get("radii") is not None:
                 mask |= state["radii"] > cfg.prune_radius2d
         return self.remove(params, optimizers, state, mask)

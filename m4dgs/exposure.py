@@ -1,9 +1,10 @@
-"""Exposure perturbation of the training frames (robustness experiment: unknown / inaccurate exposure times).
+"""Exposure perturbation of the training frames (robustness experiment: unknown / inaccurate
+exposure times).
 
-Each training frame's exposure time dt is multiplied by 2^u with u ~ U[-r, r] EV, drawn once per run from a seeded
-numpy Generator and fixed for the whole run. Exposures are handled as log2 values (authors' convention), so the
-perturbation is additive: log2_dt' = log2_dt + u.
-"""
+Each training frame's exposure time dt is multiplied by 2^u with u ~ U[-r, r] EV, drawn once per run
+from a seeded numpy Generator and fixed for the whole run. Exposures are handled as log2 values
+(authors' convention), so the perturbation is additive: log2_dt' = log2_dt + u."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -11,7 +12,8 @@ import torch
 
 
 def exposure_offsets(n_frames: int, r_ev: float, seed: int) -> np.ndarray:
-    """[T] float64 offsets u ~ U[-r_ev, r_ev] (in EV = log2 units) from numpy.random.default_rng(seed)."""
+    """[T] float64 offsets u ~ U[-r_ev, r_ev] (in EV = log2 units) from
+    numpy.random.default_rng(seed)."""
     if r_ev < 0:
         raise ValueError(f"r_ev must be >= 0, got {r_ev}")
     rng = np.random.default_rng(seed)
@@ -26,11 +28,15 @@ def perturb_exposures(log2_dt, r_ev: float, seed: int):
         r_ev: half-width of the uniform perturbation in EV (stops); 0 returns an unchanged copy.
         seed: seed of the numpy Generator; the same seed gives the same offsets.
     Returns:
-        [T] perturbed log2 exposure times, same type (numpy / torch, dtype and device kept) as the input.
+        [T] perturbed log2 exposure times, same type (numpy / torch, dtype and device kept) as the
+        input.
     """
     if isinstance(log2_dt, torch.Tensor):
-        u = torch.as_tensor(exposure_offsets(log2_dt.shape[0], r_ev, seed), dtype=log2_dt.dtype,
-                            device=log2_dt.device)
+        u = torch.as_tensor(
+            exposure_offsets(log2_dt.shape[0], r_ev, seed),
+            dtype=log2_dt.dtype,
+            device=log2_dt.device,
+        )
         return log2_dt + u
     arr = np.asarray(log2_dt)
     out_dtype = arr.dtype if np.issubdtype(arr.dtype, np.floating) else np.float64

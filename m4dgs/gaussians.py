@@ -1,21 +1,23 @@
 """Gaussian parameter containers of both stages and the video-Gaussian initialisation from priors.
 
-Stage 1 (paper sec. 3.3.1, appendix "Video Gaussian Representation"): fully dynamic *video* Gaussians in orthographic
-camera space, x, y in [-1, 1] (x = u / W * 2 - 1 for the continuous pixel coordinate u, pixel centres at +0.5) and
-z = depth. Each Gaussian has a cubic Hermite spline position trajectory (`m4dgs.spline`), a cubic quaternion
-polynomial rotation (`m4dgs.rotation`), and time-invariant scale, opacity and 36-d colour features (sec. 3.1).
+Stage 1 (paper sec. 3.3.1, appendix "Video Gaussian Representation"): fully dynamic *video*
+Gaussians in orthographic camera space, x, y in [-1, 1] (x = u / W * 2 - 1 for the continuous pixel
+coordinate u, pixel centres at +0.5) and z = depth. Each Gaussian has a cubic Hermite spline
+position trajectory (`m4dgs.spline`), a cubic quaternion polynomial rotation (`m4dgs.rotation`), and
+time-invariant scale, opacity and 36-d colour features (sec. 3.1).
 
-Stage 2 (sec. 3.3.2): *world* Gaussians, the union of a static set (position + quaternion) and a dynamic set (spline +
-rotation polynomial), sharing the kinds of scale / opacity / feature attributes.
+Stage 2 (sec. 3.3.2): *world* Gaussians, the union of a static set (position + quaternion) and a
+dynamic set (spline + rotation polynomial), sharing the kinds of scale / opacity / feature
+attributes.
 
-Parameters live in `nn.ParameterDict`s whose tensors all have the number of Gaussians as first dimension, so the
-densification strategy (`m4dgs.densify`) can grow / prune them; `layout()` tells it which keys are which. Time is the
-training-frame index (0..T-1, fractional for in-between test frames); the rotation polynomial is evaluated at the
-normalised time t / (T - 1).
+Parameters live in `nn.ParameterDict`s whose tensors all have the number of Gaussians as first
+dimension, so the densification strategy (`m4dgs.densify`) can grow / prune them; `layout()` tells
+it which keys are which. Time is the training-frame index (0..T-1, fractional for in-between test
+frames); the rotation polynomial is evaluated at the normalised time t / (T - 1).
 
-Scale activations: "exp" (3DGS log-scales) or "sigmoid" (scale = scale_max * sigmoid(raw), the authors' video-space
-choice with scale_max = 0.05).
-"""
+Scale activations: "exp" (3DGS log-scales) or "sigmoid" (scale = scale_max * sigmoid(raw), the
+authors' video-space choice with scale_max = 0.05)."""
+
 from __future__ import annotations
 
 import math
@@ -37,17 +39,22 @@ TimeLike = Union[Tensor, float, int]
 SCALE_ACTIVATIONS = ("exp", "sigmoid")
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # configuration of the Gaussian models (collected into the training config by m4dgs.config)
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 @dataclass
 class ModelConfig:
-    """Gaussian representation shared by both stages (paper sec. 3.1 and appendix "Implementation Details")."""
+    """Gaussian representation shared by both stages (paper sec. 3.1 and appendix "Implementation
+    Details")."""
 
-    control_every: int = 4  # N_s: spline control point every 4 frames (paper; the authors' code uses 2)
+    control_every: int = (
+        4  # N_s: spline control point every 4 frames (paper; the authors' code uses 2)
+    )
     feature_dim: int = 36  # 36-d colour features decoded by the colour MLP (paper)
     rotation_degree: int = 3  # cubic quaternion polynomial (sec. 3.1)
-    rotation_init: str = "paper"  # "paper": all coefficients [1,0,0,0]; "constant": only a_0 (authors' code)
+    rotation_init: str = (
+        "paper"  # "paper": all coefficients [1,0,0,0]; "constant": only a_0 (authors' code)
+    )
     video_scale_activation: str = "sigmoid"  # authors: sigmoid bounded scale in video space
     video_scale_max: float = 0.05  # authors: maximum video-space scale
     world_scale_activation: str = "exp"  # 3DGS log-scales in world space
@@ -56,22 +63,26 @@ class ModelConfig:
 
 @dataclass
 class VideoInitConfig:
-    """Video-Gaussian initialisation from tracks + depth (appendix "Video Gaussian Representation"; authors' code)."""
+    """Video-Gaussian initialisation from tracks + depth (appendix "Video Gaussian Representation";
+    authors' code)."""
 
-    max_gaussians: int = 32_768  # cap on tracks lifted to Gaussians (authors: 16,384 uniform + 16,384 dynamic)
+    # cap on tracks lifted to Gaussians (authors: 16,384 uniform + 16,384 dynamic)
+    max_gaussians: int = 32_768
     min_visible: int = 1  # tracks visible (and inside the image) on fewer frames are dropped
     knn_k: int = 3  # scale = sqrt(mean squared distance to the k nearest neighbours) (3DGS)
     init_opacity: float = 0.5  # authors' code
     feature_std: float = 1.0  # features ~ N(0, std^2) (authors: randn, i.e. std 1)
-    fit_smooth: float = 1e-3  # second-difference weight of the control-point fit (fills invisible spans)
+    # second-difference weight of the control-point fit (fills invisible spans)
+    fit_smooth: float = 1e-3
     seed: int = 0
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # activations
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def scale_activation(raw: Tensor, kind: str = "exp", scale_max: float = 0.05) -> Tensor:
-    """Raw scale parameter -> positive scales ("exp": exp(raw); "sigmoid": scale_max * sigmoid(raw))."""
+    """Raw scale parameter -> positive scales ("exp": exp(raw); "sigmoid": scale_max *
+    sigmoid(raw))."""
     if kind == "exp":
         return torch.exp(raw)
     if kind == "sigmoid":
@@ -94,8 +105,9 @@ def _logit(p: float) -> float:
 
 
 def spline_layout(kind: str, smax: float) -> GaussianLayout:
-    """Densification layout of spline Gaussians ("ctrl" [N, K, 3] control points move together when split; splits
-    are oriented by the rotation polynomial at mid-sequence), shared by video and dynamic world Gaussians."""
+    """Densification layout of spline Gaussians ("ctrl" [N, K, 3] control points move together when
+    split; splits are oriented by the rotation polynomial at mid-sequence), shared by video and
+    dynamic world Gaussians."""
     return GaussianLayout(
         position_keys=("ctrl",),
         scale_key="scales",
@@ -107,16 +119,16 @@ def spline_layout(kind: str, smax: float) -> GaussianLayout:
     )
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # containers
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 class VideoGaussians(nn.Module):
     """Fully dynamic video Gaussians (stage 1).
 
-    Parameters (`self.params`): "ctrl" [N, K, 3] spline control points in video space, "rot" [N, J, 4] quaternion
-    polynomial coefficients, "scales" [N, 3] raw scales, "opacities" [N] logits, "features" [N, C].
-    Buffer "knots" [K] (frame times of the control points); `num_frames` T sets the normalised rotation time.
-    """
+    Parameters (`self.params`): "ctrl" [N, K, 3] spline control points in video space, "rot" [N, J,
+    4] quaternion polynomial coefficients, "scales" [N, 3] raw scales, "opacities" [N] logits,
+    "features" [N, C]. Buffer "knots" [K] (frame times of the control points); `num_frames` T sets
+    the normalised rotation time."""
 
     def __init__(
         self,
@@ -132,11 +144,18 @@ class VideoGaussians(nn.Module):
     ):
         super().__init__()
         n = ctrl.shape[0]
-        for name, v in (("rot", rot_coeffs), ("scales", scales_raw), ("opacities", opacity_logits), ("features", features)):
+        for name, v in (
+            ("rot", rot_coeffs),
+            ("scales", scales_raw),
+            ("opacities", opacity_logits),
+            ("features", features),
+        ):
             if v.shape[0] != n:
                 raise ValueError(f"VideoGaussians: '{name}' has {v.shape[0]} rows, ctrl has {n}")
         if ctrl.shape[1] != knots.numel():
-            raise ValueError(f"VideoGaussians: ctrl has {ctrl.shape[1]} control points but {knots.numel()} knots")
+            raise ValueError(
+                f"VideoGaussians: ctrl has {ctrl.shape[1]} control points but {knots.numel()} knots"
+            )
         if scale_kind not in SCALE_ACTIVATIONS:
             raise ValueError(f"unknown scale activation {scale_kind!r}")
         self.params = nn.ParameterDict(
@@ -165,8 +184,11 @@ class VideoGaussians(nn.Module):
         return spline.evaluate(self.params["ctrl"], self.knots, t)
 
     def quats(self, t: TimeLike, normalize: bool = True) -> Tensor:
-        """Rotation quaternions (wxyz) at frame time t: [N, 4] or [N, T, 4] (unit unless normalize=False)."""
-        tn = rot.normalize_time(torch.as_tensor(t, dtype=self.knots.dtype, device=self.knots.device), self.num_frames)
+        """Rotation quaternions (wxyz) at frame time t: [N, 4] or [N, T, 4] (unit unless
+        normalize=False)."""
+        tn = rot.normalize_time(
+            torch.as_tensor(t, dtype=self.knots.dtype, device=self.knots.device), self.num_frames
+        )
         return rot.poly_evaluate(self.params["rot"], tn, normalize=normalize)
 
     def scales(self) -> Tensor:
@@ -182,11 +204,13 @@ class VideoGaussians(nn.Module):
         return self.params["features"]
 
     def layout(self) -> GaussianLayout:
-        """Densification layout: control points move together; splits are oriented by the mid-sequence rotation."""
+        """Densification layout: control points move together; splits are oriented by the
+        mid-sequence rotation."""
         return spline_layout(self.scale_kind, self.scale_max)
 
     def to_state(self) -> Dict[str, Any]:
-        """Plain dict (tensors + metadata) for torch.save; the inverse is `from_state` (works for any N)."""
+        """Plain dict (tensors + metadata) for torch.save; the inverse is `from_state` (works for
+        any N)."""
         return {
             "type": "VideoGaussians",
             "params": {k: v.detach().clone() for k, v in self.params.items()},
@@ -200,17 +224,24 @@ class VideoGaussians(nn.Module):
     def from_state(cls, state: Mapping[str, Any]) -> "VideoGaussians":
         p = state["params"]
         return cls(
-            p["ctrl"], p["rot"], p["scales"], p["opacities"], p["features"], state["knots"], state["num_frames"],
-            state["scale_kind"], state["scale_max"],
+            p["ctrl"],
+            p["rot"],
+            p["scales"],
+            p["opacities"],
+            p["features"],
+            state["knots"],
+            state["num_frames"],
+            state["scale_kind"],
+            state["scale_max"],
         )
 
 
 class WorldGaussians(nn.Module):
     """Static + dynamic world Gaussians (stage 2); accessors return the union, static first.
 
-    `static` params: "means" [Ns, 3], "quats" [Ns, 4], "scales" [Ns, 3], "opacities" [Ns], "features" [Ns, C].
-    `dynamic` params: "ctrl" [Nd, K, 3], "rot" [Nd, J, 4], "scales", "opacities", "features".
-    """
+    `static` params: "means" [Ns, 3], "quats" [Ns, 4], "scales" [Ns, 3], "opacities" [Ns],
+    "features" [Ns, C]. `dynamic` params: "ctrl" [Nd, K, 3], "rot" [Nd, J, 4], "scales",
+    "opacities", "features"."""
 
     def __init__(
         self,
@@ -230,7 +261,9 @@ class WorldGaussians(nn.Module):
                 raise ValueError(f"WorldGaussians: {label} set lacks {missing}")
             sizes = {k: part[k].shape[0] for k in keys}
             if len(set(sizes.values())) > 1:
-                raise ValueError(f"WorldGaussians: {label} attributes disagree on the count: {sizes}")
+                raise ValueError(
+                    f"WorldGaussians: {label} attributes disagree on the count: {sizes}"
+                )
         if scale_kind not in SCALE_ACTIVATIONS:
             raise ValueError(f"unknown scale activation {scale_kind!r}")
         self.static = nn.ParameterDict({k: nn.Parameter(static[k]) for k in need_s})
@@ -263,7 +296,10 @@ class WorldGaussians(nn.Module):
         """[N] bool, False for the static rows (first), True for the dynamic ones."""
         dev = self.static["means"].device
         return torch.cat(
-            [torch.zeros(self.num_static, dtype=torch.bool, device=dev), torch.ones(self.num_dynamic, dtype=torch.bool, device=dev)]
+            [
+                torch.zeros(self.num_static, dtype=torch.bool, device=dev),
+                torch.ones(self.num_dynamic, dtype=torch.bool, device=dev),
+            ]
         )
 
     def positions(self, t: TimeLike) -> Tensor:
@@ -276,7 +312,9 @@ class WorldGaussians(nn.Module):
 
     def quats(self, t: TimeLike, normalize: bool = True) -> Tensor:
         """World rotations (wxyz) of the union at time t: [N, 4] or [N, T, 4]."""
-        tn = rot.normalize_time(torch.as_tensor(t, dtype=self.knots.dtype, device=self.knots.device), self.num_frames)
+        tn = rot.normalize_time(
+            torch.as_tensor(t, dtype=self.knots.dtype, device=self.knots.device), self.num_frames
+        )
         dyn = rot.poly_evaluate(self.dynamic["rot"], tn, normalize=normalize)
         stat = self.static["quats"]
         if normalize:
@@ -310,17 +348,19 @@ class WorldGaussians(nn.Module):
         return spline_layout(self.scale_kind, self.scale_max)
 
     def split_render_info(self, info: Mapping[str, Any]) -> Tuple[Dict[str, Any], Dict[str, Any]]:
-        """Per-set views of a render info dict for the two densification strategies (after backward).
+        """Per-set views of a render info dict for the two densification strategies (after
+        backward).
 
-        Returns (static_info, dynamic_info), each with "means2d_grad", "radii" sliced along the Gaussian axis and the
-        other entries (e.g. "width", "height") copied.
-        """
+        Returns (static_info, dynamic_info), each with "means2d_grad", "radii" sliced along the
+        Gaussian axis and the other entries (e.g. "width", "height") copied."""
         ns = self.num_static
         grad = info.get("means2d_grad")
         if grad is None:
             grad = info["means2d"].grad
             if grad is None:
-                raise ValueError("split_render_info: info['means2d'] has no gradient (call it after backward)")
+                raise ValueError(
+                    "split_render_info: info['means2d'] has no gradient (call it after backward)"
+                )
         radii = info["radii"]
         per_axis = radii.numel() == grad.numel()
         n_axis_r = -2 if per_axis else -1
@@ -328,7 +368,11 @@ class WorldGaussians(nn.Module):
         r_s = radii.narrow(n_axis_r, 0, ns)
         r_d = radii.narrow(n_axis_r, ns, radii.shape[n_axis_r] - ns)
         base = {k: v for k, v in info.items() if k not in ("means2d", "means2d_grad", "radii")}
-        return {**base, "means2d_grad": g_s, "radii": r_s}, {**base, "means2d_grad": g_d, "radii": r_d}
+        return {**base, "means2d_grad": g_s, "radii": r_s}, {
+            **base,
+            "means2d_grad": g_d,
+            "radii": r_d,
+        }
 
     def to_state(self) -> Dict[str, Any]:
         return {
@@ -343,14 +387,22 @@ class WorldGaussians(nn.Module):
 
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> "WorldGaussians":
-        return cls(state["static"], state["dynamic"], state["knots"], state["num_frames"], state["scale_kind"], state["scale_max"])
+        return cls(
+            state["static"],
+            state["dynamic"],
+            state["knots"],
+            state["num_frames"],
+            state["scale_kind"],
+            state["scale_max"],
+        )
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # initialisation from priors
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def pixel_to_video_xy(uv: Tensor, width: int, height: int) -> Tensor:
-    """Continuous pixel coordinates [..., 2] (centres at +0.5) -> video-space (x, y) = (u / W * 2 - 1, v / H * 2 - 1)."""
+    """Continuous pixel coordinates [..., 2] (centres at +0.5) -> video-space (x, y) = (u / W * 2 -
+    1, v / H * 2 - 1)."""
     scale = torch.tensor([2.0 / width, 2.0 / height], dtype=uv.dtype, device=uv.device)
     return uv * scale - 1.0
 
@@ -359,22 +411,27 @@ def sample_depth(depth: Tensor, tracks: Tensor, width: int, height: int) -> Tens
     """Bilinear depth at track pixels, per frame.
 
     Args:
-        depth: [T, H, W] depth maps. tracks: [N, T, 2] continuous pixel coordinates (centres at +0.5).
+        depth: [T, H, W] depth maps. tracks: [N, T, 2] continuous pixel coordinates (centres at
+        +0.5).
     Returns:
-        [N, T] depth (border-clamped outside the image). grid_sample with align_corners=False maps the continuous
-        coordinate u to the normalised u / W * 2 - 1, so pixel centres sample exactly their own value.
+        [N, T] depth (border-clamped outside the image). grid_sample with align_corners=False maps
+        the continuous coordinate u to the normalised u / W * 2 - 1, so pixel centres sample exactly
+        their own value.
     """
     t_count = depth.shape[0]
-    grid = pixel_to_video_xy(tracks.to(depth.dtype), width, height).permute(1, 0, 2)[:, :, None, :]  # [T, N, 1, 2]
-    z = F.grid_sample(depth[:, None], grid, mode="bilinear", padding_mode="border", align_corners=False)  # [T,1,N,1]
+    # [T, N, 1, 2]
+    grid = pixel_to_video_xy(tracks.to(depth.dtype), width, height).permute(1, 0, 2)[:, :, None, :]
+    z = F.grid_sample(
+        depth[:, None], grid, mode="bilinear", padding_mode="border", align_corners=False
+    )  # [T,1,N,1]
     return z[:, 0, :, 0].T.reshape(tracks.shape[0], t_count)
 
 
 def knn(points: Tensor, k: int, backend: str = "auto") -> Tuple[Tensor, Tensor]:
     """Exact k nearest neighbours of each point among the others (k clipped to N - 1).
 
-    Thin adapter over `m4dgs.losses.motion.knn` (one implementation: scipy KD-tree on CPU, chunked torch on GPU).
-    Returns:
+    Thin adapter over `m4dgs.losses.motion.knn` (one implementation: scipy KD-tree on CPU, chunked
+    torch on GPU). Returns:
         (squared distances [N, k] ascending, indices [N, k] long), on the device of `points`.
     """
     n = points.shape[0]
@@ -386,7 +443,8 @@ def knn(points: Tensor, k: int, backend: str = "auto") -> Tuple[Tensor, Tensor]:
 
 
 def knn_mean_sq_distance(points: Tensor, k: int = 3, backend: str = "auto") -> Tensor:
-    """Mean squared distance of each point to its k nearest other points, [N, D] -> [N] (1 for a single point)."""
+    """Mean squared distance of each point to its k nearest other points, [N, D] -> [N] (1 for a
+    single point)."""
     if points.shape[0] <= 1:
         return torch.ones(points.shape[0], dtype=points.dtype, device=points.device)
     d2, _ = knn(points, k, backend)
@@ -402,18 +460,20 @@ def init_video_gaussians(
     cfg: Optional[VideoInitConfig] = None,
     model: Optional[ModelConfig] = None,
 ) -> VideoGaussians:
-    """Lift 2D tracks with the depth prior to video Gaussians (appendix "Video Gaussian Representation").
+    """Lift 2D tracks with the depth prior to video Gaussians (appendix "Video Gaussian
+    Representation").
 
-    Each track becomes one Gaussian: on its visible frames the video-space trajectory is
-    (u / W * 2 - 1, v / H * 2 - 1, D_t(u, v)) with the depth bilinearly sampled at the track pixel; spline control points
-    (every N_s frames over the T training frames) are fitted to it by least squares, the spline itself filling the
-    invisible spans. Opacity 0.5, scale sqrt(mean squared distance to the k = 3 nearest neighbours) at the frame where
-    most tracks are visible, features ~ N(0, std^2), identity rotation polynomial.
+    Each track becomes one Gaussian: on its visible frames the video-space trajectory is (u / W * 2
+    - 1, v / H * 2 - 1, D_t(u, v)) with the depth bilinearly sampled at the track pixel; spline
+    control points (every N_s frames over the T training frames) are fitted to it by least squares,
+    the spline itself filling the invisible spans. Opacity 0.5, scale sqrt(mean squared distance to
+    the k = 3 nearest neighbours) at the frame where most tracks are visible, features ~ N(0,
+    std^2), identity rotation polynomial.
 
     Args:
-        tracks: [N, T, 2] continuous pixel coordinates over the training frames.
-        visible: [N, T] bool. depth: [T, H, W] depth prior.
-        cfg: initialisation settings (cap on the number of tracks, random subsample with cfg.seed); model: the
+        tracks: [N, T, 2] continuous pixel coordinates over the training frames. visible: [N, T]
+        bool. depth: [T, H, W] depth prior. cfg: initialisation settings (cap on the number of
+        tracks, random subsample with cfg.seed); model: the
             representation (N_s, feature size, scale activation, rotation init).
     Returns:
         VideoGaussians on the device / dtype of `depth`.
@@ -425,9 +485,14 @@ def init_video_gaussians(
     visible = visible.to(device=device, dtype=torch.bool)
     n_all, t_count, _ = tracks.shape
     if depth.shape[0] != t_count:
-        raise ValueError(f"init_video_gaussians: tracks cover {t_count} frames but depth has {depth.shape[0]}")
+        raise ValueError(
+            f"init_video_gaussians: tracks cover {t_count} frames but depth has {depth.shape[0]}"
+        )
     inside = (
-        (tracks[..., 0] >= 0) & (tracks[..., 0] <= width) & (tracks[..., 1] >= 0) & (tracks[..., 1] <= height)
+        (tracks[..., 0] >= 0)
+        & (tracks[..., 0] <= width)
+        & (tracks[..., 1] >= 0)
+        & (tracks[..., 1] <= height)
     )
     valid = visible & inside & torch.isfinite(tracks).all(-1)
     keep = torch.where(valid.sum(1) >= max(cfg.min_visible, 1))[0]
@@ -453,11 +518,26 @@ def init_video_gaussians(
     s = dist2.sqrt()
     if model.video_scale_activation == "sigmoid":
         s = s.clamp_max(model.video_scale_max * (1.0 - 1e-3))
-    scales_raw = scale_inverse(s, model.video_scale_activation, model.video_scale_max)[:, None].repeat(1, 3)
+    scales_raw = scale_inverse(s, model.video_scale_activation, model.video_scale_max)[
+        :, None
+    ].repeat(1, 3)
 
-    rot_coeffs = rot.init_rotation_coeffs(n, model.rotation_degree, model.rotation_init, dtype=dtype, device=device)
+    rot_coeffs = rot.init_rotation_coeffs(
+        n, model.rotation_degree, model.rotation_init, dtype=dtype, device=device
+    )
     opacity = torch.full((n,), _logit(cfg.init_opacity), dtype=dtype, device=device)
-    features = torch.randn(n, model.feature_dim, generator=gen, dtype=dtype, device=device) * cfg.feature_std
+    features = (
+        torch.randn(n, model.feature_dim, generator=gen, dtype=dtype, device=device)
+        * cfg.feature_std
+    )
     return VideoGaussians(
-        ctrl, rot_coeffs, scales_raw, opacity, features, knots, t_count, model.video_scale_activation, model.video_scale_max
+        ctrl,
+        rot_coeffs,
+        scales_raw,
+        opacity,
+        features,
+        knots,
+        t_count,
+        model.video_scale_activation,
+        model.video_scale_max,
     )

@@ -1,9 +1,10 @@
 """Atomic file I/O for images, arrays and metadata.
 
-Every writer writes to a temporary name in the destination folder and renames it into place (`os.replace`), so a
-crash never leaves a half-written file under the final name. EXR goes through the OpenEXR bindings as float32
-(`np.ascontiguousarray` first: the bindings silently write garbage from strided arrays); PNG through Pillow.
-"""
+Every writer writes to a temporary name in the destination folder and renames it into place
+(`os.replace`), so a crash never leaves a half-written file under the final name. EXR goes through
+the OpenEXR bindings as float32 (`np.ascontiguousarray` first: the bindings silently write garbage
+from strided arrays); PNG through Pillow."""
+
 from __future__ import annotations
 
 import io as _io
@@ -17,7 +18,8 @@ import numpy as np
 
 
 class FileFormatError(ValueError):
-    """A file exists but its content is not what the clip contract says (the message names file and field)."""
+    """A file exists but its content is not what the clip contract says (the message names file and
+    field)."""
 
 
 def _umask() -> int:
@@ -27,7 +29,8 @@ def _umask() -> int:
 
 
 def _publish(tmp: str, path: Path) -> None:
-    """Give the temporary file normal permissions (mkstemp makes it 0600) and rename it into place."""
+    """Give the temporary file normal permissions (mkstemp makes it 0600) and rename it into
+    place."""
     os.chmod(tmp, 0o666 & ~_umask())
     os.replace(tmp, path)
 
@@ -75,7 +78,9 @@ def read_json(path) -> Any:
 
 def write_npz(path, compressed: bool = True, **arrays) -> None:
     buf = _io.BytesIO()
-    (np.savez_compressed if compressed else np.savez)(buf, **{k: np.ascontiguousarray(v) for k, v in arrays.items()})
+    (np.savez_compressed if compressed else np.savez)(
+        buf, **{k: np.ascontiguousarray(v) for k, v in arrays.items()}
+    )
     _atomic_write_bytes(Path(path), buf.getvalue())
 
 
@@ -91,7 +96,8 @@ def read_npz(path) -> dict:
 
 
 def write_exr(path, image: np.ndarray) -> None:
-    """Write a float32 EXR: [H, W] as channel 'Z', [H, W, 3] as 'RGB', [H, W, C] as channels C0..C{C-1}."""
+    """Write a float32 EXR: [H, W] as channel 'Z', [H, W, 3] as 'RGB', [H, W, C] as channels
+    C0..C{C-1}."""
     import OpenEXR
 
     path = Path(path)
@@ -116,7 +122,8 @@ def write_exr(path, image: np.ndarray) -> None:
 
 
 def read_exr(path) -> np.ndarray:
-    """Read an EXR written by `write_exr` (or any RGB / single-channel EXR) as float32 [H, W] or [H, W, C]."""
+    """Read an EXR written by `write_exr` (or any RGB / single-channel EXR) as float32 [H, W] or [H,
+    W, C]."""
     import OpenEXR
 
     path = Path(path)
@@ -142,7 +149,8 @@ def read_exr(path) -> np.ndarray:
 
 
 def write_png(path, image: np.ndarray) -> None:
-    """Write an 8-bit PNG from uint8 [H, W] / [H, W, 3] (floats in [0, 1] are quantised with rounding)."""
+    """Write an 8-bit PNG from uint8 [H, W] / [H, W, 3] (floats in [0, 1] are quantised with
+    rounding)."""
     from PIL import Image
 
     img = np.asarray(image)

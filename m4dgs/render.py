@@ -1,8 +1,9 @@
 """Render a trained run's frames to disk (the files `eval score` reads), resumable and atomic.
 
-    renders/train/hdr/<g>.exr   renders/train/ldr/<g>.png (at the frame's input exposure)   renders/train/depth/<g>.exr
-    renders/test/hdr/<g>.exr    renders/test/ldr/<level>/<g>.png (every observed + novel level)  renders/test/depth/<g>.exr
-"""
+renders/train/hdr/<g>.exr   renders/train/ldr/<g>.png (at the frame's input exposure)
+renders/train/depth/<g>.exr renders/test/hdr/<g>.exr    renders/test/ldr/<level>/<g>.png (every
+observed + novel level)  renders/test/depth/<g>.exr"""
+
 from __future__ import annotations
 
 import math
@@ -18,8 +19,11 @@ from .run import RunDir
 
 
 @torch.no_grad()
-def render_run(run_dir, overwrite: bool = False, progress: bool = True, device: str = "cpu") -> Dict[str, int]:
-    """Write every train/test render that is missing (or all with overwrite); returns counts of files written."""
+def render_run(
+    run_dir, overwrite: bool = False, progress: bool = True, device: str = "cpu"
+) -> Dict[str, int]:
+    """Write every train/test render that is missing (or all with overwrite); returns counts of
+    files written."""
     run = RunDir(run_dir)
     model = load_model(run_dir, device=device)
     clip = model.clip
@@ -39,8 +43,18 @@ def render_run(run_dir, overwrite: bool = False, progress: bool = True, device: 
         if split == "train":
             ldr_ps = {dt_of[g]: run.path("renders", "train", "ldr", frame_name(g, "png"))}
         else:
-            ldr_ps = {math.log2(lv): run.path("renders", "test", "ldr", level_name(lv), frame_name(g, "png")) for lv in levels}
-        todo = overwrite or not hdr_p.exists() or not dep_p.exists() or any(not p.exists() for p in ldr_ps.values())
+            ldr_ps = {
+                math.log2(lv): run.path(
+                    "renders", "test", "ldr", level_name(lv), frame_name(g, "png")
+                )
+                for lv in levels
+            }
+        todo = (
+            overwrite
+            or not hdr_p.exists()
+            or not dep_p.exists()
+            or any(not p.exists() for p in ldr_ps.values())
+        )
         if not todo:
             continue
         r = model.render_frame(g)

@@ -1,18 +1,23 @@
-"""Gaussian rotation trajectories: a cubic polynomial of an unnormalised quaternion (paper sec. 3.1).
+"""Gaussian rotation trajectories: a cubic polynomial of an unnormalised quaternion (paper sec.
+3.1).
 
-    r(t) = sum_{j=0}^{3} a_j t^j,   a_j in R^4 (w, x, y, z),   t in [0, 1] (normalised time, t = frame / (T - 1)),
+    r(t) = sum_{j=0}^{3} a_j t^j,   a_j in R^4 (w, x, y, z),   t in [0, 1] (normalised time, t =
+    frame / (T - 1)),
 
-the rotation being r(t) / |r(t)|. Coefficients are stored as [N, J, 4] with J = degree + 1 (the power index first).
+the rotation being r(t) / |r(t)|. Coefficients are stored as [N, J, 4] with J = degree + 1 (the
+power index first).
 
-Initialisation: the paper (appendix "Video Gaussian Representation") initialises *all* coefficients with [1, 0, 0, 0],
-i.e. r(t) = (1 + t + t^2 + t^3) [1, 0, 0, 0]; the authors' code sets only the constant term to the identity and the
-higher terms to zero. Both give the identity rotation at all times; `init_rotation_coeffs(mode=...)` offers both
-("paper" default, "constant" for the code's choice).
+Initialisation: the paper (appendix "Video Gaussian Representation") initialises *all* coefficients
+with [1, 0, 0, 0], i.e. r(t) = (1 + t + t^2 + t^3) [1, 0, 0, 0]; the authors' code sets only the
+constant term to the identity and the higher terms to zero. Both give the identity rotation at all
+times; `init_rotation_coeffs(mode=...)` offers both ("paper" default, "constant" for the code's
+choice).
 
-Also here: quaternion algebra (wxyz), the rotation logarithm and relative angles for the motion-smoothness losses
-(appendix "Motion Smoothness"), Markley quaternion averaging for static world Gaussians (sec. 3.3.2), and least-squares
-/ refinement fits of the polynomial to target quaternions (video-to-world transform of dynamic Gaussians).
-"""
+Also here: quaternion algebra (wxyz), the rotation logarithm and relative angles for the
+motion-smoothness losses (appendix "Motion Smoothness"), Markley quaternion averaging for static
+world Gaussians (sec. 3.3.2), and least-squares / refinement fits of the polynomial to target
+quaternions (video-to-world transform of dynamic Gaussians)."""
+
 from __future__ import annotations
 
 from typing import Optional, Union
@@ -26,9 +31,9 @@ Tensor = torch.Tensor
 ROTATION_INIT_MODES = ("paper", "constant")
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # quaternion algebra (w, x, y, z); product and normalisation come from m4dgs.camera
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def quat_conjugate(q: Tensor) -> Tensor:
     """Conjugate [..., 4] (the inverse rotation for a unit quaternion)."""
     return q * torch.tensor([1.0, -1.0, -1.0, -1.0], dtype=q.dtype, device=q.device)
@@ -42,9 +47,8 @@ def _safe_norm(v: Tensor, eps: float = 1e-20) -> Tensor:
 def quat_log(q: Tensor) -> Tensor:
     """Rotation logarithm as an axis-angle vector theta * axis, [..., 4] -> [..., 3].
 
-    q need not be unit-norm. Uses the shorter rotation (theta in [0, pi]); differentiable and stable near the identity
-    (theta / sin(theta / 2) -> 2 via the atan2 form).
-    """
+    q need not be unit-norm. Uses the shorter rotation (theta in [0, pi]); differentiable and stable
+    near the identity (theta / sin(theta / 2) -> 2 via the atan2 form)."""
     q = quat_normalize(q)
     w = q[..., :1]
     v = q[..., 1:]
@@ -54,12 +58,17 @@ def quat_log(q: Tensor) -> Tensor:
     vn = _safe_norm(v)[..., None]
     theta = 2.0 * torch.atan2(vn, w)
     # theta / |v| -> 2 / w as |v| -> 0; atan2(vn, w)/vn is smooth, evaluated safely
-    scale = torch.where(vn > 1e-6, theta / vn, 2.0 / w.clamp_min(1e-12) * (1.0 - vn * vn / (3.0 * w * w).clamp_min(1e-12)))
+    scale = torch.where(
+        vn > 1e-6,
+        theta / vn,
+        2.0 / w.clamp_min(1e-12) * (1.0 - vn * vn / (3.0 * w * w).clamp_min(1e-12)),
+    )
     return v * scale
 
 
 def relative_rotation_angle(q_a: Tensor, q_b: Tensor) -> Tensor:
-    """Angle (radians, in [0, pi]) of R_a R_b^{-1}, i.e. || log(R_a R_b^{-1}) || as axis-angle magnitude.
+    """Angle (radians, in [0, pi]) of R_a R_b^{-1}, i.e. || log(R_a R_b^{-1}) || as axis-angle
+    magnitude.
 
     Args:
         q_a, q_b: [..., 4] wxyz quaternions (any norm; sign-invariant).
@@ -74,7 +83,8 @@ def relative_rotation_angle(q_a: Tensor, q_b: Tensor) -> Tensor:
 
 
 def quat_average_markley(q: Tensor, weights: Optional[Tensor] = None) -> Tensor:
-    """Weighted quaternion average (Markley et al. 2007): the principal eigenvector of sum_i w_i q_i q_i^T.
+    """Weighted quaternion average (Markley et al. 2007): the principal eigenvector of sum_i w_i q_i
+    q_i^T.
 
     Args:
         q: [..., M, 4] quaternions (normalised here; sign-invariant).
@@ -91,13 +101,16 @@ def quat_average_markley(q: Tensor, weights: Optional[Tensor] = None) -> Tensor:
     return torch.where(avg[..., :1] < 0, -avg, avg)
 
 
-def align_quat_signs(q: Tensor, valid: Optional[Tensor] = None, reference: Optional[Tensor] = None) -> Tensor:
-    """Flip signs along time so consecutive quaternions lie in the same hemisphere (continuous for a polynomial fit).
+def align_quat_signs(
+    q: Tensor, valid: Optional[Tensor] = None, reference: Optional[Tensor] = None
+) -> Tensor:
+    """Flip signs along time so consecutive quaternions lie in the same hemisphere (continuous for a
+    polynomial fit).
 
     Args:
-        q: [N, T, 4] quaternions.
-        valid: optional [N, T] mask; invalid samples do not become the reference for the next frame.
-        reference: optional [N, 4] quaternion the first frame is aligned to (default: the first valid sample itself).
+        q: [N, T, 4] quaternions. valid: optional [N, T] mask; invalid samples do not become the
+        reference for the next frame. reference: optional [N, 4] quaternion the first frame is
+        aligned to (default: the first valid sample itself).
     Returns:
         [N, T, 4] sign-aligned copy.
     """
@@ -120,23 +133,27 @@ def align_quat_signs(q: Tensor, valid: Optional[Tensor] = None, reference: Optio
     return out
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # polynomial trajectories
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def normalize_time(t: Union[Tensor, float, int], num_frames: int) -> Tensor:
-    """Frame time (0..T-1, fractional allowed) -> normalised time in [0, 1] (0 for a single frame)."""
+    """Frame time (0..T-1, fractional allowed) -> normalised time in [0, 1] (0 for a single
+    frame)."""
     t = torch.as_tensor(t, dtype=torch.float32) if not torch.is_tensor(t) else t
     return t / max(num_frames - 1, 1)
 
 
-def init_rotation_coeffs(n: int, degree: int = 3, mode: str = "paper", *, dtype=torch.float32, device=None) -> Tensor:
+def init_rotation_coeffs(
+    n: int, degree: int = 3, mode: str = "paper", *, dtype=torch.float32, device=None
+) -> Tensor:
     """Identity-rotation polynomial coefficients [n, degree + 1, 4].
 
-    mode "paper": every coefficient is [1, 0, 0, 0] (the paper's wording); "constant": a_0 = [1, 0, 0, 0] and the
-    higher terms zero (the authors' code).
-    """
+    mode "paper": every coefficient is [1, 0, 0, 0] (the paper's wording); "constant": a_0 = [1, 0,
+    0, 0] and the higher terms zero (the authors' code)."""
     if mode not in ROTATION_INIT_MODES:
-        raise ValueError(f"unknown rotation init mode {mode!r}; expected one of {ROTATION_INIT_MODES}")
+        raise ValueError(
+            f"unknown rotation init mode {mode!r}; expected one of {ROTATION_INIT_MODES}"
+        )
     c = torch.zeros(n, degree + 1, 4, dtype=dtype, device=device)
     if mode == "paper":
         c[..., 0] = 1.0
@@ -180,19 +197,20 @@ def fit_rotation_poly(
     reference: Optional[Tensor] = None,
     normalize_targets: bool = True,
 ) -> Tensor:
-    """Least-squares polynomial coefficients reproducing target quaternions (video-to-world, sec. 3.3.2).
+    """Least-squares polynomial coefficients reproducing target quaternions (video-to-world, sec.
+    3.3.2).
 
-    Targets are first sign-aligned along time (so the polynomial need not pass through a sign flip) and normalised;
-    the polynomial then fits the unit quaternions in the least-squares sense (masked per Gaussian).
+    Targets are first sign-aligned along time (so the polynomial need not pass through a sign flip)
+    and normalised; the polynomial then fits the unit quaternions in the least-squares sense (masked
+    per Gaussian).
 
     Args:
-        target: [N, T, 4] target quaternions.
-        t: [T] normalised times.
-        valid: optional [N, T] mask.
-        ridge: Tikhonov weight on the coefficients of degree >= 1 (keeps sparse observations well-posed: an
+        target: [N, T, 4] target quaternions. t: [T] normalised times. valid: optional [N, T] mask.
+        ridge: Tikhonov weight on the coefficients of degree >= 1 (keeps sparse observations
+        well-posed: an
             unobserved Gaussian falls back to a constant).
-        reference: optional [N, 4] reference for the sign alignment.
-        normalize_targets: fit the unit quaternions (default); False fits the targets as given (then a target
+        reference: optional [N, 4] reference for the sign alignment. normalize_targets: fit the unit
+        quaternions (default); False fits the targets as given (then a target
             sequence produced by a cubic polynomial is recovered exactly, up to the sign alignment).
     Returns:
         [N, degree + 1, 4] coefficients.
@@ -225,7 +243,8 @@ def fit_rotation_poly(
 
 
 def quat_alignment_loss(pred: Tensor, target: Tensor, valid: Optional[Tensor] = None) -> Tensor:
-    """Mean of 1 - |<q_pred / |q_pred|, q_target / |q_target|>| (sign-invariant; the authors' refit objective)."""
+    """Mean of 1 - |<q_pred / |q_pred|, q_target / |q_target|>| (sign-invariant; the authors' refit
+    objective)."""
     d = 1.0 - (quat_normalize(pred) * quat_normalize(target)).sum(-1).abs()
     if valid is None:
         return d.mean()
@@ -242,7 +261,8 @@ def refine_rotation_poly(
     steps: int = 200,
     lr: float = 1e-2,
 ) -> Tensor:
-    """Refine coefficients with Adam on `quat_alignment_loss` (a refinement step after `fit_rotation_poly`).
+    """Refine coefficients with Adam on `quat_alignment_loss` (a refinement step after
+    `fit_rotation_poly`).
 
     Args:
         coeffs: [N, J, 4] initial coefficients (e.g. from the least-squares fit).
@@ -256,7 +276,8 @@ def refine_rotation_poly(
     n = c.shape[0]
     for _ in range(steps):
         opt.zero_grad(set_to_none=True)
-        loss = quat_alignment_loss(poly_evaluate(c, t), tgt, valid) * n  # per-Gaussian scale for Adam
+        # per-Gaussian scale for Adam
+        loss = quat_alignment_loss(poly_evaluate(c, t), tgt, valid) * n
         loss.backward()
         opt.step()
     return c.detach()

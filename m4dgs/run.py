@@ -1,14 +1,16 @@
-"""The run folder (DESIGN.md "Runs"): resolved config, JSON-lines log, checkpoints, status; all writes atomic.
+"""The run folder (DESIGN.md "Runs"): resolved config, JSON-lines log, checkpoints, status; all
+writes atomic.
 
-    <run>/
-      config.yaml            fully resolved configuration (written once; a resumed run must match it)
-      status.json            {"stage": "stage1" | "v2w" | "stage2" | "done", "step": int, ...}
-      log.jsonl              one JSON object per logged step (losses, Gaussian counts, timings)
-      model/ckpt.pt          the latest resumable checkpoint (overwritten atomically)
-      model/stage1.pt        final stage-1 model;  model/final.pt  final model
-      cameras.json           estimated cameras (BA, then refined)
-      renders/...            written by m4dgs.render
+<run>/
+  config.yaml            fully resolved configuration (written once; a resumed run must match it)
+  status.json            {"stage": "stage1" | "v2w" | "stage2" | "done", "step": int, ...}
+  log.jsonl              one JSON object per logged step (losses, Gaussian counts, timings)
+  model/ckpt.pt          the latest resumable checkpoint (overwritten atomically)
+  model/stage1.pt        final stage-1 model;  model/final.pt  final model
+  cameras.json           estimated cameras (BA, then refined)
+  renders/...            written by m4dgs.render
 """
+
 from __future__ import annotations
 
 import io as _io
@@ -39,7 +41,8 @@ class RunDir:
     def __init__(self, root):
         self.root = Path(root)
 
-    # -- layout ----------------------------------------------------------------------------------------------------
+    # -- layout
+    # ----------------------------------------------------------------------------------------------
     def path(self, *parts) -> Path:
         return self.root.joinpath(*parts)
 
@@ -51,7 +54,8 @@ class RunDir:
     def ckpt_path(self) -> Path:
         return self.root / "model" / "ckpt.pt"
 
-    # -- config ----------------------------------------------------------------------------------------------------
+    # -- config
+    # ----------------------------------------------------------------------------------------------
     def write_config(self, cfg: Dict[str, Any]) -> None:
         mio._atomic_write_bytes(self.config_path, yaml.safe_dump(cfg, sort_keys=False).encode())
 
@@ -60,7 +64,8 @@ class RunDir:
             return None
         return yaml.safe_load(self.config_path.read_text())
 
-    # -- status ----------------------------------------------------------------------------------------------------
+    # -- status
+    # ----------------------------------------------------------------------------------------------
     def status(self) -> Dict[str, Any]:
         p = self.root / "status.json"
         return mio.read_json(p) if p.exists() else {"stage": "new", "step": 0}
@@ -75,7 +80,8 @@ class RunDir:
     def done(self) -> bool:
         return self.status().get("stage") == "done"
 
-    # -- log -------------------------------------------------------------------------------------------------------
+    # -- log
+    # ----------------------------------------------------------------------------------------------
     def log(self, record: Dict[str, Any]) -> None:
         """Append one JSON line (flushed and fsynced: the log survives a kill)."""
         self.root.mkdir(parents=True, exist_ok=True)
@@ -100,5 +106,9 @@ class RunDir:
 
     def truncate_log(self, stage: str, step: int) -> None:
         """Drop log lines past a checkpoint (the resumed run will write them again)."""
-        recs = [r for r in self.read_log() if not (r.get("stage") == stage and r.get("step", -1) > step)]
-        mio._atomic_write_bytes(self.root / "log.jsonl", "".join(json.dumps(r) + "\n" for r in recs).encode())
+        recs = [
+            r for r in self.read_log() if not (r.get("stage") == stage and r.get("step", -1) > step)
+        ]
+        mio._atomic_write_bytes(
+            self.root / "log.jsonl", "".join(json.dumps(r) + "\n" for r in recs).encode()
+        )

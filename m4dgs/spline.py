@@ -1,21 +1,25 @@
-"""Cubic Hermite spline trajectories for Gaussian positions (paper, appendix "Cubic Hermite Spline Interpolation").
+"""Cubic Hermite spline trajectories for Gaussian positions (paper, appendix "Cubic Hermite Spline
+Interpolation").
 
 For control points p_k at knot times t_k (k = 0..K-1) and t in [t_k, t_{k+1}]:
 
-    mu(t) = h00(s) p_k + h10(s) (t_{k+1} - t_k) m_k + h01(s) p_{k+1} + h11(s) (t_{k+1} - t_k) m_{k+1},
-    s = (t - t_k) / (t_{k+1} - t_k),
-    m_k = 1/2 ((p_{k+1} - p_k) / (t_{k+1} - t_k) + (p_k - p_{k-1}) / (t_k - t_{k-1}))   (Catmull-Rom tangent),
+    mu(t) = h00(s) p_k + h10(s) (t_{k+1} - t_k) m_k + h01(s) p_{k+1} + h11(s) (t_{k+1} - t_k)
+    m_{k+1}, s = (t - t_k) / (t_{k+1} - t_k), m_k = 1/2 ((p_{k+1} - p_k) / (t_{k+1} - t_k) + (p_k -
+    p_{k-1}) / (t_k - t_{k-1}))   (Catmull-Rom tangent),
 
-with h00 = 2s^3 - 3s^2 + 1, h10 = s^3 - 2s^2 + s, h01 = -2s^3 + 3s^2, h11 = s^3 - s^2. At the two ends the tangent is
-the one-sided slope (m_0 = (p_1 - p_0) / (t_1 - t_0), m_{K-1} likewise), as in the authors' code.
+with h00 = 2s^3 - 3s^2 + 1, h10 = s^3 - 2s^2 + s, h01 = -2s^3 + 3s^2, h11 = s^3 - s^2. At the two
+ends the tangent is the one-sided slope (m_0 = (p_1 - p_0) / (t_1 - t_0), m_{K-1} likewise), as in
+the authors' code.
 
-Time is measured in training-frame indices (0..T-1; test frames sit at fractional times i + 0.5). Control points are
-placed every N_s frames (paper default 4, section "Implementation Details"), plus a final knot at the last frame when
-T - 1 is not a multiple of N_s. Times outside [t_0, t_{K-1}] are clamped to the ends.
+Time is measured in training-frame indices (0..T-1; test frames sit at fractional times i + 0.5).
+Control points are placed every N_s frames (paper default 4, section "Implementation Details"), plus
+a final knot at the last frame when T - 1 is not a multiple of N_s. Times outside [t_0, t_{K-1}] are
+clamped to the ends.
 
-The spline is linear in its control points, mu(t) = sum_k B[t, k] p_k, so fitting control points to a trajectory is a
-(regularised, masked) linear least-squares problem per Gaussian (`fit_control_points`).
-"""
+The spline is linear in its control points, mu(t) = sum_k B[t, k] p_k, so fitting control points to
+a trajectory is a (regularised, masked) linear least-squares problem per Gaussian
+(`fit_control_points`)."""
+
 from __future__ import annotations
 
 from typing import Optional, Union
@@ -26,7 +30,8 @@ Tensor = torch.Tensor
 
 
 def make_knots(num_frames: int, every: int = 4, *, dtype=torch.float32, device=None) -> Tensor:
-    """Knot times 0, N_s, 2 N_s, ... over frames 0..num_frames-1, plus the last frame if it is not on the grid.
+    """Knot times 0, N_s, 2 N_s, ... over frames 0..num_frames-1, plus the last frame if it is not
+    on the grid.
 
     Args:
         num_frames: number of training frames T (>= 1).
@@ -46,7 +51,8 @@ def make_knots(num_frames: int, every: int = 4, *, dtype=torch.float32, device=N
 
 
 def hermite_basis(s: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Hermite basis functions (h00, h10, h01, h11) at local parameter s in [0, 1] (same shape as s)."""
+    """Hermite basis functions (h00, h10, h01, h11) at local parameter s in [0, 1] (same shape as
+    s)."""
     s2 = s * s
     s3 = s2 * s
     h00 = 2.0 * s3 - 3.0 * s2 + 1.0
@@ -137,9 +143,9 @@ def basis_matrix(knots: Tensor, t: Union[Tensor, float, int]) -> Tensor:
 def second_difference_matrix(knots: Tensor) -> Tensor:
     """Divided second differences of the control points, [K-2, K] (empty for K < 3).
 
-    Row k gives (p_{k+1} - p_k) / (t_{k+1} - t_k) - (p_k - p_{k-1}) / (t_k - t_{k-1}); it vanishes for control points
-    on a straight line in time, so the smoothness term never biases linear motion.
-    """
+    Row k gives (p_{k+1} - p_k) / (t_{k+1} - t_k) - (p_k - p_{k-1}) / (t_k - t_{k-1}); it vanishes
+    for control points on a straight line in time, so the smoothness term never biases linear
+    motion."""
     k = knots.numel()
     d2 = torch.zeros(max(k - 2, 0), k, dtype=knots.dtype, device=knots.device)
     for i in range(1, k - 1):
@@ -174,12 +180,15 @@ def fit_control_points(
 ) -> Tensor:
     """Least-squares control points of a spline that follows each trajectory on its valid frames.
 
-    Solves per Gaussian n:  min_c  sum_t v_nt |B_t c - y_nt|^2 + smooth * |D2 c|^2 + damping * |D1 c|^2,
-    with B the [T, K] basis matrix, D2 / D1 the divided second / first differences of the control points times the
-    mean knot spacing h (h^2 for D2), so that on uniform knots they are the plain differences of the control points. The second-difference term lets the spline
-    itself fill invisible spans (linear continuation) and makes points with few visible frames well-posed; the tiny
-    first-difference term fixes the remaining slope when a Gaussian has a single visible frame (then it stays
-    constant). A Gaussian with no valid frame gets all-zero control points (filter those before).
+    Solves per Gaussian n:  min_c  sum_t v_nt |B_t c - y_nt|^2 + smooth * |D2 c|^2 + damping * |D1
+    c|^2,
+    with B the [T, K] basis matrix, D2 / D1 the divided second / first differences of the control
+    points times the mean knot spacing h (h^2 for D2), so that on uniform knots they are the plain
+    differences of the control points. The second-difference term lets the spline itself fill
+    invisible spans (linear continuation) and makes points with few visible frames well-posed; the
+    tiny first-difference term fixes the remaining slope when a Gaussian has a single visible frame
+    (then it stays constant). A Gaussian with no valid frame gets all-zero control points (filter
+    those before).
 
     Args:
         traj: [N, T, D] trajectories (values on invalid frames are ignored; they may be NaN).
@@ -190,20 +199,21 @@ def fit_control_points(
         damping: weight of the first-difference term.
         chunk: Gaussians solved per batch (memory bound).
     Returns:
-        [N, K, D] control points (same dtype/device as traj). Exact when the trajectory is itself a spline on these
-        knots observed on enough frames, up to the (small) smoothness bias.
+        [N, K, D] control points (same dtype/device as traj). Exact when the trajectory is itself a
+        spline on these knots observed on enough frames, up to the (small) smoothness bias.
     """
     n, t_count, d = traj.shape
     dtype = traj.dtype
-    work = torch.float64  # K x K normal equations: solved in double precision (cheap, and well-conditioned)
+    # K x K normal equations: solved in double precision (cheap, and well-conditioned)
+    work = torch.float64
     knots = knots.to(device=traj.device, dtype=work)
     times = times.to(device=traj.device, dtype=work)
     k = knots.numel()
     if valid is None:
         valid = torch.ones(n, t_count, dtype=torch.bool, device=traj.device)
     basis = basis_matrix(knots, times)  # [T, K]
-    # divided differences rescaled by the mean knot spacing: on uniform knots these are the plain differences
-    # p_{k+1} - 2 p_k + p_{k-1} and p_{k+1} - p_k (units of the trajectory)
+    # divided differences rescaled by the mean knot spacing: on uniform knots these are the plain
+    # differences p_{k+1} - 2 p_k + p_{k-1} and p_{k+1} - p_k (units of the trajectory)
     spacing = float(knots[-1] - knots[0]) / (k - 1) if k > 1 else 1.0
     reg = torch.zeros(k, k, dtype=work, device=traj.device)
     if k >= 3 and smooth > 0:
@@ -219,11 +229,14 @@ def fit_control_points(
     for start in range(0, n, chunk):
         sl = slice(start, min(start + chunk, n))
         w = valid[sl].to(work)  # [n, T]
-        y = torch.where(valid[sl, :, None], traj[sl].to(work), torch.zeros((), dtype=work, device=traj.device))
+        y = torch.where(
+            valid[sl, :, None], traj[sl].to(work), torch.zeros((), dtype=work, device=traj.device)
+        )
         lhs = torch.einsum("nt,tij->nij", w, outer) + reg  # [n, K, K]
         rhs = torch.einsum("nt,tk,ntd->nkd", w, basis, y)  # [n, K, D]
         has = valid[sl].any(dim=1)
-        # Gaussians with no valid frame: solve the identity instead (-> zeros) to keep the batch well-posed
+        # Gaussians with no valid frame: solve the identity instead (-> zeros) to keep the batch
+        # well-posed
         eye = torch.eye(k, dtype=work, device=traj.device)
         lhs = torch.where(has[:, None, None], lhs, eye)
         out[sl] = torch.linalg.solve(lhs, rhs)
@@ -242,11 +255,11 @@ def resample_control_points(
     """Control points for a dense trajectory (video-to-world transform, paper sec. 3.3.2).
 
     Args:
-        traj: [N, T, D] dense trajectory at `times` [T].
-        knots: [K] knot times.
-        valid: optional [N, T] mask (lstsq only).
-        method: "lstsq" (least-squares spline fit of all samples, default) or "sample" (the spline interpolates its
-            control points, so take the trajectory at the knot times, linearly interpolated between samples).
+        traj: [N, T, D] dense trajectory at `times` [T]. knots: [K] knot times. valid: optional [N,
+        T] mask (lstsq only). method: "lstsq" (least-squares spline fit of all samples, default) or
+        "sample" (the spline interpolates its
+            control points, so take the trajectory at the knot times, linearly interpolated between
+            samples).
     Returns:
         [N, K, D] control points.
     """

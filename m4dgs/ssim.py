@@ -1,10 +1,10 @@
 """Differentiable SSIM in the 3DGS convention (used by the D-SSIM loss and by the SSIM metrics).
 
-3DGS style (paper appendix, "LDR RGB Loss"; metric conventions in docs): an 11x11 Gaussian window with sigma 1.5,
-per-channel conv2d with zero padding 5, C1 = 0.01^2, C2 = 0.03^2 for data range 1, and the mean of the SSIM map over
-the WHOLE image, borders included. scikit-image's Gaussian SSIM equals the mean of this map over the interior
-(5-pixel border cropped); `crop` reproduces that.
-"""
+3DGS style (paper appendix, "LDR RGB Loss"; metric conventions in docs): an 11x11 Gaussian window
+with sigma 1.5, per-channel conv2d with zero padding 5, C1 = 0.01^2, C2 = 0.03^2 for data range 1,
+and the mean of the SSIM map over the WHOLE image, borders included. scikit-image's Gaussian SSIM
+equals the mean of this map over the interior (5-pixel border cropped); `crop` reproduces that."""
+
 from __future__ import annotations
 
 import torch
@@ -14,7 +14,9 @@ WINDOW_SIZE = 11
 SIGMA = 1.5
 
 
-def gaussian_window(size: int = WINDOW_SIZE, sigma: float = SIGMA, *, dtype=torch.float32, device=None) -> torch.Tensor:
+def gaussian_window(
+    size: int = WINDOW_SIZE, sigma: float = SIGMA, *, dtype=torch.float32, device=None
+) -> torch.Tensor:
     """Normalised separable Gaussian window as a [size, size] tensor."""
     x = torch.arange(size, dtype=dtype, device=device) - (size - 1) / 2.0
     g = torch.exp(-(x**2) / (2.0 * sigma**2))
@@ -44,7 +46,8 @@ def ssim_map(img1: torch.Tensor, img2: torch.Tensor, data_range: float = 1.0) ->
     pad = WINDOW_SIZE // 2
 
     def filt(x):
-        # separable 11x11 Gaussian with zero padding: identical to the 2-D convolution, about 5x cheaper
+        # separable 11x11 Gaussian with zero padding: identical to the 2-D convolution, about 5x
+        # cheaper
         return F.conv2d(F.conv2d(x, wh, padding=(0, pad), groups=c), wv, padding=(pad, 0), groups=c)
 
     mu1, mu2 = filt(a), filt(b)
@@ -57,11 +60,13 @@ def ssim_map(img1: torch.Tensor, img2: torch.Tensor, data_range: float = 1.0) ->
     return m.permute(0, 2, 3, 1).reshape(*lead, h, w, c)
 
 
-def ssim(img1: torch.Tensor, img2: torch.Tensor, data_range: float = 1.0, crop: int = 0) -> torch.Tensor:
+def ssim(
+    img1: torch.Tensor, img2: torch.Tensor, data_range: float = 1.0, crop: int = 0
+) -> torch.Tensor:
     """Mean SSIM (3DGS convention) of [..., H, W, C] images; returns a tensor of shape [...].
 
-    `crop` > 0 averages the map over the interior only (crop=5 reproduces scikit-image's Gaussian SSIM).
-    """
+    `crop` > 0 averages the map over the interior only (crop=5 reproduces scikit-image's Gaussian
+    SSIM)."""
     m = ssim_map(img1, img2, data_range)
     if crop > 0:
         m = m[..., crop:-crop, crop:-crop, :]
@@ -69,5 +74,6 @@ def ssim(img1: torch.Tensor, img2: torch.Tensor, data_range: float = 1.0, crop: 
 
 
 def dssim(img1: torch.Tensor, img2: torch.Tensor) -> torch.Tensor:
-    """Structural dissimilarity (1 - SSIM) / 2 as used in the 3DGS photometric loss; scalar for [H, W, C] input."""
+    """Structural dissimilarity (1 - SSIM) / 2 as used in the 3DGS photometric loss; scalar for [H,
+    W, C] input."""
     return (1.0 - ssim(img1, img2)) / 2.0

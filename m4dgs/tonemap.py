@@ -1,16 +1,18 @@
-"""Learned logarithmic-domain tone mapper phi (paper Sec. 3.1 "HDR Gaussian Splatting"; appendix "Implementation
-Details").
+"""Learned logarithmic-domain tone mapper phi (paper Sec. 3.1 "HDR Gaussian Splatting"; appendix
+"Implementation Details").
 
-The LDR colour of an HDR irradiance H seen with exposure time dt is ``L = phi(log2(H + eps) + log2(dt))``
-(the paper writes phi(log(e dt)); the authors' code uses log2 with eps = 1e-6 and stores exposures as log2 values,
-which only rescales the input axis). phi is three independent per-channel MLPs
-``Linear(1, 128) - Softplus - Linear(128, 1) - Sigmoid``. Here the three MLPs are stored as stacked parameter
-tensors and evaluated with one einsum, so the cost does not grow with a Python loop over channels.
+The LDR colour of an HDR irradiance H seen with exposure time dt is ``L = phi(log2(H + eps) +
+log2(dt))`` (the paper writes phi(log(e dt)); the authors' code uses log2 with eps = 1e-6 and stores
+exposures as log2 values, which only rescales the input axis). phi is three independent per-channel
+MLPs ``Linear(1, 128) - Softplus - Linear(128, 1) - Sigmoid``. Here the three MLPs are stored as
+stacked parameter tensors and evaluated with one einsum, so the cost does not grow with a Python
+loop over channels.
 
-Before training with the scene the authors pre-train phi for 1,000 iterations on a reference CRF that is equal for
-R, G and B, with a monotonicity penalty and the unit-exposure term (`pretrain_tonemapper`). The reference curve is a
-callable argument (e.g. ``m4dgs.crf.get_crf("hdrnerf")``), so this module does not depend on the CRF library.
-"""
+Before training with the scene the authors pre-train phi for 1,000 iterations on a reference CRF
+that is equal for R, G and B, with a monotonicity penalty and the unit-exposure term
+(`pretrain_tonemapper`). The reference curve is a callable argument (e.g.
+``m4dgs.crf.get_crf("hdrnerf")``), so this module does not depend on the CRF library."""
+
 from __future__ import annotations
 
 import math
@@ -30,12 +32,18 @@ class ToneMapper(nn.Module):
     Parameters (C = n_channels, D = hidden):
         w1 [C, D], b1 [C, D]: first layer (Linear(1, D) of each channel);
         w2 [C, D], b2 [C]:    second layer (Linear(D, 1) of each channel).
-    Initialisation follows torch.nn.Linear (uniform in +-1/sqrt(fan_in)), so a channel is distributed exactly like
-    ``nn.Sequential(nn.Linear(1, D), nn.Softplus(), nn.Linear(D, 1), nn.Sigmoid())``.
-    """
+    Initialisation follows torch.nn.Linear (uniform in +-1/sqrt(fan_in)), so a channel is
+    distributed exactly like ``nn.Sequential(nn.Linear(1, D), nn.Softplus(), nn.Linear(D, 1),
+    nn.Sigmoid())``."""
 
-    def __init__(self, hidden: int = 128, n_channels: int = 3, eps: float = LOG_EPS,
-                 generator: torch.Generator | None = None, lut_size: int = 2048):
+    def __init__(
+        self,
+        hidden: int = 128,
+        n_channels: int = 3,
+        eps: float = LOG_EPS,
+        generator: torch.Generator | None = None,
+        lut_size: int = 2048,
+    ):
         super().__init__()
         self.lut_size = int(lut_size)
         self.hidden = int(hidden)
@@ -55,7 +63,8 @@ class ToneMapper(nn.Module):
         """Evaluate phi on log2 exposures.
 
         Args:
-            z: [..., C] log2 exposure per channel (log2(H) + log2(dt)); a [..., 1] input is broadcast to all channels.
+            z: [..., C] log2 exposure per channel (log2(H) + log2(dt)); a [..., 1] input is
+            broadcast to all channels.
         Returns:
             [..., C] LDR values in (0, 1).
         """
@@ -67,8 +76,8 @@ class ToneMapper(nn.Module):
         """Tone-map HDR irradiance at an exposure.
 
         Args:
-            hdr: [..., C] non-negative HDR irradiance.
-            log2_dt: exposure as log2(dt): a float, a 0-d tensor, or a tensor of shape [...] (hdr.shape[:-1] or
+            hdr: [..., C] non-negative HDR irradiance. log2_dt: exposure as log2(dt): a float, a 0-d
+            tensor, or a tensor of shape [...] (hdr.shape[:-1] or
                 broadcastable to it, e.g. [B, 1, 1] for a batch of [B, H, W, C] images).
         Returns:
             [..., C] LDR colour in (0, 1): phi(log2(hdr + eps) + log2_dt).
@@ -78,17 +87,22 @@ class ToneMapper(nn.Module):
             z = z + log2_dt.to(z.dtype).unsqueeze(-1)
         else:
             z = z + log2_dt
-        if self.lut_size > 1 and z.numel() > 4 * self.lut_size * self.n_channels and z.shape[-1] == self.n_channels:
+        if (
+            self.lut_size > 1
+            and z.numel() > 4 * self.lut_size * self.n_channels
+            and z.shape[-1] == self.n_channels
+        ):
             return self.curve_lut(z)
         return self.curve(z)
 
     def curve_lut(self, z: torch.Tensor) -> torch.Tensor:
-        """phi through a piecewise-linear table of `lut_size` nodes spanning [min z, max z] of the input.
+        """phi through a piecewise-linear table of `lut_size` nodes spanning [min z, max z] of the
+        input.
 
-        The MLP is evaluated only at the nodes (cost independent of the image size: the exact path costs
-        [H W, C, hidden] activations); values and gradients (w.r.t. z and the parameters) are those of the
-        interpolant, whose error is below ~1e-5 for the smooth curves learned here (checked in the tests).
-        """
+        The MLP is evaluated only at the nodes (cost independent of the image size: the exact path
+        costs [H W, C, hidden] activations); values and gradients (w.r.t. z and the parameters) are
+        those of the interpolant, whose error is below ~1e-5 for the smooth curves learned here
+        (checked in the tests)."""
         c = self.n_channels
         zd = z.detach()
         lo, hi = float(zd.min()), float(zd.max())
@@ -107,12 +121,15 @@ class ToneMapper(nn.Module):
         return self.curve(self.w1.new_zeros(1, self.n_channels))[0]
 
 
-def monotonicity_penalty(tm: ToneMapper, z_min: float = -10.0, z_max: float = 10.0, n: int = 1024) -> torch.Tensor:
+def monotonicity_penalty(
+    tm: ToneMapper, z_min: float = -10.0, z_max: float = 10.0, n: int = 1024
+) -> torch.Tensor:
     """Mean ReLU of the negative slope of phi over a dense grid of its input z in [z_min, z_max].
 
-    The authors apply it on the tone mapper's input axis over [-10, 10] (they call the axis ln x; it is the log2
-    exposure fed to the MLP). The slope is a finite difference on the sorted grid, so the penalty is zero exactly when
-    phi is non-decreasing between grid points; summed over channels.
+    The authors apply it on the tone mapper's input axis over [-10, 10] (they call the axis ln x; it
+    is the log2 exposure fed to the MLP). The slope is a finite difference on the sorted grid, so
+    the penalty is zero exactly when phi is non-decreasing between grid points; summed over
+    channels.
 
     Returns:
         scalar tensor.
@@ -135,14 +152,16 @@ def pretrain_tonemapper(
     ue_weight: float = 10.0,
     c0: float | None = None,
 ) -> dict:
-    """Fit phi to a reference CRF, equal for every channel (authors: 1,000 iterations before scene training).
+    """Fit phi to a reference CRF, equal for every channel (authors: 1,000 iterations before scene
+    training).
 
-    Loss = mean_c,z (phi_c(z) - f(2^z))^2 + mono_weight * monotonicity_penalty + ue_weight * mean_c (phi_c(0) - c0)^2,
-    on a fixed grid of z (log2 exposure) in ``z_range``; Adam with learning rate ``lr``. Deterministic.
+    Loss = mean_c,z (phi_c(z) - f(2^z))^2 + mono_weight * monotonicity_penalty + ue_weight * mean_c
+    (phi_c(0) - c0)^2, on a fixed grid of z (log2 exposure) in ``z_range``; Adam with learning rate
+    ``lr``. Deterministic.
 
     Args:
-        tm: the tone mapper (modified in place).
-        target_crf: f(x) for linear exposure x = H * dt > 0 (torch tensor in, same shape out, values in [0, 1]),
+        tm: the tone mapper (modified in place). target_crf: f(x) for linear exposure x = H * dt > 0
+        (torch tensor in, same shape out, values in [0, 1]),
             e.g. the HDR-NeRF CRF (x / (x + 1)) ** (1 / 2.2).
         c0: unit-exposure target; defaults to f(1).
     Returns:
@@ -164,5 +183,9 @@ def pretrain_tonemapper(
         total = fit + mono_weight * mono + ue_weight * ue
         total.backward()
         opt.step()
-    return {"fit": float(fit.detach()), "mono": float(mono.detach()), "ue": float(ue.detach()),
-            "total": float(total.detach())}
+    return {
+        "fit": float(fit.detach()),
+        "mono": float(mono.detach()),
+        "ue": float(ue.detach()),
+        "total": float(total.detach()),
+    }

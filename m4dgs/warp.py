@@ -1,9 +1,9 @@
 """Backward warping by optical flow and forward-backward flow consistency.
 
-Conventions (DESIGN.md): flow F_{a->b} is given per pixel of frame a as (dx, dy) in pixels, pixel centres at
-integer + 0.5. Backward warping W(I_b, F_{a->b}) samples I_b at x + F_{a->b}(x) and so expresses frame b on the pixel
-grid of frame a.
-"""
+Conventions (DESIGN.md): flow F_{a->b} is given per pixel of frame a as (dx, dy) in pixels, pixel
+centres at integer + 0.5. Backward warping W(I_b, F_{a->b}) samples I_b at x + F_{a->b}(x) and so
+expresses frame b on the pixel grid of frame a."""
+
 from __future__ import annotations
 
 import torch
@@ -11,8 +11,9 @@ import torch.nn.functional as F
 
 
 def pixel_grid(height: int, width: int, *, dtype=torch.float32, device=None) -> torch.Tensor:
-    """[H, W, 2] integer pixel coordinates (x, y) of each pixel (index space; centres are at +0.5 in continuous
-    coordinates, so index space and centre space differ by a constant that cancels in displacements)."""
+    """[H, W, 2] integer pixel coordinates (x, y) of each pixel (index space; centres are at +0.5 in
+    continuous coordinates, so index space and centre space differ by a constant that cancels in
+    displacements)."""
     ys, xs = torch.meshgrid(
         torch.arange(height, dtype=dtype, device=device),
         torch.arange(width, dtype=dtype, device=device),
@@ -21,7 +22,9 @@ def pixel_grid(height: int, width: int, *, dtype=torch.float32, device=None) -> 
     return torch.stack([xs, ys], dim=-1)
 
 
-def backward_warp(image: torch.Tensor, flow: torch.Tensor, padding_mode: str = "border") -> torch.Tensor:
+def backward_warp(
+    image: torch.Tensor, flow: torch.Tensor, padding_mode: str = "border"
+) -> torch.Tensor:
     """Sample `image` at x + flow(x) with bilinear interpolation.
 
     Args:
@@ -29,8 +32,8 @@ def backward_warp(image: torch.Tensor, flow: torch.Tensor, padding_mode: str = "
         flow:  [H, W, 2] flow F_{a->b} on the grid of frame a (pixels).
         padding_mode: grid_sample padding ("border" as in the authors' HDR-TAE, or "zeros").
     Returns:
-        [H, W, C] frame b resampled onto frame a's grid. Uses align_corners=True on pixel indices, so an integer
-        flow gives an exact shift.
+        [H, W, C] frame b resampled onto frame a's grid. Uses align_corners=True on pixel indices,
+        so an integer flow gives an exact shift.
     """
     h, w = flow.shape[:2]
     hb, wb = image.shape[:2]
@@ -39,15 +42,22 @@ def backward_warp(image: torch.Tensor, flow: torch.Tensor, padding_mode: str = "
     gy = pos[..., 1] / max(hb - 1, 1) * 2.0 - 1.0
     grid = torch.stack([gx, gy], dim=-1)[None]
     out = F.grid_sample(
-        image.permute(2, 0, 1)[None].to(flow.dtype), grid, mode="bilinear", padding_mode=padding_mode, align_corners=True
+        image.permute(2, 0, 1)[None].to(flow.dtype),
+        grid,
+        mode="bilinear",
+        padding_mode=padding_mode,
+        align_corners=True,
     )
     return out[0].permute(1, 2, 0)
 
 
-def fb_consistency(flow_fwd: torch.Tensor, flow_bwd: torch.Tensor, alpha: float = 0.5, beta: float = 0.5) -> torch.Tensor:
+def fb_consistency(
+    flow_fwd: torch.Tensor, flow_bwd: torch.Tensor, alpha: float = 0.5, beta: float = 0.5
+) -> torch.Tensor:
     """Visibility of frame a's pixels in frame b from forward-backward consistency.
 
-    A pixel is visible when |f + b(x + f)| < alpha * (|f| + |b(x + f)|) + beta (norms over the 2 flow components).
+    A pixel is visible when |f + b(x + f)| < alpha * (|f| + |b(x + f)|) + beta (norms over the 2
+    flow components).
 
     Args:
         flow_fwd: [H, W, 2] F_{a->b}; flow_bwd: [H, W, 2] F_{b->a}.

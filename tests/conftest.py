@@ -1,4 +1,5 @@
 """Shared fixtures: tiny clips rendered once per test session with the real generator (benchgen)."""
+
 from __future__ import annotations
 
 import os
@@ -13,13 +14,22 @@ def _make(tmp_path_factory, scene: str, priors: str):
     from benchgen.suite import builtin_scenes_dir
 
     out = tmp_path_factory.mktemp(f"clip-{scene}-{priors}") / scene
-    return make_clip(builtin_scenes_dir() / f"{scene}.yaml", out, preset="tiny", priors=priors, seed=0, progress=False,
-                      allow_misplaced=True)  # a smoke-test scene: placement is tested in test_placement.py
+    return make_clip(
+        builtin_scenes_dir() / f"{scene}.yaml",
+        out,
+        preset="tiny",
+        priors=priors,
+        seed=0,
+        progress=False,
+        # a smoke-test scene: placement is tested in test_placement.py
+        allow_misplaced=True,
+    )
 
 
 @pytest.fixture(scope="session")
 def tiny_clip_oracle(tmp_path_factory):
-    """tiny-flag-arm (waving flag, articulated arm, orbiting camera) with exact priors, 72x40, 9 frames."""
+    """tiny-flag-arm (waving flag, articulated arm, orbiting camera) with exact priors, 72x40, 9
+    frames."""
     return _make(tmp_path_factory, "tiny-flag-arm", "oracle")
 
 

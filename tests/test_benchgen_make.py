@@ -1,4 +1,5 @@
 """benchgen make as a whole: a finished clip validates, is deterministic for a seed, and resumes."""
+
 from __future__ import annotations
 
 import hashlib
@@ -12,7 +13,8 @@ from m4dgs.clip import Clip, frame_name
 
 
 def make_clip(*a, **kw):
-    """tiny-flag-arm is a smoke-test scene: placement targets are tested in test_placement.py, not here."""
+    """tiny-flag-arm is a smoke-test scene: placement targets are tested in test_placement.py, not
+    here."""
     return _make_clip(*a, allow_misplaced=True, **kw)
 
 
@@ -39,7 +41,11 @@ def test_clip_contract_and_ground_truth_notes(tiny_clip_realistic):
     for key in ("render_noise", "hdr_tae_floor", "dynamic_fraction", "dynamic_range_stops"):
         assert key in m.gt, key
     # the scene needs merging: the longest observed exposure saturates somewhere
-    long_g = [g for g, dt in zip(clip.train_frames, m.exposures.train_dt) if dt == max(m.exposures.observed)][0]
+    long_g = [
+        g
+        for g, dt in zip(clip.train_frames, m.exposures.train_dt)
+        if dt == max(m.exposures.observed)
+    ][0]
     assert (clip.load_ldr(long_g) == 255).any()
     # flow prior only between frames of the same exposure level (t, t +- N_e)
     fs = clip.load_flow_prior()
@@ -49,29 +55,54 @@ def test_clip_contract_and_ground_truth_notes(tiny_clip_realistic):
 
 def test_same_seed_is_byte_identical_and_resume_skips(tiny_clip_realistic, tmp_path):
     first = Clip.open(tiny_clip_realistic)
-    again = make_clip(builtin_scenes_dir() / "tiny-flag-arm.yaml", tmp_path / "again", preset="tiny",
-                      priors="realistic", seed=0, progress=False)
+    again = make_clip(
+        builtin_scenes_dir() / "tiny-flag-arm.yaml",
+        tmp_path / "again",
+        preset="tiny",
+        priors="realistic",
+        seed=0,
+        progress=False,
+    )
     clip2 = Clip.open(again)
     rels = _inputs_and_priors(first)
     assert _digest(first.root, rels) == _digest(clip2.root, rels)
     # a finished clip with the same settings is returned untouched
     before = (again / "clip.json").stat().st_mtime_ns
-    make_clip(builtin_scenes_dir() / "tiny-flag-arm.yaml", again, preset="tiny", priors="realistic", seed=0,
-              progress=False)
+    make_clip(
+        builtin_scenes_dir() / "tiny-flag-arm.yaml",
+        again,
+        preset="tiny",
+        priors="realistic",
+        seed=0,
+        progress=False,
+    )
     assert (again / "clip.json").stat().st_mtime_ns == before
-    # an unfinished clip (no clip.json) resumes: rendered HDR frames are kept, the rest is rebuilt identically
+    # an unfinished clip (no clip.json) resumes: rendered HDR frames are kept, the rest is rebuilt
+    # identically
     (again / "clip.json").unlink()
     (again / "input/ldr" / frame_name(0, "png")).unlink()
     hdr_mtime = (again / "gt/hdr" / frame_name(3, "exr")).stat().st_mtime_ns
-    make_clip(builtin_scenes_dir() / "tiny-flag-arm.yaml", again, preset="tiny", priors="realistic", seed=0,
-              progress=False)
+    make_clip(
+        builtin_scenes_dir() / "tiny-flag-arm.yaml",
+        again,
+        preset="tiny",
+        priors="realistic",
+        seed=0,
+        progress=False,
+    )
     assert (again / "gt/hdr" / frame_name(3, "exr")).stat().st_mtime_ns == hdr_mtime
     assert _digest(first.root, rels) == _digest(again, rels)
 
 
 def test_other_seed_changes_priors(tiny_clip_realistic, tmp_path):
-    other = make_clip(builtin_scenes_dir() / "tiny-flag-arm.yaml", tmp_path / "seed1", preset="tiny",
-                      priors="realistic", seed=1, progress=False)
+    other = make_clip(
+        builtin_scenes_dir() / "tiny-flag-arm.yaml",
+        tmp_path / "seed1",
+        preset="tiny",
+        priors="realistic",
+        seed=1,
+        progress=False,
+    )
     a = np.load(tiny_clip_realistic / "priors/tracks.npz")["tracks"]
     b = np.load(other / "priors/tracks.npz")["tracks"]
     assert a.shape != b.shape or not np.array_equal(a, b)
@@ -79,23 +110,39 @@ def test_other_seed_changes_priors(tiny_clip_realistic, tmp_path):
 
 def test_spp_override_is_recorded_and_guards_resume(tmp_path):
     scene = builtin_scenes_dir() / "tiny-lamp-box.yaml"
-    out = make_clip(scene, tmp_path / "c", preset="tiny", priors="oracle", seed=0, progress=False, max_frames=5, spp=16)
+    out = make_clip(
+        scene,
+        tmp_path / "c",
+        preset="tiny",
+        priors="oracle",
+        seed=0,
+        progress=False,
+        max_frames=5,
+        spp=16,
+    )
     m = Clip.open(out).meta
     assert m.generator["spp"] == 16 and m.gt["render"]["spp"] == 16
-    # the light selection chosen by the probe is the one the frames were rendered with, and it was the least noisy
+    # the light selection chosen by the probe is the one the frames were rendered with, and it was
+    # the least noisy
     probe = m.gt["emitter_sampling_probe"]
     assert probe["chosen"] == m.gt["render"]["emitter_sampling"]
-    assert probe["noise_tae_two_seeds"][probe["chosen"]] == min(probe["noise_tae_two_seeds"].values())
+    assert probe["noise_tae_two_seeds"][probe["chosen"]] == min(
+        probe["noise_tae_two_seeds"].values()
+    )
     # a finished clip made with other render settings is never silently mixed or overwritten
     with pytest.raises(FileExistsError, match="other settings"):
-        make_clip(scene, out, preset="tiny", priors="oracle", seed=0, progress=False, max_frames=5, spp=64)
+        make_clip(
+            scene, out, preset="tiny", priors="oracle", seed=0, progress=False, max_frames=5, spp=64
+        )
     with pytest.raises(ValueError, match="spp"):
-        make_clip(scene, tmp_path / "bad", preset="tiny", priors="oracle", seed=0, progress=False, spp=0)
+        make_clip(
+            scene, tmp_path / "bad", preset="tiny", priors="oracle", seed=0, progress=False, spp=0
+        )
 
 
 def test_track_density_follows_the_preset(tmp_path, monkeypatch):
-    """The ground-truth query grid is the preset's: the grid step is sqrt(pixels / cells), the number of tracks grows
-    with the lattice, and the oracle prior keeps every one of them."""
+    """The ground-truth query grid is the preset's: the grid step is sqrt(pixels / cells), the
+    number of tracks grows with the lattice, and the oracle prior keeps every one of them."""
     import dataclasses
 
     import benchgen.make as bm
@@ -103,21 +150,35 @@ def test_track_density_follows_the_preset(tmp_path, monkeypatch):
     scene = builtin_scenes_dir() / "tiny-lamp-box.yaml"
     counts, steps = {}, {}
     for grid in (64, 256):
-        monkeypatch.setitem(bm.PRESETS, "tiny", dataclasses.replace(bm.PRESETS["tiny"], track_grid=grid, track_dynamic=0))
-        out = make_clip(scene, tmp_path / f"g{grid}", preset="tiny", priors="oracle", seed=0, progress=False,
-                        max_frames=3, spp=4)
+        monkeypatch.setitem(
+            bm.PRESETS,
+            "tiny",
+            dataclasses.replace(bm.PRESETS["tiny"], track_grid=grid, track_dynamic=0),
+        )
+        out = make_clip(
+            scene,
+            tmp_path / f"g{grid}",
+            preset="tiny",
+            priors="oracle",
+            seed=0,
+            progress=False,
+            max_frames=3,
+            spp=4,
+        )
         clip = Clip.open(out)
         notes = clip.meta.gt["tracks"]
         assert notes["num_grid"] == grid and notes["num_dynamic"] == 0
         gt = np.load(out / "gt/tracks.npz")
         counts[grid] = notes["num"]
         assert gt["tracks"].shape[0] == counts[grid]
-        # the queries of the first reference frame (frame 0) sit on pixel centres, on a grid of the expected step
+        # the queries of the first reference frame (frame 0) sit on pixel centres, on a grid of the
+        # expected step
         first = gt["tracks"][:, 0][gt["visible"][:, 0]].astype(np.float64)
         on_centre = (np.abs((first - 0.5) - np.round(first - 0.5)) < 1e-3).all(axis=1)
         xs = np.unique(np.round(first[on_centre, 0], 3))
         steps[grid] = float(np.median(np.diff(xs)))
-        assert np.load(out / "priors/tracks.npz")["tracks"].shape[0] == counts[grid]  # oracle keeps all
+        # oracle keeps all
+        assert np.load(out / "priors/tracks.npz")["tracks"].shape[0] == counts[grid]
     W, H = bm.PRESETS["tiny"].width, bm.PRESETS["tiny"].height
     lattice = {}
     for grid in (64, 256):

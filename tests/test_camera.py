@@ -1,8 +1,9 @@
-"""Camera conventions: round trips to 1e-6 and known answers (independent of the code under test)."""
+"""Camera conventions: round trips to 1e-6 and known answers (independent of the code under
+test)."""
+
 from __future__ import annotations
 
 import numpy as np
-import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
@@ -37,7 +38,11 @@ def test_quat_rotmat_round_trip_including_edge_cases():
 
 def test_quat_multiply_composes_rotations():
     a, b = RNG.normal(size=(10, 4)), RNG.normal(size=(10, 4))
-    np.testing.assert_allclose(C.quat_to_rotmat(C.quat_multiply(a, b)), C.quat_to_rotmat(a) @ C.quat_to_rotmat(b), atol=1e-12)
+    np.testing.assert_allclose(
+        C.quat_to_rotmat(C.quat_multiply(a, b)),
+        C.quat_to_rotmat(a) @ C.quat_to_rotmat(b),
+        atol=1e-12,
+    )
 
 
 def test_c2w_w2c_round_trip():
@@ -57,8 +62,11 @@ def test_camera_centre_is_translation():
 def test_projection_known_answer_and_round_trip():
     K = C.K_from_fov(200, 100, 90.0)  # fx = 100 / tan(45 deg) = 100
     np.testing.assert_allclose(K, [[100, 0, 100], [0, 100, 50], [0, 0, 1]], atol=1e-12)
-    # a point 1 right, 0.5 down, 2 forward lands at u = 100 + 100 * 0.5 = 150, v = 50 + 100 * 0.25 = 75
-    np.testing.assert_allclose(C.project_pinhole(np.array([1.0, 0.5, 2.0]), K), [150, 75], atol=1e-12)
+    # a point 1 right, 0.5 down, 2 forward lands at u = 100 + 100 * 0.5 = 150, v = 50 + 100 * 0.25 =
+    # 75
+    np.testing.assert_allclose(
+        C.project_pinhole(np.array([1.0, 0.5, 2.0]), K), [150, 75], atol=1e-12
+    )
     # the centre of pixel (0, 0) is (0.5, 0.5): the ray through it points up-left
     ray = C.unproject_pinhole(np.array([0.5, 0.5]), 1.0, K)
     np.testing.assert_allclose(ray, [(0.5 - 100) / 100, (0.5 - 50) / 100, 1.0], atol=1e-12)
@@ -70,21 +78,27 @@ def test_projection_known_answer_and_round_trip():
 def test_ortho_mapping():
     W, H = 216, 120
     # pixel centre of the first column maps to x = 2 * 0.5 / W - 1; image edges map to -1 and +1
-    np.testing.assert_allclose(C.pixel_to_ortho(np.array([0.5, 0.5]), W, H), [1 / W - 1, 1 / H - 1], atol=1e-15)
+    np.testing.assert_allclose(
+        C.pixel_to_ortho(np.array([0.5, 0.5]), W, H), [1 / W - 1, 1 / H - 1], atol=1e-15
+    )
     np.testing.assert_allclose(C.pixel_to_ortho(np.array([W, H]), W, H), [1, 1], atol=1e-15)
     uv = RNG.uniform(0, W, size=(50, 2))
     np.testing.assert_allclose(C.ortho_to_pixel(C.pixel_to_ortho(uv, W, H), W, H), uv, atol=1e-9)
     # the orthographic K reproduces the same mapping as u = fx x + cx
     K = C.K_ortho(W, H)
     xy = RNG.uniform(-1, 1, size=(5, 2))
-    np.testing.assert_allclose(C.ortho_to_pixel(xy, W, H), xy * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]], atol=1e-12)
+    np.testing.assert_allclose(
+        C.ortho_to_pixel(xy, W, H), xy * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]], atol=1e-12
+    )
 
 
 def test_video_camera_round_trip():
     W, H = 64, 48
     K = C.K_from_fov(W, H, 60.0)
     p = np.column_stack([RNG.uniform(-1, 1, 30), RNG.uniform(-1, 1, 30), RNG.uniform(1, 5, 30)])
-    np.testing.assert_allclose(C.camera_to_video(C.video_to_camera(p, K, W, H), K, W, H), p, atol=1e-9)
+    np.testing.assert_allclose(
+        C.camera_to_video(C.video_to_camera(p, K, W, H), K, W, H), p, atol=1e-9
+    )
 
 
 def test_slerp_known_answer():
@@ -93,7 +107,8 @@ def test_slerp_known_answer():
     q = C.slerp(q0, q1, 0.5)
     ref = Rotation.from_rotvec([0, 0, np.pi / 4]).as_quat()[[3, 0, 1, 2]]
     np.testing.assert_allclose(q, ref, atol=1e-12)
-    np.testing.assert_allclose(C.slerp(q0, -q1, 0.5), ref, atol=1e-12)  # short arc despite the sign flip
+    # short arc despite the sign flip
+    np.testing.assert_allclose(C.slerp(q0, -q1, 0.5), ref, atol=1e-12)
     np.testing.assert_allclose(C.slerp(q0, q0, 0.3), q0, atol=1e-12)
 
 
@@ -110,7 +125,9 @@ def test_pose_interpolation():
 
 def test_trajectory_interpolation_test_frames():
     c2w = random_c2w(3)
-    q = C.interpolate_trajectory(np.array([0.0, 2.0, 4.0]), c2w, np.array([0.0, 1.0, 3.0, 4.0, 5.0]))
+    q = C.interpolate_trajectory(
+        np.array([0.0, 2.0, 4.0]), c2w, np.array([0.0, 1.0, 3.0, 4.0, 5.0])
+    )
     np.testing.assert_allclose(q[0], c2w[0], atol=1e-9)
     np.testing.assert_allclose(q[1], C.interpolate_pose(c2w[0], c2w[1], 0.5), atol=1e-9)
     np.testing.assert_allclose(q[2], C.interpolate_pose(c2w[1], c2w[2], 0.5), atol=1e-9)

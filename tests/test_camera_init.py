@@ -1,10 +1,11 @@
 """MoSca-style camera initialisation (m4dgs.camera_init) on a self-contained synthetic scene.
 
-The scene generator below is test-only: a box-shaped room (5 planes) seen from a smoothly moving camera with a known
-focal length, two moving spheres, exact raycast depth maps, exact tracks (projection + occlusion test) and exact
-flow (rigid motion for the room, + sphere translation on the spheres). Independent answers: the generator's
-cameras, focal and dynamic labels; eval.metrics.geometry.ate for the trajectory error.
-"""
+The scene generator below is test-only: a box-shaped room (5 planes) seen from a smoothly moving
+camera with a known focal length, two moving spheres, exact raycast depth maps, exact tracks
+(projection + occlusion test) and exact flow (rigid motion for the room, + sphere translation on the
+spheres). Independent answers: the generator's cameras, focal and dynamic labels;
+eval.metrics.geometry.ate for the trajectory error."""
+
 from __future__ import annotations
 
 import math
@@ -15,14 +16,22 @@ import pytest
 import torch
 
 from m4dgs.camera import K_from_fov, make_c2w, project_pinhole, umeyama_sim3
-from m4dgs.camera_init import (CameraInitConfig, chain_poses, initialize_cameras, robust_sim3, sample_map,
-                               search_fov, select_static_tracks, umeyama_sim3_batched)
+from m4dgs.camera_init import (
+    CameraInitConfig,
+    chain_poses,
+    initialize_cameras,
+    robust_sim3,
+    sample_map,
+    search_fov,
+    select_static_tracks,
+    umeyama_sim3_batched,
+)
 from m4dgs.clip import Cameras, ClipMeta, ClipWriter, Exposures, FlowSet, Split, TrackSet
 from m4dgs.epipolar import EpipolarConfig, dynamic_masks, epipolar_error_maps
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Synthetic scene (test-only generator)
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 PLANES = [  # n . X = d, room interior (OpenCV-like world: y down, z forward)
     (np.array([1.0, 0, 0]), -4.0),  # left wall x = -4
     (np.array([1.0, 0, 0]), 4.0),  # right wall x = 4
@@ -30,9 +39,14 @@ PLANES = [  # n . X = d, room interior (OpenCV-like world: y down, z forward)
     (np.array([0, 1.0, 0]), -2.0),  # ceiling y = -2
     (np.array([0, 0, 1.0]), 12.0),  # back wall z = 12
 ]
-STATIC_BALLS = [  # static spheres (centre, radius): non-planar structure against plane-degenerate epipolar fits
-    (np.array([-2.6, 0.6, 8.5]), 0.9), (np.array([2.5, 0.9, 9.5]), 0.6), (np.array([0.3, -1.2, 10.0]), 0.7),
-    (np.array([-1.8, -1.1, 4.5]), 0.4), (np.array([3.0, -0.8, 6.0]), 0.5), (np.array([0.6, 1.1, 4.0]), 0.35),
+# static spheres (centre, radius): non-planar structure against plane-degenerate epipolar fits
+STATIC_BALLS = [
+    (np.array([-2.6, 0.6, 8.5]), 0.9),
+    (np.array([2.5, 0.9, 9.5]), 0.6),
+    (np.array([0.3, -1.2, 10.0]), 0.7),
+    (np.array([-1.8, -1.1, 4.5]), 0.4),
+    (np.array([3.0, -0.8, 6.0]), 0.5),
+    (np.array([0.6, 1.1, 4.0]), 0.35),
 ]
 RADIUS = 0.7  # moving spheres
 N_STATIC_OBJECTS = len(PLANES) + len(STATIC_BALLS)
@@ -40,24 +54,36 @@ N_STATIC_OBJECTS = len(PLANES) + len(STATIC_BALLS)
 
 def sphere_centres(s):
     """Centres of the two moving spheres at normalised time s in [0, 1]: [2, 3]."""
-    return np.array([[-1.0, 0.6 - 1.4 * s, 6.0],
-                     [1.3 + 0.3 * math.sin(2 * math.pi * s), -0.7 + 1.2 * s, 7.0 - 1.0 * s]])
+    return np.array(
+        [
+            [-1.0, 0.6 - 1.4 * s, 6.0],
+            [1.3 + 0.3 * math.sin(2 * math.pi * s), -0.7 + 1.2 * s, 7.0 - 1.0 * s],
+        ]
+    )
 
 
 def camera_pose(s):
-    """c2w [4, 4] at normalised time s: sideways + forward translation, pan (yaw) and a little pitch/roll."""
+    """c2w [4, 4] at normalised time s: sideways + forward translation, pan (yaw) and a little
+    pitch/roll."""
     C = np.array([2.0 * s - 1.0, 0.25 * math.sin(2 * math.pi * s), 1.2 * s])
     yaw = math.radians(18.0 * (s - 0.5))
     pitch = math.radians(4.0 * math.sin(math.pi * s))
     roll = math.radians(2.0 * s)
-    Ry = np.array([[math.cos(yaw), 0, math.sin(yaw)], [0, 1, 0], [-math.sin(yaw), 0, math.cos(yaw)]])
-    Rx = np.array([[1, 0, 0], [0, math.cos(pitch), -math.sin(pitch)], [0, math.sin(pitch), math.cos(pitch)]])
-    Rz = np.array([[math.cos(roll), -math.sin(roll), 0], [math.sin(roll), math.cos(roll), 0], [0, 0, 1]])
+    Ry = np.array(
+        [[math.cos(yaw), 0, math.sin(yaw)], [0, 1, 0], [-math.sin(yaw), 0, math.cos(yaw)]]
+    )
+    Rx = np.array(
+        [[1, 0, 0], [0, math.cos(pitch), -math.sin(pitch)], [0, math.sin(pitch), math.cos(pitch)]]
+    )
+    Rz = np.array(
+        [[math.cos(roll), -math.sin(roll), 0], [math.sin(roll), math.cos(roll), 0], [0, 0, 1]]
+    )
     return make_c2w(Ry @ Rx @ Rz, C)
 
 
 def cast(o, rw, centres):
-    """Ray parameter t [...] of the first hit and the object id [...] for rays o + t rw (rw [..., 3]).
+    """Ray parameter t [...] of the first hit and the object id [...] for rays o + t rw (rw [...,
+    3]).
 
     Ids: planes 0..4, static balls 5..10, moving spheres 11, 12 (centres [2, 3] at this time).
     """
@@ -78,7 +104,8 @@ def cast(o, rw, centres):
 
 
 def raycast(c2w, K, W, H, centres, uv=None):
-    """Exact z-depth and hit id of pixel centres [H, W] (or of the continuous pixels uv [..., 2])."""
+    """Exact z-depth and hit id of pixel centres [H, W] (or of the continuous pixels uv [...,
+    2])."""
     if uv is None:
         ys, xs = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
     else:
@@ -96,15 +123,30 @@ def project(c2w, K, Xw):
 
 
 def _visible(uv, z, depth, W, H, tol=0.01):
-    inside = (z > 0.05) & (uv[..., 0] >= 0) & (uv[..., 0] < W) & (uv[..., 1] >= 0) & (uv[..., 1] < H)
+    inside = (
+        (z > 0.05) & (uv[..., 0] >= 0) & (uv[..., 0] < W) & (uv[..., 1] >= 0) & (uv[..., 1] < H)
+    )
     xi = np.clip(np.floor(uv[..., 0]).astype(int), 0, W - 1)
     yi = np.clip(np.floor(uv[..., 1]).astype(int), 0, H - 1)
     return inside & (z <= depth[yi, xi] * (1 + tol) + 0.02)
 
 
-def make_scene(T=24, W=128, H=96, fov=50.0, n_static=600, n_dynamic=60, flow_gap=3, seed=0, depth_drift=0.0,
-               depth_noise=0.0, track_jitter=0.0, flow_noise=0.0):
-    """Synthetic clip data (dict of numpy arrays) with exact ground truth and optionally degraded priors."""
+def make_scene(
+    T=24,
+    W=128,
+    H=96,
+    fov=50.0,
+    n_static=600,
+    n_dynamic=60,
+    flow_gap=3,
+    seed=0,
+    depth_drift=0.0,
+    depth_noise=0.0,
+    track_jitter=0.0,
+    flow_noise=0.0,
+):
+    """Synthetic clip data (dict of numpy arrays) with exact ground truth and optionally degraded
+    priors."""
     rng = np.random.default_rng(seed)
     K = K_from_fov(W, H, fov)
     ss = np.linspace(0, 1, T)
@@ -118,8 +160,13 @@ def make_scene(T=24, W=128, H=96, fov=50.0, n_static=600, n_dynamic=60, flow_gap
     for t in (0, T // 2, T - 1):
         uv = np.stack([rng.uniform(0, W, 4 * n_static), rng.uniform(0, H, 4 * n_static)], -1)
         z, hid = raycast(c2w[t], K, W, H, cents[t], uv)
-        uv, z = uv[hid < N_STATIC_OBJECTS][: n_static // 3], z[hid < N_STATIC_OBJECTS][: n_static // 3]
-        rc = np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(z))], -1)
+        uv, z = (
+            uv[hid < N_STATIC_OBJECTS][: n_static // 3],
+            z[hid < N_STATIC_OBJECTS][: n_static // 3],
+        )
+        rc = np.stack(
+            [(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(z))], -1
+        )
         pts.append(c2w[t, :3, 3] + (rc * z[:, None]) @ c2w[t, :3, :3].T)
     Xs = np.concatenate(pts)  # [Ns, 3]
     Ns = Xs.shape[0]
@@ -147,7 +194,9 @@ def make_scene(T=24, W=128, H=96, fov=50.0, n_static=600, n_dynamic=60, flow_gap
         for b in (a - flow_gap, a + flow_gap):
             if not 0 <= b < T:
                 continue
-            rc = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones_like(xs)], -1)
+            rc = np.stack(
+                [(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones_like(xs)], -1
+            )
             Xw = c2w[a, :3, 3] + (rc * depth[a][..., None]) @ c2w[a, :3, :3].T
             for k in range(2):
                 sel = hit[a] == N_STATIC_OBJECTS + k
@@ -166,22 +215,38 @@ def make_scene(T=24, W=128, H=96, fov=50.0, n_static=600, n_dynamic=60, flow_gap
     if flow_noise:
         flow = flow + rng.normal(0, flow_noise, flow.shape)
     return {
-        "W": W, "H": H, "K": K, "fov": fov, "c2w": c2w, "depth": depth, "depth_prior": dprior.astype(np.float32),
-        "drift": drift, "dyn_mask": dyn_mask,
-        "tracks": TrackSet(tr_prior.astype(np.float32), vis, np.arange(T), p3.astype(np.float32), dynamic),
+        "W": W,
+        "H": H,
+        "K": K,
+        "fov": fov,
+        "c2w": c2w,
+        "depth": depth,
+        "depth_prior": dprior.astype(np.float32),
+        "drift": drift,
+        "dyn_mask": dyn_mask,
+        "tracks": TrackSet(
+            tr_prior.astype(np.float32), vis, np.arange(T), p3.astype(np.float32), dynamic
+        ),
         "flow": FlowSet(np.asarray(pairs, np.int64), flow.astype(np.float32), np.stack(valids)),
     }
 
 
 def write_synthetic_clip(root, **kw) -> Path:
-    """The synthetic scene as a clip folder (training frames = all frames, 2 alternating exposures)."""
+    """The synthetic scene as a clip folder (training frames = all frames, 2 alternating
+    exposures)."""
     sc = make_scene(**kw)
     T, W, H = sc["c2w"].shape[0], sc["W"], sc["H"]
     dts = [0.125 if t % 2 == 0 else 2.0 for t in range(T)]
-    meta = ClipMeta(name=Path(root).name, width=W, height=H, fps=24.0, frames=list(range(T)),
-                    split=Split(train=list(range(T)), test=[]),
-                    exposures=Exposures(train_dt=dts, observed=[0.125, 2.0], novel=[]),
-                    generator={"kind": "tests/test_camera_init.py synthetic room"})
+    meta = ClipMeta(
+        name=Path(root).name,
+        width=W,
+        height=H,
+        fps=24.0,
+        frames=list(range(T)),
+        split=Split(train=list(range(T)), test=[]),
+        exposures=Exposures(train_dt=dts, observed=[0.125, 2.0], novel=[]),
+        generator={"kind": "tests/test_camera_init.py synthetic room"},
+    )
     wr = ClipWriter(root, meta)
     for t in range(T):
         wr.write_input_ldr(t, np.full((H, W, 3), 128, np.uint8))
@@ -209,9 +274,9 @@ def _errors(res, sc):
     return a / path_len, ferr
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Tests
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_sample_map_matches_direct_bilinear():
     rng = np.random.default_rng(0)
     maps = torch.as_tensor(rng.uniform(1, 2, (3, 7, 9)))
@@ -235,12 +300,14 @@ def test_batched_umeyama_matches_shared_umeyama():
         for b in range(3):
             s1, R1, t1 = umeyama_sim3(src[a, b], dst[a, b], weights=w[a, b])
             assert abs(float(s[a, b]) - float(s1)) < 1e-10
-            assert torch.allclose(R[a, b], R1, atol=1e-10) and torch.allclose(t[a, b], t1, atol=1e-10)
+            assert torch.allclose(R[a, b], R1, atol=1e-10) and torch.allclose(
+                t[a, b], t1, atol=1e-10
+            )
 
 
 def test_symmetric_scale_removes_regression_dilution():
-    # two noisy copies of one point cloud with a true relative scale of 1.5: Umeyama's forward scale is biased low by
-    # the noise variance ratio, the symmetric estimate is not (to first order)
+    # two noisy copies of one point cloud with a true relative scale of 1.5: Umeyama's forward scale
+    # is biased low by the noise variance ratio, the symmetric estimate is not (to first order)
     rng = np.random.default_rng(0)
     X = rng.normal(size=(4000, 3)) * np.array([1.0, 0.6, 0.3]) + np.array([0, 0, 5.0])
     src = torch.as_tensor(X + rng.normal(0, 0.15, X.shape))
@@ -275,7 +342,11 @@ def _lifted(sc, static_only=True):
         uv, vis = uv[keep], vis[keep]
     d = sample_map(torch.as_tensor(sc["depth_prior"], dtype=torch.float64), uv)
     # exact per-track depth from the generator's 3D points (no bilinear blur across depth edges)
-    p3 = torch.as_tensor(ts.points3d, dtype=torch.float64)[~torch.as_tensor(ts.dynamic)] if static_only else None
+    p3 = (
+        torch.as_tensor(ts.points3d, dtype=torch.float64)[~torch.as_tensor(ts.dynamic)]
+        if static_only
+        else None
+    )
     c2w = torch.as_tensor(sc["c2w"])
     z = torch.einsum("tji,ntj->nti", c2w[:, :3, :3], p3 - c2w[None, :, :3, 3])[..., 2]
     return uv, z * torch.as_tensor(sc["drift"])[None], vis & (d > 0)
@@ -310,7 +381,8 @@ def test_fov_fallback_on_flat_and_monotonic_curves():
     usable = torch.ones(50, 3, dtype=torch.bool)
     fov, diag = search_fov(uv, depth, usable, 100, 80, CameraInitConfig())
     assert fov == 45.0 and diag["fov_fallback"]
-    # true fov (110 deg) outside the 10-90 search range: the score falls monotonically to the end -> 45 deg
+    # true fov (110 deg) outside the 10-90 search range: the score falls monotonically to the end ->
+    # 45 deg
     sc = make_scene(fov=110.0, T=16, n_static=300, seed=3)
     uv, depth, usable = _lifted(sc)
     fov, diag = search_fov(uv, depth, usable, sc["W"], sc["H"], CameraInitConfig())
@@ -321,11 +393,20 @@ def test_fov_fallback_on_flat_and_monotonic_curves():
 @pytest.mark.parametrize("noisy", [False, True])
 def test_initialize_cameras_synthetic(noisy):
     if noisy:
-        sc = make_scene(T=20, n_static=450, seed=1, depth_drift=0.15, depth_noise=0.02, track_jitter=0.5,
-                        flow_noise=0.2)
+        sc = make_scene(
+            T=20,
+            n_static=450,
+            seed=1,
+            depth_drift=0.15,
+            depth_noise=0.02,
+            track_jitter=0.5,
+            flow_noise=0.2,
+        )
     else:
         sc = make_scene(T=20, n_static=450, seed=0)
-    em = epipolar_error_maps(sc["flow"], list(range(sc["c2w"].shape[0])), EpipolarConfig(ransac_hypotheses=128))
+    em = epipolar_error_maps(
+        sc["flow"], list(range(sc["c2w"].shape[0])), EpipolarConfig(ransac_hypotheses=128)
+    )
     masks = dynamic_masks(em, 1.0)
     cfg = CameraInitConfig(ba_steps=150, depth_correction_start=40, log_every=50)
     res = initialize_cameras(sc["tracks"], sc["depth_prior"], masks, sc["W"], sc["H"], cfg)
@@ -351,12 +432,16 @@ def test_bench_on_written_clip(tmp_path):
     import importlib.util
 
     root = write_synthetic_clip(tmp_path / "room", T=16, n_static=300, seed=2)
-    spec = importlib.util.spec_from_file_location("camera_init_bench",
-                                                  Path(__file__).resolve().parents[1] / "bench/camera_init_bench.py")
+    spec = importlib.util.spec_from_file_location(
+        "camera_init_bench", Path(__file__).resolve().parents[1] / "bench/camera_init_bench.py"
+    )
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    row = mod.run_clip(root, CameraInitConfig(ba_steps=100, depth_correction_start=25),
-                       EpipolarConfig(ransac_hypotheses=128))
+    row = mod.run_clip(
+        root,
+        CameraInitConfig(ba_steps=100, depth_correction_start=25),
+        EpipolarConfig(ransac_hypotheses=128),
+    )
     assert row["focal_err_pct"] < 3.0
     assert row["ate_rel_pct"] < 2.0
     assert row["mask_iou"] > 0.6

@@ -1,5 +1,6 @@
-"""Clip folder contract: a well-formed clip round-trips; each kind of malformed clip is rejected with an error that
-names the file and the field."""
+"""Clip folder contract: a well-formed clip round-trips; each kind of malformed clip is rejected
+with an error that names the file and the field."""
+
 from __future__ import annotations
 
 import json
@@ -30,16 +31,27 @@ def make_clip(root: Path, with_gt: bool = True) -> Path:
     rng = np.random.default_rng(0)
     train, test = [0, 2, 4], [1, 3]
     meta = ClipMeta(
-        name="unit", width=W, height=H, fps=30.0, frames=list(range(G)), split=Split(train, test),
-        exposures=Exposures(train_dt=[0.125, 2.0, 32.0], observed=[0.125, 2.0, 32.0], novel=[0.5, 8.0]),
+        name="unit",
+        width=W,
+        height=H,
+        fps=30.0,
+        frames=list(range(G)),
+        split=Split(train, test),
+        exposures=Exposures(
+            train_dt=[0.125, 2.0, 32.0], observed=[0.125, 2.0, 32.0], novel=[0.5, 8.0]
+        ),
         hdr_scale=1.5,
     )
     w = ClipWriter(root, meta)
     for g in train:
         w.write_input_ldr(g, rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
         w.write_prior_depth(g, rng.uniform(1, 3, (H, W)).astype(np.float32))
-    w.write_prior_tracks(TrackSet(rng.uniform(0, W, (4, 3, 2)), np.ones((4, 3), bool), np.array(train)))
-    w.write_prior_flow(FlowSet(np.array([[0, 2], [2, 0]]), rng.normal(size=(2, H, W, 2)), np.ones((2, H, W), bool)))
+    w.write_prior_tracks(
+        TrackSet(rng.uniform(0, W, (4, 3, 2)), np.ones((4, 3), bool), np.array(train))
+    )
+    w.write_prior_flow(
+        FlowSet(np.array([[0, 2], [2, 0]]), rng.normal(size=(2, H, W, 2)), np.ones((2, H, W), bool))
+    )
     if with_gt:
         for g in range(G):
             w.write_gt_hdr(g, rng.uniform(0, 10, (H, W, 3)).astype(np.float32))
@@ -50,9 +62,20 @@ def make_clip(root: Path, with_gt: bool = True) -> Path:
                 w.write_gt_ldr(lv, g, rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
         K = np.tile(np.array([[10.0, 0, 4], [0, 10, 3], [0, 0, 1]]), (G, 1, 1))
         w.write_gt_cameras(Cameras(np.arange(G), K, np.tile(np.eye(4), (G, 1, 1))))
-        w.write_gt_flow(FlowSet(np.array([[0, 2], [2, 0]]), rng.normal(size=(2, H, W, 2)), np.ones((2, H, W), bool)))
-        w.write_gt_tracks(TrackSet(rng.uniform(0, W, (4, G, 2)), np.ones((4, G), bool), np.arange(G),
-                                   points3d=rng.normal(size=(4, G, 3)), dynamic=np.array([1, 0, 0, 1], bool)))
+        w.write_gt_flow(
+            FlowSet(
+                np.array([[0, 2], [2, 0]]), rng.normal(size=(2, H, W, 2)), np.ones((2, H, W), bool)
+            )
+        )
+        w.write_gt_tracks(
+            TrackSet(
+                rng.uniform(0, W, (4, G, 2)),
+                np.ones((4, G), bool),
+                np.arange(G),
+                points3d=rng.normal(size=(4, G, 3)),
+                dynamic=np.array([1, 0, 0, 1], bool),
+            )
+        )
     w.finalize()
     return root
 
@@ -86,7 +109,8 @@ def test_real_clip_without_gt(tmp_path):
 
 def test_exr_roundtrip_of_strided_arrays(tmp_path):
     a = np.random.default_rng(1).normal(size=(H, W, 2)).astype(np.float32)
-    mio.write_exr(tmp_path / "x.exr", a[..., 1])  # a strided view: must be made contiguous before writing
+    # a strided view: must be made contiguous before writing
+    mio.write_exr(tmp_path / "x.exr", a[..., 1])
     np.testing.assert_array_equal(mio.read_exr(tmp_path / "x.exr"), a[..., 1])
 
 
@@ -120,14 +144,22 @@ def test_wrong_shape_png(clip_dir):
 
 
 def test_wrong_shape_flow(clip_dir):
-    mio.write_npz(clip_dir / "priors/flow.npz", pairs=np.array([[0, 2]]), flow=np.zeros((1, H, W, 3), np.float32),
-                  valid=np.ones((1, H, W), bool))
+    mio.write_npz(
+        clip_dir / "priors/flow.npz",
+        pairs=np.array([[0, 2]]),
+        flow=np.zeros((1, H, W, 3), np.float32),
+        valid=np.ones((1, H, W), bool),
+    )
     _expect(clip_dir, "priors/flow.npz", "'flow'")
 
 
 def test_wrong_shape_tracks(clip_dir):
-    mio.write_npz(clip_dir / "priors/tracks.npz", tracks=np.zeros((4, 2, 2), np.float32), visible=np.ones((4, 2), bool),
-                  frames=np.array([0, 2]))
+    mio.write_npz(
+        clip_dir / "priors/tracks.npz",
+        tracks=np.zeros((4, 2, 2), np.float32),
+        visible=np.ones((4, 2), bool),
+        frames=np.array([0, 2]),
+    )
     _expect(clip_dir, "priors/tracks.npz", "'frames'")
 
 
@@ -182,8 +214,12 @@ def test_missing_field_and_unknown_field(clip_dir):
 
 
 def test_flow_pair_outside_training_frames(clip_dir):
-    mio.write_npz(clip_dir / "priors/flow.npz", pairs=np.array([[0, 3]]), flow=np.zeros((1, H, W, 2), np.float32),
-                  valid=np.ones((1, H, W), bool))
+    mio.write_npz(
+        clip_dir / "priors/flow.npz",
+        pairs=np.array([[0, 3]]),
+        flow=np.zeros((1, H, W, 2), np.float32),
+        valid=np.ones((1, H, W), bool),
+    )
     _expect(clip_dir, "priors/flow.npz", "pairs[0]")
 
 

@@ -1,4 +1,5 @@
 """Tests of the HDR colour MLP (m4dgs.color) against a numpy reference."""
+
 import numpy as np
 import torch
 
@@ -24,8 +25,11 @@ def test_shapes_values_and_positivity():
     out = mlp(feat, dirs)
     assert out.shape == (50, 3)
     assert (out > 0).all()
-    np.testing.assert_allclose(out.detach().numpy(), _numpy_reference(mlp, feat.double().numpy(),
-                                                                      dirs.double().numpy()), rtol=1e-5)
+    np.testing.assert_allclose(
+        out.detach().numpy(),
+        _numpy_reference(mlp, feat.double().numpy(), dirs.double().numpy()),
+        rtol=1e-5,
+    )
     assert mlp(torch.randn(2, 7, 36)).shape == (2, 7, 3)
 
 
@@ -35,8 +39,11 @@ def test_view_independent_mode_uses_zero_direction():
     feat = torch.randn(10, 36)
     dirs = torch.nn.functional.normalize(torch.randn(10, 3), dim=-1)
     torch.testing.assert_close(mlp(feat, dirs), mlp(feat))
-    np.testing.assert_allclose(mlp(feat).detach().numpy(),
-                               _numpy_reference(mlp, feat.double().numpy(), np.zeros((10, 3))), rtol=1e-5)
+    np.testing.assert_allclose(
+        mlp(feat).detach().numpy(),
+        _numpy_reference(mlp, feat.double().numpy(), np.zeros((10, 3))),
+        rtol=1e-5,
+    )
 
 
 def test_clamp_and_view_directions():

@@ -1,4 +1,6 @@
-"""Config defaults (against the paper's numbers), presets, YAML round trip, unknown keys and overrides."""
+"""Config defaults (against the paper's numbers), presets, YAML round trip, unknown keys and
+overrides."""
+
 import dataclasses
 
 import pytest
@@ -18,14 +20,33 @@ def test_paper_defaults():
     assert (s1.lambda_arap, s1.lambda_vel, s1.lambda_acc, s1.lambda_tlr) == (0.01, 10.0, 10.0, 0.1)
     assert s2.lambda_pr == 1.0 and s1.lambda_dssim == 0.2 and s1.arap_k == 5
     assert (s1.densify.stop_iter, s1.densify.every, s1.densify.reset_every) == (3000, 200, 1000)
-    assert (s2.densify_static.stop_iter, s2.densify_static.every, s2.densify_static.reset_every) == (8000, 400, 2000)
-    assert (s2.densify_dynamic.every, s2.densify_dynamic.reset_every, s2.dynamic_removal_every) == (200, 2000, 2000)
+    assert (
+        s2.densify_static.stop_iter,
+        s2.densify_static.every,
+        s2.densify_static.reset_every,
+    ) == (8000, 400, 2000)
+    assert (s2.densify_dynamic.every, s2.densify_dynamic.reset_every, s2.dynamic_removal_every) == (
+        200,
+        2000,
+        2000,
+    )
     d = s1.densify
     assert (d.grad_threshold, d.clone_split_scale, d.split_scale_factor) == (2e-4, 0.01, 1.6)
     assert (d.prune_opacity, d.reset_opacity_value, d.max_gaussians) == (0.005, 0.01, 150_000)
     lr = s1.lr
-    assert (lr.position_init, lr.position_final, lr.rotation, lr.scale) == (1.6e-4, 1.6e-6, 1e-3, 5e-3)
-    assert (lr.opacity, lr.features, lr.mlp, lr.adam_eps, lr.camera_rotation) == (5e-2, 2.5e-3, 5e-4, 1e-15, 3e-5)
+    assert (lr.position_init, lr.position_final, lr.rotation, lr.scale) == (
+        1.6e-4,
+        1.6e-6,
+        1e-3,
+        5e-3,
+    )
+    assert (lr.opacity, lr.features, lr.mlp, lr.adam_eps, lr.camera_rotation) == (
+        5e-2,
+        2.5e-3,
+        5e-4,
+        1e-15,
+        3e-5,
+    )
     assert cfg.model.control_every == 4 and cfg.model.feature_dim == 36
     assert cfg.v2w.dynamic_ratio == 0.1 and cfg.v2w.scale_refit_steps == 1000
     assert s2.pr_offsets == (1, 2)
@@ -43,7 +64,8 @@ def test_presets_are_smaller_and_consistent():
             assert 0 < d.start_iter < d.stop_iter and d.every >= 1
         assert cfg.stage1.densify.stop_iter < cfg.stage1.iterations
         assert cfg.stage2.densify_dynamic.stop_iter < cfg.stage2.iterations
-    # the paper preset is the paper's appendix; small uses the authors' synthetic TLR weight and reprojection window
+    # the paper preset is the paper's appendix; small uses the authors' synthetic TLR weight and
+    # reprojection window
     assert preset("paper").stage2.lambda_tlr == 0.1 and preset("paper").stage2.pr_steps is None
     assert small.stage1.lambda_tlr == small.stage2.lambda_tlr == 0.01
     assert small.stage1.lambda_dep == 0.01 and preset("paper").stage1.lambda_dep == 1.0
@@ -60,7 +82,9 @@ def test_yaml_round_trip(name, tmp_path):
     config.save_yaml(cfg, path)
     text = path.read_text()
     data = yaml.safe_load(text)
-    assert data["stage1"]["lambda_tlr"] == cfg.stage1.lambda_tlr and data["stage2"]["pr_offsets"] == [1, 2, 3]
+    assert data["stage1"]["lambda_tlr"] == cfg.stage1.lambda_tlr and data["stage2"][
+        "pr_offsets"
+    ] == [1, 2, 3]
     assert data["stage2"]["pr_steps"] == cfg.stage2.pr_steps
     back = config.load_yaml(path)
     assert back == cfg
@@ -108,19 +132,28 @@ def test_apply_overrides_variants():
     assert v.model.control_every == 8 and v.stage2.pr_steps == 3000
     assert v.stage1.densify.every == 100 and v.stage1.densify.stop_iter == 3000
     # the original is untouched
-    assert base.stage1.lambda_tlr == 0.1 and base.model.control_every == 4 and base.stage1.densify.every == 200
+    assert (
+        base.stage1.lambda_tlr == 0.1
+        and base.model.control_every == 4
+        and base.stage1.densify.every == 200
+    )
     # Optional fields accept null
     assert apply_overrides(v, {"stage2.pr_steps": None}).stage2.pr_steps is None
     # a dict with a preset key applies the rest on top of that preset
     t = from_dict(TrainConfig, {"preset": "tiny", "stage1": {"lambda_vel": 1.0}})
-    assert t.width == 64 and t.stage1.lambda_vel == 1.0 and t.stage1.iterations == preset("tiny").stage1.iterations
+    assert (
+        t.width == 64
+        and t.stage1.lambda_vel == 1.0
+        and t.stage1.iterations == preset("tiny").stage1.iterations
+    )
 
 
 def test_position_lr_schedule_and_tlr_start():
     lr = preset("paper").stage1.lr
     assert lr.position_lr(0, 4000) == pytest.approx(1.6e-4)
     assert lr.position_lr(4000, 4000) == pytest.approx(1.6e-6)
-    assert lr.position_lr(2000, 4000) == pytest.approx((1.6e-4 * 1.6e-6) ** 0.5)  # log-linear: geometric mean
+    # log-linear: geometric mean
+    assert lr.position_lr(2000, 4000) == pytest.approx((1.6e-4 * 1.6e-6) ** 0.5)
     assert lr.position_lr(9999, 4000) == pytest.approx(1.6e-6)
     cfg = preset("paper")
     assert cfg.stage1.tlr_start_step() == 3000 and cfg.stage2.tlr_start_step() == 8000

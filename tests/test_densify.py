@@ -1,4 +1,5 @@
 """Densification rules on hand-made cases, with the Adam state checked row by row."""
+
 import math
 
 import pytest
@@ -20,16 +21,27 @@ def _params():
     s2 = math.sqrt(0.5)
     return {
         "means": nn.Parameter(torch.tensor([[0.0, 0, 1], [1.0, 2, 3], [5.0, 5, 5], [-1.0, -1, 2]])),
-        "quats": nn.Parameter(torch.tensor([[1.0, 0, 0, 0], [s2, 0, 0, s2], [1.0, 0, 0, 0], [1.0, 0, 0, 0]])),
-        "scales": nn.Parameter(torch.log(torch.tensor([[0.005] * 3, [0.1, 0.001, 0.001], [0.005] * 3, [0.02] * 3]))),
-        "opacities": nn.Parameter(torch.tensor([_logit(0.5), _logit(0.6), _logit(0.001), _logit(0.7)])),
+        "quats": nn.Parameter(
+            torch.tensor([[1.0, 0, 0, 0], [s2, 0, 0, s2], [1.0, 0, 0, 0], [1.0, 0, 0, 0]])
+        ),
+        "scales": nn.Parameter(
+            torch.log(torch.tensor([[0.005] * 3, [0.1, 0.001, 0.001], [0.005] * 3, [0.02] * 3]))
+        ),
+        "opacities": nn.Parameter(
+            torch.tensor([_logit(0.5), _logit(0.6), _logit(0.001), _logit(0.7)])
+        ),
         "features": nn.Parameter(torch.arange(4 * 5, dtype=torch.float32).reshape(4, 5)),
     }
 
 
 def _adam(params):
-    opt = torch.optim.Adam([{"params": [p], "name": k} for k, p in params.items()], lr=1e-3, eps=1e-15)
-    loss = sum((p * torch.arange(1, p.numel() + 1, dtype=p.dtype).reshape(p.shape)).sum() for p in params.values())
+    opt = torch.optim.Adam(
+        [{"params": [p], "name": k} for k, p in params.items()], lr=1e-3, eps=1e-15
+    )
+    loss = sum(
+        (p * torch.arange(1, p.numel() + 1, dtype=p.dtype).reshape(p.shape)).sum()
+        for p in params.values()
+    )
     loss.backward()
     opt.step()
     opt.zero_grad()
@@ -37,7 +49,8 @@ def _adam(params):
 
 
 def _render_info(params, grad_px):
-    """A differentiable stand-in for the rasterizer: means2d depends on the means; the loss gives known gradients."""
+    """A differentiable stand-in for the rasterizer: means2d depends on the means; the loss gives
+    known gradients."""
     means2d = params["means"][:, :2] * 1.0
     info = {"means2d": means2d, "radii": torch.tensor([3, 4, 2, 5]), "width": W, "height": H}
     return info, (means2d * grad_px).sum()
@@ -52,15 +65,16 @@ def test_clone_split_prune_and_optimizer_alignment():
     cfg = DensifyConfig(start_iter=0, every=1, reset_every=10_000, stop_iter=100)
     strat = Strategy(cfg, GaussianLayout(), seed=0)
     state = strat.initialize_state()
-    # pixel gradients: NDC norm = |g * (W/2, H/2)|: 1e-5 * 50 = 5e-4 > 2e-4 for 0 and 1; 1e-7 * 50 for 2 and 3
+    # pixel gradients: NDC norm = |g * (W/2, H/2)|: 1e-5 * 50 = 5e-4 > 2e-4 for 0 and 1; 1e-7 * 50
+    # for 2 and 3
     grad_px = torch.tensor([[1e-5, 0.0], [0.0, 2e-5], [1e-7, 0.0], [1e-7, 0.0]])
     info, loss = _render_info(params, grad_px)
     strat.step_pre_backward(params, opt, state, 1, info)
     loss.backward()
     out = strat.step_post_backward(params, opt, state, 1, info)
     assert out == {"clone": 1, "split": 1, "prune": 1, "reset": 0}
-    # rows: clone appends a copy of 0 -> [0,1,2,3,0']; split removes 1 and appends 2 samples -> [0,2,3,0',1a,1b];
-    # prune removes 2 -> [0,3,0',1a,1b]
+    # rows: clone appends a copy of 0 -> [0,1,2,3,0']; split removes 1 and appends 2 samples ->
+    # [0,2,3,0',1a,1b]; prune removes 2 -> [0,3,0',1a,1b]
     n = 5
     for k, p in params.items():
         assert p.shape[0] == n
@@ -76,12 +90,16 @@ def test_clone_split_prune_and_optimizer_alignment():
     torch.testing.assert_close(params["means"][2], old["means"][0])  # clone: same position
     torch.testing.assert_close(params["scales"][2], old["scales"][0])
     torch.testing.assert_close(params["features"][1], old["features"][3])
-    # split: scale / 1.6, other attributes copied, samples displaced along the rotated long axis only
-    torch.testing.assert_close(params["scales"][3:].exp(), (old["scales"][1].exp() / 1.6).expand(2, 3))
+    # split: scale / 1.6, other attributes copied, samples displaced along the rotated long axis
+    # only
+    torch.testing.assert_close(
+        params["scales"][3:].exp(), (old["scales"][1].exp() / 1.6).expand(2, 3)
+    )
     torch.testing.assert_close(params["features"][3:], old["features"][1].expand(2, 5))
     torch.testing.assert_close(params["opacities"][3:], old["opacities"][1].expand(2))
     off = params["means"][3:] - old["means"][1]
-    # quaternion = 90 deg about z: local x (scale 0.1) maps to world y; world x, z offsets are at the 0.001 scale
+    # quaternion = 90 deg about z: local x (scale 0.1) maps to world y; world x, z offsets are at
+    # the 0.001 scale
     assert off[:, 0].abs().max() < 0.006 and off[:, 2].abs().max() < 0.006
     assert off[:, 1].abs().max() > 0.01
     # statistics were reset and sized to the new count
@@ -100,7 +118,8 @@ def test_grad_threshold_uses_mean_over_visible_steps_and_schedule():
     state = strat.initialize_state()
     old_scale3 = params["scales"][3].detach().exp()
     # Gaussian 0 visible twice with NDC norms 2.5e-4 and 0.5e-4 (mean 1.5e-4 < 2e-4) -> no growth;
-    # Gaussian 3 visible once at 5e-4 and invisible once (radius 0: not counted) -> mean 5e-4 -> split (scale 0.02)
+    # Gaussian 3 visible once at 5e-4 and invisible once (radius 0: not counted) -> mean 5e-4 ->
+    # split (scale 0.02)
     for step, (g0, g3, r3) in enumerate([(2.5e-4, 5e-4, 5), (0.5e-4, 1.0, 0)], start=2):
         grad = torch.zeros(4, 2)
         grad[0, 0] = g0 / (W / 2)
@@ -117,7 +136,9 @@ def test_grad_threshold_uses_mean_over_visible_steps_and_schedule():
 def test_cap_respected_and_highest_gradient_wins():
     params = _params()
     opt = _adam(params)
-    cfg = DensifyConfig(start_iter=0, every=1, reset_every=10_000, stop_iter=100, prune_opacity=0.0, max_gaussians=5)
+    cfg = DensifyConfig(
+        start_iter=0, every=1, reset_every=10_000, stop_iter=100, prune_opacity=0.0, max_gaussians=5
+    )
     strat = Strategy(cfg)
     state = strat.initialize_state()
     grad = torch.zeros(4, 2)
@@ -127,7 +148,13 @@ def test_cap_respected_and_highest_gradient_wins():
     out = strat.step_post_backward(params, opt, state, 1, info)
     assert out["clone"] == 1 and out["split"] == 0 and params["means"].shape[0] == 5
     torch.testing.assert_close(params["means"][4], params["means"][0])
-    out = strat.step_post_backward(params, opt, state, 2, {**info, "means2d_grad": torch.cat([grad, grad[:1]]), "radii": torch.ones(5)})
+    out = strat.step_post_backward(
+        params,
+        opt,
+        state,
+        2,
+        {**info, "means2d_grad": torch.cat([grad, grad[:1]]), "radii": torch.ones(5)},
+    )
     assert out["clone"] == 0 and out["split"] == 0 and params["means"].shape[0] == 5
 
 
@@ -148,7 +175,8 @@ def test_opacity_reset_and_stop():
     assert opt.state[params["means"]]["exp_avg"].abs().sum() > 0  # other states untouched
     before = params["opacities"].detach().clone()
     params["opacities"].data.fill_(2.0)
-    assert strat.step_post_backward(params, opt, state, 12, info)["reset"] == 0  # past stop_iter: nothing
+    # past stop_iter: nothing
+    assert strat.step_post_backward(params, opt, state, 12, info)["reset"] == 0
     assert (params["opacities"] == 2.0).all()
     assert before.shape == (4,)
 
@@ -160,7 +188,9 @@ def test_video_gaussians_split_moves_all_control_points_together():
     vg = gaussians.VideoGaussians(
         torch.randn(n, knots.numel(), 3, generator=g),
         rotation.init_rotation_coeffs(n),
-        gaussians.scale_inverse(torch.tensor([[0.03] * 3, [0.002] * 3, [0.002] * 3]), "sigmoid", 0.05),
+        gaussians.scale_inverse(
+            torch.tensor([[0.03] * 3, [0.002] * 3, [0.002] * 3]), "sigmoid", 0.05
+        ),
         torch.zeros(n),
         torch.randn(n, 36, generator=g),
         knots,
@@ -168,7 +198,9 @@ def test_video_gaussians_split_moves_all_control_points_together():
     )
     old_ctrl = vg.params["ctrl"].detach().clone()
     opt = torch.optim.Adam([{"params": [p], "name": k} for k, p in vg.params.items()], lr=1e-3)
-    strat = Strategy(DensifyConfig(start_iter=0, every=1, stop_iter=10, reset_every=1000), vg.layout(), seed=1)
+    strat = Strategy(
+        DensifyConfig(start_iter=0, every=1, stop_iter=10, reset_every=1000), vg.layout(), seed=1
+    )
     state = strat.initialize_state()
     grad = torch.tensor([[1e-3, 0.0], [1e-3, 0.0], [0.0, 0.0]])
     info = {"means2d_grad": grad, "radii": torch.ones(3), "width": W, "height": H}
@@ -177,7 +209,8 @@ def test_video_gaussians_split_moves_all_control_points_together():
     # rows: [1, 2, 1', 0a, 0b]
     assert len(vg) == 5 and vg.params["rot"].shape == (5, 4, 4)
     delta = vg.params["ctrl"][3:] - old_ctrl[0]  # [2, K, 3]
-    torch.testing.assert_close(delta, delta[:, :1].expand_as(delta))  # same offset at every control point
+    # same offset at every control point
+    torch.testing.assert_close(delta, delta[:, :1].expand_as(delta))
     assert delta.abs().max() > 0
     torch.testing.assert_close(vg.scales()[3:], torch.full((2, 3), 0.03 / 1.6), rtol=1e-4, atol=0)
     torch.testing.assert_close(vg.params["ctrl"][2], old_ctrl[1])
@@ -200,7 +233,12 @@ def test_remove_keeps_state_aligned():
     opt = _adam(params)
     strat = Strategy(DensifyConfig(start_iter=0, every=1000, reset_every=1000, stop_iter=10))
     state = strat.initialize_state()
-    info = {"means2d_grad": torch.tensor([[1.0, 0], [2.0, 0], [3.0, 0], [4.0, 0]]), "radii": torch.ones(4), "width": 2, "height": 2}
+    info = {
+        "means2d_grad": torch.tensor([[1.0, 0], [2.0, 0], [3.0, 0], [4.0, 0]]),
+        "radii": torch.ones(4),
+        "width": 2,
+        "height": 2,
+    }
     strat.step_post_backward(params, opt, state, 1, info)
     old_avg = opt.state[params["features"]]["exp_avg"].clone()
     assert strat.remove(params, opt, state, torch.tensor([False, True, False, True])) == 2

@@ -1,17 +1,30 @@
-"""Epipolar geometry, RANSAC, error maps, dynamic masks and the classical flow/track fallback (m4dgs.epipolar).
+"""Epipolar geometry, RANSAC, error maps, dynamic masks and the classical flow/track fallback
+(m4dgs.epipolar).
 
-Independent answers: the analytic F = K^-T [t]x R K^-1 of a known two-view geometry; exact correspondences by
-projection; a flow field built from a known rigid motion plus a known moving square; OpenCV-free reference shifts.
-"""
+Independent answers: the analytic F = K^-T [t]x R K^-1 of a known two-view geometry; exact
+correspondences by projection; a flow field built from a known rigid motion plus a known moving
+square; OpenCV-free reference shifts."""
+
 import numpy as np
 import pytest
 import torch
 
 from m4dgs.camera import K_from_fov, quat_to_rotmat
 from m4dgs.clip import FlowSet
-from m4dgs.epipolar import (EpipolarConfig, analytic_fundamental, dynamic_masks, eight_point, epipolar_error_maps,
-                            normalise_brightness, opencv_flow_prior, pair_error_map, ransac_fundamental,
-                            sampson_error, symmetric_epipolar_error, tracks_from_flow)
+from m4dgs.epipolar import (
+    EpipolarConfig,
+    analytic_fundamental,
+    dynamic_masks,
+    eight_point,
+    epipolar_error_maps,
+    normalise_brightness,
+    opencv_flow_prior,
+    pair_error_map,
+    ransac_fundamental,
+    sampson_error,
+    symmetric_epipolar_error,
+    tracks_from_flow,
+)
 
 W, H = 96, 72
 
@@ -21,7 +34,9 @@ def _two_view(n=200, seed=0):
     K = torch.as_tensor(K_from_fov(W, H, 60.0))
     R = quat_to_rotmat(torch.tensor([0.99, 0.02, -0.08, 0.03], dtype=torch.float64))
     t = torch.tensor([0.4, -0.1, 0.15], dtype=torch.float64)
-    X = torch.as_tensor(np.stack([rng.uniform(-2, 2, n), rng.uniform(-1.5, 1.5, n), rng.uniform(3, 8, n)], -1))
+    X = torch.as_tensor(
+        np.stack([rng.uniform(-2, 2, n), rng.uniform(-1.5, 1.5, n), rng.uniform(3, 8, n)], -1)
+    )
     X2 = X @ R.T + t
     x1 = (X @ K.T)[:, :2] / X[:, 2:]
     x2 = (X2 @ K.T)[:, :2] / X2[:, 2:]
@@ -51,9 +66,13 @@ def test_eight_point_matches_analytic_F():
 
 
 def test_sampson_and_symmetric_error_values():
-    # F of a pure horizontal translation with K = I: epipolar lines are rows (y' = y); a vertical offset dy gives
-    # point-to-line distances |dy| in both images -> symmetric error dy^2, Sampson (dy^2)/2 (two unit gradients)
-    F = analytic_fundamental(torch.eye(3), torch.eye(3), torch.eye(3), torch.tensor([1.0, 0.0, 0.0]))
+    # F of a pure horizontal translation with K = I: epipolar lines are rows (y' = y); a vertical
+    # offset dy gives
+    # point-to-line distances |dy| in both images -> symmetric error dy^2, Sampson (dy^2)/2 (two
+    # unit gradients)
+    F = analytic_fundamental(
+        torch.eye(3), torch.eye(3), torch.eye(3), torch.tensor([1.0, 0.0, 0.0])
+    )
     x1 = torch.tensor([[10.0, 5.0], [3.0, -2.0]], dtype=torch.float64)
     x2 = x1 + torch.tensor([[4.0, 1.5], [-2.0, -0.5]], dtype=torch.float64)
     dy2 = torch.tensor([1.5**2, 0.5**2], dtype=torch.float64)
@@ -82,11 +101,14 @@ def test_ransac_rejects_moving_points(method):
     assert _same_up_to_scale(F, analytic_fundamental(K, K, R, t)) < 0.05
     # the plain 8-point fit on everything is corrupted by the outliers
     F_ls = eight_point(x1, x2)
-    assert float(sampson_error(F_ls, x1[static], x2[static]).median()) > 5 * float(e[static].median())
+    assert float(sampson_error(F_ls, x1[static], x2[static]).median()) > 5 * float(
+        e[static].median()
+    )
 
 
 def _rigid_flow_with_square(seed=0, square=(30, 20, 22, 18), motion=(0.0, 4.0)):
-    """Exact flow of a smooth depth field under a known camera motion + a moving square (gt mask)."""
+    """Exact flow of a smooth depth field under a known camera motion + a moving square (gt
+    mask)."""
     K = K_from_fov(W, H, 55.0)
     ys, xs = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
     depth = 4.0 + 1.5 * np.sin(xs / 9.0) * np.cos(ys / 11.0) + 0.02 * xs
@@ -99,7 +121,7 @@ def _rigid_flow_with_square(seed=0, square=(30, 20, 22, 18), motion=(0.0, 4.0)):
     flow = np.stack([u2 - xs, v2 - ys], -1)
     x0, y0, w, h = square
     mask = np.zeros((H, W), bool)
-    mask[y0:y0 + h, x0:x0 + w] = True
+    mask[y0 : y0 + h, x0 : x0 + w] = True
     flow[mask] += np.asarray(motion)
     return flow.astype(np.float32), mask
 
@@ -119,8 +141,8 @@ def test_dynamic_mask_iou_moving_square(units, threshold):
     m = dynamic_masks(e[None], cfg.threshold)[0].numpy()
     assert _iou(m, gt) > 0.9
     assert 0.8 < frac < 0.97  # the square (6 % of the pixels) is the outlier set
-    # error units: ndc errors are the px errors rescaled by ~ (2/W)(2/H) (exactly so for the symmetric error on
-    # a square image; here a rough check)
+    # error units: ndc errors are the px errors rescaled by ~ (2/W)(2/H) (exactly so for the
+    # symmetric error on a square image; here a rough check)
     if units == "ndc":
         e_px, _, _ = pair_error_map(flow_noisy, np.ones((H, W), bool), EpipolarConfig())
         ratio = float(e[gt].median() / e_px[gt].median())
@@ -131,8 +153,11 @@ def test_epipolar_error_maps_combine_and_fill():
     flow, gt = _rigid_flow_with_square()
     flow_b, gt_b = _rigid_flow_with_square(square=(50, 40, 20, 20), motion=(-3.0, 3.0))
     ones = np.ones((H, W), bool)
-    fs = FlowSet(pairs=np.array([[0, 3], [0, 6], [6, 3]]), flow=np.stack([flow, flow_b, flow]),
-                 valid=np.stack([ones, ones, ones]))
+    fs = FlowSet(
+        pairs=np.array([[0, 3], [0, 6], [6, 3]]),
+        flow=np.stack([flow, flow_b, flow]),
+        valid=np.stack([ones, ones, ones]),
+    )
     frames = [0, 3, 6]
     emax = epipolar_error_maps(fs, frames, EpipolarConfig(combine="max"))
     emean, info = epipolar_error_maps(fs, frames, EpipolarConfig(combine="mean"), return_info=True)
@@ -146,8 +171,17 @@ def test_epipolar_error_maps_combine_and_fill():
     e0, _, _ = pair_error_map(flow, ones, EpipolarConfig(), seed_offset=0)
     e1, _, _ = pair_error_map(flow_b, ones, EpipolarConfig(), seed_offset=1)
     assert torch.allclose(emean[0], (e0 + e1) / 2, rtol=1e-4, atol=1e-6)
-    assert torch.equal(epipolar_error_maps(FlowSet(np.zeros((0, 2), np.int64), np.zeros((0, H, W, 2), np.float32),
-                                                   np.zeros((0, H, W), bool)), frames), torch.zeros(3, H, W))
+    assert torch.equal(
+        epipolar_error_maps(
+            FlowSet(
+                np.zeros((0, 2), np.int64),
+                np.zeros((0, H, W, 2), np.float32),
+                np.zeros((0, H, W), bool),
+            ),
+            frames,
+        ),
+        torch.zeros(3, H, W),
+    )
 
 
 def _textured(seed=0):
@@ -171,16 +205,20 @@ def test_normalise_brightness_removes_exposure():
 
 
 def test_opencv_flow_prior_and_tracks_on_shifted_texture():
-    # frames: a texture translated by 1 px per frame; exposures alternate 1, 4 (same-exposure pairs 2 apart)
+    # frames: a texture translated by 1 px per frame; exposures alternate 1, 4 (same-exposure pairs
+    # 2 apart)
     big = _textured(3)
     import cv2
 
     big = cv2.resize(big, (W * 2, H * 2), interpolation=cv2.INTER_CUBIC)
     frames, dts = [], []
     for i in range(6):
-        crop = big[20:20 + H, 20 + i:20 + i + W]  # content moves left by 1 px per frame -> flow (-1, 0)
+        # content moves left by 1 px per frame -> flow (-1, 0)
+        crop = big[20 : 20 + H, 20 + i : 20 + i + W]
         dt = 1.0 if i % 2 == 0 else 4.0
-        ldr = np.round(np.clip((np.clip(crop, 0, 1) ** 2.2 * 0.2 * dt) ** (1 / 2.2), 0, 1) * 255).astype(np.uint8)
+        ldr = np.round(
+            np.clip((np.clip(crop, 0, 1) ** 2.2 * 0.2 * dt) ** (1 / 2.2), 0, 1) * 255
+        ).astype(np.uint8)
         frames.append(np.repeat(ldr[..., None], 3, -1))
         dts.append(dt)
     g = [0, 2, 4, 6, 8, 10]
@@ -189,11 +227,15 @@ def test_opencv_flow_prior_and_tracks_on_shifted_texture():
     assert sorted(map(tuple, fs.pairs.tolist())) == sorted(want)
     f, v = fs.get(0, 4)
     inner = (slice(8, H - 8), slice(8, W - 8))
-    assert np.median(np.abs(f[inner][..., 0] + 2.0)) < 0.2 and np.median(np.abs(f[inner][..., 1])) < 0.2
+    assert (
+        np.median(np.abs(f[inner][..., 0] + 2.0)) < 0.2
+        and np.median(np.abs(f[inner][..., 1])) < 0.2
+    )
     assert v[inner].mean() > 0.9
     ts = tracks_from_flow(fs, g, grid_step=8)
     assert ts.tracks.shape[1] == 6
-    # a track seeded in frame 0 moves -2 px per same-exposure link (frames 0 -> 4 -> 8 = indices 0, 2, 4)
+    # a track seeded in frame 0 moves -2 px per same-exposure link (frames 0 -> 4 -> 8 = indices 0,
+    # 2, 4)
     sel = ts.visible[:, 0] & ts.visible[:, 2] & ts.visible[:, 4]
     sel &= (ts.tracks[:, 0, 0] > 16) & (ts.tracks[:, 0, 0] < W - 16)
     assert sel.sum() > 20

@@ -1,8 +1,10 @@
-"""Tests of the eval command: score_run on a fake run, suites, job lists, tables and figures (fast, fakes only).
+"""Tests of the eval command: score_run on a fake run, suites, job lists, tables and figures (fast,
+fakes only).
 
-The trainer API (m4dgs.pipeline / m4dgs.render / m4dgs.model) is replaced by fake modules in sys.modules; every
-expected value is computed independently here with numpy (PSNR, mu-law, analytic HDR-TAE of a flicker, ...).
-"""
+The trainer API (m4dgs.pipeline / m4dgs.render / m4dgs.model) is replaced by fake modules in
+sys.modules; every expected value is computed independently here with numpy (PSNR, mu-law, analytic
+HDR-TAE of a flicker, ...)."""
+
 from __future__ import annotations
 
 import json
@@ -18,13 +20,24 @@ from click.testing import CliRunner
 
 from eval.cli import main
 from m4dgs import io as mio
-from m4dgs.clip import (Cameras, Clip, ClipMeta, ClipWriter, Exposures, FlowSet, Split, TrackSet, frame_name,
-                        level_name)
+from m4dgs.clip import (
+    Cameras,
+    Clip,
+    ClipMeta,
+    ClipWriter,
+    Exposures,
+    FlowSet,
+    Split,
+    TrackSet,
+    frame_name,
+    level_name,
+)
 from m4dgs.crf import get_crf, tonemap_ldr
 
 W, H, G = 48, 40, 7
 OBS, NOV = [0.5, 2.0], [1.0]
-FLICKER = 1.2  # training-frame HDR renders alternate between x1 and x1.2 -> HDR-TAE = 3 (r - 1) / (r + 1)
+# training-frame HDR renders alternate between x1 and x1.2 -> HDR-TAE = 3 (r - 1) / (r + 1)
+FLICKER = 1.2
 TRACK_OFFSET = (0.3, 0.4)  # fake induced tracks = gt + this -> EPE 0.5 px
 
 
@@ -43,32 +56,58 @@ def make_fake_clip(root: Path, seed: int = 0) -> Clip:
     rng = np.random.default_rng(seed)
     train, test = list(range(0, G, 2)), list(range(1, G, 2))
     train_dt = [OBS[i % 2] for i in range(len(train))]
-    meta = ClipMeta(name=root.name, width=W, height=H, fps=10.0, frames=list(range(G)), split=Split(train, test),
-                    exposures=Exposures(train_dt=train_dt, observed=OBS, novel=NOV), crf="hdrnerf")
+    meta = ClipMeta(
+        name=root.name,
+        width=W,
+        height=H,
+        fps=10.0,
+        frames=list(range(G)),
+        split=Split(train, test),
+        exposures=Exposures(train_dt=train_dt, observed=OBS, novel=NOV),
+        crf="hdrnerf",
+    )
     w = ClipWriter(root, meta)
     crf = get_crf("hdrnerf")
     base = _hdr(rng, 0)
     for g in range(G):
-        hdr = base if g in train else _hdr(rng, g)  # static training frames: the flicker test needs zero motion
+        # static training frames: the flicker test needs zero motion
+        hdr = base if g in train else _hdr(rng, g)
         w.write_gt_hdr(g, hdr)
         w.write_gt_depth(g, (2.0 + rng.random((H, W))).astype(np.float32))
         mask = np.zeros((H, W), bool)
-        mask[10:20, 10 + g:25 + g] = True
+        mask[10:20, 10 + g : 25 + g] = True
         w.write_gt_dynamic_mask(g, mask)
     for g, dt in zip(train, train_dt):
         w.write_input_ldr(g, tonemap_ldr(base, dt, crf))
         w.write_prior_depth(g, np.ones((H, W), np.float32))
     for g in test:
         for lv in OBS + NOV:
-            w.write_gt_ldr(lv, g, tonemap_ldr(mio.read_exr(root / "gt/hdr" / frame_name(g, "exr")), lv, crf))
+            w.write_gt_ldr(
+                lv, g, tonemap_ldr(mio.read_exr(root / "gt/hdr" / frame_name(g, "exr")), lv, crf)
+            )
     K = np.array([[40.0, 0, W / 2], [0, 40.0, H / 2], [0, 0, 1]])
-    c2w = np.stack([np.block([[_rot(0.1 * g), np.array([[0.2 * g], [0.05 * g * g], [0.1]])], [np.zeros((1, 3)),
-                                                                                            np.ones((1, 1))]])
-                    for g in range(G)])
+    c2w = np.stack(
+        [
+            np.block(
+                [
+                    [_rot(0.1 * g), np.array([[0.2 * g], [0.05 * g * g], [0.1]])],
+                    [np.zeros((1, 3)), np.ones((1, 1))],
+                ]
+            )
+            for g in range(G)
+        ]
+    )
     w.write_gt_cameras(Cameras(np.arange(G), np.repeat(K[None], G, 0), c2w))
-    pairs = [(a, b) for a, b in zip(train[:-1], train[1:])] + [(b, a) for a, b in zip(train[:-1], train[1:])]
-    w.write_gt_flow(FlowSet(np.array(pairs), np.zeros((len(pairs), H, W, 2), np.float32),
-                            np.ones((len(pairs), H, W), bool)))
+    pairs = [(a, b) for a, b in zip(train[:-1], train[1:])] + [
+        (b, a) for a, b in zip(train[:-1], train[1:])
+    ]
+    w.write_gt_flow(
+        FlowSet(
+            np.array(pairs),
+            np.zeros((len(pairs), H, W, 2), np.float32),
+            np.ones((len(pairs), H, W), bool),
+        )
+    )
     n = 40
     tr = rng.uniform([2, 2], [W - 2, H - 2], size=(n, 1, 2)) + np.arange(G)[None, :, None] * 0.5
     vis = np.ones((n, G), bool)
@@ -79,19 +118,48 @@ def make_fake_clip(root: Path, seed: int = 0) -> Clip:
     return Clip.open(root)
 
 
-def make_fake_run(run_dir: Path, clip: Clip, noise: float = 0.02, seed: int = 1, renders: bool = True,
-                  hdr_gain: float = 1.0, variant: str = "full") -> dict:
-    """A finished run: run.json, status, log.jsonl, cameras (a Sim(3) copy of the gt), renders (noisy gt)."""
+def make_fake_run(
+    run_dir: Path,
+    clip: Clip,
+    noise: float = 0.02,
+    seed: int = 1,
+    renders: bool = True,
+    hdr_gain: float = 1.0,
+    variant: str = "full",
+) -> dict:
+    """A finished run: run.json, status, log.jsonl, cameras (a Sim(3) copy of the gt), renders
+    (noisy gt)."""
     rng = np.random.default_rng(seed)
     run_dir.mkdir(parents=True, exist_ok=True)
-    mio.write_json(run_dir / "run.json", {"clip": str(clip.root), "variant": variant, "preset": "tiny",
-                                          "train_seconds": 120.0, "num_gaussians": 1000, "peak_memory_mib": 321.0})
+    mio.write_json(
+        run_dir / "run.json",
+        {
+            "clip": str(clip.root),
+            "variant": variant,
+            "preset": "tiny",
+            "train_seconds": 120.0,
+            "num_gaussians": 1000,
+            "peak_memory_mib": 321.0,
+        },
+    )
     mio.write_json(run_dir / "status.json", {"stage": "done", "step": 0})
     with open(run_dir / "log.jsonl", "w") as f:
         for st, n in (("stage1", 5), ("stage2", 5)):
             for s in range(n):
-                f.write(json.dumps({"stage": st, "step": s * 10, "total": 1.0 / (s + 1), "rgb": 0.5 / (s + 1),
-                                    "depth": 0.1 + 0.01 * s, "num_gaussians": 100, "sec": 0.1}) + "\n")
+                f.write(
+                    json.dumps(
+                        {
+                            "stage": st,
+                            "step": s * 10,
+                            "total": 1.0 / (s + 1),
+                            "rgb": 0.5 / (s + 1),
+                            "depth": 0.1 + 0.01 * s,
+                            "num_gaussians": 100,
+                            "sec": 0.1,
+                        }
+                    )
+                    + "\n"
+                )
     gt = clip.load_gt_cameras()
     s, R, t = 2.0, _rot(0.7), np.array([1.0, -2.0, 0.5])
     c2w = gt.c2w.copy()
@@ -112,11 +180,16 @@ def write_renders(run_dir, clip, noise, rng, hdr_gain, truth):
         mio.write_exr(Rr / "train/hdr" / frame_name(g, "exr"), h.astype(np.float32))
         mio.write_png(Rr / "train/ldr" / frame_name(g, "png"), clip.load_ldr(g))
     for g in clip.test_frames:
-        h = (clip.load_gt_hdr(g) * hdr_gain * (1 + noise * rng.standard_normal((H, W, 3)))).astype(np.float32)
+        h = (clip.load_gt_hdr(g) * hdr_gain * (1 + noise * rng.standard_normal((H, W, 3)))).astype(
+            np.float32
+        )
         h = np.maximum(h, 0)
         mio.write_exr(Rr / "test/hdr" / frame_name(g, "exr"), h)
         truth["hdr"][g] = h
-        mio.write_exr(Rr / "test/depth" / frame_name(g, "exr"), (2.5 * clip.load_gt_depth(g)).astype(np.float32))
+        mio.write_exr(
+            Rr / "test/depth" / frame_name(g, "exr"),
+            (2.5 * clip.load_gt_depth(g)).astype(np.float32),
+        )
         for lv in OBS + NOV:
             gt = clip.load_gt_ldr(lv, g).astype(np.int32)
             p = np.clip(gt + rng.integers(-6, 7, gt.shape), 0, 255).astype(np.uint8)
@@ -125,7 +198,8 @@ def write_renders(run_dir, clip, noise, rng, hdr_gain, truth):
 
 
 class FakeModel:
-    """The TrainedModel interface (API.md) with known answers: the true CRF, gt tracks + a fixed offset."""
+    """The TrainedModel interface (API.md) with known answers: the true CRF, gt tracks + a fixed
+    offset."""
 
     def __init__(self, clip):
         self.clip = clip
@@ -141,8 +215,12 @@ class FakeModel:
 
     def render(self, t, c2w, K, width, height, log2_dt=None):
         self.calls += 1
-        return {"hdr": torch.zeros(height, width, 3), "ldr": None, "depth": torch.zeros(height, width),
-                "alpha": torch.zeros(height, width)}
+        return {
+            "hdr": torch.zeros(height, width, 3),
+            "ldr": None,
+            "depth": torch.zeros(height, width),
+            "alpha": torch.zeros(height, width),
+        }
 
     def tonemap_curve(self, log2_x):
         y = get_crf("hdrnerf")(torch.exp2(log2_x.double()))
@@ -157,11 +235,13 @@ class FakeModel:
 
 @pytest.fixture
 def fake_trainer(monkeypatch):
-    """Fake m4dgs.model / m4dgs.render / m4dgs.pipeline modules; returns a dict recording the calls."""
+    """Fake m4dgs.model / m4dgs.render / m4dgs.pipeline modules; returns a dict recording the
+    calls."""
     calls = {"render_run": [], "train": []}
     mod = types.ModuleType("m4dgs.model")
-    mod.load_model = lambda run_dir, device="cpu": FakeModel(Clip.open(mio.read_json(Path(run_dir) / "run.json")
-                                                                       ["clip"]))
+    mod.load_model = lambda run_dir, device="cpu": FakeModel(
+        Clip.open(mio.read_json(Path(run_dir) / "run.json")["clip"])
+    )
     rmod = types.ModuleType("m4dgs.render")
 
     def render_run(run_dir, overwrite=False, progress=True):
@@ -173,7 +253,15 @@ def fake_trainer(monkeypatch):
     rmod.render_run = render_run
     pmod = types.ModuleType("m4dgs.pipeline")
 
-    def train(clip_dir, run_dir, preset="small", variant="full", overrides=None, device="auto", progress=True):
+    def train(
+        clip_dir,
+        run_dir,
+        preset="small",
+        variant="full",
+        overrides=None,
+        device="auto",
+        progress=True,
+    ):
         calls["train"].append((str(run_dir), variant, overrides))
         run_dir = Path(run_dir)
         make_fake_run(run_dir, Clip.open(clip_dir), seed=len(calls["train"]), variant=variant)
@@ -186,7 +274,7 @@ def fake_trainer(monkeypatch):
     return calls
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _psnr_np(p, g):
     mse = np.mean((p.astype(np.float64) / 255 - g.astype(np.float64) / 255) ** 2)
     return 10 * np.log10(1 / mse)
@@ -205,10 +293,16 @@ def test_score_run_values(tmp_path, fake_trainer):
     m = score_run(run, fps=True)
     assert fake_trainer["render_run"] == []  # nothing was missing
     on_disk = json.loads((run / "metrics.json").read_text())
-    assert set(METRIC_KEYS) <= set(on_disk) and on_disk["ldr_oe_psnr"] == pytest.approx(m["ldr_oe_psnr"])
+    assert set(METRIC_KEYS) <= set(on_disk) and on_disk["ldr_oe_psnr"] == pytest.approx(
+        m["ldr_oe_psnr"]
+    )
     # LDR: per image PSNR (numpy), mean over frames then levels
-    exp = {lv: np.mean([_psnr_np(truth["ldr"][(lv, g)], clip.load_gt_ldr(lv, g)) for g in clip.test_frames])
-           for lv in OBS + NOV}
+    exp = {
+        lv: np.mean(
+            [_psnr_np(truth["ldr"][(lv, g)], clip.load_gt_ldr(lv, g)) for g in clip.test_frames]
+        )
+        for lv in OBS + NOV
+    }
     assert m["ldr_oe_psnr"] == pytest.approx(np.mean([exp[lv] for lv in OBS]), abs=1e-9)
     assert m["ldr_ne_psnr"] == pytest.approx(exp[1.0], abs=1e-9)
     assert m["per_level"]["0.5"]["psnr"] == pytest.approx(exp[0.5], abs=1e-9)
@@ -218,20 +312,29 @@ def test_score_run_values(tmp_path, fake_trainer):
     for g in clip.test_frames:
         gt = clip.load_gt_hdr(g).astype(np.float64)
         s = gt.max()
-        hp.append(10 * np.log10(1 / np.mean((_mu_np(np.clip(truth["hdr"][g] / s, 0, 1)) - _mu_np(gt / s)) ** 2)))
+        hp.append(
+            10
+            * np.log10(
+                1 / np.mean((_mu_np(np.clip(truth["hdr"][g] / s, 0, 1)) - _mu_np(gt / s)) ** 2)
+            )
+        )
     assert m["hdr_psnr"] == pytest.approx(np.mean(hp), abs=1e-6)
     # HDR-TAE of a global flicker with zero flow: 3 |r - 1| / (r + 1)
     assert m["hdr_tae"] == pytest.approx(3 * (FLICKER - 1) / (FLICKER + 1), rel=1e-5)
     # training LDR renders equal the input: capped PSNR, SSIM 1
     assert m["ldr_train_psnr"] == 100.0 and m["ldr_train_ssim"] == pytest.approx(1.0, abs=1e-6)
-    # cameras are a Sim(3) copy of the gt; depth a scaled copy; tracks offset by 0.5 px; the true CRF
+    # cameras are a Sim(3) copy of the gt; depth a scaled copy; tracks offset by 0.5 px; the true
+    # CRF
     assert m["ate"] == pytest.approx(0, abs=1e-6) and m["rpe_rot"] == pytest.approx(0, abs=1e-3)
     assert m["ate_ba"] is None  # no cameras_ba.json
     assert m["depth_absrel"] == pytest.approx(0, abs=1e-6)
-    assert m["track_epe"] == pytest.approx(0.5, abs=1e-5) and m["track_delta_avg"] == pytest.approx(1.0)
+    assert m["track_epe"] == pytest.approx(0.5, abs=1e-5) and m["track_delta_avg"] == pytest.approx(
+        1.0
+    )
     assert m["track_epe_median"] == pytest.approx(0.5, abs=1e-5)
     assert m["crf_rmse"] == pytest.approx(0, abs=1e-6)
-    assert m["crf_error"] == pytest.approx(0, abs=1e-3) and "crf_error" in m["conventions"]  # 8-bit codes
+    # 8-bit codes
+    assert m["crf_error"] == pytest.approx(0, abs=1e-3) and "crf_error" in m["conventions"]
     assert all(r is not None and r[0] < 1 < r[1] for r in m["crf_error_detail"]["ranges"])
     # no LPIPS weights -> None; run.json values; FPS measured; conventions present
     assert m["ldr_oe_lpips"] is None and m["hdr_lpips"] is None and "lpips_na" in m["conventions"]
@@ -243,8 +346,9 @@ def test_score_run_values(tmp_path, fake_trainer):
 
 
 def test_score_dynamic_mask_metrics(tmp_path, fake_trainer):
-    """Epipolar masks vs gt: the fake gt mask of frame g is rows 10:20, columns 10+g:25+g; the run's mask is the same
-    box shifted 3 columns right, so precision = recall = 12/15 and IoU = 12/18 (analytic)."""
+    """Epipolar masks vs gt: the fake gt mask of frame g is rows 10:20, columns 10+g:25+g; the run's
+    mask is the same box shifted 3 columns right, so precision = recall = 12/15 and IoU = 12/18
+    (analytic)."""
     from eval.score import score_run
 
     clip = make_fake_clip(tmp_path / "clip")
@@ -254,7 +358,7 @@ def test_score_dynamic_mask_metrics(tmp_path, fake_trainer):
     assert m["mask_iou"] is None and "dyn_masks" not in m["conventions"]  # no camera_init.pt
     masks = torch.zeros(len(clip.train_frames), H, W, dtype=torch.bool)
     for i, g in enumerate(clip.train_frames):
-        masks[i, 10:20, 13 + g:28 + g] = True
+        masks[i, 10:20, 13 + g : 28 + g] = True
     (run / "model").mkdir()
     torch.save({"masks": masks}, run / "model" / "camera_init.pt")
     m = score_run(run, fps=False, model=False)
@@ -273,13 +377,21 @@ def test_score_renders_missing_and_identical(tmp_path, fake_trainer):
     make_fake_run(run, clip, renders=False)
     m = score_run(run, fps=False, model=False)
     assert fake_trainer["render_run"] == [str(run)]  # rendered what was missing
-    assert m["track_epe"] is None and m["fps"] is None and m["crf_rmse"] is None and m["crf_error"] is None
+    assert (
+        m["track_epe"] is None
+        and m["fps"] is None
+        and m["crf_rmse"] is None
+        and m["crf_error"] is None
+    )
     # identical HDR renders: PSNR capped, not inf, and valid JSON
     for g in clip.test_frames:
         mio.write_exr(run / "renders/test/hdr" / frame_name(g, "exr"), clip.load_gt_hdr(g))
     m = score_run(run, fps=False, model=False)
     assert m["hdr_psnr"] == PSNR_CAP_DB
-    json.loads((run / "metrics.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-standard JSON {c}"))
+    json.loads(
+        (run / "metrics.json").read_text(),
+        parse_constant=lambda c: pytest.fail(f"non-standard JSON {c}"),
+    )
 
 
 def test_cli_score(tmp_path, fake_trainer):
@@ -296,13 +408,20 @@ def test_cli_score(tmp_path, fake_trainer):
     assert r2.exit_code == 0 and "exists" in r2.output
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_suites_load_and_variants():
     from eval.suite import LAYOUTS, builtin_suites, known_variants, load_eval_suite, metric_columns
 
     names = builtin_suites()
-    assert {"paper-main", "paper-ablation", "control-points", "exposure-schedules", "exposure-noise", "priors",
-            "tiny"} <= set(names)
+    assert {
+        "paper-main",
+        "paper-ablation",
+        "control-points",
+        "exposure-schedules",
+        "exposure-noise",
+        "priors",
+        "tiny",
+    } <= set(names)
     known = known_variants()
     reg = metric_columns()
     for n in names:
@@ -314,15 +433,29 @@ def test_suites_load_and_variants():
         if known is not None:
             assert set(s.variants) <= set(known), (n, set(s.variants) - set(known))
     abl = load_eval_suite("paper-ablation")
-    assert [r.variant for r in abl.rows] == ["no-video-init", "no-occlusion", "no-cov-invariance", "no-reproj",
-                                             "no-tlr", "full"]
+    assert [r.variant for r in abl.rows] == [
+        "no-video-init",
+        "no-occlusion",
+        "no-cov-invariance",
+        "no-reproj",
+        "no-tlr",
+        "full",
+    ]
     cp = load_eval_suite("control-points")
     assert [r.variant for r in cp.rows] == [f"ns-{k}" for k in (1, 2, 4, 8, 16)]
     noise = load_eval_suite("exposure-noise")
-    assert sorted(r.overrides.get("exposure.perturb_ev", 0.0) for r in noise.rows) == [0.0, 0.25, 0.5, 0.75]
+    assert sorted(r.overrides.get("exposure.perturb_ev", 0.0) for r in noise.rows) == [
+        0.0,
+        0.25,
+        0.5,
+        0.75,
+    ]
     sched = load_eval_suite("exposure-schedules")
-    assert {c.schedule or "alternating" for c in sched.clips.values()} == {"alternating", "random-order",
-                                                                          "random-values"}
+    assert {c.schedule or "alternating" for c in sched.clips.values()} == {
+        "alternating",
+        "random-order",
+        "random-values",
+    }
     pri = load_eval_suite("priors")
     assert {c.priors for c in pri.clips.values()} == {"oracle", "realistic", "harsh"}
     assert {"no-depth-loss", "no-track-loss"} <= set(pri.variants)
@@ -346,21 +479,29 @@ def test_suite_errors(tmp_path):
 def test_list_jobs(tmp_path):
     from eval.suite import load_eval_suite, scene_suite_names
 
-    r = CliRunner().invoke(main, ["run", "exposure-schedules", "--out", str(tmp_path), "--preset", "tiny",
-                                  "--list-jobs"])
+    r = CliRunner().invoke(
+        main,
+        ["run", "exposure-schedules", "--out", str(tmp_path), "--preset", "tiny", "--list-jobs"],
+    )
     assert r.exit_code == 0, r.output
     lines = [json.loads(x) for x in r.output.strip().splitlines()]
     s = load_eval_suite("exposure-schedules")
     assert len(lines) == len(s.rows) * len(scene_suite_names(s))
     assert all(x["cmd"].startswith("python -m eval job exposure-schedules ") for x in lines)
-    assert {x["setting_id"] for x in lines} == {"syn-exp-3", "syn-exp-3-random-order", "syn-exp-3-random-values"}
+    assert {x["setting_id"] for x in lines} == {
+        "syn-exp-3",
+        "syn-exp-3-random-order",
+        "syn-exp-3-random-values",
+    }
     assert len({x["run_dir"] for x in lines}) == len(lines)
     x = lines[0]
     assert x["clip_dir"] == str(tmp_path.resolve() / "clips" / x["setting_id"] / x["scene"])
-    assert x["run_dir"] == str(tmp_path.resolve() / "runs" / "exposure-schedules" / x["scene"] / x["row"])
+    assert x["run_dir"] == str(
+        tmp_path.resolve() / "runs" / "exposure-schedules" / x["scene"] / x["row"]
+    )
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 SUITE_YAML = """name: t2
 description: test suite
 scenes: tiny
@@ -385,13 +526,21 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
         make_fake_clip(Path(j), seed=len(j))
     res = run_suite(suite, out, "tiny", score_kw={"fps": False}, progress=False, log=lambda s: None)
     assert [r["steps"] for r in res] == [["train", "score"]] * 4
-    assert ("full" in fake_trainer["train"][1][0]) and fake_trainer["train"][1][2] == {"exposure.perturb_ev": 0.0}
-    res2 = run_suite(suite, out, "tiny", score_kw={"fps": False}, progress=False, log=lambda s: None)
+    assert ("full" in fake_trainer["train"][1][0]) and fake_trainer["train"][1][2] == {
+        "exposure.perturb_ev": 0.0
+    }
+    res2 = run_suite(
+        suite, out, "tiny", score_kw={"fps": False}, progress=False, log=lambda s: None
+    )
     assert [r["steps"] for r in res2] == [[]] * 4 and len(fake_trainer["train"]) == 4
 
     # overwrite metrics with known numbers: Ours better in HDR PSNR, Baseline better in ATE
-    vals = {("tiny-lamp-box", "base"): (30.0, 0.2), ("tiny-flag-arm", "base"): (32.0, 0.4),
-            ("tiny-lamp-box", "full"): (33.0, 0.5), ("tiny-flag-arm", "full"): (34.0, 0.5)}
+    vals = {
+        ("tiny-lamp-box", "base"): (30.0, 0.2),
+        ("tiny-flag-arm", "base"): (32.0, 0.4),
+        ("tiny-lamp-box", "full"): (33.0, 0.5),
+        ("tiny-flag-arm", "full"): (34.0, 0.5),
+    }
     for j in jl:
         mp = Path(j.run_dir) / "metrics.json"
         m = json.loads(mp.read_text())
@@ -402,7 +551,8 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
     text = r.output
     base_line = next(ln for ln in text.splitlines() if ln.startswith("| Baseline"))
     ours_line = next(ln for ln in text.splitlines() if ln.startswith("| Ours"))
-    assert "**33.50**" in ours_line and "31.00" in base_line and "**31.00**" not in base_line  # mean over scenes
+    # mean over scenes
+    assert "**33.50**" in ours_line and "31.00" in base_line and "**31.00**" not in base_line
     geo_base = [ln for ln in text.splitlines() if ln.startswith("| Baseline")][1]
     assert "**0.3000**" in geo_base  # ATE: lower is better
     assert "HDR PSNR/SSIM: mu-law" in text and "Means over scenes" in text  # footnotes
@@ -410,22 +560,32 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
     figs = out / "figures" / "t2"
     for name in ("crf_tiny-lamp-box.png", "grid_tiny-lamp-box.png", "loss_tiny-flag-arm_full.png"):
         assert (figs / name).exists() and (figs / name).stat().st_size > 1000, name
-    # a run without metrics.json: its row's means are n/a (never a mean over fewer scenes), and a note says so
+    # a run without metrics.json: its row's means are n/a (never a mean over fewer scenes), and a
+    # note says so
     mp = out / "runs/t2/tiny-flag-arm/base/metrics.json"
     saved = mp.read_bytes()
     mp.unlink()
     r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures"])
     base_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Baseline"))
-    # 10 means and their 10 paired differences to the reference row (full) are n/a; n counts the one scored run
-    assert r.exit_code == 0 and base_line.count("n/a") == 20 and "1 of 4 runs have no metrics.json" in r.output
+    # 10 means and their 10 paired differences to the reference row (full) are n/a; n counts the one
+    # scored run
+    assert (
+        r.exit_code == 0
+        and base_line.count("n/a") == 20
+        and "1 of 4 runs have no metrics.json" in r.output
+    )
     assert base_line.startswith("| Baseline | 1 | n/a | n/a |")
     mp.write_bytes(saved)
     # latex / csv / runs-dir forms
-    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--format", "latex", "--no-figures"])
+    r = CliRunner().invoke(
+        main, ["table", str(suite), "--root", str(out), "--format", "latex", "--no-figures"]
+    )
     assert r.exit_code == 0 and "\\textbf{33.50}" in r.output and "\\toprule" in r.output
     outf = tmp_path / "t.csv"
-    r = CliRunner().invoke(main, ["table", str(out / "runs" / "t2"), "--format", "csv", "--out", str(outf),
-                                  "--no-figures"])
+    r = CliRunner().invoke(
+        main,
+        ["table", str(out / "runs" / "t2"), "--format", "csv", "--out", str(outf), "--no-figures"],
+    )
     assert r.exit_code == 0, r.output
     rows = [ln.split(",") for ln in outf.read_text().splitlines() if ln and not ln.startswith("#")]
     assert {rw[0] for rw in rows[1:] if rw[0] != "Method"} >= {"world-only", "full"}
@@ -436,8 +596,21 @@ def test_job_command(tmp_path, fake_trainer):
     suite.write_text(SUITE_YAML)
     out = tmp_path / "exp"
     make_fake_clip(out / "clips" / "tiny" / "tiny-flag-arm")
-    r = CliRunner().invoke(main, ["job", str(suite), "--out", str(out), "--preset", "tiny", "--scene",
-                                  "tiny-flag-arm", "--row", "full"])
+    r = CliRunner().invoke(
+        main,
+        [
+            "job",
+            str(suite),
+            "--out",
+            str(out),
+            "--preset",
+            "tiny",
+            "--scene",
+            "tiny-flag-arm",
+            "--row",
+            "full",
+        ],
+    )
     assert r.exit_code == 0, r.output
     res = json.loads(r.output.strip().splitlines()[-1])
     assert res["steps"] == ["train", "score"] and Path(res["metrics"]).exists()
@@ -446,9 +619,12 @@ def test_job_command(tmp_path, fake_trainer):
 def test_figures_direct(tmp_path):
     from eval.figures import crf_figure, loss_series, smooth
 
-    recs = [{"stage": "stage1", "step": 0, "total": 1.0}, {"stage": "stage1", "step": 50, "total": 0.5},
-            {"stage": "stage2", "step": 0, "total": 0.4, "tlr": 0.0, "n_clone": 12, "static_prune": 3},
-            {"stage": "stage2", "step": 20, "total": 0.3, "num_dynamic": 5}]
+    recs = [
+        {"stage": "stage1", "step": 0, "total": 1.0},
+        {"stage": "stage1", "step": 50, "total": 0.5},
+        {"stage": "stage2", "step": 0, "total": 0.4, "tlr": 0.0, "n_clone": 12, "static_prune": 3},
+        {"stage": "stage2", "step": 20, "total": 0.3, "num_dynamic": 5},
+    ]
     series, off = loss_series(recs)
     assert off == 50.0 and series["total"][0].tolist() == [0.0, 50.0, 50.0, 70.0]
     assert set(series) == {"total"}  # zero loss (log scale) and densification counters are left out
@@ -456,14 +632,27 @@ def test_figures_direct(tmp_path):
     ref = np.convolve(y, np.ones(5) / 5, mode="valid")  # interior of a centred running mean
     assert np.allclose(smooth(y, 5)[2:-2], ref) and smooth(y, 5)[0] == pytest.approx(y[:3].mean())
     z = np.linspace(-4, 4, 9)
-    p = crf_figure([("a", {"log2_x": z.tolist(), "learned": np.tile(z[:, None], 3).tolist(), "true": z.tolist(),
-                           "crf": "hdrnerf"})], tmp_path / "c.png")
+    p = crf_figure(
+        [
+            (
+                "a",
+                {
+                    "log2_x": z.tolist(),
+                    "learned": np.tile(z[:, None], 3).tolist(),
+                    "true": z.tolist(),
+                    "crf": "hdrnerf",
+                },
+            )
+        ],
+        tmp_path / "c.png",
+    )
     assert p.exists() and p.stat().st_size > 1000
     assert crf_figure([("a", None)], tmp_path / "d.png") is None
 
 
 def test_run_suite_process_pool(tmp_path, fake_trainer):
-    """jobs=2: the fake trainer modules reach the workers through fork (Linux default start method)."""
+    """jobs=2: the fake trainer modules reach the workers through fork (Linux default start
+    method)."""
     import multiprocessing as mp
 
     from eval.runner import job_list, run_suite
@@ -476,20 +665,25 @@ def test_run_suite_process_pool(tmp_path, fake_trainer):
     jl = job_list(suite, out, "tiny")
     for j in {j.clip_dir for j in jl}:
         make_fake_clip(Path(j), seed=len(j))
-    res = run_suite(suite, out, "tiny", jobs=2, score_kw={"fps": False, "model": False}, log=lambda s: None)
+    res = run_suite(
+        suite, out, "tiny", jobs=2, score_kw={"fps": False, "model": False}, log=lambda s: None
+    )
     assert [r["id"] for r in res] == [j.id for j in jl]
     assert all(r["steps"] == ["train", "score"] for r in res)
     assert all((Path(j.run_dir) / "metrics.json").exists() for j in jl)
 
 
 def test_score_with_lpips_weights(tmp_path, fake_trainer):
-    """Generated LPIPS weights: the per-level aggregation equals a direct per-image recomputation (numpy mean)."""
+    """Generated LPIPS weights: the per-level aggregation equals a direct per-image recomputation
+    (numpy mean)."""
     from eval.metrics import lpips_metric, mu_law, save_lpips_weights
     from eval.metrics.lpips import ALEX_CONVS, TAP_CHANNELS, LpipsWeights
     from eval.score import score_run
 
     g = torch.Generator().manual_seed(0)
-    conv_w = [torch.randn(cout, cin, k, k, generator=g) * 0.05 for _, cin, cout, k, _, _ in ALEX_CONVS]
+    conv_w = [
+        torch.randn(cout, cin, k, k, generator=g) * 0.05 for _, cin, cout, k, _, _ in ALEX_CONVS
+    ]
     conv_b = [torch.zeros(cout) for _, _, cout, _, _, _ in ALEX_CONVS]
     lin = [torch.rand(1, c, 1, 1, generator=g) for c in TAP_CHANNELS]
     wpath = tmp_path / "alex_lpips.pth"
@@ -499,7 +693,12 @@ def test_score_with_lpips_weights(tmp_path, fake_trainer):
     truth = make_fake_run(run, clip)
     m = score_run(run, lpips_weights=wpath, fps=False, model=False)
     w = LpipsWeights(conv_w, conv_b, lin)
-    exp_ne = np.mean([lpips_metric(truth["ldr"][(1.0, gg)], clip.load_gt_ldr(1.0, gg), w) for gg in clip.test_frames])
+    exp_ne = np.mean(
+        [
+            lpips_metric(truth["ldr"][(1.0, gg)], clip.load_gt_ldr(1.0, gg), w)
+            for gg in clip.test_frames
+        ]
+    )
     assert m["ldr_ne_lpips"] == pytest.approx(exp_ne, rel=1e-5)
     exp_hdr = []
     for gg in clip.test_frames:
@@ -507,11 +706,16 @@ def test_score_with_lpips_weights(tmp_path, fake_trainer):
         s = gt.max()
         exp_hdr.append(lpips_metric(mu_law(np.clip(truth["hdr"][gg] / s, 0, 1)), mu_law(gt / s), w))
     assert m["hdr_lpips"] == pytest.approx(np.mean(exp_hdr), rel=1e-5)
-    assert m["ldr_oe_lpips"] > 0 and "lpips" in m["conventions"] and m["options"]["lpips_weights"] == str(wpath)
+    assert (
+        m["ldr_oe_lpips"] > 0
+        and "lpips" in m["conventions"]
+        and m["options"]["lpips_weights"] == str(wpath)
+    )
 
 
 def test_score_real_clip_without_gt(tmp_path, fake_trainer):
-    """A real clip (no gt/): test-frame metrics are None, training LDR is scored, HDR-TAE falls back to DIS flow."""
+    """A real clip (no gt/): test-frame metrics are None, training LDR is scored, HDR-TAE falls back
+    to DIS flow."""
     import shutil
 
     from eval.score import score_run
@@ -521,15 +725,25 @@ def test_score_real_clip_without_gt(tmp_path, fake_trainer):
     make_fake_run(run, clip)
     shutil.rmtree(clip.root / "gt")
     m = score_run(run, fps=False, model=False)
-    assert m["ldr_oe_psnr"] is None and m["hdr_psnr"] is None and m["ate"] is None and m["depth_absrel"] is None
+    assert (
+        m["ldr_oe_psnr"] is None
+        and m["hdr_psnr"] is None
+        and m["ate"] is None
+        and m["depth_absrel"] is None
+    )
     assert m["ldr_train_psnr"] == 100.0  # train renders equal the input video
-    assert m["hdr_tae"] is not None and math.isfinite(m["hdr_tae"]) and "hdr_tae_dis_flow" in m["conventions"]
+    assert (
+        m["hdr_tae"] is not None
+        and math.isfinite(m["hdr_tae"])
+        and "hdr_tae_dis_flow" in m["conventions"]
+    )
     assert m["run"]["has_gt"] is False
 
 
 def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
-    """--seeds 2: seed 0 keeps the run folders, seed 1 trains into <row>-seed-1 with seed=1 on the same clips; the
-    table pools the 2 scenes x 2 seeds with intervals and paired differences to the reference row."""
+    """--seeds 2: seed 0 keeps the run folders, seed 1 trains into <row>-seed-1 with seed=1 on the
+    same clips; the table pools the 2 scenes x 2 seeds with intervals and paired differences to the
+    reference row."""
     from eval.runner import job_list, run_suite
 
     suite = tmp_path / "t2.yaml"
@@ -537,14 +751,20 @@ def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
     out = tmp_path / "exp"
     for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
         make_fake_clip(Path(j), seed=len(j))
-    r = CliRunner().invoke(main, ["run", str(suite), "--out", str(out), "--preset", "tiny", "--seeds", "2",
-                                  "--list-jobs"])
+    r = CliRunner().invoke(
+        main,
+        ["run", str(suite), "--out", str(out), "--preset", "tiny", "--seeds", "2", "--list-jobs"],
+    )
     assert r.exit_code == 0 and len(r.output.strip().splitlines()) == 8 and "--seed 1" in r.output
-    res = run_suite(suite, out, "tiny", score_kw={"fps": False}, progress=False, log=lambda s: None, seeds=2)
+    res = run_suite(
+        suite, out, "tiny", score_kw={"fps": False}, progress=False, log=lambda s: None, seeds=2
+    )
     assert len(res) == 8 and len(fake_trainer["train"]) == 8
     by_dir = {Path(d).name: ov for d, _, ov in fake_trainer["train"]}
-    assert by_dir["full"] == {"exposure.perturb_ev": 0.0} and by_dir["full-seed-1"] == {"exposure.perturb_ev": 0.0,
-                                                                                            "seed": 1}
+    assert by_dir["full"] == {"exposure.perturb_ev": 0.0} and by_dir["full-seed-1"] == {
+        "exposure.perturb_ev": 0.0,
+        "seed": 1,
+    }
     assert by_dir["base"] is None and by_dir["base-seed-1"] == {"seed": 1}
     # known numbers: Ours = Baseline + 1 dB HDR PSNR (+- 0.1) on every (scene, seed)
     vals = {}
@@ -566,10 +786,16 @@ def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
     base = [v for (row, _, _), v in vals.items() if row == "base"]
     h = 3.182446305284263 * np.std(base, ddof=1) / 2  # t_{0.975, 3} s / sqrt(4)
     assert cells[k] == f"{np.mean(base):.2f} ± {h:.2f}"
-    assert heads[k + 1] == "Δ HDR PSNR" and cells[k + 1].startswith("-1.00 ± ") and cells[k + 1].endswith("†")
+    assert (
+        heads[k + 1] == "Δ HDR PSNR"
+        and cells[k + 1].startswith("-1.00 ± ")
+        and cells[k + 1].endswith("†")
+    )
     assert "| Ours | 4 |" in ours_line and "ref" in ours_line
     # with --seeds 1 only the seed-0 runs are tabulated
-    r1 = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures", "--seeds", "1"])
+    r1 = CliRunner().invoke(
+        main, ["table", str(suite), "--root", str(out), "--no-figures", "--seeds", "1"]
+    )
     assert "| Baseline | 2 |" in r1.output
     # the runs folder form: <row>-seed-<n> folders are seeds of the same row
     r2 = CliRunner().invoke(main, ["table", str(out / "runs" / "t2"), "--no-figures"])

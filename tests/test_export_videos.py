@@ -1,4 +1,6 @@
-"""3DGS .ply export, videos and induced tracks of a tiny hand-built trained run (m4dgs.export, m4dgs.videos)."""
+"""3DGS .ply export, videos and induced tracks of a tiny hand-built trained run (m4dgs.export,
+m4dgs.videos)."""
+
 from __future__ import annotations
 
 import os
@@ -11,10 +13,18 @@ import torch
 
 from m4dgs import camera as cam
 from m4dgs import spline
-from m4dgs.clip import ClipMeta, ClipWriter, Cameras, Exposures, Split
+from m4dgs.clip import Cameras, ClipMeta, ClipWriter, Exposures, Split
 from m4dgs.color import ColorMLP
-from m4dgs.export import (PLY_PROPERTIES, SH_C0, export_run_ply, gaussians_to_ply_arrays, ply_arrays_to_gaussians,
-                          read_ply, read_ply_header, write_ply)
+from m4dgs.export import (
+    PLY_PROPERTIES,
+    SH_C0,
+    export_run_ply,
+    gaussians_to_ply_arrays,
+    ply_arrays_to_gaussians,
+    read_ply,
+    read_ply_header,
+    write_ply,
+)
 from m4dgs.gaussians import WorldGaussians
 from m4dgs.io import read_npz, write_json
 from m4dgs.model import load_model
@@ -31,9 +41,9 @@ FX = 30.0
 FEAT = 36
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # a tiny trained run, built by hand
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _cameras():
     """Training cameras looking along +z, sliding along x (OpenCV axes, identity rotation)."""
     K = np.array([[FX, 0, W / 2], [0, FX, H / 2], [0, 0, 1]], np.float64)
@@ -49,13 +59,16 @@ def _gaussians():
     knots = spline.make_knots(T, 4)  # [0, 4]
     nd = 2
     start = torch.tensor([[-0.3, 0.4, 3.5], [0.4, -0.45, 3.8]])
-    ctrl = torch.stack([start, start + torch.tensor([[0.5, 0.0, 0.0], [-0.2, 0.2, 0.3]])], dim=1)  # [nd, 2, 3]
+    # [nd, 2, 3]
+    ctrl = torch.stack([start, start + torch.tensor([[0.5, 0.0, 0.0], [-0.2, 0.2, 0.3]])], dim=1)
     rotc = init_rotation_coeffs(nd, 3, "paper")
     rotc[:, 1, 1] = 0.4  # a rotation that changes over time
     static = {
         "means": static_means,
         "quats": torch.randn(ns, 4, generator=g),
-        "scales": torch.log(torch.tensor([[0.08, 0.05, 0.06], [0.07, 0.07, 0.04], [0.3, 0.3, 0.1]])),
+        "scales": torch.log(
+            torch.tensor([[0.08, 0.05, 0.06], [0.07, 0.07, 0.04], [0.3, 0.3, 0.1]])
+        ),
         "opacities": torch.logit(torch.tensor([0.95, 0.9, 0.6])),
         "features": torch.randn(ns, FEAT, generator=g),
     }
@@ -75,8 +88,16 @@ def run(tmp_path_factory):
     clip_dir, run_dir = root / "clip", root / "run"
     test = [g for g in range(G) if g not in TRAIN]
     dts = [0.25 if i % 2 == 0 else 2.0 for i in range(T)]
-    meta = ClipMeta(name="tiny", width=W, height=H, fps=10.0, frames=list(range(G)), split=Split(TRAIN, test),
-                    exposures=Exposures(train_dt=dts, observed=[0.25, 2.0], novel=[1.0]), crf="hdrnerf")
+    meta = ClipMeta(
+        name="tiny",
+        width=W,
+        height=H,
+        fps=10.0,
+        frames=list(range(G)),
+        split=Split(TRAIN, test),
+        exposures=Exposures(train_dt=dts, observed=[0.25, 2.0], novel=[1.0]),
+        crf="hdrnerf",
+    )
     cw = ClipWriter(clip_dir, meta)
     for g in TRAIN:
         cw.write_input_ldr(g, np.full((H, W, 3), 128, np.uint8))
@@ -87,14 +108,25 @@ def run(tmp_path_factory):
     tm = ToneMapper(hidden=128, generator=torch.Generator().manual_seed(1))
     bg = Background()
     K, c2w = _cameras()
-    save_torch(run_dir / "model" / "final.pt", {
-        "gaussians": gauss.to_state(), "color": color.state_dict(), "tonemap": tm.state_dict(),
-        "background": bg.state_dict(), "K": torch.tensor(K, dtype=torch.float32),
-        "c2w": torch.tensor(c2w, dtype=torch.float32), "frames": TRAIN,
-        "log2_dt": torch.log2(torch.tensor(dts)), "config": {"tonemap": {"color_hidden": 36, "tonemap_hidden": 128}},
-        "variant": "full", "feature_dim": FEAT,
-    })
-    write_json(run_dir / "run.json", {"clip": os.path.relpath(clip_dir, run_dir), "variant": "full"})
+    save_torch(
+        run_dir / "model" / "final.pt",
+        {
+            "gaussians": gauss.to_state(),
+            "color": color.state_dict(),
+            "tonemap": tm.state_dict(),
+            "background": bg.state_dict(),
+            "K": torch.tensor(K, dtype=torch.float32),
+            "c2w": torch.tensor(c2w, dtype=torch.float32),
+            "frames": TRAIN,
+            "log2_dt": torch.log2(torch.tensor(dts)),
+            "config": {"tonemap": {"color_hidden": 36, "tonemap_hidden": 128}},
+            "variant": "full",
+            "feature_dim": FEAT,
+        },
+    )
+    write_json(
+        run_dir / "run.json", {"clip": os.path.relpath(clip_dir, run_dir), "variant": "full"}
+    )
     allK = np.repeat(K[None], G, 0)
     allc2w = cam.interpolate_trajectory(np.array(TRAIN, float), c2w, np.arange(G, dtype=float))
     write_json(run_dir / "cameras.json", Cameras(np.arange(G), allK, allc2w).to_json())
@@ -102,9 +134,9 @@ def run(tmp_path_factory):
     return run_dir, model
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # independent numpy references of the colour MLP and the tone mapper
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _np_color(model, feats: np.ndarray) -> np.ndarray:
     sd = {k: v.double().numpy() for k, v in model.color.state_dict().items()}
     x = np.concatenate([feats, np.zeros((feats.shape[0], 3))], 1)
@@ -121,9 +153,9 @@ def _np_tonemap(model, hdr: np.ndarray, log2_dt: float) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-out))
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # PLY
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_ply_roundtrip_and_header(tmp_path):
     rng = np.random.default_rng(0)
     n = 17
@@ -142,15 +174,18 @@ def test_ply_roundtrip_and_header(tmp_path):
     # header text, checked line by line against the standard 3DGS layout
     raw = p.read_bytes()
     head = raw[: raw.index(b"end_header\n") + len(b"end_header\n")].decode("ascii").splitlines()
-    expect = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(45)]
-              + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+    expect = (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(45)]
+        + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    )
     assert head[0] == "ply" and head[1] == "format binary_little_endian 1.0"
     assert head[2] == "comment m4dgs test"
     assert head[3] == f"element vertex {n}"
     assert head[4:-1] == [f"property float {e}" for e in expect]
     assert len(raw) == len("\n".join(head)) + 1 + n * 62 * 4
     # the body is plain little-endian float32 in property order
-    body = np.frombuffer(raw[len("\n".join(head)) + 1:], dtype="<f4").reshape(n, 62)
+    body = np.frombuffer(raw[len("\n".join(head)) + 1 :], dtype="<f4").reshape(n, 62)
     np.testing.assert_array_equal(body[:, 0:3], means.astype(np.float32))
     np.testing.assert_array_equal(body[:, 3:6], 0)
     np.testing.assert_array_equal(body[:, 9:54], 0)
@@ -166,13 +201,22 @@ def test_ply_conversions_against_numpy():
     scales = rng.uniform(0.001, 3.0, size=(n, 3))
     opac = rng.uniform(0.001, 0.999, size=n)
     rgb = rng.uniform(0, 1, size=(n, 3))
-    arr = gaussians_to_ply_arrays(torch.tensor(means), torch.tensor(quats), torch.tensor(scales), torch.tensor(opac),
-                                  torch.tensor(rgb))
+    arr = gaussians_to_ply_arrays(
+        torch.tensor(means),
+        torch.tensor(quats),
+        torch.tensor(scales),
+        torch.tensor(opac),
+        torch.tensor(rgb),
+    )
     f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731
     np.testing.assert_allclose(arr["opacity"], f32(np.log(opac / (1 - opac))), rtol=1e-6, atol=1e-6)
-    np.testing.assert_allclose(np.stack([arr[f"scale_{i}"] for i in range(3)], 1), f32(np.log(scales)), rtol=1e-6)
+    np.testing.assert_allclose(
+        np.stack([arr[f"scale_{i}"] for i in range(3)], 1), f32(np.log(scales)), rtol=1e-6
+    )
     qn = quats / np.linalg.norm(quats, axis=1, keepdims=True)
-    np.testing.assert_allclose(np.stack([arr[f"rot_{i}"] for i in range(4)], 1), f32(qn), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(
+        np.stack([arr[f"rot_{i}"] for i in range(4)], 1), f32(qn), rtol=1e-6, atol=1e-7
+    )
     back = ply_arrays_to_gaussians(arr)
     np.testing.assert_allclose(back["opacities"], opac, rtol=1e-5)
     np.testing.assert_allclose(back["scales"], scales, rtol=1e-5)
@@ -194,15 +238,22 @@ def test_sh_dc_of_known_colour():
 
 def test_ply_rejects_bad_inputs(tmp_path):
     with pytest.raises(ValueError, match="scales"):
-        gaussians_to_ply_arrays(np.zeros((2, 3)), np.ones((2, 4)), -np.ones((2, 3)), [0.5, 0.5], np.zeros((2, 3)))
+        gaussians_to_ply_arrays(
+            np.zeros((2, 3)), np.ones((2, 4)), -np.ones((2, 3)), [0.5, 0.5], np.zeros((2, 3))
+        )
     with pytest.raises(ValueError, match="rows"):
-        gaussians_to_ply_arrays(np.zeros((2, 3)), np.ones((3, 4)), np.ones((2, 3)), [0.5, 0.5], np.zeros((2, 3)))
+        gaussians_to_ply_arrays(
+            np.zeros((2, 3)), np.ones((3, 4)), np.ones((2, 3)), [0.5, 0.5], np.zeros((2, 3))
+        )
 
 
 def test_read_ascii_ply(tmp_path):
     p = tmp_path / "a.ply"
-    p.write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty uchar red\nend_header\n"
-                 "1.5 7\n-2 255\n")
+    p.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty uchar "
+        "red\nend_header\n"
+        "1.5 7\n-2 255\n"
+    )
     a = read_ply(p)
     np.testing.assert_array_equal(a["x"], [1.5, -2.0])
     np.testing.assert_array_equal(a["red"], [7, 255])
@@ -224,15 +275,22 @@ def test_export_run_ply(run, tmp_path, g, exposure):
     np.testing.assert_allclose(pos[:3], gauss.static["means"].detach().numpy(), atol=1e-6)
     if t in (0.0, 4.0):  # on a knot the Hermite spline passes through its control point
         np.testing.assert_allclose(pos[3:], ctrl[:, int(t) // 4], atol=1e-6)
-    else:  # t = 1.5 on the single segment [0, 4]: Hermite with one-sided (chord) tangents is a straight line
-        np.testing.assert_allclose(pos[3:], ctrl[:, 0] + (t / 4) * (ctrl[:, 1] - ctrl[:, 0]), atol=1e-5)
+    # t = 1.5 on the single segment [0, 4]: Hermite with one-sided (chord) tangents is a straight
+    # line
+    else:
+        np.testing.assert_allclose(
+            pos[3:], ctrl[:, 0] + (t / 4) * (ctrl[:, 1] - ctrl[:, 0]), atol=1e-5
+        )
     # colours: numpy colour MLP + tone mapper at log2(dt)
     feats = gauss.features().detach().double().numpy()
     ref = np.clip(_np_tonemap(model, _np_color(model, feats), np.log2(exposure or 1.0)), 0, 1)
     rgb = 0.5 + SH_C0 * np.stack([arr[f"f_dc_{i}"] for i in range(3)], 1).astype(np.float64)
     np.testing.assert_allclose(rgb, ref, atol=2e-6)
-    np.testing.assert_allclose(1 / (1 + np.exp(-arr["opacity"].astype(np.float64))),
-                               gauss.opacities().detach().numpy(), rtol=1e-5)
+    np.testing.assert_allclose(
+        1 / (1 + np.exp(-arr["opacity"].astype(np.float64))),
+        gauss.opacities().detach().numpy(),
+        rtol=1e-5,
+    )
     # header says what the coordinates are
     comments = read_ply_header(out)["comments"]
     assert any(c.startswith("m4dgs") and "OpenCV" in c for c in comments)
@@ -250,9 +308,9 @@ def test_export_cli(run, tmp_path):
     assert read_ply(out).shape == (5,)
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # videos and tracks
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _count_frames(path):
     """Decode with OpenCV's own ffmpeg build (independent of the imageio-ffmpeg writer)."""
     import cv2
@@ -276,15 +334,24 @@ def test_sweeps():
 
 def test_render_videos(run, tmp_path):
     run_dir, model = run
-    paths = render_videos(run_dir, model=model, out_dir=tmp_path / "v", progress=False, substeps=2, ev_steps=2)
-    assert [p.name for p in paths] == ["fix_view_change_time.mp4", "fix_time_change_view.mp4", "exposure_sweep.mp4"]
+    paths = render_videos(
+        run_dir, model=model, out_dir=tmp_path / "v", progress=False, substeps=2, ev_steps=2
+    )
+    assert [p.name for p in paths] == [
+        "fix_view_change_time.mp4",
+        "fix_time_change_view.mp4",
+        "exposure_sweep.mp4",
+    ]
     levels = exposure_sweep_levels(model, 2.0, 2)
     # observed levels 0.25 and 2 -> log2 dt from -2 - 2 to 1 + 2, 2 samples per stop
     np.testing.assert_allclose(levels, np.linspace(-4, 3, 15))
     ev = lambda x: x + x % 2  # noqa: E731  (padded to even sizes)
-    expect = {"fix_view_change_time.mp4": ((T - 1) * 2 + 1, (ev(H), ev(2 * W))),  # LDR | HDR side by side
-              "fix_time_change_view.mp4": ((T - 1) * 2 + 1, (ev(H), ev(2 * W))),
-              "exposure_sweep.mp4": (15, (ev(H), ev(W)))}
+    # LDR | HDR side by side
+    expect = {
+        "fix_view_change_time.mp4": ((T - 1) * 2 + 1, (ev(H), ev(2 * W))),
+        "fix_time_change_view.mp4": ((T - 1) * 2 + 1, (ev(H), ev(2 * W))),
+        "exposure_sweep.mp4": (15, (ev(H), ev(W))),
+    }
     for p in paths:
         assert p.exists() and p.stat().st_size > 0
         n, shape = _count_frames(p)
@@ -298,8 +365,15 @@ def test_render_tracks(run, tmp_path):
     K, c2w0 = model.camera(TRAIN[0])
     p_static = model.gauss.static["means"][0].detach().double().numpy()  # alone in its image region
     uv0 = cam.project_pinhole(cam.transform_points(cam.invert_rigid(c2w0), p_static), K)
-    paths = render_tracks(run_dir, model=model, out_dir=tmp_path / "tr", query_uv=uv0[None], progress=False)
-    assert [p.name for p in paths] == ["tracks_2d.mp4", "tracks_2d.npz", "tracks_3d.npz", "tracks_3d.png"]
+    paths = render_tracks(
+        run_dir, model=model, out_dir=tmp_path / "tr", query_uv=uv0[None], progress=False
+    )
+    assert [p.name for p in paths] == [
+        "tracks_2d.mp4",
+        "tracks_2d.npz",
+        "tracks_3d.npz",
+        "tracks_3d.png",
+    ]
     for p in paths:
         assert p.exists() and p.stat().st_size > 0
     d2 = read_npz(paths[1])
@@ -311,7 +385,8 @@ def test_render_tracks(run, tmp_path):
         Kg, c2w = model.camera(g)
         uv = cam.project_pinhole(cam.transform_points(cam.invert_rigid(c2w), p_static), Kg)
         np.testing.assert_allclose(d2["tracks"][0, f], uv, atol=2e-3)
-    assert abs(d2["tracks"][0, -1, 0] - d2["tracks"][0, 0, 0]) > 1.0  # the camera moved: the track is not constant
+    # the camera moved: the track is not constant
+    assert abs(d2["tracks"][0, -1, 0] - d2["tracks"][0, 0, 0]) > 1.0
     n, shape = _count_frames(paths[0])
     assert n == T and shape[0] % 2 == 0 and shape[1] % 2 == 0
     d3 = read_npz(paths[2])
@@ -319,7 +394,8 @@ def test_render_tracks(run, tmp_path):
     ctrl = model.gauss.dynamic["ctrl"].detach().numpy()
     np.testing.assert_allclose(d3["tracks"][:, 0], ctrl[:, 0], atol=1e-6)
     np.testing.assert_allclose(d3["tracks"][:, -1], ctrl[:, -1], atol=1e-6)
-    np.testing.assert_allclose(d3["tracks"][:, 2], 0.5 * (ctrl[:, 0] + ctrl[:, 1]), atol=1e-5)  # straight segment
+    # straight segment
+    np.testing.assert_allclose(d3["tracks"][:, 2], 0.5 * (ctrl[:, 0] + ctrl[:, 1]), atol=1e-5)
     from PIL import Image
 
     with Image.open(paths[3]) as im:
@@ -328,20 +404,26 @@ def test_render_tracks(run, tmp_path):
 
 def test_render_tracks_default_grid(run, tmp_path):
     run_dir, model = run
-    paths = render_tracks(run_dir, model=model, out_dir=tmp_path / "tg", grid_step=1, progress=False)
+    paths = render_tracks(
+        run_dir, model=model, out_dir=tmp_path / "tg", grid_step=1, progress=False
+    )
     d2 = read_npz(paths[1])
     n = d2["queries"].shape[0]
-    assert d2["tracks"].shape == (n, T, 2) and 1 <= n < W * H  # only pixels on the (sparse) scene are queried
+    # only pixels on the (sparse) scene are queried
+    assert d2["tracks"].shape == (n, T, 2) and 1 <= n < W * H
     assert (d2["query_alpha"] >= 0.5).all()
     assert np.isfinite(d2["tracks"]).all()
-    # every query is a pixel centre; the pixel under the first static Gaussian's centre is among them
+    # every query is a pixel centre; the pixel under the first static Gaussian's centre is among
+    # them
     np.testing.assert_array_equal(d2["queries"] % 1, 0.5)
     K, c2w0 = model.camera(TRAIN[0])
     p = model.gauss.static["means"][0].detach().double().numpy()
     uv = cam.project_pinhole(cam.transform_points(cam.invert_rigid(c2w0), p), K)
     assert (np.abs(d2["queries"] - (np.floor(uv) + 0.5)).max(1) == 0).any()
     # zero queries (min_alpha above 1) still writes valid, empty outputs
-    paths = render_tracks(run_dir, model=model, out_dir=tmp_path / "te", grid_step=8, min_alpha=1.1, progress=False)
+    paths = render_tracks(
+        run_dir, model=model, out_dir=tmp_path / "te", grid_step=8, min_alpha=1.1, progress=False
+    )
     assert read_npz(paths[1])["tracks"].shape == (0, T, 2)
     assert _count_frames(paths[0])[0] == T
 

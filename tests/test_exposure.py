@@ -1,4 +1,5 @@
 """Tests of the exposure perturbation (m4dgs.exposure)."""
+
 import numpy as np
 import pytest
 import torch
@@ -16,7 +17,9 @@ def test_bounds_and_determinism():
     assert not np.allclose(a, c)
     assert np.all(np.abs(a - base) <= 1.0)
     # offsets are exactly numpy's uniform draws for that seed
-    np.testing.assert_allclose(a - base, np.random.default_rng(7).uniform(-1.0, 1.0, size=60), atol=1e-12)
+    np.testing.assert_allclose(
+        a - base, np.random.default_rng(7).uniform(-1.0, 1.0, size=60), atol=1e-12
+    )
     np.testing.assert_array_equal(perturb_exposures(base, 0.0, seed=3), base)
 
 

@@ -1,5 +1,6 @@
-"""CRF registry (m4dgs.crf) and exposure settings / schedules (benchgen.exposure) against analytic values,
-an independent sRGB implementation (colour-science) and hand-written formulas."""
+"""CRF registry (m4dgs.crf) and exposure settings / schedules (benchgen.exposure) against analytic
+values, an independent sRGB implementation (colour-science) and hand-written formulas."""
+
 import math
 
 import numpy as np
@@ -7,8 +8,14 @@ import pytest
 import torch
 from scipy import stats
 
-from benchgen.exposure import (ExposureSettings, exposure_gap_ev, exposure_preset, parse_levels, schedule_train_dt,
-                               test_levels)
+from benchgen.exposure import (
+    ExposureSettings,
+    exposure_gap_ev,
+    exposure_preset,
+    parse_levels,
+    schedule_train_dt,
+    test_levels,
+)
 from m4dgs.crf import available_crfs, get_crf, quantize_ldr, tonemap_ldr
 
 
@@ -19,10 +26,13 @@ def _hdrnerf_ref(x):
 
 def _ldr_ref(hdr, dt):
     """Independent quantiser: round half up of 255 * hdrnerf(H dt)."""
-    return np.clip(np.floor(255.0 * _hdrnerf_ref(np.asarray(hdr, np.float64) * dt) + 0.5), 0, 255).astype(np.uint8)
+    return np.clip(
+        np.floor(255.0 * _hdrnerf_ref(np.asarray(hdr, np.float64) * dt) + 0.5), 0, 255
+    ).astype(np.uint8)
 
 
-# ---------------------------------------------------------------------------------------------------------------- CRF
+# --------------------------------------------------------------------------------------------------
+# CRF
 def test_registry_names_and_default():
     assert {"hdrnerf", "gamma", "srgb", "mulog", "linear"} <= set(available_crfs())
     assert get_crf().name == "hdrnerf"
@@ -97,13 +107,18 @@ def test_gamma_and_mulog_hand_values():
 
 
 def test_quantize_rounds_half_up_and_clips():
-    v = np.array([0.0, 0.5 / 255 - 1e-9, 0.5 / 255 + 1e-9, 100.4 / 255, 100.6 / 255, 1.0, 1.3, -0.2])
+    v = np.array(
+        [0.0, 0.5 / 255 - 1e-9, 0.5 / 255 + 1e-9, 100.4 / 255, 100.6 / 255, 1.0, 1.3, -0.2]
+    )
     np.testing.assert_array_equal(quantize_ldr(v), [0, 0, 1, 100, 101, 255, 255, 0])
-    np.testing.assert_array_equal(quantize_ldr(torch.tensor(v)).numpy(), [0, 0, 1, 100, 101, 255, 255, 0])
+    np.testing.assert_array_equal(
+        quantize_ldr(torch.tensor(v)).numpy(), [0, 0, 1, 100, 101, 255, 255, 0]
+    )
 
 
 def test_tonemap_ldr_known_values_and_reference():
-    # H dt = 1 -> 255 * 0.72974 = 186.08 -> 186; 0 -> 0; 1e6 -> 255 * (1 - 1e-6)^(1/2.2) = 254.9999 -> 255
+    # H dt = 1 -> 255 * 0.72974 = 186.08 -> 186; 0 -> 0; 1e6 -> 255 * (1 - 1e-6)^(1/2.2) = 254.9999
+    # -> 255
     out = tonemap_ldr(np.array([[1.0, 0.0, 1e6]]), 1.0)
     np.testing.assert_array_equal(out, [[186, 0, 255]])
     assert out.dtype == np.uint8
@@ -119,10 +134,15 @@ def test_tonemap_ldr_known_values_and_reference():
         tonemap_ldr(hdr, 0.0)
 
 
-# ------------------------------------------------------------------------------------------------------ settings
+# --------------------------------------------------------------------------------------------------
+# settings
 def test_presets_and_overrides():
     s3 = exposure_preset(3)
-    assert s3.observed == (0.125, 2.0, 32.0) and s3.novel == (0.5, 8.0) and s3.schedule == "alternating"
+    assert (
+        s3.observed == (0.125, 2.0, 32.0)
+        and s3.novel == (0.5, 8.0)
+        and s3.schedule == "alternating"
+    )
     assert s3.middle == pytest.approx(2.0) and s3.num_levels == 3
     assert test_levels(s3) == [0.125, 0.5, 2.0, 8.0, 32.0]
     s2 = exposure_preset(2)
@@ -167,7 +187,8 @@ def test_random_values_schedule_log_uniform():
     lo, hi = math.log(0.125), math.log(32.0)
     ks = stats.kstest(np.log(dts), "uniform", args=(lo, hi - lo))
     assert ks.pvalue > 0.01
-    # not uniform in linear space (mean of log-uniform on [0.125, 32] is (32 - 0.125) / ln(256) = 5.75)
+    # not uniform in linear space (mean of log-uniform on [0.125, 32] is (32 - 0.125) / ln(256) =
+    # 5.75)
     assert dts.mean() == pytest.approx((32 - 0.125) / math.log(256.0), rel=0.1)
     assert schedule_train_dt(10, s, seed=3) == list(dts[:10])
     assert schedule_train_dt(10, s, seed=4) != list(dts[:10])

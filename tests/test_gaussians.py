@@ -1,4 +1,5 @@
 """Gaussian containers and the video-Gaussian initialisation from tracks + depth."""
+
 import numpy as np
 import pytest
 import torch
@@ -8,7 +9,8 @@ from m4dgs.gaussians import ModelConfig, VideoGaussians, VideoInitConfig, WorldG
 
 
 def _scene(n=60, t_count=11, width=48, height=32, seed=0):
-    """Tracks moving linearly in pixels, on a depth map that is linear in x (so bilinear sampling is exact)."""
+    """Tracks moving linearly in pixels, on a depth map that is linear in x (so bilinear sampling is
+    exact)."""
     g = torch.Generator().manual_seed(seed)
     start = torch.rand(n, 2, generator=g) * torch.tensor([width - 8.0, height - 8.0]) + 4.0
     vel = (torch.rand(n, 2, generator=g) - 0.5) * 0.6
@@ -16,10 +18,16 @@ def _scene(n=60, t_count=11, width=48, height=32, seed=0):
     tracks = start[:, None] + vel[:, None] * times[None, :, None]
     visible = torch.rand(n, t_count, generator=g) > 0.2
     visible[:, 0] = True
-    # depth D_t(u, v) = 2 + 0.01 * t + 0.02 * (u - 0.5) + 0.03 * (v - 0.5): evaluated on pixel-centre grid
+    # depth D_t(u, v) = 2 + 0.01 * t + 0.02 * (u - 0.5) + 0.03 * (v - 0.5): evaluated on
+    # pixel-centre grid
     uc = torch.arange(width, dtype=torch.float32) + 0.5
     vc = torch.arange(height, dtype=torch.float32) + 0.5
-    depth = 2.0 + 0.01 * times[:, None, None] + 0.02 * (uc[None, None, :] - 0.5) + 0.03 * (vc[None, :, None] - 0.5)
+    depth = (
+        2.0
+        + 0.01 * times[:, None, None]
+        + 0.02 * (uc[None, None, :] - 0.5)
+        + 0.03 * (vc[None, :, None] - 0.5)
+    )
     return tracks, visible, depth, width, height
 
 
@@ -38,16 +46,21 @@ def test_sample_depth_is_exact_bilinear_at_centres_and_between():
 def test_init_reprojects_tracks_and_depth():
     tracks, visible, depth, w, h = _scene()
     cfg = VideoInitConfig(seed=1)
-    vg = gaussians.init_video_gaussians(tracks, visible, depth, w, h, cfg, ModelConfig(control_every=4))
+    vg = gaussians.init_video_gaussians(
+        tracks, visible, depth, w, h, cfg, ModelConfig(control_every=4)
+    )
     assert len(vg) == tracks.shape[0]
     assert vg.knots.tolist() == [0.0, 4.0, 8.0, 10.0]
     # project t = 0 positions back to pixels with the lead's camera helper (u = (x + 1) W / 2)
     p0 = vg.positions(0.0)
     uv = camera.ortho_to_pixel(p0[:, :2], w, h)
     torch.testing.assert_close(uv, tracks[:, 0], atol=1e-3, rtol=0)
-    # every frame (linear motion: the fit is exact also across invisible frames); depth from the prior
+    # every frame (linear motion: the fit is exact also across invisible frames); depth from the
+    # prior
     p_all = vg.positions(torch.arange(11.0))
-    torch.testing.assert_close(camera.ortho_to_pixel(p_all[..., :2], w, h), tracks, atol=1e-3, rtol=0)
+    torch.testing.assert_close(
+        camera.ortho_to_pixel(p_all[..., :2], w, h), tracks, atol=1e-3, rtol=0
+    )
     z_want = gaussians.sample_depth(depth, tracks, w, h)
     torch.testing.assert_close(p_all[..., 2], z_want, atol=1e-4, rtol=0)
     # attributes
@@ -55,7 +68,9 @@ def test_init_reprojects_tracks_and_depth():
     q = vg.quats(3.5)
     torch.testing.assert_close(q, torch.tensor([1.0, 0, 0, 0]).expand(len(vg), 4))
     assert vg.features().shape == (len(vg), 36)
-    assert vg.scales().shape == (len(vg), 3) and (vg.scales() > 0).all() and (vg.scales() < 0.05).all()
+    assert (
+        vg.scales().shape == (len(vg), 3) and (vg.scales() > 0).all() and (vg.scales() < 0.05).all()
+    )
 
 
 def test_init_scale_is_sqrt_mean_knn_sq_distance():
@@ -65,14 +80,24 @@ def test_init_scale_is_sqrt_mean_knn_sq_distance():
     tracks = uv[:, None].expand(4, t_count, 2).clone()
     visible = torch.ones(4, t_count, dtype=torch.bool)
     depth = torch.full((t_count, h, w), 3.0)
-    vg = gaussians.init_video_gaussians(tracks, visible, depth, w, h, VideoInitConfig(knn_k=2), ModelConfig(video_scale_activation="exp"))
+    vg = gaussians.init_video_gaussians(
+        tracks,
+        visible,
+        depth,
+        w,
+        h,
+        VideoInitConfig(knn_k=2),
+        ModelConfig(video_scale_activation="exp"),
+    )
     pts = torch.cat([uv / 20.0 - 1.0, torch.full((4, 1), 3.0)], 1).numpy()
     d2 = ((pts[:, None] - pts[None]) ** 2).sum(-1)
     np.fill_diagonal(d2, np.inf)
     want = np.sqrt(np.sort(d2, 1)[:, :2].mean(1))
     np.testing.assert_allclose(vg.scales()[:, 0].detach().numpy(), want, rtol=1e-4)
     # sigmoid-bounded scales (authors): the isolated 4th point is clamped just below the maximum
-    vs = gaussians.init_video_gaussians(tracks, visible, depth, w, h, VideoInitConfig(knn_k=2), ModelConfig(video_scale_max=1.0))
+    vs = gaussians.init_video_gaussians(
+        tracks, visible, depth, w, h, VideoInitConfig(knn_k=2), ModelConfig(video_scale_max=1.0)
+    )
     got = vs.scales()[:, 0].detach().numpy()
     np.testing.assert_allclose(got[:3], want[:3], rtol=1e-4)
     assert want[3] > 1.0 and 0.99 < got[3] < 1.0
@@ -82,12 +107,18 @@ def test_init_cap_subsample_and_invisible_tracks():
     tracks, visible, depth, w, h = _scene(n=80)
     visible[:5] = False  # never visible: dropped
     tracks[5:10, :, 0] = -50.0  # outside the image: dropped
-    vg = gaussians.init_video_gaussians(tracks, visible, depth, w, h, VideoInitConfig(max_gaussians=30, seed=3))
+    vg = gaussians.init_video_gaussians(
+        tracks, visible, depth, w, h, VideoInitConfig(max_gaussians=30, seed=3)
+    )
     assert len(vg) == 30
-    vg_all = gaussians.init_video_gaussians(tracks, visible, depth, w, h, VideoInitConfig(max_gaussians=1000))
+    vg_all = gaussians.init_video_gaussians(
+        tracks, visible, depth, w, h, VideoInitConfig(max_gaussians=1000)
+    )
     assert len(vg_all) == 70
     # deterministic for a seed
-    vg2 = gaussians.init_video_gaussians(tracks, visible, depth, w, h, VideoInitConfig(max_gaussians=30, seed=3))
+    vg2 = gaussians.init_video_gaussians(
+        tracks, visible, depth, w, h, VideoInitConfig(max_gaussians=30, seed=3)
+    )
     torch.testing.assert_close(vg.params["ctrl"], vg2.params["ctrl"])
     torch.testing.assert_close(vg.params["features"], vg2.params["features"])
 
@@ -96,7 +127,9 @@ def test_scale_activations_roundtrip():
     s = torch.tensor([1e-4, 0.01, 0.049])
     for kind in ("exp", "sigmoid"):
         raw = gaussians.scale_inverse(s, kind, 0.05)
-        torch.testing.assert_close(gaussians.scale_activation(raw, kind, 0.05), s, rtol=1e-5, atol=0)
+        torch.testing.assert_close(
+            gaussians.scale_activation(raw, kind, 0.05), s, rtol=1e-5, atol=0
+        )
     with pytest.raises(ValueError):
         gaussians.scale_activation(s, "softplus")
 
@@ -107,13 +140,23 @@ def test_video_gaussians_accessors_and_state_roundtrip():
     knots = spline.make_knots(t_count, 4)
     ctrl = torch.randn(n, knots.numel(), 3, generator=g)
     coeffs = torch.randn(n, 4, 4, generator=g)
-    vg = VideoGaussians(ctrl, coeffs, torch.zeros(n, 3), torch.zeros(n), torch.randn(n, 36, generator=g), knots, t_count)
+    vg = VideoGaussians(
+        ctrl,
+        coeffs,
+        torch.zeros(n, 3),
+        torch.zeros(n),
+        torch.randn(n, 36, generator=g),
+        knots,
+        t_count,
+    )
     torch.testing.assert_close(vg.positions(2.5), spline.evaluate(ctrl, knots, 2.5))
     # rotation at frame 6 of 9 -> normalised time 6/8, evaluated by hand
     tn = 6 / 8
     want = sum(coeffs[:, j] * tn**j for j in range(4))
     torch.testing.assert_close(vg.quats(6.0, normalize=False), want)
-    torch.testing.assert_close(vg.quats(torch.tensor([6.0]))[:, 0], want / want.norm(dim=-1, keepdim=True))
+    torch.testing.assert_close(
+        vg.quats(torch.tensor([6.0]))[:, 0], want / want.norm(dim=-1, keepdim=True)
+    )
     torch.testing.assert_close(vg.scales(), torch.full((n, 3), 0.025))
     vg2 = VideoGaussians.from_state(vg.to_state())
     for k in vg.params:
@@ -122,7 +165,9 @@ def test_video_gaussians_accessors_and_state_roundtrip():
     (vg.positions(3.0).sum() + vg.quats(3.0).sum()).backward()
     assert vg.params["ctrl"].grad is not None and vg.params["rot"].grad is not None
     with pytest.raises(ValueError):
-        VideoGaussians(ctrl, coeffs[:3], torch.zeros(n, 3), torch.zeros(n), torch.zeros(n, 36), knots, t_count)
+        VideoGaussians(
+            ctrl, coeffs[:3], torch.zeros(n, 3), torch.zeros(n), torch.zeros(n, 36), knots, t_count
+        )
 
 
 def test_world_gaussians_union_and_info_split():
@@ -154,8 +199,12 @@ def test_world_gaussians_union_and_info_split():
     q = wg.quats(2.0)
     torch.testing.assert_close(q[:4], static["quats"] / static["quats"].norm(dim=-1, keepdim=True))
     torch.testing.assert_close(q[4:], torch.tensor([1.0, 0, 0, 0]).expand(3, 4))
-    torch.testing.assert_close(wg.scales(), torch.exp(torch.cat([static["scales"], dynamic["scales"]])))
-    torch.testing.assert_close(wg.opacities(), torch.sigmoid(torch.cat([static["opacities"], dynamic["opacities"]])))
+    torch.testing.assert_close(
+        wg.scales(), torch.exp(torch.cat([static["scales"], dynamic["scales"]]))
+    )
+    torch.testing.assert_close(
+        wg.opacities(), torch.sigmoid(torch.cat([static["opacities"], dynamic["opacities"]]))
+    )
     # render-info split for the two densification strategies
     grad = torch.arange(14.0).reshape(7, 2)
     radii = torch.arange(7)

@@ -1,4 +1,5 @@
 """Tests of the loss functions (m4dgs.losses) on hand-computed cases and independent references."""
+
 import math
 
 import numpy as np
@@ -34,9 +35,9 @@ from m4dgs.losses.temporal import (
 from m4dgs.ssim import ssim
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Photometric
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_rgb_loss_equals_hand_formula():
     g = torch.Generator().manual_seed(0)
     a = torch.rand(24, 20, 3, generator=g)
@@ -46,7 +47,9 @@ def test_rgb_loss_equals_hand_formula():
     expect = 0.8 * l1 + 0.2 * (1 - s) / 2
     assert float(rgb_loss(a, b)) == pytest.approx(expect, rel=1e-5)
     # an all-true mask changes nothing; a partial mask restricts the L1 term to the masked pixels
-    assert float(rgb_loss(a, b, torch.ones(24, 20, dtype=torch.bool))) == pytest.approx(expect, rel=1e-5)
+    assert float(rgb_loss(a, b, torch.ones(24, 20, dtype=torch.bool))) == pytest.approx(
+        expect, rel=1e-5
+    )
     m = torch.zeros(24, 20, dtype=torch.bool)
     m[:, :10] = True
     l1_m = np.abs(a.numpy()[:, :10] - b.numpy()[:, :10]).mean()
@@ -56,17 +59,20 @@ def test_rgb_loss_equals_hand_formula():
 def test_unit_exposure_loss_hand_case():
     phi0 = torch.tensor([0.70, 0.80, 0.73])
     assert float(unit_exposure_loss(phi0, 0.73)) == pytest.approx(0.03**2 + 0.07**2, rel=1e-4)
-    assert float(unit_exposure_loss(phi0, 0.73, "mean")) == pytest.approx((0.03**2 + 0.07**2) / 3, rel=1e-4)
+    assert float(unit_exposure_loss(phi0, 0.73, "mean")) == pytest.approx(
+        (0.03**2 + 0.07**2) / 3, rel=1e-4
+    )
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Depth, flow, tracks
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_depth_loss_masked_hand_case():
     pred = torch.tensor([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], requires_grad=True)
     prior = torch.tensor([[1.5, 0.0, float("nan")], [3.0, 5.5, 9.0]])
     valid = torch.tensor([[True, True, True], [True, True, False]])
-    # usable pixels: (0,0) 0.5, (1,0) 1.0, (1,1) 0.5 -> mean 2/3 (prior 0 / nan and the masked pixel excluded)
+    # usable pixels: (0,0) 0.5, (1,0) 1.0, (1,1) 0.5 -> mean 2/3 (prior 0 / nan and the masked pixel
+    # excluded)
     loss = depth_loss(pred, prior, valid)
     assert loss.item() == pytest.approx(2.0 / 3.0)
     loss.backward()
@@ -74,7 +80,9 @@ def test_depth_loss_masked_hand_case():
     assert pred.grad[0, 1] == 0 and pred.grad[0, 2] == 0 and pred.grad[1, 2] == 0
     # scale-shift invariant mode ignores an affine change of the prior
     p2 = torch.rand(5, 6) + 1
-    assert float(depth_loss(p2, 3.0 * p2 + 2.0, scale_shift_invariant=True)) == pytest.approx(0.0, abs=1e-5)
+    assert float(depth_loss(p2, 3.0 * p2 + 2.0, scale_shift_invariant=True)) == pytest.approx(
+        0.0, abs=1e-5
+    )
 
 
 def test_flow_from_video_destination_map_hand_case():
@@ -131,7 +139,9 @@ def test_flow_loss_hand_case():
     loss.backward()
     assert torch.isfinite(pred.grad).all() and (pred.grad[1, 1] == 0).all()
     # L2 distances sqrt(5), 0, 5; clamp at 4
-    assert flow_loss(pred, prior, valid, norm="l2", clamp=4.0).item() == pytest.approx((math.sqrt(5) + 4.0) / 3)
+    assert flow_loss(pred, prior, valid, norm="l2", clamp=4.0).item() == pytest.approx(
+        (math.sqrt(5) + 4.0) / 3
+    )
     valid[1, 0] = False
     assert flow_loss(pred, prior, valid).item() == pytest.approx(3.0 / 2.0)
 
@@ -139,7 +149,8 @@ def test_flow_loss_hand_case():
 def test_sample_map_bilinear_hand_case():
     H, W = 4, 5
     ys, xs = torch.meshgrid(torch.arange(H).float(), torch.arange(W).float(), indexing="ij")
-    img = torch.stack([2 * xs + 1, 3 * ys - 2], -1)  # linear in pixel index -> bilinear sampling is exact
+    # linear in pixel index -> bilinear sampling is exact
+    img = torch.stack([2 * xs + 1, 3 * ys - 2], -1)
     uv = torch.tensor([[1.3 + 0.5, 1.7 + 0.5], [0.5, 0.5], [4.5, 3.5]])  # centre convention
     out = sample_map(img, uv)
     expect = torch.tensor([[2 * 1.3 + 1, 3 * 1.7 - 2], [1.0, -2.0], [9.0, 7.0]])
@@ -148,18 +159,24 @@ def test_sample_map_bilinear_hand_case():
 
 def test_track_loss_video_space_hand_case():
     H, W = 6, 8
-    # destination map of a uniform translation by (2, -1) px at depth 1: x = 2 (u + 2) / W - 1 with u the centre
-    ys, xs = torch.meshgrid(torch.arange(H).float() + 0.5, torch.arange(W).float() + 0.5, indexing="ij")
+    # destination map of a uniform translation by (2, -1) px at depth 1: x = 2 (u + 2) / W - 1 with
+    # u the centre
+    ys, xs = torch.meshgrid(
+        torch.arange(H).float() + 0.5, torch.arange(W).float() + 0.5, indexing="ij"
+    )
     dest = torch.stack([2 * (xs + 2) / W - 1, 2 * (ys - 1) / H - 1, torch.ones(H, W)], -1)
     dest[5, 7, 2] = 0.0  # a pixel whose destination depth is invalid
     src = torch.tensor([[2.8, 3.2], [1.0, 1.5], [4.4, 2.6], [7.5, 5.5]])
     true_dst = src + torch.tensor([2.0, -1.0])
     dst = true_dst + torch.tensor([[3.0, 4.0], [0.0, 0.0], [-6.0, 8.0], [0.0, 0.0]])
     valid = torch.tensor([True, True, False, True])
-    # track 2 masked by visibility; track 3 samples the z = 0 pixel -> excluded. Errors: (3, 4), (0, 0)
+    # track 2 masked by visibility; track 3 samples the z = 0 pixel -> excluded. Errors: (3, 4), (0,
+    # 0)
     assert float(track_loss(dest, src, dst, valid)) == pytest.approx((7.0 + 0.0) / 2, rel=1e-5)
     assert float(track_loss(dest, src, dst, valid, norm="l2")) == pytest.approx(5.0 / 2, rel=1e-5)
-    assert float(track_loss(dest, src, dst, valid, norm="l2", clamp=4.0)) == pytest.approx(4.0 / 2, rel=1e-5)
+    assert float(track_loss(dest, src, dst, valid, norm="l2", clamp=4.0)) == pytest.approx(
+        4.0 / 2, rel=1e-5
+    )
     assert float(track_loss(dest, src, true_dst)) == pytest.approx(0.0, abs=1e-5)
     d = dest.clone().requires_grad_(True)
     track_loss(d, src, dst, valid).backward()
@@ -170,17 +187,21 @@ def test_track_loss_pinhole_world():
     K = torch.tensor([[20.0, 0, 8.0], [0, 20.0, 6.0], [0, 0, 1]])
     H, W = 12, 16
     P = torch.tensor([0.5, -0.2, 5.0])
-    dest = P.expand(H, W, 3).clone()  # every pixel's point ends at P (world); destination camera = identity
+    dest = P.expand(
+        H, W, 3
+    ).clone()  # every pixel's point ends at P (world); destination camera = identity
     src = torch.tensor([[3.3, 4.1]])
     u = 20.0 * 0.5 / 5.0 + 8.0
     v = 20.0 * -0.2 / 5.0 + 6.0
     dst = torch.tensor([[u + 1.0, v - 2.0]])
-    assert float(track_loss(dest, src, dst, K=K, w2c_dst=torch.eye(4))) == pytest.approx(3.0, rel=1e-5)
+    assert float(track_loss(dest, src, dst, K=K, w2c_dst=torch.eye(4))) == pytest.approx(
+        3.0, rel=1e-5
+    )
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Motion regularisation
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("backend", ["torch", "scipy"])
 def test_knn_matches_brute_force(backend):
     g = torch.Generator().manual_seed(0)
@@ -205,9 +226,13 @@ def _random_rotation(seed):
     q = torch.randn(4, generator=torch.Generator().manual_seed(seed))
     q = q / q.norm()
     w, x, y, z = q
-    return torch.tensor([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return torch.tensor(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def test_arap_rigid_zero_nonrigid_positive():
@@ -222,7 +247,8 @@ def test_arap_rigid_zero_nonrigid_positive():
 def test_arap_three_point_hand_case():
     p_t = torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
     p_tp = torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0]], requires_grad=True)
-    # k = 2: all pairs in both directions. Pair distance changes: 01: 1 -> 2, 02: 2 -> 2, 12: sqrt5 -> sqrt8
+    # k = 2: all pairs in both directions. Pair distance changes: 01: 1 -> 2, 02: 2 -> 2, 12: sqrt5
+    # -> sqrt8
     d = (math.sqrt(8) - math.sqrt(5)) ** 2
     expect = (1.0 + 0.0 + 1.0 + d + 0.0 + d) / 6.0
     loss = arap_loss(p_t, p_tp, k=2)
@@ -285,9 +311,9 @@ def test_window_times():
     assert window_times(1, 3) == [0, 1, 2]
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Temporal luminance regularisation
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_tlr_static_scene_zero_and_flicker_ratio():
     g = torch.Generator().manual_seed(7)
     h = torch.rand(10, 12, 3, generator=g) * 5 + 0.1
@@ -312,7 +338,8 @@ def test_tlr_gradient_only_into_current_frame():
     assert loss.item() == pytest.approx(1.0 / 3.0)
     loss.backward()
     assert nb.grad is None and flow.grad is None
-    # detached denominator: d/dH |Hw - H| / (Hw + H) = -sign(Hw - H) / (Hw + H), divided by 12 elements
+    # detached denominator: d/dH |Hw - H| / (Hw + H) = -sign(Hw - H) / (Hw + H), divided by 12
+    # elements
     expect = torch.tensor([-1 / 4, 0.0, 1 / 4]) / 12
     torch.testing.assert_close(h.grad[0, 0], expect)
     # with the denominator attached: d/dH (Hw - H)/(Hw + H) = -2 Hw / (Hw + H)^2 for Hw > H
@@ -339,19 +366,24 @@ def test_tlr_neighbours_average_and_occlusion_mask():
     nb_prev = {"hdr": 3.0 * h, "flow": zero}  # ratio 3 -> 0.5 everywhere
     nb_next = {"hdr": h.clone(), "flow": zero}  # identical -> 0
     assert tlr_loss_neighbours(h, [nb_prev, nb_next]).item() == pytest.approx(0.25, abs=1e-6)
-    # occluded pixels of the previous frame (point behind the neighbour's surface by > 10 %) are dropped
+    # occluded pixels of the previous frame (point behind the neighbour's surface by > 10 %) are
+    # dropped
     hdr_prev = torch.ones(1, 4, 3)
     hdr_prev[0, 2] = 5.0  # differs only where the point is occluded
-    nb = {"hdr": hdr_prev, "flow": zero, "depth": torch.full((1, 4), 2.0),
-          "depth_ref": torch.tensor([[2.0, 2.0, 3.0, 2.0]])}
+    nb = {
+        "hdr": hdr_prev,
+        "flow": zero,
+        "depth": torch.full((1, 4), 2.0),
+        "depth_ref": torch.tensor([[2.0, 2.0, 3.0, 2.0]]),
+    }
     assert tlr_loss_neighbours(h, [nb]).item() == pytest.approx(0.0, abs=1e-6)
     nb.pop("depth")
     assert tlr_loss_neighbours(h, [nb]).item() == pytest.approx((4.0 / 6.0) / 4, abs=1e-6)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Photometric reprojection (textured plane seen by two cameras, built analytically)
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 H_IMG, W_IMG = 36, 48
 K_NP = np.array([[40.0, 0, 24.0], [0, 40.0, 18.0], [0, 0, 1]])
 PLANE_Z = 4.0
@@ -359,9 +391,14 @@ PLANE_Z = 4.0
 
 def _texture(P):
     X, Y = P[..., 0], P[..., 1]
-    return np.stack([1.5 + np.sin(1.3 * X + 0.4) * np.cos(0.9 * Y),
-                     2.0 + 0.8 * np.cos(0.7 * X - 1.1 * Y),
-                     1.2 + 0.6 * np.sin(0.5 * X + 1.4 * Y + 0.3)], -1)
+    return np.stack(
+        [
+            1.5 + np.sin(1.3 * X + 0.4) * np.cos(0.9 * Y),
+            2.0 + 0.8 * np.cos(0.7 * X - 1.1 * Y),
+            1.2 + 0.6 * np.sin(0.5 * X + 1.4 * Y + 0.3),
+        ],
+        -1,
+    )
 
 
 def _pose(angle_y, t):
@@ -375,7 +412,9 @@ def _pose(angle_y, t):
 def _render_plane(c2w):
     """HDR image and z-depth of the plane Z_w = PLANE_Z seen by a pinhole camera (c2w, K_NP)."""
     jj, ii = np.meshgrid(np.arange(W_IMG) + 0.5, np.arange(H_IMG) + 0.5)
-    d_cam = np.stack([(jj - K_NP[0, 2]) / K_NP[0, 0], (ii - K_NP[1, 2]) / K_NP[1, 1], np.ones_like(jj)], -1)
+    d_cam = np.stack(
+        [(jj - K_NP[0, 2]) / K_NP[0, 0], (ii - K_NP[1, 2]) / K_NP[1, 1], np.ones_like(jj)], -1
+    )
     d_w = d_cam @ c2w[:3, :3].T
     o = c2w[:3, 3]
     s = (PLANE_Z - o[2]) / d_w[..., 2]  # camera-space z of d_cam is 1, so s is the z-depth
@@ -412,10 +451,14 @@ def test_hdr_reprojection_exact_small_perturbed_larger_and_gradient():
     hdr_t, depth_t = _render_plane(C2W_T)
     hdr_tp, _ = _render_plane(C2W_TP)
     K = _t(K_NP)
-    exact = float(hdr_reprojection_loss(_t(hdr_t), _t(hdr_tp), _t(depth_t), K, _t(C2W_T), _t(C2W_TP)))
+    exact = float(
+        hdr_reprojection_loss(_t(hdr_t), _t(hdr_tp), _t(depth_t), K, _t(C2W_T), _t(C2W_TP))
+    )
     wrong = C2W_TP.copy()
     wrong[:3, 3] += [0.08, -0.05, 0.0]
-    perturbed = float(hdr_reprojection_loss(_t(hdr_t), _t(hdr_tp), _t(depth_t), K, _t(C2W_T), _t(wrong)))
+    perturbed = float(
+        hdr_reprojection_loss(_t(hdr_t), _t(hdr_tp), _t(depth_t), K, _t(C2W_T), _t(wrong))
+    )
     assert exact < 2e-3
     assert perturbed > 10 * exact
 

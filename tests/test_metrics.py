@@ -1,4 +1,6 @@
-"""Metric tests, each against an independent answer (scikit-image, numpy, scipy, analytic values)."""
+"""Metric tests, each against an independent answer (scikit-image, numpy, scipy, analytic
+values)."""
+
 from __future__ import annotations
 
 import math
@@ -28,13 +30,22 @@ def _pair(seed=0, h=48, w=64):
     return pred, gt
 
 
-# ----------------------------------------------------------------------------------------------- LDR
+# -----------------------------------------------------------------------------------------------
+# LDR
+
 
 def test_ssim_matches_skimage_crop5_and_full_map_is_higher():
     for seed in (0, 1):
         pred, gt = _pair(seed)
-        ref = structural_similarity(pred, gt, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-                                    data_range=1, channel_axis=-1)
+        ref = structural_similarity(
+            pred,
+            gt,
+            gaussian_weights=True,
+            sigma=1.5,
+            use_sample_covariance=False,
+            data_range=1,
+            channel_axis=-1,
+        )
         assert image.ssim(pred, gt, crop=5) == pytest.approx(ref, abs=1e-5)
         full = image.ssim(pred, gt)
         assert full > ref  # zero-padded borders read higher (small image: a large border share)
@@ -45,7 +56,9 @@ def test_psnr_matches_numpy_per_image_mean():
     gt = np.stack([_pair(s)[1] for s in range(3)])
     ref = np.mean([10 * np.log10(1.0 / np.mean((p - g) ** 2)) for p, g in zip(pred, gt)])
     assert image.psnr(pred, gt) == pytest.approx(ref, abs=1e-9)
-    assert image.psnr(torch.from_numpy(pred).float(), torch.from_numpy(gt).float()) == pytest.approx(ref, abs=1e-4)
+    assert image.psnr(
+        torch.from_numpy(pred).float(), torch.from_numpy(gt).float()
+    ) == pytest.approx(ref, abs=1e-4)
     assert image.psnr(gt[0], gt[0]) == math.inf
     # uint8 inputs are 8-bit images
     u8p = np.round(pred[0] * 255).astype(np.uint8)
@@ -73,17 +86,28 @@ def test_png_roundtrip_is_8bit_quantisation_and_jpeg_costs_db():
 def test_masked_psnr_and_ssim_against_numpy_and_skimage():
     pred, gt = _pair(4, 40, 56)
     mask = np.zeros(gt.shape[:2], bool)
-    mask[12:30, 15:41] = True  # interior: >= 5 px from the border, where zero padding and skimage agree
+    # interior: >= 5 px from the border, where zero padding and skimage agree
+    mask[12:30, 15:41] = True
     ref_psnr = 10 * np.log10(1.0 / np.mean(((pred - gt) ** 2)[mask]))
     assert image.masked_psnr(pred, gt, mask) == pytest.approx(ref_psnr, abs=1e-9)
-    _, smap = structural_similarity(pred, gt, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-                                    data_range=1, channel_axis=-1, full=True)
+    _, smap = structural_similarity(
+        pred,
+        gt,
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        data_range=1,
+        channel_axis=-1,
+        full=True,
+    )
     assert image.masked_ssim(pred, gt, mask) == pytest.approx(smap[mask].mean(), abs=1e-5)
     assert image.masked_psnr(pred, gt, np.zeros_like(mask)) is None
     assert image.masked_ssim(pred, gt, np.zeros_like(mask)) is None
 
 
-# ----------------------------------------------------------------------------------------------- HDR
+# -----------------------------------------------------------------------------------------------
+# HDR
+
 
 def test_mu_law_known_values():
     v = hdr.mu_law(np.array([0.0, 1.0, 0.001])).numpy()
@@ -110,8 +134,15 @@ def test_hdr_psnr_gt_max_vs_own_max_for_scale_error():
     own = hdr.hdr_psnr(pred, gt, norm="own")
     assert own > got + 10
     # SSIM in the mu-law domain equals skimage on the tone-mapped pair
-    ref_ssim = structural_similarity(t(pred), t(gt), gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
-                                     data_range=1, channel_axis=-1)
+    ref_ssim = structural_similarity(
+        t(pred),
+        t(gt),
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        data_range=1,
+        channel_axis=-1,
+    )
     assert hdr.hdr_ssim(pred, gt, crop=5) == pytest.approx(ref_ssim, abs=1e-5)
 
 
@@ -119,8 +150,15 @@ def test_pu21_monotonic_and_known_value():
     y = np.logspace(np.log10(0.005), 4, 200)
     v = hdr.pu21_encode(y).numpy()
     assert np.all(np.diff(v) > 0)
-    p1, p2, p3, p4, p5, p6, p7 = 0.353487901, 0.3734658629, 8.277049286e-05, 0.9062562627, 0.09150303166, \
-        0.9099517204, 596.3148142
+    p1, p2, p3, p4, p5, p6, p7 = (
+        0.353487901,
+        0.3734658629,
+        8.277049286e-05,
+        0.9062562627,
+        0.09150303166,
+        0.9099517204,
+        596.3148142,
+    )
     yy = 100.0
     hand = p7 * (((p1 + p2 * yy**p4) / (1 + p3 * yy**p4)) ** p5 - p6)
     assert float(hdr.pu21_encode(np.array(100.0))) == pytest.approx(hand, rel=1e-12)
@@ -153,15 +191,19 @@ def test_hdr_flip_zero_for_identical_positive_for_perturbed():
     assert hdr.hdr_flip(pert, gt) > 0.01
 
 
-# ------------------------------------------------------------------------------------------ temporal
+# ------------------------------------------------------------------------------------------
+# temporal
+
 
 def _exact_translation_clip(t_len=3, h=24, w=32, d=(2, 1), seed=8):
     """Frames of a translating texture: H_{t+1}(x + d) = H_t(x); exact flows and visibility."""
-    big = 0.05 + 4.0 * _smooth_texture(h + 2 * t_len * abs(d[1]) + 4, w + 2 * t_len * abs(d[0]) + 4, seed)
+    big = 0.05 + 4.0 * _smooth_texture(
+        h + 2 * t_len * abs(d[1]) + 4, w + 2 * t_len * abs(d[0]) + 4, seed
+    )
     frames = []
     for t in range(t_len):
         y0, x0 = 2 + t_len * abs(d[1]) - t * d[1], 2 + t_len * abs(d[0]) - t * d[0]
-        frames.append(big[y0:y0 + h, x0:x0 + w])
+        frames.append(big[y0 : y0 + h, x0 : x0 + w])
     frames = np.stack(frames)
     fwd = np.broadcast_to(np.array(d, float), (t_len - 1, h, w, 2)).copy()
     bwd = -fwd
@@ -199,7 +241,9 @@ def test_tae_global_flicker_ratio():
 def test_tae_subpixel_against_scipy_reference():
     rng = RNG(10)
     h, w = 20, 24
-    frames = 0.1 + _smooth_texture(h, w, 11)[None].repeat(2, 0) * rng.uniform(0.8, 1.2, size=(2, 1, 1, 3))
+    frames = 0.1 + _smooth_texture(h, w, 11)[None].repeat(2, 0) * rng.uniform(
+        0.8, 1.2, size=(2, 1, 1, 3)
+    )
     frames[1] = np.roll(frames[1], 1, axis=1)
     fwd = rng.uniform(-1.5, 1.5, size=(1, h, w, 2))
     bwd = rng.uniform(-1.5, 1.5, size=(1, h, w, 2))
@@ -210,14 +254,19 @@ def test_tae_subpixel_against_scipy_reference():
     def warp(img, flow):  # bilinear, border padding (coordinates clamped), scipy
         cy = np.clip(ys + flow[..., 1], 0, h - 1)
         cx = np.clip(xs + flow[..., 0], 0, w - 1)
-        return np.stack([ndimage.map_coordinates(img[..., c], [cy, cx], order=1) for c in range(3)], -1)
+        return np.stack(
+            [ndimage.map_coordinates(img[..., c], [cy, cx], order=1) for c in range(3)], -1
+        )
 
     def direction(a, b, f, v):
         hw = warp(b, f)
         rel = (np.abs(a - hw) / (a + hw + 1e-10)).sum(-1)
         return (rel * v).sum() / v.sum()
 
-    ref = 0.5 * (direction(frames[0], frames[1], fwd[0], vf[0]) + direction(frames[1], frames[0], bwd[0], vb[0]))
+    ref = 0.5 * (
+        direction(frames[0], frames[1], fwd[0], vf[0])
+        + direction(frames[1], frames[0], bwd[0], vb[0])
+    )
     assert temporal.hdr_tae(frames, fwd, bwd, vf, vb) == pytest.approx(ref, rel=1e-9)
 
 
@@ -232,8 +281,8 @@ def test_hdr_t_std_against_numpy():
 def test_dis_flow_recovers_translation():
     h, w, dx, dy = 96, 128, 3, -2
     big = 0.01 + 8.0 * _smooth_texture(h + 20, w + 20, 13, sigma=1.5) ** 2
-    a = big[10:10 + h, 10:10 + w]
-    b = big[10 - dy:10 - dy + h, 10 - dx:10 - dx + w]  # b(x + d) = a(x)
+    a = big[10 : 10 + h, 10 : 10 + w]
+    b = big[10 - dy : 10 - dy + h, 10 - dx : 10 - dx + w]  # b(x + d) = a(x)
     flow = temporal.dis_flow(a.astype(np.float32), b.astype(np.float32))
     assert flow.shape == (h, w, 2) and flow.dtype == np.float32
     inner = flow[12:-12, 12:-12]
@@ -244,7 +293,9 @@ def test_dis_flow_recovers_translation():
     assert t8.dtype == np.uint8 and t8.max() == 255
 
 
-# ------------------------------------------------------------------------------------------ geometry
+# ------------------------------------------------------------------------------------------
+# geometry
+
 
 def _rotz(th):
     c, s = math.cos(th), math.sin(th)
@@ -262,7 +313,8 @@ def test_ate_zero_for_sim3_transformed_and_known_value():
     cube = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
     s0, r0, t0 = 2.5, _rot([1, 2, 3], 0.7), np.array([0.3, -1.0, 4.0])
     assert geometry.ate(s0 * cube @ r0.T + t0, cube) == pytest.approx(0.0, abs=1e-9)
-    # perturbation with zero mean and zero cross-covariance: optimal alignment is R = I, t = 0, s = 3 / (3 + d^2)
+    # perturbation with zero mean and zero cross-covariance: optimal alignment is R = I, t = 0, s =
+    # 3 / (3 + d^2)
     d = 0.2
     sign = cube[:, 0] * cube[:, 1] * cube[:, 2]
     est = cube + d * sign[:, None] * np.array([0.0, 0.6, 0.8])
@@ -294,7 +346,9 @@ def test_rpe_zero_after_sim3_and_known_rotation_perturbation():
     est[:, :3, 3] = s0 * gt[:, :3, 3] @ r0.T + t0
     # the metric aligns est to gt, so express est in a transformed frame
     r = geometry.rpe(est, gt)
-    assert r["rpe_trans"] == pytest.approx(0.0, abs=1e-8) and r["rpe_rot"] == pytest.approx(0.0, abs=1e-5)
+    assert r["rpe_trans"] == pytest.approx(0.0, abs=1e-8) and r["rpe_rot"] == pytest.approx(
+        0.0, abs=1e-5
+    )
     # rotate camera k about its own z axis: centres (and thus the alignment) are unchanged
     k, th = 2, 0.05
     est = gt.copy()
@@ -315,7 +369,9 @@ def test_depth_absrel_hand_case_and_scale_invariance():
     rng = RNG(15)
     g = rng.uniform(1, 10, (12, 14))
     d = g * rng.uniform(0.9, 1.1, g.shape)
-    assert geometry.depth_absrel(d, g) == pytest.approx(geometry.depth_absrel(0.01 * d, g), rel=1e-12)
+    assert geometry.depth_absrel(d, g) == pytest.approx(
+        geometry.depth_absrel(0.01 * d, g), rel=1e-12
+    )
     assert geometry.depth_absrel(d, -g) is None
 
 
@@ -338,6 +394,7 @@ def test_track_error_hand_case():
 
 # ------------------------------------------------------------------------------------------ LPIPS
 
+
 def _random_weights(seed=16):
     g = torch.Generator().manual_seed(seed)
     conv_w, conv_b = [], []
@@ -355,7 +412,7 @@ def _manual_lpips(a, b, w, normalize):
 
     def feats(x):
         x = x.permute(0, 3, 1, 2)
-        x = ((2 * x - 1) if normalize else x)
+        x = (2 * x - 1) if normalize else x
         x = (x - shift) / scale
         r1 = torch.relu(F.conv2d(x, w.conv_w[0], w.conv_b[0], stride=4, padding=2))
         r2 = torch.relu(F.conv2d(F.max_pool2d(r1, 3, 2), w.conv_w[1], w.conv_b[1], padding=2))
@@ -387,7 +444,9 @@ def test_lpips_wiring_with_generated_weights(tmp_path):
     # [0,1] fed unnormalised == normalised input of (x + 1) / 2
     assert v_raw == pytest.approx(lpips.lpips((a + 1) / 2, (b + 1) / 2, w), rel=1e-5)
     # identity-like heads (all ones): each layer term is mean |n(fa) - n(fb)|^2 in [0, 4]
-    ones = lpips.LpipsWeights(w.conv_w, w.conv_b, [torch.ones(1, c, 1, 1) for c in lpips.TAP_CHANNELS])
+    ones = lpips.LpipsWeights(
+        w.conv_w, w.conv_b, [torch.ones(1, c, 1, 1) for c in lpips.TAP_CHANNELS]
+    )
     assert 0 < lpips.lpips(a, b, ones) <= 20
     # save / load round trip, and the lpips full-model key layout
     path = tmp_path / "alex_lpips.pth"
@@ -399,7 +458,9 @@ def test_lpips_wiring_with_generated_weights(tmp_path):
         sd[f"net.slice{lpips._SLICE_OF[idx]}.{idx}.bias"] = cb
     for i, l in enumerate(w.lin):
         sd[f"lin{i}.model.0.weight"] = l
-    assert lpips.lpips(a, b, lpips.weights_from_state_dict({"state_dict": sd})) == pytest.approx(v, rel=1e-7)
+    assert lpips.lpips(a, b, lpips.weights_from_state_dict({"state_dict": sd})) == pytest.approx(
+        v, rel=1e-7
+    )
 
 
 def test_lpips_rejects_bad_files_and_is_none_without_weights(tmp_path):
@@ -420,6 +481,7 @@ def test_lpips_rejects_bad_files_and_is_none_without_weights(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------ perf
+
 
 def test_measure_fps_with_injected_clock():
     now = [0.0]
@@ -447,8 +509,13 @@ def test_metrics_follow_cuda_inputs():
     frames, fwd, bwd, vf, vb = _exact_translation_clip()
     fl = frames * np.array([1.0, 1.7, 0.6])[:, None, None, None]
     cpu = temporal.hdr_tae(fl, fwd, bwd, vf, vb)
-    assert temporal.hdr_tae(torch.from_numpy(fl).cuda(), torch.from_numpy(fwd).cuda(), torch.from_numpy(bwd).cuda(),
-                            torch.from_numpy(vf).cuda(), torch.from_numpy(vb).cuda()) == pytest.approx(cpu, rel=1e-9)
+    assert temporal.hdr_tae(
+        torch.from_numpy(fl).cuda(),
+        torch.from_numpy(fwd).cuda(),
+        torch.from_numpy(bwd).cuda(),
+        torch.from_numpy(vf).cuda(),
+        torch.from_numpy(vb).cuda(),
+    ) == pytest.approx(cpu, rel=1e-9)
     w = _random_weights()
     assert lpips.lpips(pc, gc, w) == pytest.approx(lpips.lpips(pred, gt, w), rel=1e-3)
 

@@ -1,4 +1,6 @@
-"""Camera trajectories and object motion (benchgen.motion) against analytic answers and finite differences."""
+"""Camera trajectories and object motion (benchgen.motion) against analytic answers and finite
+differences."""
+
 import math
 
 import numpy as np
@@ -17,11 +19,12 @@ def _project(c2w, p):
     return np.array([K[0, 0] * pc[0] / pc[2] + K[0, 2], K[1, 1] * pc[1] / pc[2] + K[1, 2]]), pc[2]
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # look-at
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_look_at_axis_aligned_case():
-    # camera on -y looking at the origin along +y: x right = +x world, y down = -z world, z forward = +y world
+    # camera on -y looking at the origin along +y: x right = +x world, y down = -z world, z forward
+    # = +y world
     c2w = M.look_at([0, -5, 0], [0, 0, 0])
     np.testing.assert_allclose(c2w[:3, :3], [[1, 0, 0], [0, 0, 1], [0, -1, 0]], atol=1e-12)
     np.testing.assert_allclose(c2w[:3, 3], [0, -5, 0])
@@ -58,9 +61,9 @@ def test_look_at_roll_and_degenerate_up():
     np.testing.assert_allclose(down[:3, :3].T @ down[:3, :3], np.eye(3), atol=1e-12)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # camera trajectories
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_orbit_constant_distance_and_sweep():
     target = np.array([0.5, -0.2, 1.0])
     r, h, start, sweep, T = 3.0, 0.8, -30.0, 80.0, 4.0
@@ -76,7 +79,12 @@ def test_orbit_constant_distance_and_sweep():
 
 
 def test_dolly_endpoints_fixed_orientation_and_ease():
-    start, end, target, T = np.array([-1.0, -3, 1.5]), np.array([1.0, -2, 1.4]), np.array([0, 1, 1]), 3.0
+    start, end, target, T = (
+        np.array([-1.0, -3, 1.5]),
+        np.array([1.0, -2, 1.4]),
+        np.array([0, 1, 1]),
+        3.0,
+    )
     c0, c1 = M.dolly_c2w(0, T, start, end, target), M.dolly_c2w(T, T, start, end, target)
     np.testing.assert_allclose(c0[:3, 3], start)
     np.testing.assert_allclose(c1[:3, 3], end)
@@ -114,9 +122,9 @@ def test_handheld_follows_path_with_smooth_small_jitter():
     assert not np.allclose(M.smooth_noise(1.23, 3, 1.5), M.smooth_noise(1.23, 4, 1.5))
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # keyframes
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 KEYS = [
     {"time": 0.0, "position": [0, 0, 0], "rotate_deg": [0, 0, 0]},
     {"time": 0.5, "position": [1, 0.5, 0.2], "rotate_deg": [10, 0, 60]},
@@ -147,7 +155,8 @@ def test_keyframes_are_c1():
     h = 1e-5
     for k in KEYS:
         t = k["time"]
-        # one-sided velocities on both sides of each key agree (C1), including the clamped ends (zero velocity)
+        # one-sided velocities on both sides of each key agree (C1), including the clamped ends
+        # (zero velocity)
         left = (pos(t) - pos(t - h)) / h
         right = (pos(t + h) - pos(t)) / h
         np.testing.assert_allclose(left, right, atol=1e-3)
@@ -164,9 +173,9 @@ def test_keyframes_are_c1():
     assert np.abs(np.diff(v, axis=0)).max() < 0.1
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # parametric rigid motion
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_translate_rotate_oscillate_analytic():
     T = M.translate_transform(2.0, [1, 2, 0], start_time=0.5, end_time=1.5)
     np.testing.assert_allclose(T[:3, 3], [1.0, 2.0, 0.0])
@@ -174,22 +183,31 @@ def test_translate_rotate_oscillate_analytic():
     pivot = np.array([1.0, 2.0, 3.0])
     R = M.rotate_transform(0.5, [0, 0, 2], 90.0, pivot)  # 45 degrees about z through pivot
     np.testing.assert_allclose(M.apply(R, pivot), pivot, atol=1e-12)
-    np.testing.assert_allclose(M.apply(R, pivot + [1, 0, 0]), pivot + [math.sqrt(0.5), math.sqrt(0.5), 0], atol=1e-12)
+    np.testing.assert_allclose(
+        M.apply(R, pivot + [1, 0, 0]), pivot + [math.sqrt(0.5), math.sqrt(0.5), 0], atol=1e-12
+    )
     O = M.oscillate_transform(0.125, "translate", [0, 3, 0], 0.2, 2.0)  # sin(pi/2) = 1
     np.testing.assert_allclose(O[:3, 3], [0, 0.2, 0], atol=1e-12)
-    P = M.oscillate_transform(0.125, "rotate", [1, 0, 0], 30.0, 2.0, pivot=pivot)  # pendulum at +30 deg
+    # pendulum at +30 deg
+    P = M.oscillate_transform(0.125, "rotate", [1, 0, 0], 30.0, 2.0, pivot=pivot)
     bob = M.apply(P, pivot - [0, 0, 1.0])
-    np.testing.assert_allclose(bob, pivot + [0, math.sin(math.radians(30)), -math.cos(math.radians(30))], atol=1e-12)
+    np.testing.assert_allclose(
+        bob, pivot + [0, math.sin(math.radians(30)), -math.cos(math.radians(30))], atol=1e-12
+    )
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # articulated chains
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_chain_tip_planar_two_link():
     L0, L1 = 0.8, 0.5
     for a0, a1 in [(0.3, 0.9), (-0.5, 1.2), (0.0, 0.0)]:
         tip = M.chain_tip([L0, L1], [[0, 1, 0], [0, 1, 0]], [a0, a1])
-        expected = [L0 * math.sin(a0) + L1 * math.sin(a0 + a1), 0.0, L0 * math.cos(a0) + L1 * math.cos(a0 + a1)]
+        expected = [
+            L0 * math.sin(a0) + L1 * math.sin(a0 + a1),
+            0.0,
+            L0 * math.cos(a0) + L1 * math.cos(a0 + a1),
+        ]
         np.testing.assert_allclose(tip, expected, atol=1e-12)
 
 
@@ -204,7 +222,15 @@ def test_chain_tip_with_base_yaw():
 
 
 def test_joint_angles_formula():
-    j = [{"base_deg": 10, "rate_deg_s": 20, "amplitude_deg": 30, "frequency_hz": 0.5, "phase_deg": 90}]
+    j = [
+        {
+            "base_deg": 10,
+            "rate_deg_s": 20,
+            "amplitude_deg": 30,
+            "frequency_hz": 0.5,
+            "phase_deg": 90,
+        }
+    ]
     t = 0.7
     expected = math.radians(10 + 20 * t + 30 * math.sin(2 * math.pi * 0.5 * t + math.pi / 2))
     assert M.joint_angles(t, j)[0] == pytest.approx(expected)
@@ -223,9 +249,9 @@ def test_scene_chain_links_stay_rigid():
         np.testing.assert_allclose(da, db, atol=1e-9)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # waving flag
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_flag_deformation_analytic_and_pole_fixed():
     from benchgen.meshes import grid
 
@@ -240,12 +266,13 @@ def test_flag_deformation_analytic_and_pole_fixed():
         dz = A * (x / W) ** gr * np.sin(2 * np.pi * (x / lam - f * t))
         np.testing.assert_allclose(v[:, 2] - g.vertices[:, 2], dz, atol=1e-12)
         assert np.abs(v[:, 2]).max() <= A + 1e-12
-    # the wave travels away from the pole at phase speed f * lambda: the normalised profile at t + dt equals the
-    # profile at t shifted by f * lambda * dt
+    # the wave travels away from the pole at phase speed f * lambda: the normalised profile at t +
+    # dt equals the profile at t shifted by f * lambda * dt
     x = np.linspace(0.4, 1.1, 50)
     pts = lambda xx: np.stack([xx, np.zeros_like(xx), np.zeros_like(xx)], -1)  # noqa: E731
     dt = 0.05
-    shape = lambda xx, t: M.flag_deform(pts(xx), t, W, A, lam, f, gr)[:, 2] / (A * (xx / W) ** gr)  # noqa: E731
+    # noqa: E731
+    shape = lambda xx, t: M.flag_deform(pts(xx), t, W, A, lam, f, gr)[:, 2] / (A * (xx / W) ** gr)
     np.testing.assert_allclose(shape(x, 0.3 + dt), shape(x - f * lam * dt, 0.3), atol=1e-12)
 
 

@@ -1,4 +1,6 @@
-"""End-to-end: stage 1 fits a tiny oracle clip; the whole pipeline runs, is killed mid-way, and resumes."""
+"""End-to-end: stage 1 fits a tiny oracle clip; the whole pipeline runs, is killed mid-way, and
+resumes."""
+
 from __future__ import annotations
 
 import json
@@ -32,8 +34,9 @@ def test_stage1_fits_training_frames(tiny_clip_oracle):
     p1 = np.mean([_psnr(out["ldr"][i].numpy(), ldr[i]) for i in range(data.num_frames)])
     assert p1 > p0 + 3.0, (p0, p1)
     assert p1 > 24.0, p1  # measured 27.7 dB (300 iterations)
-    # the learned HDR, tone-mapped with the TRUE CRF at the TRUE exposure, reproduces the input: the unit-exposure
-    # loss fixes the HDR scale, so H is in the clip's radiometric units (up to the tone mapper's residual error)
+    # the learned HDR, tone-mapped with the TRUE CRF at the TRUE exposure, reproduces the input: the
+    # unit-exposure loss fixes the HDR scale, so H is in the clip's radiometric units (up to the
+    # tone mapper's residual error)
     crf = get_crf(clip.meta.crf)
     true_ldr = [crf(out["hdr"][i].numpy() * dt) for i, dt in enumerate(clip.train_dt)]
     p_true = np.mean([_psnr(true_ldr[i], ldr[i]) for i in range(data.num_frames)])
@@ -48,8 +51,14 @@ def test_pipeline_runs_resumes_and_renders(tiny_clip_realistic, tmp_path, monkey
     from m4dgs import stage2 as s2mod
 
     run = tmp_path / "run"
-    over = {"stage1.iterations": 30, "stage2.iterations": 30, "checkpoint_every": 10, "camera_init.ba_steps": 60,
-            "tonemap.pretrain_steps": 30, "v2w.scale_refit_steps": 20}
+    over = {
+        "stage1.iterations": 30,
+        "stage2.iterations": 30,
+        "checkpoint_every": 10,
+        "camera_init.ba_steps": 60,
+        "tonemap.pretrain_steps": 30,
+        "v2w.scale_refit_steps": 20,
+    }
     real_step = s2mod.WorldStage.step
     calls = {"n": 0}
 
@@ -82,10 +91,13 @@ def test_pipeline_runs_resumes_and_renders(tiny_clip_realistic, tmp_path, monkey
     assert info["train_seconds"] > 0 and info["num_gaussians"] > 0
     cams = json.loads((run / "cameras.json").read_text())
     assert len(cams["c2w"]) == clip.meta.num_frames
-    # tiny preset: union of the epipolar and rigidity masks, cameras re-adjusted once on them (m4dgs.rigidity)
+    # tiny preset: union of the epipolar and rigidity masks, cameras re-adjusted once on them
+    # (m4dgs.rigidity)
     ci = torch.load(run / "model" / "camera_init.pt", weights_only=False)
     assert ci["diagnostics"]["masks"]["method"] == "union" and "first_pass" in ci["diagnostics"]
-    assert ci["masks"].shape == ci["masks_epipolar"].shape and bool((ci["masks"] | ~ci["masks_epipolar"]).all())
+    assert ci["masks"].shape == ci["masks_epipolar"].shape and bool(
+        (ci["masks"] | ~ci["masks_epipolar"]).all()
+    )
     # a finished run is not retrained
     assert train(tiny_clip_realistic, run, preset="tiny", overrides=over, progress=False) == run
 
@@ -94,8 +106,14 @@ def test_kill_in_stage1_resumes_from_checkpoint(tiny_clip_realistic, tmp_path, m
     from m4dgs import stage1 as s1mod
 
     run = tmp_path / "run"
-    over = {"stage1.iterations": 30, "stage2.iterations": 10, "checkpoint_every": 10, "camera_init.ba_steps": 40,
-            "tonemap.pretrain_steps": 20, "v2w.scale_refit_steps": 10}
+    over = {
+        "stage1.iterations": 30,
+        "stage2.iterations": 10,
+        "checkpoint_every": 10,
+        "camera_init.ba_steps": 40,
+        "tonemap.pretrain_steps": 20,
+        "v2w.scale_refit_steps": 10,
+    }
     real_step = s1mod.VideoStage.step
 
     def dying_step(self, it):

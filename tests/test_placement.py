@@ -1,5 +1,7 @@
-"""Exposure placement (benchgen.placement): the HDR scale meets the targets it claims, checked with an independent
-quantiser, and the statistics a clip records are recomputed independently from its PNGs (PIL, not m4dgs.io)."""
+"""Exposure placement (benchgen.placement): the HDR scale meets the targets it claims, checked with
+an independent quantiser, and the statistics a clip records are recomputed independently from its
+PNGs (PIL, not m4dgs.io)."""
+
 import json
 
 import numpy as np
@@ -19,12 +21,16 @@ def _ldr_ref(hdr, dt):
 
 def _stats(ldr):
     px = ldr.reshape(-1, 3).astype(int)
-    return (np.median(px.max(1)) / 255.0, [(px[:, c] >= 250).mean() for c in range(3)],
-            [(px[:, c] <= 5).mean() for c in range(3)])
+    return (
+        np.median(px.max(1)) / 255.0,
+        [(px[:, c] >= 250).mean() for c in range(3)],
+        [(px[:, c] <= 5).mean() for c in range(3)],
+    )
 
 
 def _scene_frames(rng, n=3, dark=True):
-    """Log-normal 'scene' radiance with a few very bright pixels (lamps) and, optionally, a deep-shadow corner."""
+    """Log-normal 'scene' radiance with a few very bright pixels (lamps) and, optionally, a
+    deep-shadow corner."""
     h = np.exp(rng.normal(0.0, 1.2, size=(n, 48, 64, 1))) * np.array([1.0, 0.85, 0.7])
     h[:, :2, :4] *= 400.0  # highlights: 8 px of 3072 per frame = 0.26 %
     if dark:
@@ -50,7 +56,8 @@ def test_scale_meets_every_target_by_the_independent_quantiser():
     # the prediction in the report is exactly what the quantiser gives
     assert rep["predicted"]["mid_median"]["value"] == pytest.approx(med)
     assert rep["predicted"]["short_dark"]["value"] == pytest.approx(min(lo_s))
-    # nothing forces the aim away from 0.5 here: the middle-level median sits at the aim (one code of slack)
+    # nothing forces the aim away from 0.5 here: the middle-level median sits at the aim (one code
+    # of slack)
     assert abs(med - 0.5) <= 1.0 / 255 + 1e-12
 
 
@@ -78,13 +85,21 @@ def test_scene_without_range_gives_up_dark_and_says_so():
     med, _, _ = _stats(_ldr_ref(fr[2.0] * s, 2.0))
     _, _, lo_s = _stats(_ldr_ref(fr[0.125] * s, 0.125))
     assert 0.35 <= med <= 0.65 and min(lo_s) < 0.005
-    assert rep["predicted"]["short_dark"]["met"] is False and rep["predicted"]["mid_median"]["met"] is True
+    assert (
+        rep["predicted"]["short_dark"]["met"] is False
+        and rep["predicted"]["mid_median"]["met"] is True
+    )
 
 
 def test_bad_frames_are_refused():
     with pytest.raises(ValueError, match="finite"):
-        choose_hdr_scale({0.125: np.full((1, 4, 4, 3), np.nan), 2.0: np.ones((1, 4, 4, 3)),
-                          32.0: np.ones((1, 4, 4, 3))})
+        choose_hdr_scale(
+            {
+                0.125: np.full((1, 4, 4, 3), np.nan),
+                2.0: np.ones((1, 4, 4, 3)),
+                32.0: np.ones((1, 4, 4, 3)),
+            }
+        )
 
 
 def test_clip_records_achieved_placement_recomputed_from_pngs(tiny_clip_oracle):
@@ -94,7 +109,9 @@ def test_clip_records_achieved_placement_recomputed_from_pngs(tiny_clip_oracle):
     pl = meta["gt"]["placement"]
     by = {}
     for g, dt in zip(meta["split"]["train"], meta["exposures"]["train_dt"]):
-        by.setdefault(float(dt), []).append(np.asarray(Image.open(tiny_clip / "input/ldr" / f"{g:05d}.png")))
+        by.setdefault(float(dt), []).append(
+            np.asarray(Image.open(tiny_clip / "input/ldr" / f"{g:05d}.png"))
+        )
     for lv in LEVELS:
         med, hi, lo = _stats(np.stack(by[lv]))
         rec = pl["levels"][f"{lv:g}"]
@@ -111,14 +128,23 @@ def test_clip_records_achieved_placement_recomputed_from_pngs(tiny_clip_oracle):
 def test_failure_message_names_every_missed_target(tmp_path):
     from benchgen.make import PlacementError, check_clip_placement
 
-    pl = {"targets": {"mid_median": {"value": 0.9, "wanted": "in [0.35, 0.65] at dt=2", "met": False},
-                      "short_dark": {"value": 0.0, "wanted": ">= 0.005 ...", "met": False},
-                      "long_saturated": {"value": 0.2, "wanted": ">= 0.005 ...", "met": True}}}
+    pl = {
+        "targets": {
+            "mid_median": {"value": 0.9, "wanted": "in [0.35, 0.65] at dt=2", "met": False},
+            "short_dark": {"value": 0.0, "wanted": ">= 0.005 ...", "met": False},
+            "long_saturated": {"value": 0.2, "wanted": ">= 0.005 ...", "met": True},
+        }
+    }
     assert len(placement_failures(pl)) == 2
     with pytest.raises(PlacementError) as e:
         check_clip_placement(tmp_path / "clipA", pl)
     msg = str(e.value)
-    assert "clipA" in msg and "mid_median: 0.9" in msg and "short_dark" in msg and "long_saturated" not in msg
+    assert (
+        "clipA" in msg
+        and "mid_median: 0.9" in msg
+        and "short_dark" in msg
+        and "long_saturated" not in msg
+    )
     assert "--allow-misplaced" in msg
     check_clip_placement(tmp_path / "clipA", pl, allow_misplaced=True)  # a warning only
     check_clip_placement(tmp_path / "clipA", {"targets": {}})

@@ -1,13 +1,28 @@
-"""Prior degradation (benchgen.priors): oracle exactness, determinism, and error statistics against the documented
-bands (docs/priors.md), measured with independent numpy code on small synthetic scenes with known geometry."""
+"""Prior degradation (benchgen.priors): oracle exactness, determinism, and error statistics against
+the documented bands (docs/priors.md), measured with independent numpy code on small synthetic
+scenes with known geometry."""
+
 import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from benchgen.priors import (HARSH, ORACLE, PROFILES, REALISTIC, PriorProfile, degrade_depth, degrade_flow,
-                             degrade_tracks, flow_pairs, get_profile, make_rng, priors_metadata, select_track_indices)
+from benchgen.priors import (
+    HARSH,
+    ORACLE,
+    PROFILES,
+    REALISTIC,
+    PriorProfile,
+    degrade_depth,
+    degrade_flow,
+    degrade_tracks,
+    flow_pairs,
+    get_profile,
+    make_rng,
+    priors_metadata,
+    select_track_indices,
+)
 from m4dgs.clip import TrackSet
 
 T, H, W = 16, 72, 96
@@ -15,9 +30,9 @@ SQ = 24  # square side (px)
 
 
 def _scene():
-    """Slanted background plane (depth 4..8), sky rows (depth 0) at the top, a square at depth 2 moving right by
-    2 px/frame, an emitter patch on the background, a glossy strip on the square. Tracks: static background grid
-    (occluded inside the square) + points on the square (dynamic)."""
+    """Slanted background plane (depth 4..8), sky rows (depth 0) at the top, a square at depth 2
+    moving right by 2 px/frame, an emitter patch on the background, a glossy strip on the square.
+    Tracks: static background grid (occluded inside the square) + points on the square (dynamic)."""
     ys, xs = np.mgrid[0:H, 0:W] + 0.5
     depth = np.zeros((T, H, W))
     emit = np.zeros((T, H, W), bool)
@@ -44,17 +59,19 @@ def _scene():
         tracks[: len(bg), t] = bg
         inside = (bg[:, 0] >= x0) & (bg[:, 0] < x0 + SQ) & (bg[:, 1] >= y0) & (bg[:, 1] < y0 + SQ)
         vis[: len(bg), t] = ~inside
-        tracks[len(bg):, t] = fg + [x0, y0]
-        vis[len(bg):, t] = True
+        tracks[len(bg) :, t] = fg + [x0, y0]
+        vis[len(bg) :, t] = True
     dyn = np.zeros(N, bool)
-    dyn[len(bg):] = True
-    ts = TrackSet(tracks=tracks.astype(np.float32), visible=vis, frames=np.arange(0, 2 * T, 2), dynamic=dyn)
+    dyn[len(bg) :] = True
+    ts = TrackSet(
+        tracks=tracks.astype(np.float32), visible=vis, frames=np.arange(0, 2 * T, 2), dynamic=dyn
+    )
     return depth.astype(np.float32), emit, gloss, ts
 
 
 def _flow_scene(shift=6):
-    """F_{a->b}: background pans (1, 0.5) px, square [30, 54)^2 moves (shift, 0); background pixels of a covered by
-    b's square are invalid. ldr_a: left half saturated; ldr_b: textured mid grey."""
+    """F_{a->b}: background pans (1, 0.5) px, square [30, 54)^2 moves (shift, 0); background pixels
+    of a covered by b's square are invalid. ldr_a: left half saturated; ldr_b: textured mid grey."""
     ys, xs = np.mgrid[0:H, 0:W] + 0.5
     flow = np.zeros((H, W, 2))
     flow[..., 0], flow[..., 1] = 1.0, 0.5
@@ -70,7 +87,8 @@ def _flow_scene(shift=6):
     return flow.astype(np.float32), valid, ldr_a, ldr_b, insq
 
 
-# ------------------------------------------------------------------------------------------------------ profiles
+# --------------------------------------------------------------------------------------------------
+# profiles
 def test_profiles_registry_and_metadata():
     assert set(PROFILES) == {"oracle", "realistic", "harsh"}
     assert get_profile() is REALISTIC
@@ -83,16 +101,20 @@ def test_profiles_registry_and_metadata():
     assert md["profile"] == "realistic" and md["seed"] == 3
     assert set(md["params"]) == {f.name for f in dataclasses.fields(PriorProfile)}
     import json
+
     json.dumps(md, allow_nan=False)  # clip.json-safe
 
 
-# ------------------------------------------------------------------------------------------------------ oracle / seeds
+# --------------------------------------------------------------------------------------------------
+# oracle / seeds
 def test_oracle_equals_ground_truth_bytes():
     depth, emit, gloss, ts = _scene()
     d = degrade_depth(depth, emit, gloss, ORACLE, None)
     assert d.dtype == np.float32 and d.tobytes() == depth.tobytes()
     tr = degrade_tracks(ts, depth, W, H, ORACLE, None)
-    assert tr.tracks.tobytes() == ts.tracks.tobytes() and tr.visible.tobytes() == ts.visible.tobytes()
+    assert (
+        tr.tracks.tobytes() == ts.tracks.tobytes() and tr.visible.tobytes() == ts.visible.tobytes()
+    )
     assert np.array_equal(tr.frames, ts.frames) and tr.points3d is None and tr.dynamic is None
     flow, valid, la, lb, _ = _flow_scene()
     f, v = degrade_flow(flow, valid, la, lb, 3.0, ORACLE, None)
@@ -119,16 +141,21 @@ def test_make_rng_keys_independent():
     x = make_rng(0, "depth").random(4)
     assert np.array_equal(x, make_rng(0, "depth").random(4))
     assert not np.array_equal(x, make_rng(0, "tracks").random(4))
-    assert not np.array_equal(make_rng(0, "flow", 0, 6).random(4), make_rng(0, "flow", 6, 0).random(4))
+    assert not np.array_equal(
+        make_rng(0, "flow", 0, 6).random(4), make_rng(0, "flow", 6, 0).random(4)
+    )
 
 
-# ------------------------------------------------------------------------------------------------------ depth
+# --------------------------------------------------------------------------------------------------
+# depth
 def _absrel_median_scaled(pred, gt, mask):
     s = np.median(gt[mask]) / np.median(pred[mask])
     return float(np.mean(np.abs(s * pred[mask] - gt[mask]) / gt[mask]))
 
 
-@pytest.mark.parametrize("profile,band", [(REALISTIC, (0.03, 0.12)), (HARSH, (0.08, 0.25))], ids=["realistic", "harsh"])
+@pytest.mark.parametrize(
+    "profile,band", [(REALISTIC, (0.03, 0.12)), (HARSH, (0.08, 0.25))], ids=["realistic", "harsh"]
+)
 def test_depth_scale_and_absrel_band(profile, band):
     depth, emit, gloss, _ = _scene()
     surf = depth > 0
@@ -136,13 +163,21 @@ def test_depth_scale_and_absrel_band(profile, band):
         out = degrade_depth(depth, emit, gloss, profile, make_rng(seed, "depth"))
         assert out.shape == depth.shape and out.dtype == np.float32
         assert np.isfinite(out).all() and (out > 0).all()
-        # unknown global scale, clearly != 1 (|log2| >= the profile's lower bound minus drift/noise slack)
+        # unknown global scale, clearly != 1 (|log2| >= the profile's lower bound minus drift/noise
+        # slack)
         ratio = np.median(out[surf]) / np.median(depth[surf])
         assert abs(math.log2(ratio)) >= profile.depth_scale_stops[0] - 0.2
         absrel = _absrel_median_scaled(out, depth, surf)
         assert band[0] <= absrel <= band[1], absrel
-    # sky filled with a value farther than every surface of its frame (checked without edge blur, which smears it)
-    out = degrade_depth(depth, emit, gloss, dataclasses.replace(profile, depth_edge_blur_px=0.0), make_rng(0, "depth"))
+    # sky filled with a value farther than every surface of its frame (checked without edge blur,
+    # which smears it)
+    out = degrade_depth(
+        depth,
+        emit,
+        gloss,
+        dataclasses.replace(profile, depth_edge_blur_px=0.0),
+        make_rng(0, "depth"),
+    )
     for t in (0, T - 1):
         assert np.median(out[t][~surf[t]]) > out[t][surf[t]].max()
 
@@ -153,7 +188,7 @@ def test_depth_drift_is_slow_and_errors_sit_on_edges_and_emitters():
     out = degrade_depth(depth, emit, gloss, REALISTIC, make_rng(0, "depth")).astype(np.float64)
     # per-frame scale (median ratio on the plain background) drifts, but slowly
     plain = surf & ~emit & ~gloss
-    plain[:, 30 - 8:54 + 8, :] = False  # away from the square's rows
+    plain[:, 30 - 8 : 54 + 8, :] = False  # away from the square's rows
     logs = np.array([np.log(np.median(out[t][plain[t]] / depth[t][plain[t]])) for t in range(T)])
     steps = np.abs(np.diff(logs))
     assert steps.max() < 0.05 and np.ptp(logs) > 1e-3
@@ -165,18 +200,19 @@ def test_depth_drift_is_slow_and_errors_sit_on_edges_and_emitters():
     for t in range(T):  # the square's left/right borders, +-1 px
         x0 = 10 + 2 * t
         for xe in (x0, x0 + SQ):
-            edge[t, 32:52, xe - 1: xe + 1] = True
+            edge[t, 32:52, xe - 1 : xe + 1] = True
     assert rel[edge].mean() > 3 * rel[plain].mean()
     assert rel[emit].mean() > 3 * rel[plain].mean()
     assert rel[gloss].mean() > 2 * rel[plain].mean()
 
 
-# ------------------------------------------------------------------------------------------------------ tracks
+# --------------------------------------------------------------------------------------------------
+# tracks
 def test_track_selection_grid_plus_dynamic():
     _, _, _, ts = _scene()
     prof = dataclasses.replace(REALISTIC, track_num_uniform=48, track_num_dynamic=20)
     idx = select_track_indices(ts, W, H, prof, make_rng(0, "sel"))
-    nx, ny = 8, 6  # round(sqrt(48 * 96 / 72)) = 8, 48 / 8 = 6 cells of 12 x 12 px
+    # the grid is round(sqrt(48 * 96 / 72)) = 8 x 48 / 8 = 6 cells of 12 x 12 px
     q = np.argmax(ts.visible, axis=1)
     pos = ts.tracks[np.arange(len(q)), q]
     cells = {(int(p[0] // 12), int(p[1] // 12)) for p in pos[ts.visible.any(1)]}
@@ -188,8 +224,13 @@ def test_track_selection_grid_plus_dynamic():
 
 def test_track_jitter_and_drift_statistics():
     _, _, _, ts = _scene()
-    zero = dict(track_vis_flip_prob=0.0, track_edge_flip_prob=0.0, track_dropout_rate=0.0, track_num_uniform=None,
-                track_num_dynamic=0)
+    zero = dict(
+        track_vis_flip_prob=0.0,
+        track_edge_flip_prob=0.0,
+        track_dropout_rate=0.0,
+        track_num_uniform=None,
+        track_num_dynamic=0,
+    )
     # jitter only: per-axis std of the error on non-query frames equals sigma
     pj = dataclasses.replace(REALISTIC, track_drift_px=0.0, **zero)
     out = degrade_tracks(ts, None, W, H, pj, make_rng(0, "tracks"))
@@ -198,25 +239,39 @@ def test_track_jitter_and_drift_statistics():
     nonq = np.arange(T)[None, :] != q[:, None]
     assert np.abs(err[~nonq]).max() == 0.0  # the query point is exact
     assert err[nonq].std() == pytest.approx(pj.track_jitter_px, rel=0.05)
-    # drift only: variance grows linearly with the frame offset from the query frame (visible points, q = 0)
+    # drift only: variance grows linearly with the frame offset from the query frame (visible
+    # points, q = 0)
     pd = dataclasses.replace(REALISTIC, track_jitter_px=0.0, track_occluded_drift_mult=1.0, **zero)
     out = degrade_tracks(ts, None, W, H, pd, make_rng(1, "tracks"))
     err = out.tracks.astype(np.float64) - ts.tracks
     sel = q == 0
     for k in (4, 12):
-        assert err[sel, k].var() == pytest.approx(k * pd.track_drift_px ** 2, rel=0.2)
+        assert err[sel, k].var() == pytest.approx(k * pd.track_drift_px**2, rel=0.2)
     # realistic: mean error within the documented band
-    out = degrade_tracks(ts, None, W, H, dataclasses.replace(REALISTIC, **{k: v for k, v in zero.items()
-                                                                           if k.startswith("track_num")}),
-                         make_rng(2, "tracks"))
+    out = degrade_tracks(
+        ts,
+        None,
+        W,
+        H,
+        dataclasses.replace(
+            REALISTIC, **{k: v for k, v in zero.items() if k.startswith("track_num")}
+        ),
+        make_rng(2, "tracks"),
+    )
     e = np.linalg.norm(out.tracks.astype(np.float64) - ts.tracks, axis=-1)
     assert 0.4 <= e.mean() <= 1.5
 
 
 def test_track_visibility_mistakes_only_near_changes_and_dropouts():
     depth, _, _, ts = _scene()
-    pv = dataclasses.replace(ORACLE, name="vis", track_vis_window=2, track_vis_flip_prob=0.5, track_num_uniform=None,
-                             track_num_dynamic=0)
+    pv = dataclasses.replace(
+        ORACLE,
+        name="vis",
+        track_vis_window=2,
+        track_vis_flip_prob=0.5,
+        track_num_uniform=None,
+        track_num_dynamic=0,
+    )
     out = degrade_tracks(ts, None, W, H, pv, make_rng(0, "tracks"))
     diff = out.visible != ts.visible
     assert diff.any()
@@ -224,23 +279,32 @@ def test_track_visibility_mistakes_only_near_changes_and_dropouts():
     for n, t in zip(*np.nonzero(diff)):
         changes = [c for c in range(1, T) if vis[n, c] != vis[n, c - 1]]
         assert any(c - 2 <= t <= c + 1 for c in changes)
-    # drop-outs: the fraction of tracks still reported visible k frames after the query decays like (1 - r)^k
+    # drop-outs: the fraction of tracks still reported visible k frames after the query decays like
+    # (1 - r)^k
     r = 0.05
-    pdrop = dataclasses.replace(ORACLE, name="drop", track_dropout_rate=r, track_num_uniform=None,
-                                track_num_dynamic=0)
-    big = TrackSet(tracks=np.repeat(ts.tracks[-1:], 4000, 0), visible=np.ones((4000, T), bool), frames=ts.frames)
+    pdrop = dataclasses.replace(
+        ORACLE, name="drop", track_dropout_rate=r, track_num_uniform=None, track_num_dynamic=0
+    )
+    big = TrackSet(
+        tracks=np.repeat(ts.tracks[-1:], 4000, 0),
+        visible=np.ones((4000, T), bool),
+        frames=ts.frames,
+    )
     out = degrade_tracks(big, None, W, H, pdrop, make_rng(0, "tracks"))
     for k in (5, 12):
         assert out.visible[:, k].mean() == pytest.approx((1 - r) ** k, abs=0.03)
     lost = ~out.visible
     assert np.all(lost[:, :-1] <= lost[:, 1:])  # once lost, never visible again
     # near depth edges (realistic) the visibility of static background points also flips sometimes
-    pe = dataclasses.replace(pv, track_vis_flip_prob=0.0, track_edge_px=2.0, track_edge_flip_prob=0.5)
+    pe = dataclasses.replace(
+        pv, track_vis_flip_prob=0.0, track_edge_px=2.0, track_edge_flip_prob=0.5
+    )
     out = degrade_tracks(ts, depth, W, H, pe, make_rng(0, "tracks"))
     assert (out.visible != ts.visible).any()
 
 
-# ------------------------------------------------------------------------------------------------------ flow
+# --------------------------------------------------------------------------------------------------
+# flow
 def test_flow_noisier_where_saturated_and_with_exposure_gap():
     flow, valid, la, lb, insq = _flow_scene()
     f, v = degrade_flow(flow, valid, la, lb, 0.0, REALISTIC, make_rng(0, "flow"))
@@ -252,7 +316,7 @@ def test_flow_noisier_where_saturated_and_with_exposure_gap():
     sat = np.zeros((H, W), bool)
     sat[:, : W // 2 - 6] = True
     ok = np.zeros((H, W), bool)
-    ok[:, W // 2 + 6:] = True
+    ok[:, W // 2 + 6 :] = True
     e_sat, e_ok = epe[sat & ~band].mean(), epe[ok & ~band].mean()
     assert e_sat > 2.5 * e_ok
     assert 0.2 <= e_ok <= 0.8  # realistic band in well-exposed regions
@@ -294,11 +358,18 @@ def test_nonfinite_ground_truth_gives_finite_priors():
     tr[1, :] = np.nan
     vis[1, :] = False
     gt = TrackSet(tracks=tr, visible=vis, frames=ts.frames, dynamic=ts.dynamic)
-    out = degrade_tracks(gt, depth, W, H, dataclasses.replace(REALISTIC, track_num_uniform=None, track_num_dynamic=0),
-                         make_rng(0, "tracks"))
+    out = degrade_tracks(
+        gt,
+        depth,
+        W,
+        H,
+        dataclasses.replace(REALISTIC, track_num_uniform=None, track_num_dynamic=0),
+        make_rng(0, "tracks"),
+    )
     assert np.isfinite(out.tracks).all()
     assert not out.visible[1].any()
-    np.testing.assert_allclose(out.tracks[0, 4], ts.tracks[0, 2], atol=10.0)  # held from the last finite frame
+    # held from the last finite frame
+    np.testing.assert_allclose(out.tracks[0, 4], ts.tracks[0, 2], atol=10.0)
     flow, valid, la, lb, _ = _flow_scene()
     flow = flow.copy()
     flow[:5] = np.nan

@@ -1,4 +1,5 @@
-"""Tests for m4dgs.raster: projection by hand, gradcheck (torch + cpu backends, both cameras), cpu/torch parity."""
+"""Tests for m4dgs.raster: projection by hand, gradcheck (torch + cpu backends, both cameras),
+cpu/torch parity."""
 
 from __future__ import annotations
 
@@ -18,8 +19,11 @@ from m4dgs.raster import (
 )
 from m4dgs.raster.cpu_backend import bin_cpu, project_cpu
 
-needs_cpu = pytest.mark.skipif(not cpu_available(), reason="C++ rasterizer did not build (no compiler?)")
-# the torch projection and the fused C++ one (used by the cpu backend) must both match the hand computations
+needs_cpu = pytest.mark.skipif(
+    not cpu_available(), reason="C++ rasterizer did not build (no compiler?)"
+)
+# the torch projection and the fused C++ one (used by the cpu backend) must both match the hand
+# computations
 PROJECTIONS = [project_gaussians, pytest.param(project_cpu, marks=needs_cpu)]
 
 
@@ -27,12 +31,14 @@ def _pinhole_K(fx=100.0, fy=120.0, cx=40.0, cy=30.0, dtype=torch.float64):
     return torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=dtype)
 
 
-# --------------------------------------------------------------------------------------------- projection
+# ---------------------------------------------------------------------------------------------
+# projection
 
 
 @pytest.mark.parametrize("project", PROJECTIONS)
 def test_projection_pinhole_by_hand(project):
-    """Mean (0.5, -0.25, 2) in camera space, scales (0.1, 0.2, 0.3), identity rotation; fx=100, fy=120."""
+    """Mean (0.5, -0.25, 2) in camera space, scales (0.1, 0.2, 0.3), identity rotation; fx=100,
+    fy=120."""
     dtype = torch.float64
     viewmat = torch.eye(4, dtype=dtype)
     viewmat[:3, 3] = torch.tensor([0.25, 0.5, 1.0], dtype=dtype)  # world -> camera translation
@@ -52,19 +58,24 @@ def test_projection_pinhole_by_hand(project):
     det = a * c - b * b
     torch.testing.assert_close(p.conics[0], torch.tensor([c / det, -b / det, a / det], dtype=dtype))
     extend = min(3.33, math.sqrt(2 * math.log(255 * 0.5)))
-    assert p.radii[0].tolist() == [math.ceil(extend * math.sqrt(a)), math.ceil(extend * math.sqrt(c))]
+    assert p.radii[0].tolist() == [
+        math.ceil(extend * math.sqrt(a)),
+        math.ceil(extend * math.sqrt(c)),
+    ]
     assert bool(p.visible[0])
 
 
 @pytest.mark.parametrize("project", PROJECTIONS)
 def test_projection_pinhole_rotated_and_clamped(project):
-    """A 90-degree rotation about z swaps the x/y scales; a mean far off-axis uses the clamped x/z in J only."""
+    """A 90-degree rotation about z swaps the x/y scales; a mean far off-axis uses the clamped x/z
+    in J only."""
     dtype = torch.float64
     K = _pinhole_K()
     s = math.sqrt(0.5)
     quats = torch.tensor([[s, 0.0, 0.0, s], [1.0, 0.0, 0.0, 0.0]], dtype=dtype)
     scales = torch.tensor([[0.1, 0.2, 0.3], [0.1, 0.1, 0.1]], dtype=dtype)
-    means = torch.tensor([[0.0, 0.0, 2.0], [2.0, 0.0, 2.0]], dtype=dtype)  # second: x/z = 1 > limit 0.52
+    # second: x/z = 1 > limit 0.52
+    means = torch.tensor([[0.0, 0.0, 2.0], [2.0, 0.0, 2.0]], dtype=dtype)
     op = torch.tensor([0.9, 0.9], dtype=dtype)
     p = project(means, quats, scales, op, torch.eye(4, dtype=dtype), K, 80, 60, "pinhole")
     # rotated: Sigma = diag(.04, .01, .09) at the optical axis, J = [[50, 0, 0], [0, 60, 0]]
@@ -87,7 +98,17 @@ def test_projection_ortho_by_hand(project):
     means = torch.tensor([[0.5, -0.5, 3.0]], dtype=dtype)
     quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=dtype)
     scales = torch.tensor([[0.05, 0.1, 7.0]], dtype=dtype)  # z scale has no effect under J_ortho
-    p = project(means, quats, scales, torch.tensor([0.7], dtype=dtype), torch.eye(4, dtype=dtype), K, W, H, "ortho")
+    p = project(
+        means,
+        quats,
+        scales,
+        torch.tensor([0.7], dtype=dtype),
+        torch.eye(4, dtype=dtype),
+        K,
+        W,
+        H,
+        "ortho",
+    )
     # u = W/2 x + W/2 = 48, v = H/2 y + H/2 = 12
     torch.testing.assert_close(p.means2d[0], torch.tensor([48.0, 12.0], dtype=dtype))
     cov = torch.tensor([[(32 * 0.05) ** 2 + 0.3, 0.0], [0.0, (24 * 0.1) ** 2 + 0.3]], dtype=dtype)
@@ -98,7 +119,9 @@ def test_projection_ortho_by_hand(project):
 @pytest.mark.parametrize("project", PROJECTIONS)
 def test_projection_culling(project):
     dtype = torch.float64
-    means = torch.tensor([[0.0, 0.0, 0.005], [0.0, 0.0, 2.0], [0.0, 0.0, 2.0], [50.0, 0.0, 2.0]], dtype=dtype)
+    means = torch.tensor(
+        [[0.0, 0.0, 0.005], [0.0, 0.0, 2.0], [0.0, 0.0, 2.0], [50.0, 0.0, 2.0]], dtype=dtype
+    )
     quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=dtype).expand(4, 4)
     scales = torch.full((4, 3), 0.05, dtype=dtype)
     op = torch.tensor([0.9, 0.9, 0.003, 0.9], dtype=dtype)  # third below 1/255
@@ -125,10 +148,10 @@ def test_binning_covers_footprint():
         alpha = op[i] * torch.exp(-(0.5 * (c[0] * dx * dx + c[2] * dy * dy) + c[1] * dx * dy))
         for y, x in torch.nonzero(alpha >= 1 / 255).tolist():
             t = (y // 16) * bins.tiles_x + x // 16
-            assert i in bins.flat_ids[bins.offsets[t]:bins.offsets[t + 1]].tolist()
+            assert i in bins.flat_ids[bins.offsets[t] : bins.offsets[t + 1]].tolist()
     # lists are depth sorted
     for t in range(bins.tiles_x * bins.tiles_y):
-        d = p.depths[bins.flat_ids[bins.offsets[t]:bins.offsets[t + 1]].long()]
+        d = p.depths[bins.flat_ids[bins.offsets[t] : bins.offsets[t + 1]].long()]
         assert (d[1:] >= d[:-1]).all()
 
 
@@ -136,7 +159,9 @@ def test_binning_covers_footprint():
 def test_compiled_binning_matches_torch_binning():
     g = torch.Generator().manual_seed(9)
     n, W, H = 3000, 150, 100
-    means = torch.cat([torch.rand(n, 2, generator=g) * 2.4 - 1.2, torch.rand(n, 1, generator=g) * 3 + 1], dim=1)
+    means = torch.cat(
+        [torch.rand(n, 2, generator=g) * 2.4 - 1.2, torch.rand(n, 1, generator=g) * 3 + 1], dim=1
+    )
     means[:10, 2] = 2.0  # ties in depth keep index order in both
     quats = torch.randn(n, 4, generator=g)
     scales = torch.rand(n, 3, generator=g) * 0.05 + 0.005
@@ -149,22 +174,32 @@ def test_compiled_binning_matches_torch_binning():
     assert torch.equal(out.offsets, ref.offsets) and torch.equal(out.flat_ids, ref.flat_ids)
 
 
-# --------------------------------------------------------------------------------------------- rendering
+# ---------------------------------------------------------------------------------------------
+# rendering
 
 
 def _tiny_scene(camera_model: str, n_ch: int = 3):
-    """4 Gaussians on an 8x6 image; no pixel sits near a threshold (opacities 0.35-0.8, few layers)."""
+    """4 Gaussians on an 8x6 image; no pixel sits near a threshold (opacities 0.35-0.8, few
+    layers)."""
     dtype = torch.float64
     g = torch.Generator().manual_seed(7)
     W, H = 8, 6
     if camera_model == "pinhole":
         K = torch.tensor([[8.0, 0, 4.0], [0, 8.0, 3.0], [0, 0, 1]], dtype=dtype)
-        means = torch.tensor([[-0.3, -0.2, 2.0], [0.4, 0.1, 2.5], [0.0, 0.3, 3.0], [0.2, -0.3, 3.5]], dtype=dtype)
-        scales = torch.tensor([[0.45, 0.35, 0.4], [0.4, 0.5, 0.25], [0.65, 0.4, 0.5], [0.5, 0.5, 0.4]], dtype=dtype)
+        means = torch.tensor(
+            [[-0.3, -0.2, 2.0], [0.4, 0.1, 2.5], [0.0, 0.3, 3.0], [0.2, -0.3, 3.5]], dtype=dtype
+        )
+        scales = torch.tensor(
+            [[0.45, 0.35, 0.4], [0.4, 0.5, 0.25], [0.65, 0.4, 0.5], [0.5, 0.5, 0.4]], dtype=dtype
+        )
     else:
         K = intrinsics_ortho(W, H, dtype=dtype)
-        means = torch.tensor([[-0.4, -0.3, 2.0], [0.3, 0.2, 2.5], [0.0, 0.4, 3.0], [0.2, -0.2, 3.5]], dtype=dtype)
-        scales = torch.tensor([[0.4, 0.5, 0.4], [0.45, 0.4, 0.25], [0.5, 0.4, 0.5], [0.4, 0.65, 0.4]], dtype=dtype)
+        means = torch.tensor(
+            [[-0.4, -0.3, 2.0], [0.3, 0.2, 2.5], [0.0, 0.4, 3.0], [0.2, -0.2, 3.5]], dtype=dtype
+        )
+        scales = torch.tensor(
+            [[0.4, 0.5, 0.4], [0.45, 0.4, 0.25], [0.5, 0.4, 0.5], [0.4, 0.65, 0.4]], dtype=dtype
+        )
     quats = torch.randn(4, 4, generator=g, dtype=dtype)
     op = torch.tensor([0.6, 0.45, 0.8, 0.35], dtype=dtype)
     feats = torch.rand(4, n_ch, generator=g, dtype=dtype)
@@ -180,7 +215,9 @@ def test_gradcheck(backend, camera_model):
     bg = torch.tensor([0.2, 0.5, 0.1], dtype=torch.float64)
 
     def fn(m, q, s, o, f, v):
-        out = render(m, q, s, o, f, v, K, W, H, camera_model=camera_model, backend=backend, background=bg)
+        out = render(
+            m, q, s, o, f, v, K, W, H, camera_model=camera_model, backend=backend, background=bg
+        )
         return out.features, out.depth, out.alpha
 
     inputs = [t.clone().requires_grad_(True) for t in (means, quats, scales, op, feats, viewmat)]
@@ -190,7 +227,8 @@ def test_gradcheck(backend, camera_model):
 
 
 def test_single_gaussian_analytic():
-    """One Gaussian: alpha = o exp(-sigma) per pixel, depth = z exactly, features = alpha f + (1 - alpha) bg."""
+    """One Gaussian: alpha = o exp(-sigma) per pixel, depth = z exactly, features = alpha f + (1 -
+    alpha) bg."""
     dtype = torch.float64
     K = _pinhole_K(50.0, 50.0, 10.0, 8.0)
     means = torch.tensor([[0.01, -0.02, 2.5]], dtype=dtype)
@@ -200,7 +238,9 @@ def test_single_gaussian_analytic():
     f = torch.tensor([[2.0, -1.0]], dtype=dtype)
     bg = torch.tensor([0.25, 0.5], dtype=dtype)
     p = project_gaussians(means, quats, scales, op, torch.eye(4, dtype=dtype), K, 20, 16)
-    ys, xs = torch.meshgrid(torch.arange(16, dtype=dtype) + 0.5, torch.arange(20, dtype=dtype) + 0.5, indexing="ij")
+    ys, xs = torch.meshgrid(
+        torch.arange(16, dtype=dtype) + 0.5, torch.arange(20, dtype=dtype) + 0.5, indexing="ij"
+    )
     d = torch.stack([p.means2d[0, 0] - xs, p.means2d[0, 1] - ys], dim=-1)
     cov_inv = torch.linalg.inv(p.cov2d[0])
     sigma = 0.5 * torch.einsum("hwi,ij,hwj->hw", d, cov_inv, d)
@@ -208,8 +248,19 @@ def test_single_gaussian_analytic():
     a = torch.where(a >= 1 / 255, a, torch.zeros_like(a))
     backends = ["torch"] + (["cpu"] if cpu_available() else [])
     for backend in backends:
-        out = render(means, quats, scales, op, f, torch.eye(4, dtype=dtype), K, 20, 16, backend=backend,
-                     background=bg)
+        out = render(
+            means,
+            quats,
+            scales,
+            op,
+            f,
+            torch.eye(4, dtype=dtype),
+            K,
+            20,
+            16,
+            backend=backend,
+            background=bg,
+        )
         torch.testing.assert_close(out.alpha[..., 0], a)
         torch.testing.assert_close(out.features, a[..., None] * f[0] + (1 - a[..., None]) * bg)
         covered = a > 0
@@ -222,7 +273,12 @@ def _random_scene(n, W, H, n_ch, dtype, seed=0):
     fx = 0.8 * W
     K = torch.tensor([[fx, 0.0, W / 2], [0.0, fx, H / 2], [0.0, 0.0, 1.0]], dtype=dtype)
     z = torch.rand(n, generator=g, dtype=dtype) * 4 + 2
-    xy = (torch.rand(n, 2, generator=g, dtype=dtype) - 0.5) * torch.tensor([W, H], dtype=dtype) / fx * z[:, None]
+    xy = (
+        (torch.rand(n, 2, generator=g, dtype=dtype) - 0.5)
+        * torch.tensor([W, H], dtype=dtype)
+        / fx
+        * z[:, None]
+    )
     means = torch.cat([xy * 1.1, z[:, None]], dim=1)
     quats = torch.randn(n, 4, generator=g, dtype=dtype)
     scales = torch.exp(torch.randn(n, 3, generator=g, dtype=dtype) * 0.4) * (z[:, None] / fx) * 1.5
@@ -236,8 +292,16 @@ def _render_with_grads(scene, W, H, backend, camera_model="pinhole"):
     means, quats, scales, op, feats, viewmat, K = scene
     params = [t.clone().requires_grad_(True) for t in (means, quats, scales, op, feats, viewmat)]
     g = torch.Generator().manual_seed(11)
-    out = render(*params[:5], params[5], K, W, H, camera_model=camera_model, backend=backend,
-                 background=torch.full((feats.shape[1],), 0.3, dtype=feats.dtype))
+    out = render(
+        *params[:5],
+        params[5],
+        K,
+        W,
+        H,
+        camera_model=camera_model,
+        backend=backend,
+        background=torch.full((feats.shape[1],), 0.3, dtype=feats.dtype),
+    )
     w = torch.rand(out.features.shape, generator=g, dtype=feats.dtype)
     loss = (out.features * w).sum() + 0.1 * (out.depth * out.alpha).sum() + out.alpha.sum()
     loss.backward()
@@ -246,7 +310,9 @@ def _render_with_grads(scene, W, H, backend, camera_model="pinhole"):
 
 
 @needs_cpu
-@pytest.mark.parametrize("dtype,tol_out,tol_grad", [(torch.float64, 1e-9, 1e-8), (torch.float32, 1e-5, 1e-4)])
+@pytest.mark.parametrize(
+    "dtype,tol_out,tol_grad", [(torch.float64, 1e-9, 1e-8), (torch.float32, 1e-5, 1e-4)]
+)
 def test_cpu_matches_torch_10k(dtype, tol_out, tol_grad):
     W, H = 64, 48
     scene = _random_scene(10_000, W, H, 5, dtype)
@@ -267,8 +333,9 @@ def test_cpu_matches_torch_ortho():
     scene = list(_random_scene(2_000, W, H, 4, torch.float64, seed=5))
     # normalised video coordinates in [-1, 1] with sizes of a few pixels
     g = torch.Generator().manual_seed(5)
-    scene[0] = torch.cat([torch.rand(2000, 2, generator=g, dtype=torch.float64) * 2.2 - 1.1,
-                          scene[0][:, 2:]], dim=1)
+    scene[0] = torch.cat(
+        [torch.rand(2000, 2, generator=g, dtype=torch.float64) * 2.2 - 1.1, scene[0][:, 2:]], dim=1
+    )
     scene[2] = scene[2] / scene[0][:, 2:] * 0.05 * 32
     scene[6] = intrinsics_ortho(W, H, dtype=torch.float64)
     ref, g_ref = _render_with_grads(scene, W, H, "torch", "ortho")
@@ -284,14 +351,19 @@ def test_means2d_gradient_and_meta():
     means, quats, scales, op, feats, viewmat, K, W, H = _tiny_scene("pinhole")
     means = means.clone().requires_grad_(True)
     out = render(means, quats, scales, op, feats, viewmat, K, W, H, backend="torch")
-    assert out.features.shape == (H, W, 3) and out.depth.shape == (H, W, 1) and out.alpha.shape == (H, W, 1)
+    assert (
+        out.features.shape == (H, W, 3)
+        and out.depth.shape == (H, W, 1)
+        and out.alpha.shape == (H, W, 1)
+    )
     assert out.meta.radii.shape == (4, 2) and out.meta.radii.dtype == torch.int32
     assert out.meta.visible.all()
     out.features.sum().backward()
     g2 = out.meta.means2d_grad()
     assert g2 is not None and g2.shape == (4, 2) and g2.abs().sum() > 0
-    # chain rule: dL/dmeans (x, y part) = J^T dL/dmeans2d + terms through the covariance; check the ortho
-    # case instead, where means2d = (fx x + cx, fy y + cy) and the covariance does not depend on the mean
+    # chain rule: dL/dmeans (x, y part) = J^T dL/dmeans2d + terms through the covariance; check the
+    # ortho case instead, where means2d = (fx x + cx, fy y + cy) and the covariance does not depend
+    # on the mean
     m, q, s, o, f, v, Ko, W, H = _tiny_scene("ortho")
     m = m.clone().requires_grad_(True)
     out = render(m, q, s, o, f, v, Ko, W, H, camera_model="ortho", backend="torch")
@@ -308,7 +380,8 @@ def test_backend_selection_and_errors(monkeypatch, tmp_path):
     with pytest.raises(ValueError):
         resolve_backend("vulkan", torch.device("cpu"))
     means, quats, scales, op, feats, viewmat, K, W, H = _tiny_scene("pinhole")
-    with pytest.raises((ImportError, ValueError)):  # gsplat missing here, or CPU tensors given to it
+    # gsplat missing here, or CPU tensors given to it
+    with pytest.raises((ImportError, ValueError)):
         render(means, quats, scales, op, feats, viewmat, K, W, H, backend="gsplat")
     with pytest.raises(ValueError):
         render(means, quats, scales, op, feats, viewmat, K, W, H, camera_model="fisheye")

@@ -1,6 +1,7 @@
-"""Mitsuba rendering and exact ground truth (benchgen.render, benchgen.groundtruth), each against an independent
-answer: analytic plane depths, m4dgs.camera projection, analytic ray-box tests, an analytic flag deformation,
-inverse-depth interpolation on planes, and re-rendering from scratch."""
+"""Mitsuba rendering and exact ground truth (benchgen.render, benchgen.groundtruth), each against an
+independent answer: analytic plane depths, m4dgs.camera projection, analytic ray-box tests, an
+analytic flag deformation, inverse-depth interpolation on planes, and re-rendering from scratch."""
+
 from __future__ import annotations
 
 import math
@@ -13,15 +14,25 @@ import torch
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from benchgen.groundtruth import (cameras_from_states, dynamic_mask, flow_between, project, render_noise,
-                                  sample_tracks, surface_points)
+from benchgen.groundtruth import (
+    cameras_from_states,
+    dynamic_mask,
+    flow_between,
+    project,
+    render_noise,
+    sample_tracks,
+    surface_points,
+)
 from benchgen.render import Renderer, render_clip_gt, sensor_to_world
-from m4dgs.camera import K_from_fov, make_K, project_pinhole, transform_points, c2w_to_w2c
+from m4dgs.camera import K_from_fov, c2w_to_w2c, make_K, project_pinhole, transform_points
 from m4dgs.warp import backward_warp
 
-try:  # the scene interface (API.md contract); local stand-ins with the same fields until benchgen.scene lands
+# the scene interface (API.md contract); local stand-ins with the same fields until benchgen.scene
+# lands
+try:
     from benchgen.scene import FrameState, Lighting, Material, MeshState
 except ImportError:  # pragma: no cover - depends on the sibling module's progress
+
     @dataclass
     class Material:
         kind: str
@@ -59,9 +70,9 @@ except ImportError:  # pragma: no cover - depends on the sibling module's progre
 W, H = 48, 32
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Fixtures
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def look_at_c2w(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """OpenCV c2w (x right, y down, z forward) looking from eye at target, z-up world."""
     eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
@@ -116,15 +127,21 @@ def smooth_texture(seed, n=64):
 
 
 def lighting():
-    return Lighting(env_radiance=(0.3, 0.3, 0.3), sun_direction=np.array([0.3, -0.4, 0.87]) / np.linalg.norm([0.3, -0.4, 0.87]),
-                    sun_irradiance=(2.0, 1.9, 1.7))
+    return Lighting(
+        env_radiance=(0.3, 0.3, 0.3),
+        sun_direction=np.array([0.3, -0.4, 0.87]) / np.linalg.norm([0.3, -0.4, 0.87]),
+        sun_irradiance=(2.0, 1.9, 1.7),
+    )
 
 
 def box_scene_state(g, width=W, height=H):
-    """A textured box translating in front of a textured background wall; the camera moves sideways."""
+    """A textured box translating in front of a textured background wall; the camera moves
+    sideways."""
     t = g / 10.0
     wall_V, wall_F, wall_UV = quad([0.0, 6.0, 1.0], [9.0, 0, 0], [0, 0, 6.0])
-    wall = MeshState("wall", 1, wall_V, wall_F, wall_UV, Material("diffuse", smooth_texture(1)), False)
+    wall = MeshState(
+        "wall", 1, wall_V, wall_F, wall_UV, Material("diffuse", smooth_texture(1)), False
+    )
     bV, bF, bUV = box([-0.4 + 0.5 * t, 1.0, 1.0], [0.5, 0.5, 0.5])
     bx = MeshState("box", 2, bV, bF, bUV, Material("diffuse", smooth_texture(2)), True)
     c2w = look_at_c2w([0.2 * t - 0.3, -4.0, 1.3], [0.2 * t - 0.3, 3.0, 1.0])
@@ -142,7 +159,8 @@ class BoxScene:
 
 
 def ray_box_hit(o, d, lo, hi):
-    """Analytic slab test: [N] bool and entry parameter of rays o [3], d [N, 3] against the AABB [lo, hi]."""
+    """Analytic slab test: [N] bool and entry parameter of rays o [3], d [N, 3] against the AABB
+    [lo, hi]."""
     with np.errstate(divide="ignore", invalid="ignore"):
         t1 = (lo - o) / d
         t2 = (hi - o) / d
@@ -151,14 +169,15 @@ def ray_box_hit(o, d, lo, hi):
     return (tmax >= tmin) & (tmax > 0), tmin
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Tests
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_zdepth_tilted_plane_is_analytic():
     n = np.array([0.2, -0.9, 0.4])
     n /= np.linalg.norm(n)
     p0 = np.array([0.5, 5.0, 0.8])
-    a = np.cross(n, [0.0, 0.0, 1.0]); a /= np.linalg.norm(a)
+    a = np.cross(n, [0.0, 0.0, 1.0])
+    a /= np.linalg.norm(a)
     b = np.cross(n, a)
     V, F, UV = quad(p0, 30 * a, 30 * b)
     plane = MeshState("plane", 3, V, F, UV, Material("diffuse", None), False)
@@ -186,23 +205,34 @@ def test_camera_convention_bright_spot():
     target_px = np.array([[9.5, 7.5], [36.5, 25.5], [30.5, 6.5]])
     for uv_t in target_px:
         # the bright point, 6 m in front of the camera, unprojected through OpenCV K, c2w
-        p_cam = np.array([(uv_t[0] + 0.05 - K[0, 2]) / K[0, 0] * 6, (uv_t[1] - 0.08 - K[1, 2]) / K[1, 1] * 6, 6.0])
+        p_cam = np.array(
+            [
+                (uv_t[0] + 0.05 - K[0, 2]) / K[0, 0] * 6,
+                (uv_t[1] - 0.08 - K[1, 2]) / K[1, 1] * 6,
+                6.0,
+            ]
+        )
         p_w = c2w[:3, :3] @ p_cam + c2w[:3, 3]
         # a tiny emitter facing the camera (normal towards the eye), about 0.3 px across
         to_eye = c2w[:3, 3] - p_w
         to_eye /= np.linalg.norm(to_eye)
         s = 0.15 * 6 / K[0, 0]
-        a = np.cross(to_eye, [0, 0, 1.0]); a /= np.linalg.norm(a)
+        a = np.cross(to_eye, [0, 0, 1.0])
+        a /= np.linalg.norm(a)
         b = np.cross(to_eye, a)
         V, F, UV = quad(p_w, s * a, s * b)
         if np.cross(V[1] - V[0], V[2] - V[0]) @ to_eye < 0:
             F = F[:, ::-1].copy()
-        em = MeshState("spot", 1, V, F, UV, Material("emitter", None, radiance=(5000.0, 5000.0, 5000.0)), False)
+        em = MeshState(
+            "spot", 1, V, F, UV, Material("emitter", None, radiance=(5000.0, 5000.0, 5000.0)), False
+        )
         fs = FrameState(0, 0.0, [em], c2w, K, Lighting((0.01, 0.01, 0.01), None, None))
         img = Renderer(fs, W, H, {"spp": 16, "max_depth": 2}).render_hdr()
         j, i = np.unravel_index(np.argmax(img.sum(-1)), img.shape[:2])
         # independent answer: m4dgs.camera projection of the world point
-        uv = project_pinhole(transform_points(c2w_to_w2c(torch.tensor(c2w)), torch.tensor(p_w)), torch.tensor(K)).numpy()
+        uv = project_pinhole(
+            transform_points(c2w_to_w2c(torch.tensor(c2w)), torch.tensor(p_w)), torch.tensor(K)
+        ).numpy()
         assert (i, j) == (int(np.floor(uv[0])), int(np.floor(uv[1]))), (uv_t, (i, j), uv)
         assert img[j, i].sum() > 100 * np.median(img.sum(-1))
 
@@ -236,7 +266,12 @@ def test_instance_ids_and_dynamic_mask_match_analytic_box(box_renders):
     for s, c in zip(states, casts):
         o = s.c2w[:3, 3]
         v, u = np.mgrid[0:H, 0:W] + 0.5
-        d = np.stack([(u - s.K[0, 2]) / s.K[0, 0], (v - s.K[1, 2]) / s.K[1, 1], np.ones_like(u)], -1) @ s.c2w[:3, :3].T
+        d = (
+            np.stack(
+                [(u - s.K[0, 2]) / s.K[0, 0], (v - s.K[1, 2]) / s.K[1, 1], np.ones_like(u)], -1
+            )
+            @ s.c2w[:3, :3].T
+        )
         bV = s.meshes[1].vertices
         hit, tmin = ray_box_hit(o, d.reshape(-1, 3), bV.min(0), bV.max(0))
         hit = hit.reshape(H, W)
@@ -249,15 +284,24 @@ def test_instance_ids_and_dynamic_mask_match_analytic_box(box_renders):
 
 def test_warp_by_gt_flow_reproduces_frame(box_renders):
     states, casts, hdrs, other0 = box_renders
-    flow, vis = flow_between(casts[0], states[1], states[1], casts[1].depth, casts[1].instance, cam_a=states[0])
+    flow, vis = flow_between(
+        casts[0], states[1], states[1], casts[1].depth, casts[1].instance, cam_a=states[0]
+    )
     # independent check of the flow on the wall: analytic plane y = 6 seen from both cameras
     wall = casts[0].instance == 1
     v, u = np.mgrid[0:H, 0:W] + 0.5
     s0, s1 = states
-    d = np.stack([(u - s0.K[0, 2]) / s0.K[0, 0], (v - s0.K[1, 2]) / s0.K[1, 1], np.ones_like(u)], -1) @ s0.c2w[:3, :3].T
+    d = (
+        np.stack(
+            [(u - s0.K[0, 2]) / s0.K[0, 0], (v - s0.K[1, 2]) / s0.K[1, 1], np.ones_like(u)], -1
+        )
+        @ s0.c2w[:3, :3].T
+    )
     t = (6.0 - s0.c2w[1, 3]) / d[..., 1]
     pw = s0.c2w[:3, 3] + t[..., None] * d
-    uv1 = project_pinhole(transform_points(c2w_to_w2c(torch.tensor(s1.c2w)), torch.tensor(pw)), torch.tensor(s1.K)).numpy()
+    uv1 = project_pinhole(
+        transform_points(c2w_to_w2c(torch.tensor(s1.c2w)), torch.tensor(pw)), torch.tensor(s1.K)
+    ).numpy()
     np.testing.assert_allclose(flow[wall], (uv1 - np.stack([u, v], -1))[wall], atol=1e-4)
     assert vis.mean() > 0.8 and (~vis).sum() > 0  # the moving box occludes part of the wall
     # warp frame 1 onto frame 0 and compare on visible pixels away from instance edges
@@ -267,7 +311,7 @@ def test_warp_by_gt_flow_reproduces_frame(box_renders):
     interior = np.ones_like(vis)
     for dj in range(3):
         for di in range(3):
-            interior &= pad[dj:dj + H, di:di + W] == inst
+            interior &= pad[dj : dj + H, di : di + W] == inst
     x1 = np.stack([u, v], -1) + flow
     i1 = np.clip(np.floor(x1[..., 0]).astype(int), 0, W - 1)
     j1 = np.clip(np.floor(x1[..., 1]).astype(int), 0, H - 1)
@@ -284,7 +328,9 @@ def test_warp_by_gt_flow_reproduces_frame(box_renders):
     assert warp_err < 2.0 * noise_err + 0.01, (warp_err, noise_err)
     assert warp_err < flicker / 3
     # a wrong flow (off by one pixel) is clearly worse
-    bad = backward_warp(torch.tensor(hdrs[1]), torch.tensor(flow + np.array([1.0, 0.0], np.float32))).numpy()
+    bad = backward_warp(
+        torch.tensor(hdrs[1]), torch.tensor(flow + np.array([1.0, 0.0], np.float32))
+    ).numpy()
     assert rel(hdrs[0], bad)[good].mean() > 2 * warp_err
 
 
@@ -294,10 +340,15 @@ def test_tracks_project_onto_2d_and_depth(box_renders):
     N, G = ts.visible.shape
     assert G == 2 and N > 64 and ts.dynamic.any() and not ts.dynamic.all()
     for k, s in enumerate(states):
-        uv = project_pinhole(transform_points(c2w_to_w2c(torch.tensor(s.c2w)), torch.tensor(ts.points3d[:, k].astype(np.float64))),
-                             torch.tensor(s.K)).numpy()
+        uv = project_pinhole(
+            transform_points(
+                c2w_to_w2c(torch.tensor(s.c2w)), torch.tensor(ts.points3d[:, k].astype(np.float64))
+            ),
+            torch.tensor(s.K),
+        ).numpy()
         np.testing.assert_allclose(ts.tracks[:, k], uv, atol=2e-3)
-        # z of visible points equals the depth map, interpolated exactly on planes: 1/z is affine in pixel space
+        # z of visible points equals the depth map, interpolated exactly on planes: 1/z is affine in
+        # pixel space
         vis = ts.visible[:, k]
         z = ((ts.points3d[:, k].astype(np.float64) - s.c2w[:3, 3]) @ s.c2w[:3, :3])[:, 2]
         c = casts[k]
@@ -311,8 +362,12 @@ def test_tracks_project_onto_2d_and_depth(box_renders):
             if len({(c.instance[p], _face_normal_key(s, c, p)) for p in nb}) != 1:
                 continue
             fx, fy = x - i0, y - j0
-            invz = ((1 - fx) * (1 - fy) / c.depth[nb[0]] + fx * (1 - fy) / c.depth[nb[1]]
-                    + (1 - fx) * fy / c.depth[nb[2]] + fx * fy / c.depth[nb[3]])
+            invz = (
+                (1 - fx) * (1 - fy) / c.depth[nb[0]]
+                + fx * (1 - fy) / c.depth[nb[1]]
+                + (1 - fx) * fy / c.depth[nb[2]]
+                + fx * fy / c.depth[nb[3]]
+            )
             assert abs(1.0 / invz - z[n_]) < 1e-4 * z[n_]
             checked += 1
         assert checked > N // 3
@@ -343,7 +398,12 @@ def flag_faces(nx, ny):
     F = []
     for j in range(ny):
         for i in range(nx):
-            a, b, c, d = j * (nx + 1) + i, j * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i + 1, (j + 1) * (nx + 1) + i
+            a, b, c, d = (
+                j * (nx + 1) + i,
+                j * (nx + 1) + i + 1,
+                (j + 1) * (nx + 1) + i + 1,
+                (j + 1) * (nx + 1) + i,
+            )
             F += [[a, b, c], [a, c, d]]
     return np.array(F, np.int32)
 
@@ -356,7 +416,15 @@ def test_deforming_flag_flow_follows_surface():
     K = K_from_fov(W, H, 50.0)
 
     def state(g, t):
-        ms = MeshState("flag", 5, flag_vertices(nx, ny, t), F, UV, Material("glossy", None, roughness=0.3), True)
+        ms = MeshState(
+            "flag",
+            5,
+            flag_vertices(nx, ny, t),
+            F,
+            UV,
+            Material("glossy", None, roughness=0.3),
+            True,
+        )
         return FrameState(g, t, [ms], c2w, K, lighting())
 
     sa, sb = state(0, 0.0), state(1, 1.0)
@@ -368,9 +436,13 @@ def test_deforming_flag_flow_follows_surface():
     img_b = r.render_hdr()
     assert np.abs(img_a - img_b).mean() > 1e-3  # the deformation is visible
     flow, vis = flow_between(ca, sb, sb, cb.depth, cb.instance)
-    # independent answer: ray / plane y = 0 at t = 0 -> grid cell (s, r) -> the same triangle's barycentrics at t = 1
+    # independent answer: ray / plane y = 0 at t = 0 -> grid cell (s, r) -> the same triangle's
+    # barycentrics at t = 1
     v, u = np.mgrid[0:H, 0:W] + 0.5
-    d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1) @ c2w[:3, :3].T
+    d = (
+        np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+        @ c2w[:3, :3].T
+    )
     t = -c2w[1, 3] / d[..., 1]
     p = c2w[:3, 3] + t[..., None] * d
     s_, r_ = (p[..., 0] + 1.5) / 3.0, (p[..., 2] + 1.0) / 2.0
@@ -381,10 +453,20 @@ def test_deforming_flag_flow_follows_surface():
     Vb = flag_vertices(nx, ny, 1.0)
     idx = lambda i, j: j * (nx + 1) + i
     lower = fx >= fy  # triangle (a, b, c): below the diagonal a-c
-    pa, pb, pc, pd = Vb[idx(ci, cj)], Vb[idx(ci + 1, cj)], Vb[idx(ci + 1, cj + 1)], Vb[idx(ci, cj + 1)]
-    P1 = np.where(lower[..., None], (1 - fx)[..., None] * pa + (fx - fy)[..., None] * pb + fy[..., None] * pc,
-                  (1 - fy)[..., None] * pa + fx[..., None] * pc + (fy - fx)[..., None] * pd)
-    uv1 = project_pinhole(transform_points(c2w_to_w2c(torch.tensor(c2w)), torch.tensor(P1)), torch.tensor(K)).numpy()
+    pa, pb, pc, pd = (
+        Vb[idx(ci, cj)],
+        Vb[idx(ci + 1, cj)],
+        Vb[idx(ci + 1, cj + 1)],
+        Vb[idx(ci, cj + 1)],
+    )
+    P1 = np.where(
+        lower[..., None],
+        (1 - fx)[..., None] * pa + (fx - fy)[..., None] * pb + fy[..., None] * pc,
+        (1 - fy)[..., None] * pa + fx[..., None] * pc + (fy - fx)[..., None] * pd,
+    )
+    uv1 = project_pinhole(
+        transform_points(c2w_to_w2c(torch.tensor(c2w)), torch.tensor(P1)), torch.tensor(K)
+    ).numpy()
     ref = uv1 - np.stack([u, v], -1)
     np.testing.assert_allclose(flow[inside], ref[inside], atol=1e-3)
     assert np.abs(ref[inside]).max() > 1.0  # real motion
@@ -394,7 +476,9 @@ def test_deforming_flag_flow_follows_surface():
     uva, _ = project(flag_vertices(nx, ny, 0.0)[vi], sa)
     uvb, _ = project(Vb[vi], sb)
     jj, ii = int(uva[1]), int(uva[0])
-    assert np.linalg.norm(flow[jj, ii] - (uvb - uva)) < 0.3  # within the pixel's sub-pixel offset from the vertex
+    assert (
+        np.linalg.norm(flow[jj, ii] - (uvb - uva)) < 0.3
+    )  # within the pixel's sub-pixel offset from the vertex
 
 
 def test_update_reuses_scene_and_matches_fresh_load():
@@ -429,19 +513,40 @@ def test_render_noise_known_answers():
 
 
 def test_render_clip_gt_writes_and_resumes(tmp_path):
-    from m4dgs.clip import ClipMeta, ClipWriter, Exposures, Split, load_flowset, load_trackset
     from m4dgs import io as mio
+    from m4dgs.clip import ClipMeta, ClipWriter, Exposures, Split, load_flowset, load_trackset
 
     G = 5
-    meta = ClipMeta(name="boxes", width=W, height=H, fps=10.0, frames=list(range(G)),
-                    split=Split(train=[0, 2, 4], test=[1, 3]),
-                    exposures=Exposures(train_dt=[0.125, 2.0, 32.0], observed=[0.125, 2.0, 32.0], novel=[0.5, 8.0]))
+    meta = ClipMeta(
+        name="boxes",
+        width=W,
+        height=H,
+        fps=10.0,
+        frames=list(range(G)),
+        split=Split(train=[0, 2, 4], test=[1, 3]),
+        exposures=Exposures(
+            train_dt=[0.125, 2.0, 32.0], observed=[0.125, 2.0, 32.0], novel=[0.5, 8.0]
+        ),
+    )
     out = ClipWriter(tmp_path / "clip", meta)
-    notes = render_clip_gt(BoxScene(), W, H, list(range(G)), {"spp": 16, "max_depth": 2}, out, progress=False,
-                           num_grid=32, num_dynamic=8)
+    notes = render_clip_gt(
+        BoxScene(),
+        W,
+        H,
+        list(range(G)),
+        {"spp": 16, "max_depth": 2},
+        out,
+        progress=False,
+        num_grid=32,
+        num_dynamic=8,
+    )
     root = tmp_path / "clip"
     for g in range(G):
-        for rel in (f"gt/hdr/{g:05d}.exr", f"gt/depth/{g:05d}.exr", f"gt/masks/dynamic/{g:05d}.png"):
+        for rel in (
+            f"gt/hdr/{g:05d}.exr",
+            f"gt/depth/{g:05d}.exr",
+            f"gt/masks/dynamic/{g:05d}.png",
+        ):
             assert (root / rel).exists(), rel
     fs = load_flowset(root / "gt/flow.npz", W, H)
     assert sorted(map(tuple, fs.pairs.tolist())) == [(0, 2), (2, 0), (2, 4), (4, 2)]
@@ -455,25 +560,46 @@ def test_render_clip_gt_writes_and_resumes(tmp_path):
     assert out.meta.gt["hdr_tae_floor"] == notes["hdr_tae_floor"]
     # resume: existing HDR frames are not re-rendered
     mtime = (root / "gt/hdr/00003.exr").stat().st_mtime_ns
-    notes2 = render_clip_gt(BoxScene(), W, H, list(range(G)), {"spp": 16, "max_depth": 2}, out, progress=False,
-                            num_grid=32, num_dynamic=8)
+    notes2 = render_clip_gt(
+        BoxScene(),
+        W,
+        H,
+        list(range(G)),
+        {"spp": 16, "max_depth": 2},
+        out,
+        progress=False,
+        num_grid=32,
+        num_dynamic=8,
+    )
     assert (root / "gt/hdr/00003.exr").stat().st_mtime_ns == mtime
     assert notes2["timing_s_per_frame"]["render"] is None
     assert abs(notes2["hdr_tae_floor"] - notes["hdr_tae_floor"]) < 1e-6
-    np.testing.assert_array_equal(cameras_from_states([box_scene_state(g) for g in range(G)]).frames, np.arange(G))
+    np.testing.assert_array_equal(
+        cameras_from_states([box_scene_state(g) for g in range(G)]).frames, np.arange(G)
+    )
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Light selection (emitter sampling weights)
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def lamp_scene_state():
-    """A textured wall 5 m in front of the camera, a 0.2 m x 0.2 m lamp panel facing it, a dim environment, a sun."""
-    wall_V, wall_F, wall_UV = quad([0.0, 5.0, 1.0], [6.0, 0, 0], [0, 0, 4.0])  # normal u x v = -y: towards the camera
-    wall = MeshState("wall", 1, wall_V, wall_F, wall_UV, Material("diffuse", smooth_texture(3)), False)
+    """A textured wall 5 m in front of the camera, a 0.2 m x 0.2 m lamp panel facing it, a dim
+    environment, a sun."""
+    # normal u x v = -y: towards the camera
+    wall_V, wall_F, wall_UV = quad([0.0, 5.0, 1.0], [6.0, 0, 0], [0, 0, 4.0])
+    wall = MeshState(
+        "wall", 1, wall_V, wall_F, wall_UV, Material("diffuse", smooth_texture(3)), False
+    )
     lV, lF, lUV = quad([0.6, 3.5, 1.2], [0.1, 0, 0], [0, 0, -0.1])  # normal +y: towards the wall
-    lamp = MeshState("lamp", 2, lV, lF, lUV, Material("emitter", None, radiance=(3000.0, 2500.0, 2000.0)), False)
+    lamp = MeshState(
+        "lamp", 2, lV, lF, lUV, Material("emitter", None, radiance=(3000.0, 2500.0, 2000.0)), False
+    )
     c2w = look_at_c2w([0.0, 0.0, 1.0], [0.0, 5.0, 1.0])
-    lt = Lighting(env_radiance=(0.01, 0.01, 0.01), sun_direction=np.array([0.0, -0.6, 0.8]), sun_irradiance=(0.5, 0.5, 0.5))
+    lt = Lighting(
+        env_radiance=(0.01, 0.01, 0.01),
+        sun_direction=np.array([0.0, -0.6, 0.8]),
+        sun_irradiance=(0.5, 0.5, 0.5),
+    )
     return FrameState(0, 0.0, [wall, lamp], c2w, K_from_fov(W, H, 60.0), lt)
 
 
@@ -481,15 +607,20 @@ def test_emitter_sampling_weights_analytic():
     from benchgen.render import emitter_sampling_weights, emitter_weights_for
 
     fs = lamp_scene_state()
-    # hand computation: the wall's vertices all lie at camera z = 5; lamp area 0.2 * 0.2 = 0.04 m^2, mean radiance 2500
-    lamp = 2500.0 * 0.04 / 4.0 / 5.0 ** 2
+    # hand computation: the wall's vertices all lie at camera z = 5; lamp area 0.2 * 0.2 = 0.04 m^2,
+    # mean radiance 2500
+    lamp = 2500.0 * 0.04 / 4.0 / 5.0**2
     env, sun = math.pi * 0.01, 0.5
     top = max(lamp, env, sun)
     w = emitter_sampling_weights(fs)
     assert set(w) == {"env", "sun", "lamp"}
-    np.testing.assert_allclose([w["lamp"], w["env"], w["sun"]], [lamp / top, env / top, sun / top], rtol=1e-9)
+    np.testing.assert_allclose(
+        [w["lamp"], w["env"], w["sun"]], [lamp / top, env / top, sun / top], rtol=1e-9
+    )
     assert emitter_weights_for("uniform", fs) == {}
-    np.testing.assert_allclose(emitter_weights_for("power-sqrt", fs)["env"], math.sqrt(env / top), rtol=1e-9)
+    np.testing.assert_allclose(
+        emitter_weights_for("power-sqrt", fs)["env"], math.sqrt(env / top), rtol=1e-9
+    )
     # the floor keeps every light sampled
     assert min(emitter_sampling_weights(fs, min_weight=0.05).values()) >= 0.05
     with pytest.raises(ValueError, match="emitter_sampling"):
@@ -497,15 +628,21 @@ def test_emitter_sampling_weights_analytic():
 
 
 def test_light_selection_weights_do_not_bias_the_render():
-    """Next-event estimation with MIS stays unbiased for any selection weights: uniform vs power-weighted renders of
-    the same frame agree up to Monte Carlo noise (the independent answer is the uniform render)."""
+    """Next-event estimation with MIS stays unbiased for any selection weights: uniform vs
+    power-weighted renders of the same frame agree up to Monte Carlo noise (the independent answer
+    is the uniform render)."""
     fs = lamp_scene_state()
-    imgs = {m: Renderer(fs, W, H, {"spp": 1024, "max_depth": 2, "emitter_sampling": m}).render_hdr(seed=7)
-            for m in ("uniform", "power")}
+    imgs = {
+        m: Renderer(fs, W, H, {"spp": 1024, "max_depth": 2, "emitter_sampling": m}).render_hdr(
+            seed=7
+        )
+        for m in ("uniform", "power")
+    }
     a, b = imgs["uniform"].astype(np.float64), imgs["power"].astype(np.float64)
     assert a.mean() > 0
     assert abs(a.mean() - b.mean()) / a.mean() < 0.01
-    # per pixel: the difference is noise, centred on zero (a wrong pdf would shift every pixel the same way)
+    # per pixel: the difference is noise, centred on zero (a wrong pdf would shift every pixel the
+    # same way)
     rel = (a - b) / (a + b + 1e-12)
     assert abs(np.median(rel)) < 0.01
     # and the weighting did change the sampling (not a no-op)
@@ -519,13 +656,17 @@ def test_choose_emitter_sampling_picks_the_least_noisy_mode():
     mode, scores = choose_emitter_sampling(fs, W, H, RenderSettings(spp=64))
     assert set(scores) == set(EMITTER_SAMPLING_MODES) and all(v > 0 for v in scores.values())
     assert scores[mode] == min(scores.values())
-    # independent check of the score: the noise term of two renders made directly with the chosen mode
+    # independent check of the score: the noise term of two renders made directly with the chosen
+    # mode
     r = Renderer(fs, W, H, {"spp": 16, "emitter_sampling": mode})
     n = render_noise(r.render_hdr(seed=1), r.render_hdr(seed=2), r.cast_rays().hit)["tae_two_seeds"]
     assert abs(n - scores[mode]) < 1e-9
-    assert choose_emitter_sampling(fs, W, H, RenderSettings(spp=64)) == (mode, scores)  # deterministic
+    # deterministic
+    assert choose_emitter_sampling(fs, W, H, RenderSettings(spp=64)) == (mode, scores)
     # a Renderer asked for "auto" makes the same choice
     assert Renderer(fs, W, H, {"spp": 16, "emitter_sampling": "auto"}).emitter_sampling == mode
     # with the environment as the only light there is nothing to choose
-    env_only = FrameState(0, 0.0, [fs.meshes[0]], fs.c2w, fs.K, Lighting((0.2, 0.2, 0.2), None, None))
+    env_only = FrameState(
+        0, 0.0, [fs.meshes[0]], fs.c2w, fs.K, Lighting((0.2, 0.2, 0.2), None, None)
+    )
     assert choose_emitter_sampling(env_only, W, H, RenderSettings(spp=64)) == ("uniform", {})

@@ -1,9 +1,10 @@
 """Rigidity-test dynamic masks (m4dgs.rigidity).
 
-Independent answers: the analytic flow of a fronto-parallel plane under a sideways camera translation (u' - u =
--f t_x / z) and of a pure rotation (a homography K R K^-1, independent of depth); per-pixel projection written out
-by hand; a known moving square whose motion lies along the epipolar lines, which the epipolar test cannot see.
-"""
+Independent answers: the analytic flow of a fronto-parallel plane under a sideways camera
+translation (u' - u = -f t_x / z) and of a pure rotation (a homography K R K^-1, independent of
+depth); per-pixel projection written out by hand; a known moving square whose motion lies along the
+epipolar lines, which the epipolar test cannot see."""
+
 import math
 
 import numpy as np
@@ -13,8 +14,13 @@ import torch
 from m4dgs.camera import K_from_fov, quat_to_rotmat
 from m4dgs.config import preset
 from m4dgs.epipolar import EpipolarConfig, dynamic_masks, pair_error_map
-from m4dgs.rigidity import (DynamicMaskConfig, relative_threshold_masks, reprojection_error_maps, rigidity_masks,
-                            static_flow)
+from m4dgs.rigidity import (
+    DynamicMaskConfig,
+    relative_threshold_masks,
+    reprojection_error_maps,
+    rigidity_masks,
+    static_flow,
+)
 
 W, H = 80, 60
 
@@ -47,7 +53,7 @@ def test_static_flow_pure_rotation_is_the_homography():
     flow, ok = static_flow(depth, K, _pose(), _pose(R=R))
     # camera j = rotation R (c2w); a world point X maps to R^T X in camera j: homography K R^T K^-1
     Hm = (K @ R.T @ torch.linalg.inv(K)).numpy()
-    for (y, x) in [(0, 0), (10, 70), (59, 3), (31, 40)]:
+    for y, x in [(0, 0), (10, 70), (59, 3), (31, 40)]:
         p = Hm @ np.array([x + 0.5, y + 0.5, 1.0])
         np.testing.assert_allclose(flow[y, x].numpy(), p[:2] / p[2] - [x + 0.5, y + 0.5], atol=1e-4)
     assert ok.all()
@@ -64,7 +70,7 @@ def test_static_flow_general_motion_matches_hand_projection():
     flow, ok = static_flow(depth, K, c1, c2)
     assert not ok[5, 7] and ok.sum() == H * W - 1
     Kn = K.numpy()
-    for (y, x) in [(0, 0), (20, 33), (59, 79)]:
+    for y, x in [(0, 0), (20, 33), (59, 79)]:
         ray = np.linalg.inv(Kn) @ np.array([x + 0.5, y + 0.5, 1.0])
         Xw = c1.numpy()[:3, :3] @ (ray * float(depth[y, x])) + c1.numpy()[:3, 3]
         Xc = c2.numpy()[:3, :3].T @ (Xw - c2.numpy()[:3, 3])
@@ -73,9 +79,10 @@ def test_static_flow_general_motion_matches_hand_projection():
 
 
 def _sliding_square_scene(motion=4.0, noise=0.1, seed=0):
-    """Three frames of a camera translating sideways over a smooth depth field; a square in frame 0 slides by
-    `motion` px horizontally, i.e. along the (horizontal) epipolar lines. Returns the inputs of
-    reprojection_error_maps (with prior depth = world depth / 2 and BA scale 2) and the gt mask of frame 0."""
+    """Three frames of a camera translating sideways over a smooth depth field; a square in frame 0
+    slides by `motion` px horizontally, i.e. along the (horizontal) epipolar lines. Returns the
+    inputs of reprojection_error_maps (with prior depth = world depth / 2 and BA scale 2) and the gt
+    mask of frame 0."""
     rng = np.random.default_rng(seed)
     K = torch.as_tensor(K_from_fov(W, H, 60.0))
     ys, xs = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
@@ -102,7 +109,8 @@ def test_reprojection_error_is_the_added_motion():
     np.testing.assert_allclose(err[0][gt].numpy(), 4.0, atol=1e-3)
     assert float(err[0][~gt].abs().max()) < 1e-3 and float(err[1:].abs().max()) < 1e-3
     mean, _ = reprojection_error_maps(prior, scale, K, c2w, flow, valid, pairs, combine="mean")
-    np.testing.assert_allclose(mean[0][gt].numpy(), 4.0, atol=1e-3)  # frame 0 is the source of one pair
+    # frame 0 is the source of one pair
+    np.testing.assert_allclose(mean[0][gt].numpy(), 4.0, atol=1e-3)
     # the wrong depth scale is an error of every static pixel (the test needs the BA scale)
     bad, _ = reprojection_error_maps(prior, scale / 2, K, c2w, flow, valid, pairs, combine="max")
     assert float(bad[0][~gt].median()) > 1.0
@@ -110,7 +118,9 @@ def test_reprojection_error_is_the_added_motion():
 
 def test_rigidity_masks_see_motion_along_epipolar_lines_the_epipolar_test_misses():
     prior, scale, K, c2w, flow, valid, pairs, gt = _sliding_square_scene(motion=4.0, noise=0.1)
-    masks = rigidity_masks(prior, scale, K, c2w, flow, valid, pairs, DynamicMaskConfig(method="reprojection"))
+    masks = rigidity_masks(
+        prior, scale, K, c2w, flow, valid, pairs, DynamicMaskConfig(method="reprojection")
+    )
     iou = float((masks[0] & gt).sum() / (masks[0] | gt).sum())
     assert iou > 0.95
     assert masks[1:].float().mean() < 0.01  # static frames: only noise
@@ -132,7 +142,9 @@ def test_relative_threshold_floor_and_frames_without_pairs():
     # frame 2 is the source of no pair: it copies frame 1's maps
     prior, scale, K, c2w, flow, valid3, pairs, gt = _sliding_square_scene(noise=0.0)
     keep = [p for p, (i, _) in enumerate(pairs) if i != 2]
-    err3, ok3 = reprojection_error_maps(prior, scale, K, c2w, flow[keep], valid3[keep], [pairs[p] for p in keep])
+    err3, ok3 = reprojection_error_maps(
+        prior, scale, K, c2w, flow[keep], valid3[keep], [pairs[p] for p in keep]
+    )
     assert torch.equal(err3[2], err3[1]) and torch.equal(ok3[2], ok3[1])
     with pytest.raises(ValueError, match="pairs"):
         reprojection_error_maps(prior, scale, K, c2w, flow, valid3, pairs[:2])

@@ -1,4 +1,6 @@
-"""Quaternion polynomial, relative angles and Markley averaging against hand computations and scipy."""
+"""Quaternion polynomial, relative angles and Markley averaging against hand computations and
+scipy."""
+
 import numpy as np
 import pytest
 import torch
@@ -27,7 +29,9 @@ def test_init_modes_are_identity():
 
 
 def test_poly_evaluate_hand_computation():
-    a = torch.tensor([[[1.0, 0.0, 0.0, 0.0], [0.5, 1.0, 0.0, 0.0], [0.0, 0.0, 2.0, 0.0], [0.0, 0.0, 0.0, -1.0]]])
+    a = torch.tensor(
+        [[[1.0, 0.0, 0.0, 0.0], [0.5, 1.0, 0.0, 0.0], [0.0, 0.0, 2.0, 0.0], [0.0, 0.0, 0.0, -1.0]]]
+    )
     # r(0.5) = a0 + 0.5 a1 + 0.25 a2 + 0.125 a3 = [1.25, 0.5, 0.5, -0.125]
     r = rotation.poly_evaluate(a, 0.5)
     torch.testing.assert_close(r, torch.tensor([[1.25, 0.5, 0.5, -0.125]]))
@@ -48,7 +52,9 @@ def test_least_squares_refit_recovers_coefficients():
     raw = np.einsum("tj,njc->ntc", np.stack([tn**0, tn, tn**2, tn**3], 1), coeffs.numpy())
     flips = np.where(np.random.default_rng(0).random((n, t_count, 1)) < 0.3, -1.0, 1.0)
     target = torch.tensor(raw * flips)
-    fit = rotation.fit_rotation_poly(target, t, ridge=0.0, normalize_targets=False, reference=coeffs[:, 0])
+    fit = rotation.fit_rotation_poly(
+        target, t, ridge=0.0, normalize_targets=False, reference=coeffs[:, 0]
+    )
     torch.testing.assert_close(fit, coeffs, atol=1e-9, rtol=0)
     # on unit targets the fit reproduces the rotations closely (a cubic cannot be exactly unit-norm)
     fit_u = rotation.fit_rotation_poly(target, t)
@@ -62,7 +68,9 @@ def test_least_squares_refit_recovers_coefficients():
     torch.testing.assert_close(fit0, const, atol=1e-9, rtol=0)
     # no valid frame: identity constant
     none = rotation.fit_rotation_poly(target[:2], t, torch.zeros(2, t_count, dtype=torch.bool))
-    torch.testing.assert_close(none, rotation.init_rotation_coeffs(2, mode="constant", dtype=torch.float64))
+    torch.testing.assert_close(
+        none, rotation.init_rotation_coeffs(2, mode="constant", dtype=torch.float64)
+    )
 
 
 def test_refit_recovers_cubic_on_unit_targets_with_mask():
@@ -84,7 +92,9 @@ def test_refit_recovers_cubic_on_unit_targets_with_mask():
     assert after <= before + 1e-12
     assert before < 1e-4
     # unnormalised fit on the valid frames only recovers the generating coefficients exactly
-    exact = rotation.fit_rotation_poly(target, t, valid, ridge=0.0, normalize_targets=False, reference=coeffs[:, 0])
+    exact = rotation.fit_rotation_poly(
+        target, t, valid, ridge=0.0, normalize_targets=False, reference=coeffs[:, 0]
+    )
     torch.testing.assert_close(exact, coeffs, atol=1e-9, rtol=0)
 
 
@@ -99,7 +109,9 @@ def test_relative_rotation_angle_vs_scipy_and_gradient():
     np.testing.assert_allclose(got.numpy(), want, atol=1e-9)
     # log map magnitude and direction vs scipy rotvec
     rel = rotation.quat_multiply(qa, rotation.quat_conjugate(qb))
-    np.testing.assert_allclose(rotation.quat_log(rel).numpy(), (ra * rb.inv()).as_rotvec(), atol=1e-9)
+    np.testing.assert_allclose(
+        rotation.quat_log(rel).numpy(), (ra * rb.inv()).as_rotvec(), atol=1e-9
+    )
     # stable near zero: finite gradient at identical inputs, angle ~ 0
     q = qa[:4].clone().requires_grad_(True)
     ang = rotation.relative_rotation_angle(q, qa[:4].clone())
@@ -128,7 +140,12 @@ def test_markley_average_vs_scipy_mean():
     noise = Rotation.from_rotvec(rng.normal(scale=0.3, size=(30, 3)))
     rots = base * noise
     q = torch.tensor(_wxyz_from_scipy(rots))
-    q = q * torch.where(torch.rand(30, 1, generator=torch.Generator().manual_seed(0)) < 0.5, -1.0, 1.0).double()
+    q = (
+        q
+        * torch.where(
+            torch.rand(30, 1, generator=torch.Generator().manual_seed(0)) < 0.5, -1.0, 1.0
+        ).double()
+    )
     w = torch.tensor(rng.uniform(0.1, 2.0, size=30))
     got = rotation.quat_average_markley(q, w)
     want = rots.mean(weights=w.numpy())
@@ -145,11 +162,14 @@ def test_markley_average_vs_scipy_mean():
 
 
 def test_align_quat_signs():
-    q = torch.tensor([[[1.0, 0, 0, 0], [-0.99, -0.1, 0, 0], [0.98, 0.2, 0, 0], [-0.97, -0.3, 0, 0]]])
+    q = torch.tensor(
+        [[[1.0, 0, 0, 0], [-0.99, -0.1, 0, 0], [0.98, 0.2, 0, 0], [-0.97, -0.3, 0, 0]]]
+    )
     out = rotation.align_quat_signs(q)
     assert (out[0, :, 0] > 0).all()
     valid = torch.tensor([[True, False, True, True]])
     q2 = q.clone()
-    q2[0, 1] = torch.tensor([0.0, 0.0, 0.0, 1.0])  # garbage on an invalid frame must not break the chain
+    # garbage on an invalid frame must not break the chain
+    q2[0, 1] = torch.tensor([0.0, 0.0, 0.0, 1.0])
     out2 = rotation.align_quat_signs(q2, valid)
     assert out2[0, 2, 0] > 0 and out2[0, 3, 0] > 0

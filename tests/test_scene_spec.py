@@ -1,4 +1,6 @@
-"""Scene specs, suites, procedural meshes/textures and the coverage rasterizer, against independent answers."""
+"""Scene specs, suites, procedural meshes/textures and the coverage rasterizer, against independent
+answers."""
+
 import copy
 import math
 from collections import Counter
@@ -8,7 +10,14 @@ import pytest
 import yaml
 
 from benchgen import meshes, textures
-from benchgen.scene import FrameState, Scene, dynamic_pixel_fraction, load_scene, rasterize_ids, scene_from_dict
+from benchgen.scene import (
+    FrameState,
+    Scene,
+    dynamic_pixel_fraction,
+    load_scene,
+    rasterize_ids,
+    scene_from_dict,
+)
 from benchgen.spec import SpecError, validate_scene
 from benchgen.suite import builtin_scenes_dir, builtin_suites, load_suite
 
@@ -18,7 +27,11 @@ MIN_SPEC = {
     "camera": {"trajectory": {"type": "static", "position": [0, -4, 1], "target": [0, 0, 1]}},
     "objects": [
         {"name": "floor", "mesh": {"type": "plane", "size": [4, 4]}},
-        {"name": "box", "mesh": {"type": "box", "size": [1, 1, 1]}, "motion": {"type": "translate", "velocity": [1, 0, 0]}},
+        {
+            "name": "box",
+            "mesh": {"type": "box", "size": [1, 1, 1]},
+            "motion": {"type": "translate", "velocity": [1, 0, 0]},
+        },
         {"name": "ball", "mesh": {"type": "uv_sphere", "radius": 0.3}},
     ],
 }
@@ -42,13 +55,17 @@ def _spec(**patch):
 _DELETE = object()
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Validation errors name the file, the key path and what was expected
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_minimal_spec_gets_defaults():
     s = validate_scene(copy.deepcopy(MIN_SPEC), "mini.yaml")
     assert s["fps"] == 30.0 and s["seed"] == 0 and s["camera"]["fov_deg"] == 60.0
-    assert s["objects"][0]["material"] == {"kind": "diffuse", "color": [0.5, 0.5, 0.5], "texture": None}
+    assert s["objects"][0]["material"] == {
+        "kind": "diffuse",
+        "color": [0.5, 0.5, 0.5],
+        "texture": None,
+    }
     assert s["objects"][0]["transform"]["scale"] == [1.0, 1.0, 1.0]
     assert s["objects"][0]["motion"] == {"type": "none"}
     assert s["objects"][0]["mesh"]["subdivisions"] == 4
@@ -62,13 +79,34 @@ def test_minimal_spec_gets_defaults():
         ({"num_frames": 2.5}, "num_frames", "int"),  # wrong type (float for int)
         ({"objects__1__mesh__radius": 0.3}, "objects[1].mesh.radius", "a known key"),  # unknown key
         ({"colour": [1, 1, 1]}, "colour", "a known key"),  # unknown top-level key
-        ({"camera__trajectory": {"type": "orbit", "radius": 3}}, "camera.trajectory.target", "required key"),  # missing
-        ({"camera__trajectory__type": "orbit"}, "camera.trajectory.position", "a known key"),  # key of another variant
+        (
+            {"camera__trajectory": {"type": "orbit", "radius": 3}},
+            "camera.trajectory.target",
+            "required key",
+        ),  # missing
+        # key of another variant
+        ({"camera__trajectory__type": "orbit"}, "camera.trajectory.position", "a known key"),
         ({"objects__0__name": _DELETE}, "objects[0].name", "required key"),  # missing key
-        ({"objects__2__motion": {"type": "foo"}}, "objects[2].motion.type", "one of ['none', 'keyframes'"),  # enum
-        ({"objects__0__transform": {"translate": [1, 2]}}, "objects[0].transform.translate", "list of 3"),
-        ({"objects__2__material": {"kind": "emitter"}}, "objects[2].material.radiance", "required key"),
-        ({"objects__2__material": {"kind": "glossy", "roughness": 3}}, "objects[2].material.roughness", "<= 1"),
+        (
+            {"objects__2__motion": {"type": "foo"}},
+            "objects[2].motion.type",
+            "one of ['none', 'keyframes'",
+        ),  # enum
+        (
+            {"objects__0__transform": {"translate": [1, 2]}},
+            "objects[0].transform.translate",
+            "list of 3",
+        ),
+        (
+            {"objects__2__material": {"kind": "emitter"}},
+            "objects[2].material.radiance",
+            "required key",
+        ),
+        (
+            {"objects__2__material": {"kind": "glossy", "roughness": 3}},
+            "objects[2].material.roughness",
+            "<= 1",
+        ),
         ({"objects__1__name": "floor"}, "objects[1].name", "unique name"),
         ({"objects": []}, "objects", "at least 1"),
     ],
@@ -87,28 +125,81 @@ def test_bad_enum_message_format():
     msg = str(e.value)
     assert msg == (
         "scenes/x.yaml: objects[2].motion.type: expected one of "
-        "['none', 'keyframes', 'translate', 'rotate', 'oscillate', 'articulated', 'flag'], got 'foo'"
+        "['none', 'keyframes', 'translate', 'rotate', 'oscillate', 'articulated', 'flag'], got "
+        "'foo'"
     )
 
 
 @pytest.mark.parametrize(
     "obj, key_path",
     [
-        ({"name": "a", "mesh": {"type": "box", "size": [1, 1, 1]}, "motion": {"type": "articulated", "joints": [{"axis": [0, 0, 1]}]}},
-         "objects[3].mesh.type"),
-        ({"name": "a", "mesh": {"type": "chain", "links": [{"length": 1}, {"length": 1}]},
-          "motion": {"type": "articulated", "joints": [{"axis": [0, 0, 1]}]}}, "objects[3].motion.joints"),
-        ({"name": "a", "mesh": {"type": "chain", "links": [{"length": 1}]}}, "objects[3].motion.type"),
-        ({"name": "a", "mesh": {"type": "plane", "size": [1, 1]}, "motion": {"type": "flag"}}, "objects[3].mesh.type"),
-        ({"name": "a", "mesh": {"type": "box", "size": [1, 1, 1]},
-          "motion": {"type": "keyframes", "keys": [{"time": 1, "position": [0, 0, 0]}, {"time": 0.5, "position": [1, 0, 0]}]}},
-         "objects[3].motion.keys[1].time"),
-        ({"name": "a", "mesh": {"type": "box", "size": [1, 1, 1]},
-          "motion": {"type": "keyframes", "keys": [{"time": 0, "position": [0, 0, 0]}, {"time": 1, "position": [0, 0, 0], "rotate_deg": [0, 0, 200]}]}},
-         "objects[3].motion.keys[1].rotate_deg"),
-        ({"name": "a", "mesh": {"type": "wall", "size": [2, 2], "opening": [-0.5, 0.5, 1.5, 1.0]}}, "objects[3].mesh.opening"),
-        ({"name": "a", "mesh": {"type": "box", "size": [1, 1, 1]}, "motion": {"type": "rotate", "axis": [0, 0, 0], "speed_deg_s": 1}},
-         "objects[3].motion.axis"),
+        (
+            {
+                "name": "a",
+                "mesh": {"type": "box", "size": [1, 1, 1]},
+                "motion": {"type": "articulated", "joints": [{"axis": [0, 0, 1]}]},
+            },
+            "objects[3].mesh.type",
+        ),
+        (
+            {
+                "name": "a",
+                "mesh": {"type": "chain", "links": [{"length": 1}, {"length": 1}]},
+                "motion": {"type": "articulated", "joints": [{"axis": [0, 0, 1]}]},
+            },
+            "objects[3].motion.joints",
+        ),
+        (
+            {"name": "a", "mesh": {"type": "chain", "links": [{"length": 1}]}},
+            "objects[3].motion.type",
+        ),
+        (
+            {"name": "a", "mesh": {"type": "plane", "size": [1, 1]}, "motion": {"type": "flag"}},
+            "objects[3].mesh.type",
+        ),
+        (
+            {
+                "name": "a",
+                "mesh": {"type": "box", "size": [1, 1, 1]},
+                "motion": {
+                    "type": "keyframes",
+                    "keys": [
+                        {"time": 1, "position": [0, 0, 0]},
+                        {"time": 0.5, "position": [1, 0, 0]},
+                    ],
+                },
+            },
+            "objects[3].motion.keys[1].time",
+        ),
+        (
+            {
+                "name": "a",
+                "mesh": {"type": "box", "size": [1, 1, 1]},
+                "motion": {
+                    "type": "keyframes",
+                    "keys": [
+                        {"time": 0, "position": [0, 0, 0]},
+                        {"time": 1, "position": [0, 0, 0], "rotate_deg": [0, 0, 200]},
+                    ],
+                },
+            },
+            "objects[3].motion.keys[1].rotate_deg",
+        ),
+        (
+            {
+                "name": "a",
+                "mesh": {"type": "wall", "size": [2, 2], "opening": [-0.5, 0.5, 1.5, 1.0]},
+            },
+            "objects[3].mesh.opening",
+        ),
+        (
+            {
+                "name": "a",
+                "mesh": {"type": "box", "size": [1, 1, 1]},
+                "motion": {"type": "rotate", "axis": [0, 0, 0], "speed_deg_s": 1},
+            },
+            "objects[3].motion.axis",
+        ),
     ],
 )
 def test_cross_field_checks(obj, key_path):
@@ -134,19 +225,25 @@ def test_load_scene_error_names_the_file(tmp_path):
 
 def test_broken_suite_is_rejected(tmp_path):
     p = tmp_path / "s.yaml"
-    p.write_text(yaml.safe_dump({"name": "s", "scenes": ["tiny-lamp-box"], "exposures": {"observed": [1, -2]}}))
+    p.write_text(
+        yaml.safe_dump(
+            {"name": "s", "scenes": ["tiny-lamp-box"], "exposures": {"observed": [1, -2]}}
+        )
+    )
     with pytest.raises(SpecError) as e:
         load_suite(p)
     assert e.value.key_path == "exposures.observed[1]"
-    p.write_text(yaml.safe_dump({"name": "s", "scenes": ["no-such-scene"], "exposures": {"observed": [1]}}))
+    p.write_text(
+        yaml.safe_dump({"name": "s", "scenes": ["no-such-scene"], "exposures": {"observed": [1]}})
+    )
     with pytest.raises(SpecError) as e:
         load_suite(p)
     assert e.value.key_path == "scenes[0]"
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Shipped scenes and suites
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 SCENE_FILES = sorted(p for p in builtin_scenes_dir().glob("*.yaml"))
 
 
@@ -171,7 +268,9 @@ def _check_frame(sc: Scene, fs: FrameState, W: int, H: int):
         if mat.kind == "emitter":
             assert mat.radiance is not None and min(mat.radiance) >= 0
         elif mat.albedo is not None:
-            assert mat.albedo.dtype == np.float32 and mat.albedo.ndim == 3 and mat.albedo.shape[2] == 3
+            assert (
+                mat.albedo.dtype == np.float32 and mat.albedo.ndim == 3 and mat.albedo.shape[2] == 3
+            )
             assert 0 <= mat.albedo.min() and mat.albedo.max() <= 1
 
 
@@ -191,8 +290,9 @@ def test_shipped_scene_loads_and_gives_valid_frames(path):
             np.testing.assert_array_equal(a.vertices, b.vertices)
         else:
             assert not np.allclose(a.vertices, b.vertices), f"dynamic object {a.name} does not move"
-    assert any(m.material.kind == "emitter" and max(m.material.radiance) >= 1000 for m in states[0].meshes), \
-        "every scene has a small very bright lamp"
+    assert any(
+        m.material.kind == "emitter" and max(m.material.radiance) >= 1000 for m in states[0].meshes
+    ), "every scene has a small very bright lamp"
     for g in range(sc.num_frames):  # every camera pose is a proper rotation with a finite centre
         c2w = sc.c2w(g)
         assert np.isfinite(c2w).all()
@@ -204,7 +304,9 @@ def test_builtin_suites():
     assert {"syn-exp-3", "tiny"} <= set(builtin_suites())
     s = load_suite("syn-exp-3")
     assert s.name == "syn-exp-3" and len(s.scenes) == 9 and len(set(s.scene_names)) == 9
-    assert s.observed == [0.125, 2.0, 32.0] and s.novel == [0.5, 8.0] and s.schedule == "alternating"
+    assert (
+        s.observed == [0.125, 2.0, 32.0] and s.novel == [0.5, 8.0] and s.schedule == "alternating"
+    )
     specs = [load_scene(p).spec for p in s.scenes]
     assert all(90 <= sp["num_frames"] <= 110 and sp["fps"] == 30 for sp in specs)
     cams = Counter(sp["camera"]["trajectory"]["type"] for sp in specs)
@@ -213,10 +315,18 @@ def test_builtin_suites():
     assert {"keyframes", "translate", "rotate", "oscillate", "articulated", "flag"} <= motions
     assert any(sp["lighting"]["sun"] is not None for sp in specs)
     # a bright window/sky: a large emitter quad with moderate radiance
-    assert any(o["material"]["kind"] == "emitter" and o["mesh"]["type"] == "plane" and 5 <= max(o["material"]["radiance"]) <= 50
-               for sp in specs for o in sp["objects"])
+    assert any(
+        o["material"]["kind"] == "emitter"
+        and o["mesh"]["type"] == "plane"
+        and 5 <= max(o["material"]["radiance"]) <= 50
+        for sp in specs
+        for o in sp["objects"]
+    )
     # thin structures: cylinders of radius <= 2 cm in most scenes
-    thin = [any(o["mesh"]["type"] == "cylinder" and o["mesh"]["radius"] <= 0.02 for o in sp["objects"]) for sp in specs]
+    thin = [
+        any(o["mesh"]["type"] == "cylinder" and o["mesh"]["radius"] <= 0.02 for o in sp["objects"])
+        for sp in specs
+    ]
     assert sum(thin) >= 7
     tiny = load_suite("tiny")
     assert all(load_scene(p).num_frames <= 10 for p in tiny.scenes)
@@ -235,17 +345,17 @@ def test_capped_scene_keeps_timing():
     np.testing.assert_array_equal(c.frame(3, 32, 18).c2w, sc.frame(3, 32, 18).c2w)
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Meshes: winding, closure, analytic volumes
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _signed_volume(v, f):
     p = v[f]
     return float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)
 
 
 def _welded_edges_ok(v, f):
-    """Closed and consistently wound: after welding equal positions, each directed edge appears once and its
-    reverse once."""
+    """Closed and consistently wound: after welding equal positions, each directed edge appears once
+    and its reverse once."""
     _, inv = np.unique(np.round(v, 9), axis=0, return_inverse=True)
     ff = inv.reshape(-1)[f]
     edges = Counter()
@@ -289,7 +399,9 @@ def test_sphere_and_cylinder_volume_converge():
     assert vol == pytest.approx(4 / 3 * math.pi, rel=2e-3)
     c = meshes.cylinder(0.5, 2.0, 256)
     # prism with a regular n-gon base: area = n/2 r^2 sin(2 pi / n)
-    assert _signed_volume(c.vertices, c.faces) == pytest.approx(256 / 2 * 0.25 * math.sin(2 * math.pi / 256) * 2.0, rel=1e-9)
+    assert _signed_volume(c.vertices, c.faces) == pytest.approx(
+        256 / 2 * 0.25 * math.sin(2 * math.pi / 256) * 2.0, rel=1e-9
+    )
 
 
 def test_wall_with_opening_volume_and_chain_parts():
@@ -297,14 +409,22 @@ def test_wall_with_opening_volume_and_chain_parts():
     assert _signed_volume(w.vertices, w.faces) == pytest.approx((4 * 3 - 1.5 * 1.0) * 0.2, rel=1e-9)
     door = meshes.wall((4.0, 3.0), 0.2, (-0.5, 0.0, 0.5, 2.0))
     assert _signed_volume(door.vertices, door.faces) == pytest.approx((12 - 2.0) * 0.2, rel=1e-9)
-    ch = meshes.chain([{"shape": "box", "length": 1.0, "width": 0.2}, {"shape": "cylinder", "length": 0.5, "radius": 0.1}])
+    ch = meshes.chain(
+        [
+            {"shape": "box", "length": 1.0, "width": 0.2},
+            {"shape": "cylinder", "length": 0.5, "radius": 0.1},
+        ]
+    )
     assert set(ch.parts.tolist()) == {0, 1}
     z0 = ch.vertices[ch.parts == 0, 2]
     assert z0.min() == pytest.approx(0) and z0.max() == pytest.approx(1.0)
 
 
 def test_open_sheets_face_plus_z():
-    for m, lo, hi in ((meshes.plane((2, 3), 4), (-1, -1.5), (1, 1.5)), (meshes.grid((2, 1), (8, 4)), (0, 0), (2, 1))):
+    for m, lo, hi in (
+        (meshes.plane((2, 3), 4), (-1, -1.5), (1, 1.5)),
+        (meshes.grid((2, 1), (8, 4)), (0, 0), (2, 1)),
+    ):
         n = meshes.face_normals(m.vertices, m.faces)
         assert (n[:, 2] > 0).all() and np.allclose(n[:, :2], 0)
         np.testing.assert_allclose(m.vertices[:, :2].min(0), lo)
@@ -312,9 +432,9 @@ def test_open_sheets_face_plus_z():
         assert n[:, 2].sum() / 2 == pytest.approx((hi[0] - lo[0]) * (hi[1] - lo[1]))  # total area
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Textures
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("kind", ["checker", "stripes", "noise"])
 def test_textures_deterministic_in_range_textured(kind):
     a = textures.make_texture(kind, frequency=6, noise_amount=0.3, resolution=128, seed=3)
@@ -343,30 +463,54 @@ def test_value_noise_is_smooth_and_tileable():
     assert np.abs(n[:, 0] - n[:, -1]).max() < 0.1
 
 
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # Coverage rasterizer against analytic areas
-# ----------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _quad_scene(with_occluder: bool):
     objs = [
-        {"name": "card", "mesh": {"type": "plane", "size": [1.0, 1.0], "subdivisions": 3},
-         "transform": {"translate": [0, 0, 0], "rotate_deg": [90, 0, 0]},
-         "motion": {"type": "oscillate", "axis": [1, 0, 0], "amplitude": 0.0, "frequency_hz": 1.0}},
-        {"name": "backdrop", "mesh": {"type": "plane", "size": [20, 20]}, "transform": {"translate": [0, 3, 0], "rotate_deg": [90, 0, 0]}},
+        {
+            "name": "card",
+            "mesh": {"type": "plane", "size": [1.0, 1.0], "subdivisions": 3},
+            "transform": {"translate": [0, 0, 0], "rotate_deg": [90, 0, 0]},
+            "motion": {
+                "type": "oscillate",
+                "axis": [1, 0, 0],
+                "amplitude": 0.0,
+                "frequency_hz": 1.0,
+            },
+        },
+        {
+            "name": "backdrop",
+            "mesh": {"type": "plane", "size": [20, 20]},
+            "transform": {"translate": [0, 3, 0], "rotate_deg": [90, 0, 0]},
+        },
     ]
     if with_occluder:  # static box in front covering the card's left half (x < 0)
-        objs.append({"name": "occluder", "mesh": {"type": "box", "size": [1.0, 0.2, 2.0]}, "transform": {"translate": [-0.5, -1.0, 0]}})
-    return scene_from_dict({
-        "name": "quad", "num_frames": 3,
-        "camera": {"fov_deg": 90, "trajectory": {"type": "static", "position": [0, -4, 0], "target": [0, 0, 0]}},
-        "objects": objs,
-    })
+        objs.append(
+            {
+                "name": "occluder",
+                "mesh": {"type": "box", "size": [1.0, 0.2, 2.0]},
+                "transform": {"translate": [-0.5, -1.0, 0]},
+            }
+        )
+    return scene_from_dict(
+        {
+            "name": "quad",
+            "num_frames": 3,
+            "camera": {
+                "fov_deg": 90,
+                "trajectory": {"type": "static", "position": [0, -4, 0], "target": [0, 0, 0]},
+            },
+            "objects": objs,
+        }
+    )
 
 
 def test_dynamic_fraction_matches_analytic_area_and_respects_occlusion():
     W, H = 400, 200
     sc = _quad_scene(False)
-    # card 1 m x 1 m at distance 4 with fx = W/2 / tan(45 deg) = 200 px: u, v in [175, 225] x [75, 125], so exactly
-    # 50 x 50 pixel centres (no edge passes through a centre)
+    # card 1 m x 1 m at distance 4 with fx = W/2 / tan(45 deg) = 200 px: u, v in [175, 225] x [75,
+    # 125], so exactly 50 x 50 pixel centres (no edge passes through a centre)
     expected = 50 * 50 / (W * H)
     frac = dynamic_pixel_fraction(sc, W, H, [0, 1])
     np.testing.assert_allclose(frac, expected, rtol=1e-9)
@@ -379,13 +523,22 @@ def test_rasterizer_depth_and_near_plane_clipping():
     sc = _quad_scene(False)
     ids, depth = rasterize_ids(sc.frame(0, W, H), W, H)
     assert ids[H // 2, W // 2] == 1 and depth[H // 2, W // 2] == pytest.approx(4.0)
-    assert ids[2, 2] == 2 and depth[2, 2] == pytest.approx(7.0)  # backdrop plane at y = 3, z-depth 7
+    # backdrop plane at y = 3, z-depth 7
+    assert ids[2, 2] == 2 and depth[2, 2] == pytest.approx(7.0)
     # a floor plane that passes under and behind the camera is clipped, not dropped or mirrored
-    sc2 = scene_from_dict({
-        "name": "floor", "num_frames": 2,
-        "camera": {"fov_deg": 90, "trajectory": {"type": "static", "position": [0, 0, 1], "target": [0, 5, 1]}},
-        "objects": [{"name": "floor", "mesh": {"type": "plane", "size": [400, 400], "subdivisions": 1}}],
-    })
+    sc2 = scene_from_dict(
+        {
+            "name": "floor",
+            "num_frames": 2,
+            "camera": {
+                "fov_deg": 90,
+                "trajectory": {"type": "static", "position": [0, 0, 1], "target": [0, 5, 1]},
+            },
+            "objects": [
+                {"name": "floor", "mesh": {"type": "plane", "size": [400, 400], "subdivisions": 1}}
+            ],
+        }
+    )
     ids, depth = rasterize_ids(sc2.frame(0, W, H), W, H)
     assert (ids[: H // 2] == 0).all() and (ids[H // 2 :] == 1).all()
     # a floor pixel below the horizon at row v: ray slope (v - cy) / fy, z-depth = height / slope

@@ -1,4 +1,6 @@
-"""Cubic Hermite spline (paper appendix) against hand computations, finite differences and exact fits."""
+"""Cubic Hermite spline (paper appendix) against hand computations, finite differences and exact
+fits."""
+
 import numpy as np
 import pytest
 import torch
@@ -18,7 +20,9 @@ def _hand_hermite(p, tk, t):
         elif i == k - 1:
             m[i] = (p[-1] - p[-2]) / (tk[-1] - tk[-2])
         else:
-            m[i] = 0.5 * ((p[i + 1] - p[i]) / (tk[i + 1] - tk[i]) + (p[i] - p[i - 1]) / (tk[i] - tk[i - 1]))
+            m[i] = 0.5 * (
+                (p[i + 1] - p[i]) / (tk[i + 1] - tk[i]) + (p[i] - p[i - 1]) / (tk[i] - tk[i - 1])
+            )
     i = min(int(np.searchsorted(tk, t, side="right") - 1), k - 2)
     h = tk[i + 1] - tk[i]
     s = (t - tk[i]) / h
@@ -41,8 +45,8 @@ def test_four_point_example_matches_hand_formula():
     # worked example: p = (0, 1, 4, 2) at t = (0, 4, 8, 10) (non-uniform last knot)
     p = [0.0, 1.0, 4.0, 2.0]
     tk = [0.0, 4.0, 8.0, 10.0]
-    # explicit value at t = 6 (segment 1, s = 0.5): m1 = (0.25 + 0.75)/2 = 0.5, m2 = (0.75 + -1)/2 = -0.125
-    # mu = 0.5*1 + 0.125*4*0.5 + 0.5*4 + (-0.125)*4*(-0.125) = 0.5 + 0.25 + 2 + 0.0625
+    # explicit value at t = 6 (segment 1, s = 0.5): m1 = (0.25 + 0.75)/2 = 0.5, m2 = (0.75 + -1)/2 =
+    # -0.125 mu = 0.5*1 + 0.125*4*0.5 + 0.5*4 + (-0.125)*4*(-0.125) = 0.5 + 0.25 + 2 + 0.0625
     ctrl = torch.tensor(p, dtype=torch.float64).reshape(1, 4, 1)
     knots = torch.tensor(tk, dtype=torch.float64)
     assert spline.evaluate(ctrl, knots, 6.0).item() == pytest.approx(2.8125, abs=1e-12)
@@ -100,7 +104,8 @@ def test_fit_recovers_known_spline_exactly():
     traj = spline.evaluate(ctrl, knots, times)
     fit = spline.fit_control_points(traj, None, times, knots, smooth=0.0, damping=0.0)
     torch.testing.assert_close(fit, ctrl, atol=1e-8, rtol=0)
-    # with a random visibility mask that keeps >= 2 frames per segment, still exact (NaN at invalid frames ignored)
+    # with a random visibility mask that keeps >= 2 frames per segment, still exact (NaN at invalid
+    # frames ignored)
     valid = torch.rand(50, t_count, generator=g) > 0.3
     for s in range(knots.numel() - 1):
         lo, hi = int(knots[s]), int(knots[s + 1])
@@ -113,8 +118,8 @@ def test_fit_recovers_known_spline_exactly():
 
 
 def test_fit_fills_invisible_spans_linearly():
-    # linear motion observed only on frames 0..5 and 14..16: the smoothness term is zero for lines, so the fit is
-    # exact everywhere, including the hidden span and the non-uniform last knot.
+    # linear motion observed only on frames 0..5 and 14..16: the smoothness term is zero for lines,
+    # so the fit is exact everywhere, including the hidden span and the non-uniform last knot.
     t_count = 17
     knots = spline.make_knots(t_count, 4)
     times = torch.arange(t_count, dtype=torch.float32)
@@ -127,12 +132,15 @@ def test_fit_fills_invisible_spans_linearly():
     fit = spline.fit_control_points(traj, valid, times, knots, smooth=1e-2, damping=0.0)
     dense = spline.evaluate(fit, knots, times)
     torch.testing.assert_close(dense, traj, atol=1e-4, rtol=0)
-    # few visible frames: one visible frame -> constant at that value; no visible frame -> zeros, no NaN
+    # few visible frames: one visible frame -> constant at that value; no visible frame -> zeros, no
+    # NaN
     valid1 = torch.zeros(2, t_count, dtype=torch.bool)
     valid1[0, 7] = True
     fit1 = spline.fit_control_points(traj, valid1, times, knots)
     assert torch.isfinite(fit1).all()
-    torch.testing.assert_close(spline.evaluate(fit1[:1], knots, times)[0], traj[0, 7].expand(t_count, 3), atol=1e-4, rtol=0)
+    torch.testing.assert_close(
+        spline.evaluate(fit1[:1], knots, times)[0], traj[0, 7].expand(t_count, 3), atol=1e-4, rtol=0
+    )
     assert (fit1[1] == 0).all()
 
 
@@ -141,7 +149,8 @@ def test_fit_single_knot_and_resample():
     knots = spline.make_knots(1, 4)
     fit = spline.fit_control_points(traj, None, torch.zeros(1), knots)
     torch.testing.assert_close(fit, traj)
-    # resample: "sample" takes trajectory values at the knots; "lstsq" reproduces a smooth trajectory closely
+    # resample: "sample" takes trajectory values at the knots; "lstsq" reproduces a smooth
+    # trajectory closely
     t_count = 21
     times = torch.arange(t_count, dtype=torch.float64)
     knots = spline.make_knots(t_count, 4, dtype=torch.float64)
@@ -149,7 +158,8 @@ def test_fit_single_knot_and_resample():
     samp = spline.resample_control_points(traj, times, knots, method="sample")
     torch.testing.assert_close(samp[0], traj[0, knots.long()])
     ls = spline.resample_control_points(traj, times, knots)
-    # least squares minimises the squared error over all samples: lower RMS than interpolating the knot samples
+    # least squares minimises the squared error over all samples: lower RMS than interpolating the
+    # knot samples
     err_ls = (spline.evaluate(ls, knots, times) - traj).pow(2).mean().sqrt()
     err_s = (spline.evaluate(samp, knots, times) - traj).pow(2).mean().sqrt()
     assert err_ls < err_s and err_ls < 1e-2

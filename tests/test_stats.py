@@ -1,5 +1,7 @@
-"""Table statistics: t-intervals and paired differences against scipy.stats, the agreement with the paper's
-direction, trainer seeds in the job list, the paper-values file, and tables rendered from synthetic rows."""
+"""Table statistics: t-intervals and paired differences against scipy.stats, the agreement with the
+paper's direction, trainer seeds in the job list, the paper-values file, and tables rendered from
+synthetic rows."""
+
 from __future__ import annotations
 
 import math
@@ -12,9 +14,9 @@ from eval import stats, tables
 from eval.tables import Column, TableSpec
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # intervals
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_mean_ci_matches_scipy_t():
     x = [1.0, 2.0, 3.0, 4.0, 5.0]
     iv = stats.mean_ci(x)
@@ -45,7 +47,9 @@ def test_paired_diff_matches_ttest_rel():
     res = sps.ttest_rel(a, b)
     ci = res.confidence_interval(0.95)
     assert iv.n == 6 and iv.mean == pytest.approx(np.mean(np.subtract(a, b)))
-    assert iv.low == pytest.approx(ci.low, rel=1e-10) and iv.high == pytest.approx(ci.high, rel=1e-10)
+    assert iv.low == pytest.approx(ci.low, rel=1e-10) and iv.high == pytest.approx(
+        ci.high, rel=1e-10
+    )
     assert iv.excludes_zero == (res.pvalue < 0.05)
     # only the keys both have are paired
     iv2 = stats.paired_diff({**dict(zip(keys, a)), ("s9", 0): 99.0}, dict(zip(keys[:4], b[:4])))
@@ -68,20 +72,31 @@ def test_agreement_logic():
     assert stats.agreement(-1.0, None) == ("-", "n/a", "n/a")
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # rendered tables
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _synthetic_rows():
     """3 scenes x 2 seeds; (a) loses ~1 dB PSNR, (e) raises TAE; values chosen by hand."""
-    psnr = {"full": [30.0, 30.2, 32.0, 31.8, 28.0, 28.4],
-            "(a)": [29.0, 29.1, 31.0, 30.9, 27.1, 27.2],
-            "(e)": [30.1, 30.0, 32.1, 31.7, 28.2, 28.3]}
-    tae = {"full": [0.10, 0.11, 0.12, 0.12, 0.09, 0.10],
-           "(a)": [0.10, 0.12, 0.12, 0.11, 0.09, 0.10],
-           "(e)": [0.13, 0.13, 0.14, 0.15, 0.11, 0.12]}
+    psnr = {
+        "full": [30.0, 30.2, 32.0, 31.8, 28.0, 28.4],
+        "(a)": [29.0, 29.1, 31.0, 30.9, 27.1, 27.2],
+        "(e)": [30.1, 30.0, 32.1, 31.7, 28.2, 28.3],
+    }
+    tae = {
+        "full": [0.10, 0.11, 0.12, 0.12, 0.09, 0.10],
+        "(a)": [0.10, 0.12, 0.12, 0.11, 0.09, 0.10],
+        "(e)": [0.13, 0.13, 0.14, 0.15, 0.11, 0.12],
+    }
     keys = [(f"s{k // 2}", k % 2) for k in range(6)]
-    return [{"method": m, "scene": sc, "seed": sd, "psnr": psnr[m][i], "tae": tae[m][i]}
-            for m in psnr for i, (sc, sd) in enumerate(keys)], psnr, tae
+    return (
+        [
+            {"method": m, "scene": sc, "seed": sd, "psnr": psnr[m][i], "tae": tae[m][i]}
+            for m in psnr
+            for i, (sc, sd) in enumerate(keys)
+        ],
+        psnr,
+        tae,
+    )
 
 
 def _spec(**kw):
@@ -89,22 +104,41 @@ def _spec(**kw):
     return TableSpec(columns=cols, title="T", **kw)
 
 
-PAPER = {"full": {"psnr": 34.75, "tae": 0.057}, "(a)": {"psnr": 33.62, "tae": 0.057},
-         "(e)": {"psnr": 34.71, "tae": 0.071}}
+PAPER = {
+    "full": {"psnr": 34.75, "tae": 0.057},
+    "(a)": {"psnr": 33.62, "tae": 0.057},
+    "(e)": {"psnr": 34.71, "tae": 0.071},
+}
 
 
 def test_markdown_with_intervals_differences_and_paper():
     rows, psnr, tae = _synthetic_rows()
-    md = tables.render_markdown(rows, _spec(intervals=True, reference="full", paper=PAPER, paper_source="Table 3"),
-                                conventions={})
+    md = tables.render_markdown(
+        rows,
+        _spec(intervals=True, reference="full", paper=PAPER, paper_source="Table 3"),
+        conventions={},
+    )
     lines = md.splitlines()
-    assert lines[2] == ("| Method | n | LDR-OE PSNR↑ | Δ LDR-OE PSNR | Paper LDR-OE PSNR | LDR-OE PSNR: paper / ours / "
-                        "agree | HDR-TAE↓ | Δ HDR-TAE | Paper HDR-TAE | HDR-TAE: paper / ours / agree |")
-    by = {ln.split(" | ")[0][2:]: [c.strip() for c in ln.strip("|").split("|")] for ln in lines[4:7]}
+    assert lines[2] == (
+        "| Method | n | LDR-OE PSNR↑ | Δ LDR-OE PSNR | Paper LDR-OE PSNR | LDR-OE PSNR: paper / "
+        "ours / "
+        "agree | HDR-TAE↓ | Δ HDR-TAE | Paper HDR-TAE | HDR-TAE: paper / ours / agree |"
+    )
+    by = {
+        ln.split(" | ")[0][2:]: [c.strip() for c in ln.strip("|").split("|")] for ln in lines[4:7]
+    }
     # full: mean +- t-interval over its 6 runs, bold best PSNR; its own difference cells read "ref"
     h = sps.t.ppf(0.975, 5) * np.std(psnr["full"], ddof=1) / math.sqrt(6)
-    assert by["full"][:6] == ["full", "6", f"**{np.mean(psnr['full']):.2f}** ± {h:.2f}", "ref", "34.75", "ref"]
-    # (a): paired difference to full over (scene, seed), significant -> dagger; paper also lower -> agree
+    assert by["full"][:6] == [
+        "full",
+        "6",
+        f"**{np.mean(psnr['full']):.2f}** ± {h:.2f}",
+        "ref",
+        "34.75",
+        "ref",
+    ]
+    # (a): paired difference to full over (scene, seed), significant -> dagger; paper also lower ->
+    # agree
     d = np.subtract(psnr["(a)"], psnr["full"])
     ci = sps.ttest_rel(psnr["(a)"], psnr["full"]).confidence_interval()
     assert ci.high < 0
@@ -131,16 +165,28 @@ def test_latex_and_csv_with_statistics():
     assert "$\\Delta$: paired difference" in tex
     csv_text = tables.render_csv(rows, spec, conventions={})
     head, full, a, _e = [ln.split(",") for ln in csv_text.strip().splitlines()]
-    assert head[:6] == ["Method", "n_scenes", "n_runs", "LDR-OE PSNR", "LDR-OE PSNR ci95", "Δ LDR-OE PSNR"]
+    assert head[:6] == [
+        "Method",
+        "n_scenes",
+        "n_runs",
+        "LDR-OE PSNR",
+        "LDR-OE PSNR ci95",
+        "Δ LDR-OE PSNR",
+    ]
     assert full[:4] == ["full", "3", "6", "30.07"] and full[5] == "ref"
     assert a[5] == "-1.02" and a[7] == "yes" and a[8] == "33.62" and a[9] == "- / - / agree"
     # without statistics the CSV keeps its plain form
-    assert tables.render_csv(rows, _spec(), conventions={}).splitlines()[0] == "Method,n_scenes,LDR-OE PSNR,HDR-TAE"
+    assert (
+        tables.render_csv(rows, _spec(), conventions={}).splitlines()[0]
+        == "Method,n_scenes,LDR-OE PSNR,HDR-TAE"
+    )
 
 
 def test_interval_na_for_one_run_and_missing_reference():
-    rows = [{"method": "full", "scene": "a", "psnr": 30.0, "tae": 0.1},
-            {"method": "b", "scene": "a", "psnr": 29.0, "tae": 0.1}]
+    rows = [
+        {"method": "full", "scene": "a", "psnr": 30.0, "tae": 0.1},
+        {"method": "b", "scene": "a", "psnr": 29.0, "tae": 0.1},
+    ]
     md = tables.render_markdown(rows, _spec(intervals=True, reference="full"), conventions={})
     assert "| b | 1 | 29.00 ± n/a | -1.00 ± n/a |" in md
     md2 = tables.render_markdown(rows, _spec(intervals=True, reference="nope"), conventions={})
@@ -154,44 +200,72 @@ def test_build_tables_with_paper_values_and_seeds():
     rows, psnr, tae = _synthetic_rows()
     names = {"full": "full", "(a)": "no-video-init", "(e)": "no-tlr"}
     labels = {"full": "(f) full", "(a)": "(a) w/o video init", "(e)": "(e) w/o TLR"}
-    entries = [{"scene": r["scene"], "row": names[r["method"]], "label": labels[r["method"]], "seed": r["seed"],
-                "run_dir": "x", "clip_dir": "y",
-                "metrics": {"ldr_oe_psnr": r["psnr"], "ldr_ne_psnr": r["psnr"] - 0.2, "hdr_psnr": r["psnr"] + 3,
-                            "hdr_tae": r["tae"], "ldr_convention": "ldr_png"}} for r in rows]
-    text = build_tables(entries, [TableDef("Ablations", "ablation", "ablation")], "markdown", reference="full")
+    entries = [
+        {
+            "scene": r["scene"],
+            "row": names[r["method"]],
+            "label": labels[r["method"]],
+            "seed": r["seed"],
+            "run_dir": "x",
+            "clip_dir": "y",
+            "metrics": {
+                "ldr_oe_psnr": r["psnr"],
+                "ldr_ne_psnr": r["psnr"] - 0.2,
+                "hdr_psnr": r["psnr"] + 3,
+                "hdr_tae": r["tae"],
+                "ldr_convention": "ldr_png",
+            },
+        }
+        for r in rows
+    ]
+    text = build_tables(
+        entries, [TableDef("Ablations", "ablation", "ablation")], "markdown", reference="full"
+    )
     a_line = next(ln for ln in text.splitlines() if ln.startswith("| (a) w/o video init"))
-    assert "| 6 |" in a_line and "33.62" in a_line and "36.07" in a_line  # the paper's (a) row, typed values
+    assert (
+        "| 6 |" in a_line and "33.62" in a_line and "36.07" in a_line
+    )  # the paper's (a) row, typed values
     assert "- / - / agree" in a_line and "†" in a_line
     f_line = next(ln for ln in text.splitlines() if ln.startswith("| (f) full"))
     assert "34.75" in f_line and "ref" in f_line
     assert "paper Table 3" in text
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # seeds in the job list
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_job_list_with_seeds(tmp_path):
     from eval.runner import find_job, job_list, seeds_present
 
     one = job_list("exposure-noise", tmp_path, "tiny")
     three = job_list("exposure-noise", tmp_path, "tiny", seeds=3)
     assert len(three) == 3 * len(one)
-    assert [j.to_json() for j in three[:len(one)]] == [j.to_json() for j in one]  # seed 0 unchanged
-    assert all(j.seed == 0 and "seed" not in j.overrides and "--seed" not in j.command() for j in one)
+    assert [j.to_json() for j in three[: len(one)]] == [
+        j.to_json() for j in one
+    ]  # seed 0 unchanged
+    assert all(
+        j.seed == 0 and "seed" not in j.overrides and "--seed" not in j.command() for j in one
+    )
     j0 = one[0]
     for s in (1, 2):
         js = [j for j in three if j.seed == s]
         assert len(js) == len(one)
         j = next(x for x in js if x.scene == j0.scene and x.row == j0.row)
-        assert j.run_dir == str(tmp_path.resolve() / "runs" / "exposure-noise" / j0.scene / f"{j0.row}-seed-{s}")
+        assert j.run_dir == str(
+            tmp_path.resolve() / "runs" / "exposure-noise" / j0.scene / f"{j0.row}-seed-{s}"
+        )
         assert j.clip_dir == j0.clip_dir  # the clip stays the same
         assert j.overrides == {**j0.overrides, "seed": s}
         assert j.id.endswith(f"/{j0.row}-seed-{s}") and j.command()[-2:] == ["--seed", str(s)]
-        assert find_job("exposure-noise", tmp_path, "tiny", j0.scene, j0.row, s).run_dir == j.run_dir
+        assert (
+            find_job("exposure-noise", tmp_path, "tiny", j0.scene, j0.row, s).run_dir == j.run_dir
+        )
     assert len({j.run_dir for j in three}) == len(three)
     # a row's own seed override is offset, not replaced
     suite = tmp_path / "s.yaml"
-    suite.write_text("name: s\nscenes: tiny\nrows:\n  - {name: a, variant: full, overrides: {seed: 10}}\n")
+    suite.write_text(
+        "name: s\nscenes: tiny\nrows:\n  - {name: a, variant: full, overrides: {seed: 10}}\n"
+    )
     assert [j.overrides["seed"] for j in job_list(suite, tmp_path, "tiny", seeds=2)][-1] == 11
     # the table finds the seeds that have run folders
     assert seeds_present("exposure-noise", tmp_path, "tiny") == 1
@@ -210,16 +284,22 @@ def test_seed_suffix_is_reserved_and_suite_reference():
     with pytest.raises(SuiteError, match="reference"):
         parse_suite({**base, "rows": [{"variant": "full"}], "reference": "nope"})
     with pytest.raises(SuiteError, match="paper"):
-        parse_suite({**base, "rows": [{"variant": "full"}], "tables": [{"columns": "ablation", "paper": "nope"}]})
+        parse_suite(
+            {
+                **base,
+                "rows": [{"variant": "full"}],
+                "tables": [{"columns": "ablation", "paper": "nope"}],
+            }
+        )
     assert parse_suite({**base, "rows": [{"variant": "full"}]}).reference == "full"
     assert load_eval_suite("control-points").reference == "ns-4"
     assert load_eval_suite("exposure-noise").reference == "ev-0"
     assert load_eval_suite("exposure-schedules").reference == "alternating"
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # the paper's values
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_paper_values_file():
     from eval.paper import load_paper_values, paper_records
     from eval.suite import builtin_suites, load_eval_suite, metric_columns
@@ -232,13 +312,20 @@ def test_paper_values_file():
     assert {r["metric"] for r in recs} <= reg
     # the full model's values are the same in every table that lists it
     ref = {"ldr_oe_psnr": 34.75, "ldr_ne_psnr": 34.54, "hdr_psnr": 37.64, "hdr_tae": 0.057}
-    for key, row in (("main", "full"), ("ablation", "full"), ("control-points", "ns-4"),
-                     ("exposure-schedules", "alternating"), ("exposure-noise", "ev-0"), ("priors", "full")):
+    for key, row in (
+        ("main", "full"),
+        ("ablation", "full"),
+        ("control-points", "ns-4"),
+        ("exposure-schedules", "alternating"),
+        ("exposure-noise", "ev-0"),
+        ("priors", "full"),
+    ):
         assert {k: pv[key].value(row, k) for k in ref} == ref, key
     assert pv["ablation"].value("no-video-init", "hdr_psnr") == 36.07
     assert pv["main"].value("ldr-reproj-consecutive", "ldr_oe_psnr") == 17.59
     assert pv["main"].paper_rows["ldr-reproj-consecutive"] == "SplineGS-HDR"
-    # every suite table with paper values: the rows exist in the suite and the reference row has values
+    # every suite table with paper values: the rows exist in the suite and the reference row has
+    # values
     used = set()
     for name in builtin_suites():
         s = load_eval_suite(name)
@@ -248,4 +335,11 @@ def test_paper_values_file():
                 rows = {r.name for r in s.rows}
                 assert s.reference in pv[t.paper].rows, (name, t.paper)
                 assert sum(r in rows for r in pv[t.paper].rows) >= 2, (name, t.paper)
-    assert {"main", "ablation", "control-points", "exposure-schedules", "exposure-noise", "priors"} <= used
+    assert {
+        "main",
+        "ablation",
+        "control-points",
+        "exposure-schedules",
+        "exposure-noise",
+        "priors",
+    } <= used

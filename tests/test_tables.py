@@ -1,4 +1,6 @@
-"""Table formatting tests: means over scenes, bold placement (ties), n/a handling, Markdown/LaTeX/CSV shape."""
+"""Table formatting tests: means over scenes, bold placement (ties), n/a handling,
+Markdown/LaTeX/CSV shape."""
+
 from __future__ import annotations
 
 import csv
@@ -25,9 +27,11 @@ def _rows():
 
 
 def _spec(**kw):
-    cols = [Column("psnr", "PSNR", True, ".2f", "LDR-OE", "psnr"),
-            Column("lp", "LPIPS", False, ".3f", "LDR-OE"),
-            Column("tae", "HDR-TAE", False, ".3f", None, "hdr_tae")]
+    cols = [
+        Column("psnr", "PSNR", True, ".2f", "LDR-OE", "psnr"),
+        Column("lp", "LPIPS", False, ".3f", "LDR-OE"),
+        Column("tae", "HDR-TAE", False, ".3f", None, "hdr_tae"),
+    ]
     return TableSpec(columns=cols, conventions=["ldr_float", "a literal note"], **kw)
 
 
@@ -67,7 +71,12 @@ def test_markdown_shape():
     assert lines[5] == "| MoSca | **31.00** | **0.150** | **0.060** |"
     assert lines[6] == "| Splines | 20.50 | 0.350 | n/a |"
     notes = [ln for ln in lines if ln.startswith("- ")]
-    assert notes[:4] == ["- PSNR convention", "- TAE convention", "- float images", "- a literal note"]
+    assert notes[:4] == [
+        "- PSNR convention",
+        "- TAE convention",
+        "- float images",
+        "- a literal note",
+    ]
 
 
 def test_latex_shape():
@@ -78,13 +87,16 @@ def test_latex_shape():
     assert lines[2] == " & \\multicolumn{2}{c}{LDR-OE} &  \\\\"
     assert lines[3] == "\\cmidrule(lr){2-3}"
     assert lines[4] == "Method & PSNR$\\uparrow$ & LPIPS$\\downarrow$ & HDR-TAE$\\downarrow$ \\\\"
-    body = lines[lines.index("\\midrule") + 1: lines.index("\\bottomrule")]
+    body = lines[lines.index("\\midrule") + 1 : lines.index("\\bottomrule")]
     assert body[0] == "Ours & \\textbf{31.00} & n/a & \\textbf{0.060} \\\\"
     for row in body:
         assert row.count("&") == 3
     assert "\\par\\footnotesize" in lines
-    esc = tables.render_latex([{"method": "a_b&c", "scene": "s", "psnr": 1.0, "lp": 1.0, "tae": 1.0}], _spec(),
-                              conventions=CONV)
+    esc = tables.render_latex(
+        [{"method": "a_b&c", "scene": "s", "psnr": 1.0, "lp": 1.0, "tae": 1.0}],
+        _spec(),
+        conventions=CONV,
+    )
     assert "a\\_b\\&c" in esc
 
 
@@ -100,9 +112,13 @@ def test_csv_shape_no_bold():
 
 
 def test_inf_and_spec_from_dict_and_paper_layout():
-    spec = TableSpec.from_dict({"columns": [{"key": "psnr", "header": "PSNR", "higher_is_better": True,
-                                             "fmt": ".1f"}]})
-    rows = [{"method": "A", "scene": "s", "psnr": math.inf}, {"method": "B", "scene": "s", "psnr": 40.0}]
+    spec = TableSpec.from_dict(
+        {"columns": [{"key": "psnr", "header": "PSNR", "higher_is_better": True, "fmt": ".1f"}]}
+    )
+    rows = [
+        {"method": "A", "scene": "s", "psnr": math.inf},
+        {"method": "B", "scene": "s", "psnr": 40.0},
+    ]
     md = tables.render(rows, spec, "md", conventions={})
     assert "| A | **inf** |" in md and "| B | 40.0 |" in md
     paper = tables.paper_table_spec(lpips_available=False)

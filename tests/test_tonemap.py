@@ -1,4 +1,5 @@
 """Tests of the learned tone mapper (m4dgs.tonemap) against independent references."""
+
 import math
 
 import numpy as np
@@ -13,16 +14,21 @@ def _hdrnerf_crf(x):
 
 
 def _reference_channels(tm: ToneMapper):
-    """Three separate nn.Sequential MLPs holding the tone mapper's weights (the authors' per-channel layout)."""
+    """Three separate nn.Sequential MLPs holding the tone mapper's weights (the authors' per-channel
+    layout)."""
     mods = []
     for c in range(tm.n_channels):
-        seq = torch.nn.Sequential(torch.nn.Linear(1, tm.hidden), torch.nn.Softplus(), torch.nn.Linear(tm.hidden, 1),
-                                  torch.nn.Sigmoid())
+        seq = torch.nn.Sequential(
+            torch.nn.Linear(1, tm.hidden),
+            torch.nn.Softplus(),
+            torch.nn.Linear(tm.hidden, 1),
+            torch.nn.Sigmoid(),
+        )
         with torch.no_grad():
             seq[0].weight.copy_(tm.w1[c][:, None])
             seq[0].bias.copy_(tm.b1[c])
             seq[2].weight.copy_(tm.w2[c][None, :])
-            seq[2].bias.copy_(tm.b2[c:c + 1])
+            seq[2].bias.copy_(tm.b2[c : c + 1])
         mods.append(seq)
     return mods
 
@@ -52,8 +58,8 @@ def test_matches_three_separate_mlps():
     log2_dt = 1.5
     out = tm(hdr, log2_dt)
     for c in range(3):
-        z = torch.log2(hdr[:, c:c + 1] + LOG_EPS) + log2_dt
-        torch.testing.assert_close(out[:, c:c + 1], refs[c](z), rtol=1e-5, atol=1e-6)
+        z = torch.log2(hdr[:, c : c + 1] + LOG_EPS) + log2_dt
+        torch.testing.assert_close(out[:, c : c + 1], refs[c](z), rtol=1e-5, atol=1e-6)
 
 
 def test_channels_independent():
@@ -84,11 +90,16 @@ def test_monotonicity_penalty_analytic():
     assert float(monotonicity_penalty(tm).detach()) == 0.0
     with torch.no_grad():
         tm.w2.fill_(-0.25)  # phi = sigmoid(-softplus(z)), decreasing
-    # finite-difference slopes telescope: mean relu(-slope) = (phi(-10) - phi(10)) / 20 per channel, summed over 3
+
+    # finite-difference slopes telescope: mean relu(-slope) = (phi(-10) - phi(10)) / 20 per channel,
+    # summed over 3
     def phi(z):
         return 1 / (1 + math.exp(math.log1p(math.exp(z))))
+
     expect = 3 * (phi(-10) - phi(10)) / 20.0
-    assert float(monotonicity_penalty(tm, -10, 10, 1024).detach()) == pytest.approx(expect, rel=1e-4)
+    assert float(monotonicity_penalty(tm, -10, 10, 1024).detach()) == pytest.approx(
+        expect, rel=1e-4
+    )
 
 
 def test_pretraining_reaches_hdrnerf_crf():
@@ -107,7 +118,8 @@ def test_pretraining_reaches_hdrnerf_crf():
 
 
 def test_lut_path_matches_exact_curve_and_gradients():
-    """The piecewise-linear table used on large images agrees with the exact MLP in values and gradients."""
+    """The piecewise-linear table used on large images agrees with the exact MLP in values and
+    gradients."""
     import torch
 
     from m4dgs.tonemap import ToneMapper

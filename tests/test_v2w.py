@@ -1,10 +1,11 @@
 """Video-to-world transform (m4dgs.v2w) against analytic answers.
 
-The synthetic scene is built in numpy, independently of m4dgs.camera / the rasterizer: world Gaussians with known
-positions / rotations / scales are projected per frame to video space (u = fx x / z + cx, x_v = 2 u / W - 1), their
-video rotations are R_t^T R_w, and their video scales solve the 3 linear equations that make the orthographic 2D
-covariance equal the pinhole EWA one at a reference frame.
-"""
+The synthetic scene is built in numpy, independently of m4dgs.camera / the rasterizer: world
+Gaussians with known positions / rotations / scales are projected per frame to video space (u = fx x
+/ z + cx, x_v = 2 u / W - 1), their video rotations are R_t^T R_w, and their video scales solve the
+3 linear equations that make the orthographic 2D covariance equal the pinhole EWA one at a reference
+frame."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,9 +24,9 @@ K_NP = np.array([[FX, 0, CX], [0, FY, CY], [0, 0, 1.0]])
 T = 8
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # numpy scene helpers (independent of the code under test)
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def _xyzw_to_wxyz(q):
     return np.concatenate([q[..., 3:], q[..., :3]], axis=-1)
 
@@ -77,7 +78,8 @@ def _ortho_cov(M, s):
 
 
 def _video_scales_matching(p_c, M, s_w):
-    """Video scales s_v with ortho cov == pinhole cov (3 linear equations in s_v^2); None if not all positive."""
+    """Video scales s_v with ortho cov == pinhole cov (3 linear equations in s_v^2); None if not all
+    positive."""
     C = _pinhole_cov(p_c, M, s_w)
     Jo = np.array([[W / 2, 0, 0], [0, H / 2, 0]])
     cols = Jo @ M  # [2, 3]: projected axis k is cols[:, k]
@@ -123,7 +125,9 @@ def _build_scene(moving=True, n_static=12, n_dynamic=4, seed=0):
             xn, yn = rng.uniform(0.15, 0.35), rng.uniform(-0.3, 0.3)
             p0 = np.array([xn * z0, yn * z0, z0])
             traj = np.tile(p0, (T, 1))
-            R_w = np.tile(Rotation.random(random_state=rng.integers(1 << 30)).as_matrix(), (T, 1, 1))
+            R_w = np.tile(
+                Rotation.random(random_state=rng.integers(1 << 30)).as_matrix(), (T, 1, 1)
+            )
         s_w = rng.uniform(0.04, 0.09, 3)
         # video scales from the reference frame (middle of the clip)
         t_ref = T // 2
@@ -136,7 +140,8 @@ def _build_scene(moving=True, n_static=12, n_dynamic=4, seed=0):
         assert all(inside)  # the whole trajectory stays in the image
         gs.append({"dyn": dyn, "traj": traj, "R_w": R_w, "s_w": s_w, "s_v": s_v})
 
-    # video Gaussians: a control point at every frame (the spline interpolates them exactly at the frames)
+    # video Gaussians: a control point at every frame (the spline interpolates them exactly at the
+    # frames)
     ctrl, coeffs, scales = [], [], []
     for g in gs:
         p_c = np.stack([_to_cam(c2w[t], g["traj"][t]) for t in frames])
@@ -175,7 +180,8 @@ def _build_scene(moving=True, n_static=12, n_dynamic=4, seed=0):
 
 
 def _cov_rel_err(gs_rows, world_scales, c2w, world_quats_t, world_pos_t):
-    """Mean over Gaussians and frames of ||pinhole cov(world) - ortho cov(video)||_F / ||ortho cov||_F (numpy)."""
+    """Mean over Gaussians and frames of ||pinhole cov(world) - ortho cov(video)||_F / ||ortho
+    cov||_F (numpy)."""
     errs = []
     for i, g in enumerate(gs_rows):
         e = []
@@ -191,13 +197,15 @@ def _cov_rel_err(gs_rows, world_scales, c2w, world_quats_t, world_pos_t):
 
 
 def _angle(q_a, q_b):
-    d = np.abs(np.sum(q_a * q_b, -1)) / (np.linalg.norm(q_a, axis=-1) * np.linalg.norm(q_b, axis=-1))
+    d = np.abs(np.sum(q_a * q_b, -1)) / (
+        np.linalg.norm(q_a, axis=-1) * np.linalg.norm(q_b, axis=-1)
+    )
     return 2 * np.arccos(np.clip(d, -1, 1))
 
 
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 # tests
-# ---------------------------------------------------------------------------------------------------------------------
+# --------------------------------------------------------------------------------------------------
 def test_video_to_world_trajectories_matches_numpy():
     rng = np.random.default_rng(3)
     n = 5
@@ -216,7 +224,9 @@ def test_video_to_world_trajectories_matches_numpy():
     want = np.einsum("tij,ntj->nti", c2w[:, :3, :3], pc) + c2w[None, :, :3, 3]
     np.testing.assert_allclose(pw.numpy(), want, atol=1e-10)
     Rw = np.einsum("tij,ntjk->ntik", c2w[:, :3, :3], _rotmat(qv.reshape(-1, 4)).reshape(n, T, 3, 3))
-    np.testing.assert_allclose(_rotmat(qw.numpy().reshape(-1, 4)).reshape(n, T, 3, 3), Rw, atol=1e-10)
+    np.testing.assert_allclose(
+        _rotmat(qw.numpy().reshape(-1, 4)).reshape(n, T, 3, 3), Rw, atol=1e-10
+    )
 
 
 def _run(video, c2w, masks, cov_invariance=True, steps=1000, depth=None, occlusion=True):
@@ -237,8 +247,13 @@ def test_transform_synthetic_scene():
     ns = len(s_rows)
 
     # static: mean position and averaged rotation
-    np.testing.assert_allclose(world.static["means"].detach().numpy(), np.stack([g["traj"][0] for g in s_rows]), atol=1e-4)
-    ang = _angle(world.static["quats"].detach().numpy().astype(np.float64), np.stack([_quat(g["R_w"][0]) for g in s_rows]))
+    np.testing.assert_allclose(
+        world.static["means"].detach().numpy(), np.stack([g["traj"][0] for g in s_rows]), atol=1e-4
+    )
+    ang = _angle(
+        world.static["quats"].detach().numpy().astype(np.float64),
+        np.stack([_quat(g["R_w"][0]) for g in s_rows]),
+    )
     assert ang.max() < 1e-3, ang
     # dynamic: refitted spline and rotation polynomial at the frame times
     times = torch.arange(T, dtype=torch.float32)
@@ -248,10 +263,14 @@ def test_transform_synthetic_scene():
     ang_d = _angle(q_t[ns:], np.stack([np.stack([_quat(R) for R in g["R_w"]]) for g in d_rows]))
     assert ang_d.max() < 1e-3, ang_d
     # opacity and features inherited
-    torch.testing.assert_close(torch.cat([world.static["opacities"], world.dynamic["opacities"]]), video.params["opacities"][order])
+    torch.testing.assert_close(
+        torch.cat([world.static["opacities"], world.dynamic["opacities"]]),
+        video.params["opacities"][order],
+    )
     torch.testing.assert_close(world.features(), video.params["features"][order])
 
-    # scales: the refit reproduces the video 2D covariances at least as well as the true world scales do
+    # scales: the refit reproduces the video 2D covariances at least as well as the true world
+    # scales do
     rows = [gs[i] for i in order]
     s_fit = world.scales().detach().numpy().astype(np.float64)
     err_fit = _cov_rel_err(rows, s_fit, c2w, q_t, pos_t)
@@ -262,16 +281,22 @@ def test_transform_synthetic_scene():
     assert np.median(rel_s) < 0.05, rel_s
     assert rep["scale_fit"]["rel_err"] < rep["scale_fit"]["rel_err_init"] + 1e-6
 
-    # ablation "inherit scale": the video scale values in world units; the 2D covariances are badly off
+    # ablation "inherit scale": the video scale values in world units; the 2D covariances are badly
+    # off
     world_i, rep_i = _run(video, c2w, masks, cov_invariance=False)
-    np.testing.assert_allclose(world_i.scales().detach().numpy(), video.scales().detach().numpy()[order], rtol=1e-5)
-    err_inh = _cov_rel_err(rows, world_i.scales().detach().numpy().astype(np.float64), c2w, q_t, pos_t)
+    np.testing.assert_allclose(
+        world_i.scales().detach().numpy(), video.scales().detach().numpy()[order], rtol=1e-5
+    )
+    err_inh = _cov_rel_err(
+        rows, world_i.scales().detach().numpy().astype(np.float64), c2w, q_t, pos_t
+    )
     assert err_inh > 0.5, err_inh
     assert rep_i["scale_fit"]["rel_err"] > 10 * rep["scale_fit"]["rel_err"]
 
 
 def test_refit_exact_with_static_camera():
-    """Static camera: the video covariances are reproducible exactly, so the refit recovers the true world scales."""
+    """Static camera: the video covariances are reproducible exactly, so the refit recovers the true
+    world scales."""
     gs, video, c2w, masks = _build_scene(moving=False, n_static=8, n_dynamic=0, seed=1)
     world, rep = _run(video, c2w, masks)
     assert rep["num_dynamic"] == 0 and world.num_static == 8
@@ -285,13 +310,15 @@ def test_refit_exact_with_static_camera():
 
 
 def test_occlusion_handling():
-    """A static Gaussian behind a passing occluder: on the dynamic mask but deeper than the rendered depth."""
+    """A static Gaussian behind a passing occluder: on the dynamic mask but deeper than the rendered
+    depth."""
     n_frames, size = 10, 16
     masks = torch.zeros(n_frames, size, size, dtype=torch.bool)
     depth = torch.full((n_frames, size, size), 5.0)
     masks[:6, 6:10, 6:10] = True  # the occluder covers the centre during frames 0..5
     depth[:6, 6:10, 6:10] = 2.0
-    background = torch.tensor([0.0, 0.0, 5.0]).expand(n_frames, 3)  # pixel (8, 8), depth 5 (behind the occluder)
+    # pixel (8, 8), depth 5 (behind the occluder)
+    background = torch.tensor([0.0, 0.0, 5.0]).expand(n_frames, 3)
     occluder = torch.stack([torch.tensor([0.0, 0.0, 2.0])] * n_frames)  # on the occluder's surface
     pos = torch.stack([background, occluder])
     with_occ = v2w.classify_dynamic(pos, masks, depth, size, size, 0.1, occlusion_handling=True)
@@ -311,7 +338,8 @@ def test_occlusion_switch_in_transform():
     """The ablation switch reaches the classification inside `transform`."""
     gs, video, c2w, masks = _build_scene(moving=True, n_static=4, n_dynamic=1, seed=2)
     truth_dyn = np.array([g["dyn"] for g in gs])
-    # a foreground occluder in front of every static Gaussian on every frame: masks say dynamic there
+    # a foreground occluder in front of every static Gaussian on every frame: masks say dynamic
+    # there
     depth = np.full((T, H, W), 50.0, dtype=np.float32)
     masks_occ = masks.copy()
     for g in gs:
@@ -329,8 +357,8 @@ def test_occlusion_switch_in_transform():
 
 
 def test_sample_resampling_and_motion_fallback():
-    """resample="sample" takes the world trajectory at the knots (exact here: a knot per frame); without masks the
-    authors' fallback classifies by world-position spread."""
+    """resample="sample" takes the world trajectory at the knots (exact here: a knot per frame);
+    without masks the authors' fallback classifies by world-position spread."""
     gs, video, c2w, _ = _build_scene(moving=True, n_static=4, n_dynamic=2, seed=4)
     truth_dyn = np.array([g["dyn"] for g in gs])
     cfg = V2WConfig(scale_refit_steps=5, resample="sample", rotation_refine_steps=0)
@@ -342,13 +370,17 @@ def test_sample_resampling_and_motion_fallback():
     np.testing.assert_allclose(pos[ns:], np.stack([g["traj"] for g in gs if g["dyn"]]), atol=1e-4)
 
 
-@pytest.mark.parametrize("n_hits,ratio,expect", [(1, 0.1, False), (2, 0.1, True), (2, 0.15, True), (2, 0.2, False), (3, 0.2, True)])
+@pytest.mark.parametrize(
+    "n_hits,ratio,expect",
+    [(1, 0.1, False), (2, 0.1, True), (2, 0.15, True), (2, 0.2, False), (3, 0.2, True)],
+)
 def test_ratio_boundary(n_hits, ratio, expect):
     """dynamic iff N_d / N_f > ratio (strict), N_f = 10 frames."""
     n_frames, size = 10, 8
     masks = torch.zeros(n_frames, size, size, dtype=torch.bool)
     masks[:n_hits, 2, 5] = True  # pixel column 5, row 2
-    # pixel (5, 2) <-> continuous u in [5, 6), v in [2, 3): x = 2u/W - 1; use a point near the pixel's edge
+    # pixel (5, 2) <-> continuous u in [5, 6), v in [2, 3): x = 2u/W - 1; use a point near the
+    # pixel's edge
     x = 2 * 5.01 / size - 1
     y = 2 * 2.99 / size - 1
     p = torch.tensor([x, y, 1.0]).expand(n_frames, 3)[None]

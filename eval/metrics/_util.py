@@ -1,4 +1,5 @@
 """Small input helpers shared by the metric modules (numpy or torch in, float64 torch out)."""
+
 from __future__ import annotations
 
 import math
@@ -10,9 +11,8 @@ import torch
 def as_tensor(x, *, device=None, dtype=torch.float64, uint8_scale: bool = True) -> torch.Tensor:
     """Convert a numpy array / torch tensor / nested list to a float64 torch tensor.
 
-    uint8 inputs are read as 8-bit images and divided by 255 when `uint8_scale` is True. The device follows a torch
-    input unless `device` is given.
-    """
+    uint8 inputs are read as 8-bit images and divided by 255 when `uint8_scale` is True. The device
+    follows a torch input unless `device` is given."""
     if isinstance(x, torch.Tensor):
         t = x.detach()
     else:
@@ -36,7 +36,10 @@ def check_pair(a: torch.Tensor, b: torch.Tensor, name: str) -> None:
     if a.shape != b.shape:
         raise ValueError(f"{name}: shape mismatch {tuple(a.shape)} vs {tuple(b.shape)}")
     if a.dim() not in (3, 4) or a.shape[-1] not in (1, 3):
-        raise ValueError(f"{name}: expected [H, W, C] or [N, H, W, C] images with C in (1, 3), got {tuple(a.shape)}")
+        raise ValueError(
+            f"{name}: expected [H, W, C] or [N, H, W, C] images with C in (1, 3), got "
+            f"{tuple(a.shape)}"
+        )
 
 
 def batched(a: torch.Tensor) -> torch.Tensor:

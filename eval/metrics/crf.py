@@ -1,20 +1,23 @@
 """Camera-response recovery: the learned tone mapper against the clip's true response (crf_error).
 
-crf_error is the mean absolute difference, in 8-bit codes (LDR value x 255), between the learned response phi_c and
-the true response f_c of each colour channel c, over the exposures the clip actually recorded, then the mean over
-channels:
+crf_error is the mean absolute difference, in 8-bit codes (LDR value x 255), between the learned
+response phi_c and the true response f_c of each colour channel c, over the exposures the clip
+actually recorded, then the mean over channels:
 
-    range_c  = [P1, P99] of x = H_gt[..., c] * dt over the training frames' pixels whose true 8-bit code is neither
-               black (0) nor saturated (255), i.e. the exposures the input video measured in channel c;
+    range_c  = [P1, P99] of x = H_gt[..., c] * dt over the training frames' pixels whose true 8-bit
+    code is neither
+               black (0) nor saturated (255), i.e. the exposures the input video measured in channel
+               c;
     err_c    = mean over N = 256 log2-uniform x in range_c of 255 |phi_c(x) - f_c(x)|;
     crf_error = mean_c err_c.
 
-Log-uniform sampling weighs every stop of the recorded range equally (a pixel-weighted mean would be dominated by
-the mid-tones of the scene), and the range leaves out exposures the input never measured (below code 0, above code
-255), where any curve that is black / white fits the data equally well. The comparison is absolute: the trainer fixes
-the HDR scale through the unit-exposure value phi(1) = C0 = f(1), so a learned curve shifted along log x counts as an
-error. A constant offset of d LDR units gives crf_error = 255 d (tested).
-"""
+Log-uniform sampling weighs every stop of the recorded range equally (a pixel-weighted mean would be
+dominated by the mid-tones of the scene), and the range leaves out exposures the input never
+measured (below code 0, above code 255), where any curve that is black / white fits the data equally
+well. The comparison is absolute: the trainer fixes the HDR scale through the unit-exposure value
+phi(1) = C0 = f(1), so a learned curve shifted along log x counts as an error. A constant offset of
+d LDR units gives crf_error = 255 d (tested)."""
+
 from __future__ import annotations
 
 from typing import Callable, Iterable, List, Optional, Sequence, Tuple
@@ -26,24 +29,31 @@ CRF_ERROR_PERCENTILES = (1.0, 99.0)
 CRF_ERROR_MAX_PIXELS = 65536  # pixels per frame used for the range (strided sample)
 
 CONVENTIONS = {
-    "crf_error": f"CRF error: mean |learned - true| response in 8-bit codes over {CRF_ERROR_SAMPLES} log-uniform "
-                 f"exposures between the P{CRF_ERROR_PERCENTILES[0]:g} and P{CRF_ERROR_PERCENTILES[1]:g} of the "
-                 "exposures H_gt dt that the training frames recorded unclipped (codes 1-254), per channel, then the "
-                 "mean over RGB",
+    "crf_error": "CRF error: mean |learned - true| response in 8-bit codes over "
+    f"{CRF_ERROR_SAMPLES} log-uniform "
+    f"exposures between the P{CRF_ERROR_PERCENTILES[0]:g} and P{CRF_ERROR_PERCENTILES[1]:g} of the "
+    "exposures H_gt dt that the training frames recorded unclipped (codes 1-254), per channel, "
+    "then the "
+    "mean over RGB",
 }
 
 
-def observed_exposure_range(hdr_frames: Iterable[np.ndarray], dts: Sequence[float], crf,
-                            percentiles: Tuple[float, float] = CRF_ERROR_PERCENTILES,
-                            max_pixels: int = CRF_ERROR_MAX_PIXELS) -> List[Optional[Tuple[float, float]]]:
-    """Per channel, the [lo, hi] exposure range x = H_gt dt recorded unclipped by the frames (None if empty).
+def observed_exposure_range(
+    hdr_frames: Iterable[np.ndarray],
+    dts: Sequence[float],
+    crf,
+    percentiles: Tuple[float, float] = CRF_ERROR_PERCENTILES,
+    max_pixels: int = CRF_ERROR_MAX_PIXELS,
+) -> List[Optional[Tuple[float, float]]]:
+    """Per channel, the [lo, hi] exposure range x = H_gt dt recorded unclipped by the frames (None
+    if empty).
 
     Args:
-        hdr_frames: ground-truth linear HDR frames [H, W, C] (an iterable, consumed once).
-        dts: exposure time of each frame.
-        crf: the true response (m4dgs.crf.CRF; per-channel curves use channel c's curve for channel c).
-        percentiles: the lower and upper percentile of the unclipped exposures.
-        max_pixels: per frame, a strided sample of at most this many pixels is used.
+        hdr_frames: ground-truth linear HDR frames [H, W, C] (an iterable, consumed once). dts:
+        exposure time of each frame. crf: the true response (m4dgs.crf.CRF; per-channel curves use
+        channel c's curve for channel c). percentiles: the lower and upper percentile of the
+        unclipped exposures. max_pixels: per frame, a strided sample of at most this many pixels is
+        used.
     """
     from m4dgs.crf import get_crf
 
@@ -73,19 +83,23 @@ def observed_exposure_range(hdr_frames: Iterable[np.ndarray], dts: Sequence[floa
     return out
 
 
-def crf_error(learned: Callable, crf, ranges: Sequence[Optional[Tuple[float, float]]],
-              n: int = CRF_ERROR_SAMPLES) -> dict:
+def crf_error(
+    learned: Callable,
+    crf,
+    ranges: Sequence[Optional[Tuple[float, float]]],
+    n: int = CRF_ERROR_SAMPLES,
+) -> dict:
     """crf_error of a learned response against the true one (module docstring).
 
     Args:
-        learned: log2 exposures [n] (numpy) -> LDR values [n, C] (e.g. TrainedModel.tonemap_curve; torch or numpy
+        learned: log2 exposures [n] (numpy) -> LDR values [n, C] (e.g. TrainedModel.tonemap_curve;
+        torch or numpy
             out), or [n] for a curve shared by the channels.
-        crf: the true response (m4dgs.crf name or CRF).
-        ranges: per channel (lo, hi) exposure range, or None for a channel without recorded exposures.
-        n: samples per channel, log2-uniform.
+        crf: the true response (m4dgs.crf name or CRF). ranges: per channel (lo, hi) exposure range,
+        or None for a channel without recorded exposures. n: samples per channel, log2-uniform.
     Returns:
-        {"crf_error": mean over channels (None if no channel has a range), "per_channel": [codes or None],
-        "ranges": [[lo, hi] or None], "samples": n, "units": "8-bit codes"}.
+        {"crf_error": mean over channels (None if no channel has a range), "per_channel": [codes or
+        None], "ranges": [[lo, hi] or None], "samples": n, "units": "8-bit codes"}.
     """
     from m4dgs.crf import get_crf
 
@@ -104,6 +118,10 @@ def crf_error(learned: Callable, crf, ranges: Sequence[Optional[Tuple[float, flo
         true = np.asarray(f.channel(c)(np.exp2(z)), np.float64)
         per.append(float(255.0 * np.mean(np.abs(y - true))))
     vals = [v for v in per if v is not None]
-    return {"crf_error": float(np.mean(vals)) if vals else None, "per_channel": per,
-            "ranges": [None if r is None else [float(r[0]), float(r[1])] for r in ranges], "samples": int(n),
-            "units": "8-bit codes"}
+    return {
+        "crf_error": float(np.mean(vals)) if vals else None,
+        "per_channel": per,
+        "ranges": [None if r is None else [float(r[0]), float(r[1])] for r in ranges],
+        "samples": int(n),
+        "units": "8-bit codes",
+    }

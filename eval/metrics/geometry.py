@@ -1,17 +1,24 @@
-"""Geometry metrics beyond the paper: camera ATE / RPE after Sim(3) alignment, depth AbsRel, 2D track error.
+"""Geometry metrics beyond the paper: camera ATE / RPE after Sim(3) alignment, depth AbsRel, 2D
+track error.
 
 Conventions (docs/metrics.md):
-- ATE: the estimated camera centres are aligned to the ground-truth centres by the least-squares Sim(3) (Umeyama,
-  m4dgs.camera.umeyama_sim3: s R c_est + t ~ c_gt); ATE = RMSE of the aligned centre errors, in GT units.
-- RPE: the same Sim(3) applied to the estimated c2w poses (R_i -> R R_i, c_i -> s R c_i + t); for each pair of
-  consecutive frames, the relative motion error E = (G_i^-1 G_{i+1})^-1 (P_i^-1 P_{i+1}); RPE-trans = RMSE of |trans(E)|
+- ATE: the estimated camera centres are aligned to the ground-truth centres by the least-squares
+  Sim(3) (Umeyama, m4dgs.camera.umeyama_sim3: s R c_est + t ~ c_gt); ATE = RMSE of the aligned
+  centre errors, in GT units.
+- RPE: the same Sim(3) applied to the estimated c2w poses (R_i -> R R_i, c_i -> s R c_i + t); for
+  each pair of
+  consecutive frames, the relative motion error E = (G_i^-1 G_{i+1})^-1 (P_i^-1 P_{i+1}); RPE-trans
+  = RMSE of |trans(E)|
   (GT units), RPE-rot = RMSE of the rotation angle of E in degrees.
-- Depth AbsRel: valid pixels gt > 0 (and finite, pred > 0, and the optional mask); s = median(gt) / median(pred)
+- Depth AbsRel: valid pixels gt > 0 (and finite, pred > 0, and the optional mask); s = median(gt) /
+  median(pred)
   over valid pixels (numpy median: mean of the two middle values); AbsRel = mean |s d - gt| / gt.
-- Tracks: end-point error in pixels over the points visible in the ground truth; fraction within 1/2/4/8/16 px and
-  their average (TAP-Vid's <delta^x_avg). TAP-Vid measures at 256x256: pass `image_size=(W, H)` to rescale the
-  coordinates to 256x256 first (labelled); by default pixels of the clip.
+- Tracks: end-point error in pixels over the points visible in the ground truth; fraction within
+  1/2/4/8/16 px and their average (TAP-Vid's <delta^x_avg). TAP-Vid measures at 256x256: pass
+  `image_size=(W, H)` to rescale the coordinates to 256x256 first (labelled); by default pixels of
+  the clip.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,11 +30,14 @@ TRACK_THRESHOLDS = (1.0, 2.0, 4.0, 8.0, 16.0)
 
 CONVENTIONS = {
     "ate": "ATE: RMSE of camera centres after Sim(3) (Umeyama) alignment to GT, GT units",
-    "rpe": "RPE: consecutive-frame relative pose error after Sim(3) alignment; translation RMSE (GT units), "
-           "rotation RMSE (degrees)",
+    "rpe": "RPE: consecutive-frame relative pose error after Sim(3) alignment; translation RMSE "
+    "(GT units), "
+    "rotation RMSE (degrees)",
     "depth_absrel": "Depth AbsRel: mean |s d - gt| / gt over gt > 0, s = median(gt) / median(d)",
-    "track": "Track error: mean EPE (px) over GT-visible points; <delta_avg = mean fraction within 1/2/4/8/16 px",
-    "track_256": "Track error at 256x256 (TAP-Vid convention): coordinates rescaled before thresholds",
+    "track": "Track error: mean EPE (px) over GT-visible points; <delta_avg = mean fraction "
+    "within 1/2/4/8/16 px",
+    "track_256": "Track error at 256x256 (TAP-Vid convention): coordinates rescaled before "
+    "thresholds",
 }
 
 
@@ -37,7 +47,9 @@ def _centres(poses: torch.Tensor) -> torch.Tensor:
         return poses[:, :3, 3]
     if poses.dim() == 2 and poses.shape[-1] == 3:
         return poses
-    raise ValueError(f"expected [N, 3] camera centres or [N, 4, 4] c2w poses, got {tuple(poses.shape)}")
+    raise ValueError(
+        f"expected [N, 3] camera centres or [N, 4, 4] c2w poses, got {tuple(poses.shape)}"
+    )
 
 
 def align_sim3(est, gt, with_scale: bool = True):
@@ -47,14 +59,21 @@ def align_sim3(est, gt, with_scale: bool = True):
     ce = _centres(as_tensor(est, uint8_scale=False))
     cg = _centres(as_tensor(gt, uint8_scale=False, device=ce.device))
     if ce.shape != cg.shape or ce.shape[0] < 3:
-        raise ValueError(f"align_sim3: need matching [N>=3, 3] trajectories, got {tuple(ce.shape)}/{tuple(cg.shape)}")
+        raise ValueError(
+            "align_sim3: need matching [N>=3, 3] trajectories, got "
+            f"{tuple(ce.shape)}/{tuple(cg.shape)}"
+        )
     s, r, t = umeyama_sim3(ce, cg, with_scale=with_scale)
-    return (as_tensor(s, device=ce.device).reshape(()), as_tensor(r, device=ce.device),
-            as_tensor(t, device=ce.device).reshape(3))
+    return (
+        as_tensor(s, device=ce.device).reshape(()),
+        as_tensor(r, device=ce.device),
+        as_tensor(t, device=ce.device).reshape(3),
+    )
 
 
 def ate(est, gt, *, with_scale: bool = True) -> float:
-    """Absolute trajectory error (RMSE of centres after Sim(3) alignment). est/gt: [N, 3] centres or [N, 4, 4] c2w."""
+    """Absolute trajectory error (RMSE of centres after Sim(3) alignment). est/gt: [N, 3] centres or
+    [N, 4, 4] c2w."""
     ce = _centres(as_tensor(est, uint8_scale=False))
     cg = _centres(as_tensor(gt, uint8_scale=False, device=ce.device))
     s, r, t = align_sim3(ce, cg, with_scale=with_scale)
@@ -73,12 +92,15 @@ def rpe(est_c2w, gt_c2w, *, with_scale: bool = True) -> dict:
     Args:
         est_c2w, gt_c2w: [N, 4, 4] camera-to-world poses (N >= 3).
     Returns:
-        {"rpe_trans": RMSE of relative translation errors (GT units), "rpe_rot": RMSE of rotation errors (deg)}.
+        {"rpe_trans": RMSE of relative translation errors (GT units), "rpe_rot": RMSE of rotation
+        errors (deg)}.
     """
     pe = as_tensor(est_c2w, uint8_scale=False)
     pg = as_tensor(gt_c2w, uint8_scale=False, device=pe.device)
     if pe.shape != pg.shape or pe.dim() != 3 or pe.shape[-2:] != (4, 4):
-        raise ValueError(f"rpe: need matching [N, 4, 4] poses, got {tuple(pe.shape)}/{tuple(pg.shape)}")
+        raise ValueError(
+            f"rpe: need matching [N, 4, 4] poses, got {tuple(pe.shape)}/{tuple(pg.shape)}"
+        )
     s, r, t = align_sim3(pe, pg, with_scale=with_scale)
     pa = pe.clone()
     pa[:, :3, :3] = r @ pe[:, :3, :3]
@@ -101,8 +123,8 @@ def _median(x: torch.Tensor) -> torch.Tensor:
 def depth_absrel(pred, gt, mask=None) -> float | None:
     """AbsRel after median scaling, over pixels with gt > 0 (finite) and pred > 0 (and `mask`).
 
-    pred, gt: [H, W] (or [N, H, W], one pooled set of pixels) z-depth maps. Returns None when no pixel is valid.
-    """
+    pred, gt: [H, W] (or [N, H, W], one pooled set of pixels) z-depth maps. Returns None when no
+    pixel is valid."""
     g = as_tensor(gt, uint8_scale=False)
     d = as_tensor(pred, uint8_scale=False, device=g.device)
     if d.shape != g.shape:
@@ -121,18 +143,20 @@ def track_error(pred, gt, visible, *, thresholds=TRACK_THRESHOLDS, image_size=No
     """2D track error against ground-truth tracks.
 
     Args:
-        pred, gt: [N, T, 2] pixel coordinates (x, y).
-        visible: [N, T] bool, ground-truth visibility (only visible points are scored).
-        thresholds: pixel thresholds for the within-delta fractions (TAP-Vid: 1, 2, 4, 8, 16).
-        image_size: optional (W, H); when given, coordinates are rescaled to 256x256 before measuring (TAP-Vid).
+        pred, gt: [N, T, 2] pixel coordinates (x, y). visible: [N, T] bool, ground-truth visibility
+        (only visible points are scored). thresholds: pixel thresholds for the within-delta
+        fractions (TAP-Vid: 1, 2, 4, 8, 16). image_size: optional (W, H); when given, coordinates
+        are rescaled to 256x256 before measuring (TAP-Vid).
     Returns:
-        {"epe": mean EPE, "delta_avg": mean of the fractions, "within_<d>": fraction within d px for each d};
-        values are None when no point is visible.
+        {"epe": mean EPE, "delta_avg": mean of the fractions, "within_<d>": fraction within d px for
+        each d}; values are None when no point is visible.
     """
     g = as_tensor(gt, uint8_scale=False)
     p = as_tensor(pred, uint8_scale=False, device=g.device)
     if p.shape != g.shape or p.shape[-1] != 2:
-        raise ValueError(f"track_error: need matching [N, T, 2] tracks, got {tuple(p.shape)}/{tuple(g.shape)}")
+        raise ValueError(
+            f"track_error: need matching [N, T, 2] tracks, got {tuple(p.shape)}/{tuple(g.shape)}"
+        )
     v = as_mask(visible, g)
     if image_size is not None:
         w, h = image_size
@@ -155,5 +179,13 @@ def rotation_error_deg(r_a, r_b) -> float:
     return float(_rot_angle_deg(a.transpose(-1, -2) @ b))
 
 
-__all__ = ["align_sim3", "ate", "rpe", "depth_absrel", "track_error", "rotation_error_deg", "TRACK_THRESHOLDS",
-           "CONVENTIONS"]
+__all__ = [
+    "align_sim3",
+    "ate",
+    "rpe",
+    "depth_absrel",
+    "track_error",
+    "rotation_error_deg",
+    "TRACK_THRESHOLDS",
+    "CONVENTIONS",
+]

@@ -1,16 +1,19 @@
 """HDR image metrics: mu-law PSNR / SSIM (the paper's), PU21-PSNR and HDR-FLIP (beyond the paper).
 
 Conventions (docs/metrics.md; shared/notes/metric-conventions.md):
-- mu-law (HDR-NeRF / GaussHDR / Mono4DGS-HDR): T(H) = log(1 + mu x) / log(1 + mu), mu = 5000, with
-  x = clip(H / max(H_gt), 0, 1) for the prediction AND the ground truth (GT-max normalisation, `norm="gt"`).
-  `norm="own"` divides each image by its own max (HDR-GS); it hides global scale errors and is a labelled extra.
-  The max is taken per image (per frame) over all pixels and channels.
-- PU21-PSNR (Mantiuk & Azimi 2021, 'banding_glare' parameters): relative HDR is scaled so that max(H_gt) maps to
-  `peak_nits` (4000 cd/m^2 by default; the choice moves the result by ~1.5 dB), each linear RGB channel is PU-encoded
-  (luminance clamped to [0.005, 10000]) and PSNR uses peak 256, as in the reference pu21_metric(..., 'PSNR').
-- HDR-FLIP: NVIDIA FLIP in HDR mode (pip flip-evaluator), mean of the error map; both images divided by max(H_gt)
-  (linear, non-negative) before evaluation.
+- mu-law (HDR-NeRF / GaussHDR / Mono4DGS-HDR): T(H) = log(1 + mu x) / log(1 + mu), mu = 5000, with x
+  = clip(H / max(H_gt), 0, 1) for the prediction AND the ground truth (GT-max normalisation,
+  `norm="gt"`). `norm="own"` divides each image by its own max (HDR-GS); it hides global scale
+  errors and is a labelled extra. The max is taken per image (per frame) over all pixels and
+  channels.
+- PU21-PSNR (Mantiuk & Azimi 2021, 'banding_glare' parameters): relative HDR is scaled so that
+  max(H_gt) maps to `peak_nits` (4000 cd/m^2 by default; the choice moves the result by ~1.5 dB),
+  each linear RGB channel is PU-encoded (luminance clamped to [0.005, 10000]) and PSNR uses peak
+  256, as in the reference pu21_metric(..., 'PSNR').
+- HDR-FLIP: NVIDIA FLIP in HDR mode (pip flip-evaluator), mean of the error map; both images divided
+  by max(H_gt) (linear, non-negative) before evaluation.
 """
+
 from __future__ import annotations
 
 import math
@@ -23,21 +26,32 @@ from m4dgs.ssim import ssim as _ssim
 from ._util import as_tensor, batched, check_pair, psnr_from_mse
 
 MU = 5000.0
-PU21_BANDING_GLARE = (0.353487901, 0.3734658629, 8.277049286e-05, 0.9062562627, 0.09150303166, 0.9099517204,
-                      596.3148142)
+PU21_BANDING_GLARE = (
+    0.353487901,
+    0.3734658629,
+    8.277049286e-05,
+    0.9062562627,
+    0.09150303166,
+    0.9099517204,
+    596.3148142,
+)
 PU21_L_MIN = 0.005
 PU21_L_MAX = 10000.0
 PU21_PEAK = 256.0
 PU21_DEFAULT_NITS = 4000.0
 
 CONVENTIONS = {
-    "hdr_mu_law": "HDR PSNR/SSIM: mu-law (mu=5000) on H/max(H_gt) clipped to [0,1] (prediction and GT)",
-    "hdr_mu_law_own": "HDR PSNR/SSIM (own-max): mu-law (mu=5000) on H/max(H) per image (HDR-GS style; hides scale "
-                      "errors)",
-    "pu21": f"PU21-PSNR: banding_glare encoding, per RGB channel, peak 256; relative HDR scaled so max(H_gt) = "
-            f"{PU21_DEFAULT_NITS:g} cd/m^2",
-    "hdr_flip": "HDR-FLIP: flip-evaluator 'HDR' mode (default exposure range and ACES tone mapper), mean error map, "
-                "inputs divided by max(H_gt)",
+    "hdr_mu_law": "HDR PSNR/SSIM: mu-law (mu=5000) on H/max(H_gt) clipped to [0,1] (prediction "
+    "and GT)",
+    "hdr_mu_law_own": "HDR PSNR/SSIM (own-max): mu-law (mu=5000) on H/max(H) per image (HDR-GS "
+    "style; hides scale "
+    "errors)",
+    "pu21": "PU21-PSNR: banding_glare encoding, per RGB channel, peak 256; relative HDR scaled "
+    "so max(H_gt) = "
+    f"{PU21_DEFAULT_NITS:g} cd/m^2",
+    "hdr_flip": "HDR-FLIP: flip-evaluator 'HDR' mode (default exposure range and ACES tone "
+    "mapper), mean error map, "
+    "inputs divided by max(H_gt)",
 }
 
 
@@ -47,8 +61,12 @@ def mu_law(x, mu: float = MU) -> torch.Tensor:
     return torch.log1p(mu * x) / math.log1p(mu)
 
 
-def _normalise(pred: torch.Tensor, gt: torch.Tensor, norm: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """Divide [N, H, W, C] HDR images by the per-image GT max ("gt") or each by its own max ("own"), clip to [0,1]."""
+def _normalise(
+    pred: torch.Tensor, gt: torch.Tensor, norm: str
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Divide [N, H, W, C] HDR images by the per-image GT max ("gt") or each by its own max ("own"),
+    clip to [0,1]."""
+
     def nmax(t):
         return t.amax(dim=(1, 2, 3), keepdim=True).clamp_min(1e-12)
 
@@ -60,7 +78,9 @@ def _normalise(pred: torch.Tensor, gt: torch.Tensor, norm: str) -> tuple[torch.T
     raise ValueError(f"norm must be 'gt' or 'own', got {norm!r}")
 
 
-def hdr_tonemap_pair(pred, gt, *, norm: str = "gt", mu: float = MU) -> tuple[torch.Tensor, torch.Tensor]:
+def hdr_tonemap_pair(
+    pred, gt, *, norm: str = "gt", mu: float = MU
+) -> tuple[torch.Tensor, torch.Tensor]:
     """mu-law tone-mapped prediction and ground truth, [N, H, W, C] float64 in [0, 1]."""
     g = batched(as_tensor(gt, uint8_scale=False))
     p = batched(as_tensor(pred, device=g.device, uint8_scale=False))
@@ -70,7 +90,8 @@ def hdr_tonemap_pair(pred, gt, *, norm: str = "gt", mu: float = MU) -> tuple[tor
 
 
 def hdr_psnr(pred, gt, *, norm: str = "gt", mu: float = MU) -> float:
-    """PSNR in the mu-law domain (data range 1), per frame then the mean. pred/gt: [H,W,3] or [N,H,W,3] linear HDR."""
+    """PSNR in the mu-law domain (data range 1), per frame then the mean. pred/gt: [H,W,3] or
+    [N,H,W,3] linear HDR."""
     tp, tg = hdr_tonemap_pair(pred, gt, norm=norm, mu=mu)
     mse = ((tp - tg) ** 2).mean(dim=(1, 2, 3))
     return float(np.mean([psnr_from_mse(float(m), 1.0) for m in mse]))
@@ -97,9 +118,8 @@ def pu21_encode(luminance, params=PU21_BANDING_GLARE) -> torch.Tensor:
 def pu21_psnr(pred, gt, *, peak_nits: float = PU21_DEFAULT_NITS, peak: float = PU21_PEAK) -> float:
     """PU21-PSNR of relative linear HDR images, per frame then the mean.
 
-    Both images are multiplied by peak_nits / max(H_gt) (per frame), each RGB channel is PU21-encoded and the PSNR
-    uses `peak` (256, as pu21_metric's 'PSNR').
-    """
+    Both images are multiplied by peak_nits / max(H_gt) (per frame), each RGB channel is
+    PU21-encoded and the PSNR uses `peak` (256, as pu21_metric's 'PSNR')."""
     g = batched(as_tensor(gt, uint8_scale=False))
     p = batched(as_tensor(pred, device=g.device, uint8_scale=False))
     check_pair(p, g, "pu21_psnr")
@@ -110,11 +130,11 @@ def pu21_psnr(pred, gt, *, peak_nits: float = PU21_DEFAULT_NITS, peak: float = P
 
 
 def hdr_flip(pred, gt) -> float:
-    """Mean HDR-FLIP error (lower is better) over frames; both images divided by max(H_gt), negatives clipped.
+    """Mean HDR-FLIP error (lower is better) over frames; both images divided by max(H_gt),
+    negatives clipped.
 
-    Uses pip `flip-evaluator` (CPU): flip.evaluate(reference, test, "HDR") with its default exposure range
-    (computed from the reference) and ACES tone mapper.
-    """
+    Uses pip `flip-evaluator` (CPU): flip.evaluate(reference, test, "HDR") with its default exposure
+    range (computed from the reference) and ACES tone mapper."""
     import flip_evaluator as flip
 
     g = batched(as_tensor(gt, uint8_scale=False))

@@ -1,15 +1,19 @@
-"""LDR image metrics: PSNR, 3DGS-style SSIM, their dynamic-region (masked) variants, and the 8-bit round trips.
+"""LDR image metrics: PSNR, 3DGS-style SSIM, their dynamic-region (masked) variants, and the 8-bit
+round trips.
 
 Conventions (docs/metrics.md; shared/notes/metric-conventions.md):
 - PSNR per image with data range 1, then the mean over images (never a batch-pooled MSE).
-- SSIM is the 3DGS one (m4dgs.ssim: 11x11 Gaussian window, sigma 1.5, zero padding, mean over the WHOLE map).
-  `crop=5` gives scikit-image's Gaussian SSIM instead (interior mean).
-- SSIM runs its convolutions in float32 (float64 conv2d is ~50x slower on CPU; the difference is < 1e-6).
-- Images are [H, W, 3] (or a batch [N, H, W, 3]) in [0, 1]; numpy or torch; uint8 input is divided by 255.
-- Renders are scored as float images by default; `roundtrip="png"` / `"jpeg"` first writes the prediction as an 8-bit
-  PNG / JPEG (PIL, quality 75 = PIL's default) and reads it back, to compare with numbers scored that way (the
-  authors scored JPEG-written renders; GaussHDR PNG-written ones).
+- SSIM is the 3DGS one (m4dgs.ssim: 11x11 Gaussian window, sigma 1.5, zero padding, mean over the
+  WHOLE map). `crop=5` gives scikit-image's Gaussian SSIM instead (interior mean).
+- SSIM runs its convolutions in float32 (float64 conv2d is ~50x slower on CPU; the difference is <
+  1e-6).
+- Images are [H, W, 3] (or a batch [N, H, W, 3]) in [0, 1]; numpy or torch; uint8 input is divided
+  by 255.
+- Renders are scored as float images by default; `roundtrip="png"` / `"jpeg"` first writes the
+  prediction as an 8-bit PNG / JPEG (PIL, quality 75 = PIL's default) and reads it back, to compare
+  with numbers scored that way (the authors scored JPEG-written renders; GaussHDR PNG-written ones).
 """
+
 from __future__ import annotations
 
 import io
@@ -23,7 +27,9 @@ from m4dgs.ssim import ssim_map as _ssim_map
 
 from ._util import as_mask, as_tensor, batched, check_pair, psnr_from_mse
 
-JPEG_QUALITY = 75  # PIL's default JPEG quality (the authors' writer is not documented; labelled as such)
+JPEG_QUALITY = (
+    75  # PIL's default JPEG quality (the authors' writer is not documented; labelled as such)
+)
 
 CONVENTIONS = {
     "psnr": "PSNR: data range 1, per image, then the mean over images",
@@ -32,16 +38,19 @@ CONVENTIONS = {
     "masked": "Dynamic-region metrics: MSE / SSIM map averaged over the mask pixels only",
     "ldr_float": "LDR scored as float images",
     "ldr_png": "LDR scored after an 8-bit PNG round trip of the prediction",
-    "ldr_jpeg": f"LDR scored after an 8-bit JPEG round trip of the prediction (PIL, quality {JPEG_QUALITY})",
+    "ldr_jpeg": "LDR scored after an 8-bit JPEG round trip of the prediction (PIL, quality "
+    f"{JPEG_QUALITY})",
 }
 
 
 def roundtrip(img, mode: str | None = None, *, jpeg_quality: int = JPEG_QUALITY):
-    """Encode an image to 8 bits and decode it again, as when renders are written to disk before scoring.
+    """Encode an image to 8 bits and decode it again, as when renders are written to disk before
+    scoring.
 
     Args:
         img: [H, W, 3] or [N, H, W, 3] image in [0, 1] (numpy or torch; values clipped to [0, 1]).
-        mode: None (unchanged), "png" (8-bit PNG: round(255 x) / 255) or "jpeg" (PIL JPEG at `jpeg_quality`).
+        mode: None (unchanged), "png" (8-bit PNG: round(255 x) / 255) or "jpeg" (PIL JPEG at
+        `jpeg_quality`).
     Returns:
         float64 torch tensor of the same shape (on the input's device).
     """
@@ -62,7 +71,9 @@ def roundtrip(img, mode: str | None = None, *, jpeg_quality: int = JPEG_QUALITY)
         else:
             Image.fromarray(u8).save(buf, format="JPEG", quality=int(jpeg_quality))
         buf.seek(0)
-        back = np.asarray(Image.open(buf).convert(Image.fromarray(u8).mode)).astype(np.float64) / 255.0
+        back = (
+            np.asarray(Image.open(buf).convert(Image.fromarray(u8).mode)).astype(np.float64) / 255.0
+        )
         if back.ndim == 2:
             back = back[..., None]
         out.append(torch.from_numpy(back))
@@ -82,7 +93,9 @@ def _prep(pred, gt, name, roundtrip_mode):
     return batched(p), batched(gt_t)
 
 
-def psnr_per_image(pred, gt, *, data_range: float = 1.0, roundtrip_mode: str | None = None) -> list[float]:
+def psnr_per_image(
+    pred, gt, *, data_range: float = 1.0, roundtrip_mode: str | None = None
+) -> list[float]:
     """PSNR of each image of a batch ([N, H, W, C] or one [H, W, C]) -> list of N floats."""
     p, g = _prep(pred, gt, "psnr", roundtrip_mode)
     mse = ((p - g) ** 2).mean(dim=(1, 2, 3))
@@ -95,20 +108,24 @@ def psnr(pred, gt, *, data_range: float = 1.0, roundtrip: str | None = None) -> 
     return float(np.mean(vals))
 
 
-def ssim(pred, gt, *, data_range: float = 1.0, crop: int = 0, roundtrip: str | None = None) -> float:
+def ssim(
+    pred, gt, *, data_range: float = 1.0, crop: int = 0, roundtrip: str | None = None
+) -> float:
     """3DGS SSIM (mean of the whole zero-padded map; `crop=5` = scikit-image), mean over a batch."""
     p, g = _prep(pred, gt, "ssim", roundtrip)
     return float(_ssim(p.float(), g.float(), data_range=data_range, crop=crop).double().mean())
 
 
-def masked_psnr(pred, gt, mask, *, data_range: float = 1.0, roundtrip: str | None = None) -> float | None:
+def masked_psnr(
+    pred, gt, mask, *, data_range: float = 1.0, roundtrip: str | None = None
+) -> float | None:
     """PSNR restricted to a region: the MSE is averaged over the mask pixels (all channels) only.
 
     Args:
         mask: [H, W] (or [N, H, W]) bool / {0, 1} mask of the region (e.g. the dynamic mask).
     Returns:
-        mean over images of the per-image masked PSNR; images with an empty mask are skipped; None when every
-        mask is empty.
+        mean over images of the per-image masked PSNR; images with an empty mask are skipped; None
+        when every mask is empty.
     """
     p, g = _prep(pred, gt, "masked_psnr", roundtrip)
     m = as_mask(mask, g)
@@ -123,8 +140,11 @@ def masked_psnr(pred, gt, mask, *, data_range: float = 1.0, roundtrip: str | Non
     return float(np.mean(vals)) if vals else None
 
 
-def masked_ssim(pred, gt, mask, *, data_range: float = 1.0, roundtrip: str | None = None) -> float | None:
-    """SSIM restricted to a region: the 3DGS SSIM map (computed on the full image) averaged over the mask pixels.
+def masked_ssim(
+    pred, gt, mask, *, data_range: float = 1.0, roundtrip: str | None = None
+) -> float | None:
+    """SSIM restricted to a region: the 3DGS SSIM map (computed on the full image) averaged over the
+    mask pixels.
 
     Returns the mean over images with a non-empty mask, or None when every mask is empty.
     """

@@ -1,8 +1,10 @@
-"""Rendering speed and memory: FPS of a render callable (with warm-up and device synchronisation), peak memory.
+"""Rendering speed and memory: FPS of a render callable (with warm-up and device synchronisation),
+peak memory.
 
-Convention: FPS = iterations / wall time of `iters` calls after `warmup` untimed calls, the device synchronised
-before starting and after finishing the clock (CUDA kernels are asynchronous). The paper measures FPS at 864x480.
-"""
+Convention: FPS = iterations / wall time of `iters` calls after `warmup` untimed calls, the device
+synchronised before starting and after finishing the clock (CUDA kernels are asynchronous). The
+paper measures FPS at 864x480."""
+
 from __future__ import annotations
 
 import time
@@ -12,7 +14,8 @@ import torch
 
 CONVENTIONS = {
     "fps": "FPS: renders per second after warm-up, device synchronised, at the stated resolution",
-    "peak_mem": "Peak memory: torch.cuda.max_memory_allocated during the call (GPU), process max RSS (CPU)",
+    "peak_mem": "Peak memory: torch.cuda.max_memory_allocated during the call (GPU), process max "
+    "RSS (CPU)",
 }
 
 
@@ -21,8 +24,14 @@ def _sync(device) -> None:
         torch.cuda.synchronize(torch.device(device))
 
 
-def measure_fps(render: Callable[[], object], *, warmup: int = 3, iters: int = 20, device=None,
-                clock: Callable[[], float] = time.perf_counter) -> dict:
+def measure_fps(
+    render: Callable[[], object],
+    *,
+    warmup: int = 3,
+    iters: int = 20,
+    device=None,
+    clock: Callable[[], float] = time.perf_counter,
+) -> dict:
     """Time a zero-argument render callable.
 
     Args:
@@ -51,10 +60,9 @@ def measure_fps(render: Callable[[], object], *, warmup: int = 3, iters: int = 2
 def peak_memory_mib(fn: Callable[[], object], *, device=None) -> float | None:
     """Peak memory while running `fn` once, in MiB.
 
-    On CUDA: torch.cuda.max_memory_allocated after a reset of the peak statistics (allocator memory only).
-    On CPU: the process's maximum resident set size (ru_maxrss; a lifetime high-water mark, not specific to `fn`),
-    or None where the resource module is unavailable.
-    """
+    On CUDA: torch.cuda.max_memory_allocated after a reset of the peak statistics (allocator memory
+    only). On CPU: the process's maximum resident set size (ru_maxrss; a lifetime high-water mark,
+    not specific to `fn`), or None where the resource module is unavailable."""
     if device is not None and torch.device(device).type == "cuda" and torch.cuda.is_available():
         dev = torch.device(device)
         torch.cuda.synchronize(dev)

@@ -1,18 +1,23 @@
-"""Temporal stability of rendered HDR video: HDR-TAE (paper appendix "Evaluation Metrics"), HDR_T_std, DIS flow.
+"""Temporal stability of rendered HDR video: HDR-TAE (paper appendix "Evaluation Metrics"),
+HDR_T_std, DIS flow.
 
 HDR-TAE convention (the authors' compute_HDR_TAE; shared/notes/metric-conventions.md):
-- H_{t+1->t} = W(H_{t+1}, F_{t->t+1}): backward warp, bilinear, border padding, align_corners=True (m4dgs.warp).
-- per pixel, the SUM over RGB of |H_t - H_{t+1->t}| / (H_t + H_{t+1->t} + 1e-10), times the visibility V_{t->t+1},
+- H_{t+1->t} = W(H_{t+1}, F_{t->t+1}): backward warp, bilinear, border padding, align_corners=True
+  (m4dgs.warp).
+- per pixel, the SUM over RGB of |H_t - H_{t+1->t}| / (H_t + H_{t+1->t} + 1e-10), times the
+visibility V_{t->t+1},
   summed and divided by the COUNT of visible pixels (so 3x the per-channel mean);
-- the same for t+1 with H_{t->t+1} = W(H_t, F_{t+1->t}) and V_{t+1->t}; per pair (fwd + bwd) / 2; mean over pairs.
+- the same for t+1 with H_{t->t+1} = W(H_t, F_{t+1->t}) and V_{t+1->t}; per pair (fwd + bwd) / 2;
+  mean over pairs.
 - visibility: given masks (exact from ground truth) or forward-backward consistency
   |f + b(x + f)| < 0.5 (|f| + |b(x + f)|) + 0.5 (m4dgs.warp.fb_consistency).
-A direction with no visible pixel is skipped (a pair with none in both directions too); all empty -> NaN.
+A direction with no visible pixel is skipped (a pair with none in both directions too); all empty ->
+NaN.
 
-Flow for real clips (no learned model without weights): OpenCV DIS optical flow, preset MEDIUM, on 8-bit grey
-images of the mu-law tone-mapped HDR pair, both frames divided by the SAME scale (max over the two frames), so the
-tone curve does not change between the frames.
-"""
+Flow for real clips (no learned model without weights): OpenCV DIS optical flow, preset MEDIUM, on
+8-bit grey images of the mu-law tone-mapped HDR pair, both frames divided by the SAME scale (max
+over the two frames), so the tone curve does not change between the frames."""
+
 from __future__ import annotations
 
 import math
@@ -28,19 +33,26 @@ from .hdr import MU
 TAE_EPS = 1e-10
 
 CONVENTIONS = {
-    "hdr_tae": "HDR-TAE: channel SUM convention (3x per-channel mean), as in the authors' code; bilinear backward "
-               "warp with border padding; mean over visible pixels, both directions, consecutive pairs",
+    "hdr_tae": "HDR-TAE: channel SUM convention (3x per-channel mean), as in the authors' code; "
+    "bilinear backward "
+    "warp with border padding; mean over visible pixels, both directions, consecutive pairs",
     "hdr_tae_gt_flow": "HDR-TAE flow: exact ground-truth flow and visibility",
-    "hdr_tae_dis_flow": "HDR-TAE flow: OpenCV DIS (preset medium) on 8-bit mu-law tone-mapped HDR, visibility from "
-                        "forward-backward consistency",
-    "hdr_tae_interior": "HDR-TAE interior: the same, with occlusion-edge pixels (a 5 % depth jump or a surface "
-                        "boundary, grown by 1 px, in either frame) removed from the visibility",
-    "hdr_t_std": "HDR_T_std: population std over frames of each frame's mean HDR value, divided by the global mean",
+    "hdr_tae_dis_flow": "HDR-TAE flow: OpenCV DIS (preset medium) on 8-bit mu-law tone-mapped "
+    "HDR, visibility from "
+    "forward-backward consistency",
+    "hdr_tae_interior": "HDR-TAE interior: the same, with occlusion-edge pixels (a 5 % depth jump "
+    "or a surface "
+    "boundary, grown by 1 px, in either frame) removed from the visibility",
+    "hdr_t_std": "HDR_T_std: population std over frames of each frame's mean HDR value, divided "
+    "by the global mean",
 }
 
 
-def _tae_direction(h_a: torch.Tensor, h_b: torch.Tensor, flow_ab: torch.Tensor, vis_a: torch.Tensor):
-    """Sum over visible pixels of frame a of sum_c |H_a - W(H_b, F_ab)| / (H_a + W + eps), and the visible count."""
+def _tae_direction(
+    h_a: torch.Tensor, h_b: torch.Tensor, flow_ab: torch.Tensor, vis_a: torch.Tensor
+):
+    """Sum over visible pixels of frame a of sum_c |H_a - W(H_b, F_ab)| / (H_a + W + eps), and the
+    visible count."""
     hw = backward_warp(h_b, flow_ab, padding_mode="border")
     rel = ((h_a - hw).abs() / (h_a + hw + TAE_EPS)).sum(dim=-1)  # [H, W] channel sum
     n = int(vis_a.sum())
@@ -70,7 +82,9 @@ def hdr_tae_pairs(frames, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> lis
     fb = as_tensor(flow_bwd, device=h.device, uint8_scale=False)
     expect = (t_len - 1, h.shape[1], h.shape[2], 2)
     if tuple(ff.shape) != expect or tuple(fb.shape) != expect:
-        raise ValueError(f"hdr_tae: flows must be {expect}, got {tuple(ff.shape)} and {tuple(fb.shape)}")
+        raise ValueError(
+            f"hdr_tae: flows must be {expect}, got {tuple(ff.shape)} and {tuple(fb.shape)}"
+        )
     vf = as_mask(vis_fwd, h) if vis_fwd is not None else None
     vb = as_mask(vis_bwd, h) if vis_bwd is not None else None
     out = []
@@ -91,15 +105,17 @@ EDGE_RADIUS = 1  # edge pixels are grown by this many pixels (box)
 def depth_edges(depth, rtol: float = EDGE_DEPTH_RTOL, radius: int = EDGE_RADIUS) -> np.ndarray:
     """[H, W] bool: pixels next to an occlusion edge of a z-depth map [H, W] (0 = no surface).
 
-    A 4-neighbour pair is an edge when one has a surface and the other not, or when their depths differ by more than
-    rtol of the smaller; both pixels of the pair are marked, then the mask is grown by `radius` pixels. These are the
-    pixels whose colour mixes two surfaces (the box pixel filter averages over the footprint) and whose flow is that of
-    only one of them, so the HDR-TAE of perfectly consistent frames is not zero there.
-    """
+    A 4-neighbour pair is an edge when one has a surface and the other not, or when their depths
+    differ by more than rtol of the smaller; both pixels of the pair are marked, then the mask is
+    grown by `radius` pixels. These are the pixels whose colour mixes two surfaces (the box pixel
+    filter averages over the footprint) and whose flow is that of only one of them, so the HDR-TAE
+    of perfectly consistent frames is not zero there."""
     d = np.asarray(depth, np.float64)
     e = np.zeros(d.shape, bool)
-    for a, b, sl_a, sl_b in ((d[:, :-1], d[:, 1:], (slice(None), slice(None, -1)), (slice(None), slice(1, None))),
-                             (d[:-1], d[1:], (slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+    for a, b, sl_a, sl_b in (
+        (d[:, :-1], d[:, 1:], (slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+        (d[:-1], d[1:], (slice(None, -1), slice(None)), (slice(1, None), slice(None))),
+    ):
         surf_a, surf_b = a > 0, b > 0
         jump = np.abs(a - b) > rtol * np.maximum(np.minimum(a, b), 1e-12)
         pair = (surf_a != surf_b) | (surf_a & surf_b & jump)
@@ -120,25 +136,30 @@ def depth_edges(depth, rtol: float = EDGE_DEPTH_RTOL, radius: int = EDGE_RADIUS)
 
 
 def interior_visibility(vis_ab, flow_ab, edges_a, edges_b) -> np.ndarray:
-    """vis_ab [H, W] without the pixels of frame a that are edge pixels or whose flow lands on an edge pixel of b
-    (nearest pixel): the edge-excluded HDR-TAE's visibility (see `depth_edges`)."""
+    """vis_ab [H, W] without the pixels of frame a that are edge pixels or whose flow lands on an
+    edge pixel of b (nearest pixel): the edge-excluded HDR-TAE's visibility (see `depth_edges`)."""
     v = np.asarray(vis_ab, bool) & ~np.asarray(edges_a, bool)
     f = np.asarray(flow_ab, np.float64)
     H, W = v.shape
     ys, xs = np.mgrid[0:H, 0:W]
-    xt = np.clip(np.floor(xs + f[..., 0] + 0.5).astype(np.int64), 0, W - 1)  # pixel centres at integer + 0.5
+    # pixel centres at integer + 0.5
+    xt = np.clip(np.floor(xs + f[..., 0] + 0.5).astype(np.int64), 0, W - 1)
     yt = np.clip(np.floor(ys + f[..., 1] + 0.5).astype(np.int64), 0, H - 1)
     return v & ~np.asarray(edges_b, bool)[yt, xt]
 
 
 def hdr_tae(frames, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> float:
-    """HDR-TAE (lower is better): mean over consecutive pairs of the two-direction average (module docstring)."""
-    vals = [v for v in hdr_tae_pairs(frames, flow_fwd, flow_bwd, vis_fwd, vis_bwd) if not math.isnan(v)]
+    """HDR-TAE (lower is better): mean over consecutive pairs of the two-direction average (module
+    docstring)."""
+    vals = [
+        v for v in hdr_tae_pairs(frames, flow_fwd, flow_bwd, vis_fwd, vis_bwd) if not math.isnan(v)
+    ]
     return float(np.mean(vals)) if vals else math.nan
 
 
 def hdr_t_std(frames) -> float:
-    """HDR_T_std: std over frames (population, ddof=0) of each frame's mean value, divided by the global mean.
+    """HDR_T_std: std over frames (population, ddof=0) of each frame's mean value, divided by the
+    global mean.
 
     frames: [T, H, W, C] linear HDR (list or array). The frame mean is over pixels and channels.
     """
@@ -150,13 +171,18 @@ def hdr_t_std(frames) -> float:
 
 
 def tonemap_8bit(hdr, scale: float | None = None, mu: float = MU) -> np.ndarray:
-    """8-bit grey image for flow estimation: round(255 * mu_law(clip(H / scale, 0, 1))), Rec.709 luma of RGB.
+    """8-bit grey image for flow estimation: round(255 * mu_law(clip(H / scale, 0, 1))), Rec.709
+    luma of RGB.
 
     hdr: [H, W, 3] or [H, W] linear HDR; scale defaults to the image's max.
     """
     h = as_tensor(hdr, uint8_scale=False).cpu().numpy()
     if h.ndim == 3:
-        h = h[..., 0] * 0.2126 + h[..., 1] * 0.7152 + h[..., 2] * 0.0722 if h.shape[-1] == 3 else h[..., 0]
+        h = (
+            h[..., 0] * 0.2126 + h[..., 1] * 0.7152 + h[..., 2] * 0.0722
+            if h.shape[-1] == 3
+            else h[..., 0]
+        )
     s = float(h.max()) if scale is None else float(scale)
     x = np.clip(h / max(s, 1e-12), 0.0, 1.0)
     t = np.log1p(mu * x) / np.log1p(mu)
@@ -166,9 +192,9 @@ def tonemap_8bit(hdr, scale: float | None = None, mu: float = MU) -> np.ndarray:
 def dis_flow(img_a, img_b, *, hdr: bool | None = None) -> np.ndarray:
     """Optical flow F_{a->b} [H, W, 2] (float32 numpy, pixels) by OpenCV DIS, preset MEDIUM.
 
-    img_a, img_b: [H, W, 3] (or [H, W]) images. uint8 inputs are used as they are (converted to grey); float inputs
-    are treated as linear HDR (`hdr=None` auto-detects from the dtype) and tone-mapped to 8-bit with the mu-law curve
-    on H / max(H_a, H_b) (same scale for both frames).
+    img_a, img_b: [H, W, 3] (or [H, W]) images. uint8 inputs are used as they are (converted to
+    grey); float inputs are treated as linear HDR (`hdr=None` auto-detects from the dtype) and
+    tone-mapped to 8-bit with the mu-law curve on H / max(H_a, H_b) (same scale for both frames).
     """
     import cv2
 
@@ -180,9 +206,15 @@ def dis_flow(img_a, img_b, *, hdr: bool | None = None) -> np.ndarray:
         s = max(float(a_np.max()), float(b_np.max()))
         ga, gb = tonemap_8bit(a_np, s), tonemap_8bit(b_np, s)
     else:
+
         def grey(x):
             x = x if x.dtype == np.uint8 else np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)
-            return cv2.cvtColor(x, cv2.COLOR_RGB2GRAY) if x.ndim == 3 and x.shape[-1] == 3 else x.reshape(x.shape[:2])
+            return (
+                cv2.cvtColor(x, cv2.COLOR_RGB2GRAY)
+                if x.ndim == 3 and x.shape[-1] == 3
+                else x.reshape(x.shape[:2])
+            )
+
         ga, gb = grey(a_np), grey(b_np)
     dis = cv2.DISOpticalFlow_create(cv2.DISOpticalFlow_PRESET_MEDIUM)
     flow = dis.calc(np.ascontiguousarray(ga), np.ascontiguousarray(gb), None)
@@ -190,8 +222,11 @@ def dis_flow(img_a, img_b, *, hdr: bool | None = None) -> np.ndarray:
 
 
 def dis_flow_sequence(frames) -> tuple[np.ndarray, np.ndarray]:
-    """Forward and backward DIS flows of consecutive frames: ([T-1, H, W, 2] F_{t->t+1}, [T-1, H, W, 2] F_{t+1->t})."""
-    fr = [f.detach().cpu().numpy() if isinstance(f, torch.Tensor) else np.asarray(f) for f in frames]
+    """Forward and backward DIS flows of consecutive frames: ([T-1, H, W, 2] F_{t->t+1}, [T-1, H, W,
+    2] F_{t+1->t})."""
+    fr = [
+        f.detach().cpu().numpy() if isinstance(f, torch.Tensor) else np.asarray(f) for f in frames
+    ]
     fwd = [dis_flow(fr[t], fr[t + 1]) for t in range(len(fr) - 1)]
     bwd = [dis_flow(fr[t + 1], fr[t]) for t in range(len(fr) - 1)]
     return np.stack(fwd), np.stack(bwd)

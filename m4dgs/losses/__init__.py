@@ -1,4 +1,6 @@
-"""Loss functions of Mono4DGS-HDR (paper Sec. 3.3.3 and appendix); re-exports of the submodules' public API."""
+"""Loss functions of Mono4DGS-HDR (paper Sec. 3.3.3 and appendix); re-exports of the submodules'
+public API."""
+
 from m4dgs.losses.geometry import (
     depth_loss,
     destination_pixels,
@@ -29,9 +31,29 @@ from m4dgs.losses.temporal import (
 )
 
 __all__ = [
-    "acceleration_loss", "arap_loss", "depth_loss", "destination_pixels", "dssim_loss", "flow_from_destination_map",
-    "flow_loss", "hdr_reprojection_loss", "knn", "l1_loss", "ldr_reprojection_loss", "normalize_by_alpha",
-    "quat_relative_angle", "relative_difference", "reprojection_coords", "rgb_loss", "sample_map",
-    "smoothness_terms", "tlr_loss", "tlr_loss_neighbours", "tlr_valid_mask", "track_loss", "unit_exposure_loss", "velocity_loss",
+    "acceleration_loss",
+    "arap_loss",
+    "depth_loss",
+    "destination_pixels",
+    "dssim_loss",
+    "flow_from_destination_map",
+    "flow_loss",
+    "hdr_reprojection_loss",
+    "knn",
+    "l1_loss",
+    "ldr_reprojection_loss",
+    "normalize_by_alpha",
+    "quat_relative_angle",
+    "relative_difference",
+    "reprojection_coords",
+    "rgb_loss",
+    "sample_map",
+    "smoothness_terms",
+    "tlr_loss",
+    "tlr_loss_neighbours",
+    "tlr_valid_mask",
+    "track_loss",
+    "unit_exposure_loss",
+    "velocity_loss",
     "window_times",
 ]

@@ -1,24 +1,28 @@
 """Gaussian motion regularisation (paper appendix "Gaussian Motion Regularization").
 
-- ARAP / distance preservation over the k = 5 nearest neighbours: the neighbour sets are found at time t (indices
-  carry no gradient) and the loss compares each Gaussian's distances to the same neighbours at t and t':
+- ARAP / distance preservation over the k = 5 nearest neighbours: the neighbour sets are found at
+  time t (indices carry no gradient) and the loss compares each Gaussian's distances to the same
+  neighbours at t and t':
   L_arap = mean_{i, j in N_k(mu_t^i)} (|mu_t^i - mu_t^j| - |mu_t'^i - mu_t'^j|)^2.
 - Velocity / acceleration smoothness (MoSca):
   L_vel = sum_t |mu_{t+1} - mu_t|_2 + theta(R_t R_{t+1}^-1),
-  L_acc = sum_t |mu_t - 2 mu_{t+1} + mu_{t+2}|_2 + |theta(R_t R_{t+1}^-1) - theta(R_{t+1} R_{t+2}^-1)|,
-  where theta is the rotation angle, i.e. the norm of the axis-angle vector, which is what the paper means by
-  ``||log(.)||_F`` ("the axis-angle of the rotation"); note that the Frobenius norm of the skew-symmetric log matrix
-  itself would be sqrt(2) * theta. Sums run over the frames of the (sampled) time window; the mean is taken over
-  Gaussians. ``stride`` > 1 compares frames that far apart; the authors' variant evaluates a window of +-2 frames
-  around the query time (`window_times`).
+  L_acc = sum_t |mu_t - 2 mu_{t+1} + mu_{t+2}|_2 + |theta(R_t R_{t+1}^-1) - theta(R_{t+1}
+  R_{t+2}^-1)|,
+  where theta is the rotation angle, i.e. the norm of the axis-angle vector, which is what the paper
+  means by
+  ``||log(.)||_F`` ("the axis-angle of the rotation"); note that the Frobenius norm of the
+  skew-symmetric log matrix
+  itself would be sqrt(2) * theta. Sums run over the frames of the (sampled) time window; the mean
+  is taken over Gaussians. ``stride`` > 1 compares frames that far apart; the authors' variant
+  evaluates a window of +-2 frames around the query time (`window_times`).
 """
+
 from __future__ import annotations
 
 import numpy as np
 import torch
 
 from m4dgs.rotation import relative_rotation_angle
-
 
 ARAP_K = 5  # paper appendix: k = 5
 
@@ -27,21 +31,24 @@ def _safe_norm(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
     """Euclidean norm whose gradient is 0 (not NaN) at the zero vector."""
     sq = (x * x).sum(dim)
     nz = sq > 1e-24
-    return torch.where(nz, torch.sqrt(torch.where(nz, sq, torch.ones_like(sq))), torch.zeros_like(sq))
+    return torch.where(
+        nz, torch.sqrt(torch.where(nz, sq, torch.ones_like(sq))), torch.zeros_like(sq)
+    )
 
 
 @torch.no_grad()
-def knn(points: torch.Tensor, k: int = ARAP_K, chunk_elems: int = 1 << 24,
-        backend: str = "auto") -> tuple[torch.Tensor, torch.Tensor]:
+def knn(
+    points: torch.Tensor, k: int = ARAP_K, chunk_elems: int = 1 << 24, backend: str = "auto"
+) -> tuple[torch.Tensor, torch.Tensor]:
     """k nearest neighbours of every point among the others (the point itself excluded).
 
     Args:
-        points: [N, 3] positions (gradient is never tracked).
-        k: neighbours per point (k < N).
-        chunk_elems: bound on the elements of one torch distance block (rows * N), keeping memory flat for large N.
-        backend: "torch" (chunked torch.cdist + topk; any device), "scipy" (cKDTree on the CPU), or "auto"
-            (scipy for CPU tensors, torch otherwise). Measured on the shared 2-core CPU for N = 50k: torch ~23 s,
-            scipy well under a second.
+        points: [N, 3] positions (gradient is never tracked). k: neighbours per point (k < N).
+        chunk_elems: bound on the elements of one torch distance block (rows * N), keeping memory
+        flat for large N. backend: "torch" (chunked torch.cdist + topk; any device), "scipy"
+        (cKDTree on the CPU), or "auto"
+            (scipy for CPU tensors, torch otherwise). Measured on the shared 2-core CPU for N = 50k:
+            torch ~23 s, scipy well under a second.
     Returns:
         (idx [N, k] int64, dist [N, k]) sorted by increasing distance, on the input's device.
     """
@@ -56,14 +63,17 @@ def knn(points: torch.Tensor, k: int = ARAP_K, chunk_elems: int = 1 << 24,
 
         arr = p.double().numpy()
         dist, idx = cKDTree(arr).query(arr, k=k + 1)
-        # drop each point's own entry (normally column 0; with duplicate points it may sit elsewhere)
+        # drop each point's own entry (normally column 0; with duplicate points it may sit
+        # elsewhere)
         own = idx == np.arange(n)[:, None]
         keep = ~own
         keep[own.sum(1) == 0, -1] = False  # self not returned (ties): drop the farthest instead
         idx = idx[keep].reshape(n, k)
         dist = dist[keep].reshape(n, k)
-        return (torch.as_tensor(idx, dtype=torch.long, device=p.device),
-                torch.as_tensor(dist, dtype=p.dtype, device=p.device))
+        return (
+            torch.as_tensor(idx, dtype=torch.long, device=p.device),
+            torch.as_tensor(dist, dtype=p.dtype, device=p.device),
+        )
     if backend != "torch":
         raise ValueError(f"knn: unknown backend {backend!r}")
     rows = max(1, int(chunk_elems) // max(n, 1))
@@ -80,13 +90,14 @@ def knn(points: torch.Tensor, k: int = ARAP_K, chunk_elems: int = 1 << 24,
     return idx_out, dist_out
 
 
-def arap_loss(pos_t: torch.Tensor, pos_tp: torch.Tensor, nbr_idx: torch.Tensor | None = None,
-              k: int = ARAP_K) -> torch.Tensor:
+def arap_loss(
+    pos_t: torch.Tensor, pos_tp: torch.Tensor, nbr_idx: torch.Tensor | None = None, k: int = ARAP_K
+) -> torch.Tensor:
     """As-rigid-as-possible (distance-preserving) loss between times t and t'.
 
     Args:
-        pos_t: [N, 3] Gaussian positions at t; pos_tp: [N, 3] positions at t'.
-        nbr_idx: [N, k] neighbour indices found at time t (e.g. from `knn`); computed from pos_t if None.
+        pos_t: [N, 3] Gaussian positions at t; pos_tp: [N, 3] positions at t'. nbr_idx: [N, k]
+        neighbour indices found at time t (e.g. from `knn`); computed from pos_t if None.
     Returns:
         scalar: mean over the N * k pairs of (|mu_t^i - mu_t^j| - |mu_t'^i - mu_t'^j|)^2.
     """
@@ -111,15 +122,19 @@ def _reduce_time(x: torch.Tensor, time_reduction: str) -> torch.Tensor:
     raise ValueError(f"unknown time_reduction {time_reduction!r}")
 
 
-def smoothness_terms(positions: torch.Tensor, quats: torch.Tensor | None = None, stride: int = 1,
-                     time_reduction: str = "sum") -> dict[str, torch.Tensor]:
+def smoothness_terms(
+    positions: torch.Tensor,
+    quats: torch.Tensor | None = None,
+    stride: int = 1,
+    time_reduction: str = "sum",
+) -> dict[str, torch.Tensor]:
     """The four motion-smoothness terms on a time window.
 
     Args:
-        positions: [T, N, 3] positions of N Gaussians at T window times (consecutive times, or any sampled window).
-        quats: [T, N, 4] rotations (w, x, y, z) at the same times, or None (rotation terms are then 0).
-        stride: frame gap s: velocity uses (t, t + s), acceleration (t, t + s, t + 2s).
-        time_reduction: "sum" over the window (paper formula) or "mean".
+        positions: [T, N, 3] positions of N Gaussians at T window times (consecutive times, or any
+        sampled window). quats: [T, N, 4] rotations (w, x, y, z) at the same times, or None
+        (rotation terms are then 0). stride: frame gap s: velocity uses (t, t + s), acceleration (t,
+        t + s, t + 2s). time_reduction: "sum" over the window (paper formula) or "mean".
     Returns:
         dict with scalar tensors "pos_vel", "rot_vel", "pos_acc", "rot_acc" (means over Gaussians).
     """
@@ -130,7 +145,7 @@ def smoothness_terms(positions: torch.Tensor, quats: torch.Tensor | None = None,
     if T > s:
         out["pos_vel"] = _reduce_time(_safe_norm(positions[s:] - positions[:-s]), time_reduction)
     if T > 2 * s:
-        acc = positions[: T - 2 * s] - 2.0 * positions[s: T - s] + positions[2 * s:]
+        acc = positions[: T - 2 * s] - 2.0 * positions[s : T - s] + positions[2 * s :]
         out["pos_acc"] = _reduce_time(_safe_norm(acc), time_reduction)
     if quats is not None and T > s:
         ang = quat_relative_angle(quats[:-s], quats[s:])  # [T - s, N]
@@ -140,26 +155,36 @@ def smoothness_terms(positions: torch.Tensor, quats: torch.Tensor | None = None,
     return out
 
 
-def velocity_loss(positions: torch.Tensor, quats: torch.Tensor | None = None, stride: int = 1,
-                  time_reduction: str = "sum") -> torch.Tensor:
-    """L_vel = sum_t |mu_{t+s} - mu_t| + theta(R_t R_{t+s}^-1) (mean over Gaussians). See `smoothness_terms`."""
+def velocity_loss(
+    positions: torch.Tensor,
+    quats: torch.Tensor | None = None,
+    stride: int = 1,
+    time_reduction: str = "sum",
+) -> torch.Tensor:
+    """L_vel = sum_t |mu_{t+s} - mu_t| + theta(R_t R_{t+s}^-1) (mean over Gaussians). See
+    `smoothness_terms`."""
     t = smoothness_terms(positions, quats, stride, time_reduction)
     return t["pos_vel"] + t["rot_vel"]
 
 
-def acceleration_loss(positions: torch.Tensor, quats: torch.Tensor | None = None, stride: int = 1,
-                      time_reduction: str = "sum") -> torch.Tensor:
-    """L_acc = sum_t |mu_t - 2 mu_{t+s} + mu_{t+2s}| + |theta_t - theta_{t+s}| (mean over Gaussians)."""
+def acceleration_loss(
+    positions: torch.Tensor,
+    quats: torch.Tensor | None = None,
+    stride: int = 1,
+    time_reduction: str = "sum",
+) -> torch.Tensor:
+    """L_acc = sum_t |mu_t - 2 mu_{t+s} + mu_{t+2s}| + |theta_t - theta_{t+s}| (mean over
+    Gaussians)."""
     t = smoothness_terms(positions, quats, stride, time_reduction)
     return t["pos_acc"] + t["rot_acc"]
 
 
 def window_times(t: int, n_frames: int, half_width: int = 2) -> list[int]:
-    """Frame indices of a window t - half_width .. t + half_width shifted to lie inside [0, n_frames).
+    """Frame indices of a window t - half_width .. t + half_width shifted to lie inside [0,
+    n_frames).
 
-    The authors evaluate velocity / acceleration on +-2 frames around the query time; the window keeps its length
-    2 * half_width + 1 near the ends of the clip (when n_frames allows).
-    """
+    The authors evaluate velocity / acceleration on +-2 frames around the query time; the window
+    keeps its length 2 * half_width + 1 near the ends of the clip (when n_frames allows)."""
     length = min(2 * half_width + 1, n_frames)
     start = min(max(t - half_width, 0), n_frames - length)
     return list(range(start, start + length))

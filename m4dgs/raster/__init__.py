@@ -1,11 +1,18 @@
-"""Differentiable Gaussian rasterization with three backends: gsplat (CUDA), cpu (C++/OpenMP), torch (dense).
+"""Differentiable Gaussian rasterization with three backends: gsplat (CUDA), cpu (C++/OpenMP), torch
+(dense).
 
 See docs/rasterizer.md for conventions and timings.
 """
 
 from .binning import TileBins, bin_gaussians
 from .cpu_backend import bin_cpu, cpu_available, extension_dir, load_extension, project_cpu
-from .projection import Projection, covariance_3d, intrinsics_ortho, project_gaussians, quat_to_rotmat
+from .projection import (
+    Projection,
+    covariance_3d,
+    intrinsics_ortho,
+    project_gaussians,
+    quat_to_rotmat,
+)
 from .renderer import BACKENDS, RenderMeta, RenderOutput, render, resolve_backend
 
 __all__ = [

@@ -1,4 +1,5 @@
-"""Tile binning: which Gaussians touch which 16x16 tile, front to back (vectorised torch, no gradients)."""
+"""Tile binning: which Gaussians touch which 16x16 tile, front to back (vectorised torch, no
+gradients)."""
 
 from __future__ import annotations
 
@@ -16,9 +17,8 @@ TILE_SIZE = 16
 class TileBins:
     """Per-tile depth-sorted Gaussian lists in CSR form.
 
-    offsets: [tiles_y * tiles_x + 1] int32; tile t (row-major) owns ``flat_ids[offsets[t]:offsets[t + 1]]``.
-    flat_ids: [M] int32 Gaussian indices, sorted by (tile, depth).
-    """
+    offsets: [tiles_y * tiles_x + 1] int32; tile t (row-major) owns ``flat_ids[offsets[t]:offsets[t
+    + 1]]``. flat_ids: [M] int32 Gaussian indices, sorted by (tile, depth)."""
 
     offsets: Tensor
     flat_ids: Tensor
@@ -29,13 +29,17 @@ class TileBins:
 
 @torch.no_grad()
 def bin_gaussians(
-    means2d: Tensor, radii: Tensor, depths: Tensor, width: int, height: int, tile_size: int = TILE_SIZE
+    means2d: Tensor,
+    radii: Tensor,
+    depths: Tensor,
+    width: int,
+    height: int,
+    tile_size: int = TILE_SIZE,
 ) -> TileBins:
     """Bin Gaussians (means2d [N, 2], radii [N, 2] int, depths [N]) into tiles.
 
-    A Gaussian covers tiles ``[floor((m - r) / ts), ceil((m + r) / ts))`` per axis, clipped to the grid
-    (gsplat's ``isect_tiles``); Gaussians with a zero radius are skipped.
-    """
+    A Gaussian covers tiles ``[floor((m - r) / ts), ceil((m + r) / ts))`` per axis, clipped to the
+    grid (gsplat's ``isect_tiles``); Gaussians with a zero radius are skipped."""
     device = means2d.device
     tiles_x, tiles_y = tile_grid(width, height, tile_size)
     n_tiles = tiles_x * tiles_y
@@ -55,7 +59,9 @@ def bin_gaussians(
         return TileBins(
             torch.zeros(n_tiles + 1, dtype=torch.int32, device=device),
             torch.zeros(0, dtype=torch.int32, device=device),
-            tiles_x, tiles_y, tile_size,
+            tiles_x,
+            tiles_y,
+            tile_size,
         )
     # one (tile, Gaussian) pair per covered tile, generated in depth order
     start = torch.cumsum(counts, 0) - counts

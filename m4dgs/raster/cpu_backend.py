@@ -1,11 +1,11 @@
 """The ``cpu`` backend: a compiled C++/OpenMP tile rasterizer wrapped in a torch.autograd.Function.
 
-The extension is built on first use with ``torch.utils.cpp_extension.load`` from ``csrc/rasterize_cpu.cpp`` into
-``$M4DGS_EXT_DIR`` (default ``~/.cache/m4dgs/torch_extensions``), one sub-folder per torch/Python version; torch
-rebuilds it when the source changes. Flags are ``-O3 -fopenmp`` (never ``-march=native``); on CPUs that torch
-reports as AVX2-capable (which implies FMA) a variant named ``..._avx2`` is built with ``-mavx2 -mfma`` instead,
-so a shared cache never hands an AVX2 build to a CPU without it.
-"""
+The extension is built on first use with ``torch.utils.cpp_extension.load`` from
+``csrc/rasterize_cpu.cpp`` into ``$M4DGS_EXT_DIR`` (default ``~/.cache/m4dgs/torch_extensions``),
+one sub-folder per torch/Python version; torch rebuilds it when the source changes. Flags are ``-O3
+-fopenmp`` (never ``-march=native``); on CPUs that torch reports as AVX2-capable (which implies FMA)
+a variant named ``..._avx2`` is built with ``-mavx2 -mfma`` instead, so a shared cache never hands
+an AVX2 build to a CPU without it."""
 
 from __future__ import annotations
 
@@ -19,15 +19,23 @@ import torch
 from torch import Tensor
 
 from .binning import TILE_SIZE, TileBins
-from .projection import tile_grid
-from .projection import EPS2D, FAR_PLANE, NEAR_PLANE, Projection, _check_camera, footprint_radii
+from .projection import (
+    EPS2D,
+    FAR_PLANE,
+    NEAR_PLANE,
+    Projection,
+    _check_camera,
+    footprint_radii,
+    tile_grid,
+)
 
 SOURCE = Path(__file__).resolve().parent / "csrc" / "rasterize_cpu.cpp"
 EXT_NAME = "m4dgs_rasterize_cpu"
 
 
 def _isa_flags() -> tuple[str, list[str]]:
-    """(name suffix, extra compiler flags) for this CPU: AVX2 + FMA where torch detects AVX2 (or AVX512)."""
+    """(name suffix, extra compiler flags) for this CPU: AVX2 + FMA where torch detects AVX2 (or
+    AVX512)."""
     try:
         capability = torch.backends.cpu.get_cpu_capability()
     except Exception:  # very old torch / unusual platform
@@ -38,17 +46,26 @@ def _isa_flags() -> tuple[str, list[str]]:
 
 
 def extension_dir() -> Path:
-    """Build cache folder: ``$M4DGS_EXT_DIR`` or ``~/.cache/m4dgs/torch_extensions``, per torch/Python version."""
-    base = os.environ.get("M4DGS_EXT_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "m4dgs",
-                                                           "torch_extensions")
-    tag = f"torch{torch.__version__.replace('+', '_')}_py{sys.version_info.major}{sys.version_info.minor}"
+    """Build cache folder: ``$M4DGS_EXT_DIR`` or ``~/.cache/m4dgs/torch_extensions``, per
+    torch/Python version."""
+    base = os.environ.get("M4DGS_EXT_DIR") or os.path.join(
+        os.path.expanduser("~"), ".cache", "m4dgs", "torch_extensions"
+    )
+    py = f"{sys.version_info.major}{sys.version_info.minor}"
+    tag = f"torch{torch.__version__.replace('+', '_')}_py{py}"
     return Path(base) / tag
 
 
 @functools.lru_cache(maxsize=None)
 def _load() -> tuple[object | None, str]:
-    """(module, "") on success, (None, reason) on failure; cached so a failed build is not retried."""
-    cxx = os.environ.get("CXX") or shutil.which("c++") or shutil.which("g++") or shutil.which("clang++")
+    """(module, "") on success, (None, reason) on failure; cached so a failed build is not
+    retried."""
+    cxx = (
+        os.environ.get("CXX")
+        or shutil.which("c++")
+        or shutil.which("g++")
+        or shutil.which("clang++")
+    )
     if cxx is None:
         return None, "no C++ compiler found (install g++ or set CXX)"
     try:
@@ -71,7 +88,8 @@ def _load() -> tuple[object | None, str]:
 
 
 def load_extension():
-    """The compiled extension module; raises RuntimeError with the reason when it cannot be built."""
+    """The compiled extension module; raises RuntimeError with the reason when it cannot be
+    built."""
     module, reason = _load()
     if module is None:
         raise RuntimeError(f"m4dgs cpu rasterizer unavailable: {reason}")
@@ -87,13 +105,26 @@ class _RasterizeCPU(torch.autograd.Function):
     """Alpha compositing of projected Gaussians; returns (features [H, W, C], alpha [H, W, 1])."""
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, offsets, flat_ids, width, height, tile_size):
+    def forward(
+        ctx, means2d, conics, opacities, features, offsets, flat_ids, width, height, tile_size
+    ):
         ext = load_extension()
         n_threads = torch.get_num_threads()
         feat, t_final, last = ext.forward(
-            means2d, conics, opacities, features, offsets, flat_ids, width, height, tile_size, n_threads
+            means2d,
+            conics,
+            opacities,
+            features,
+            offsets,
+            flat_ids,
+            width,
+            height,
+            tile_size,
+            n_threads,
         )
-        ctx.save_for_backward(means2d, conics, opacities, features, offsets, flat_ids, t_final, last)
+        ctx.save_for_backward(
+            means2d, conics, opacities, features, offsets, flat_ids, t_final, last
+        )
         ctx.dims = (width, height, tile_size, n_threads)
         return feat, (1.0 - t_final).unsqueeze(-1)
 
@@ -107,18 +138,36 @@ class _RasterizeCPU(torch.autograd.Function):
             v_alpha = torch.zeros((height, width, 1), dtype=features.dtype)
         ext = load_extension()
         g = ext.backward(
-            means2d, conics, opacities, features, offsets, flat_ids, width, height, tile_size, n_threads,
-            t_final, last, v_feat.to(features.dtype).contiguous(), v_alpha.to(features.dtype).contiguous(),
+            means2d,
+            conics,
+            opacities,
+            features,
+            offsets,
+            flat_ids,
+            width,
+            height,
+            tile_size,
+            n_threads,
+            t_final,
+            last,
+            v_feat.to(features.dtype).contiguous(),
+            v_alpha.to(features.dtype).contiguous(),
         )
         return g[:, 0:2], g[:, 2:5], g[:, 5], g[:, 6:], None, None, None, None, None
 
 
 def rasterize_cpu(
-    means2d: Tensor, conics: Tensor, opacities: Tensor, features: Tensor, bins: TileBins, width: int, height: int
+    means2d: Tensor,
+    conics: Tensor,
+    opacities: Tensor,
+    features: Tensor,
+    bins: TileBins,
+    width: int,
+    height: int,
 ) -> tuple[Tensor, Tensor]:
-    """Composite Gaussians (means2d [N, 2], conics [N, 3], opacities [N], features [N, C]) over the tiles in
-    ``bins``. Returns features [H, W, C] and alpha [H, W, 1] (no background). Differentiable w.r.t. the four
-    float inputs."""
+    """Composite Gaussians (means2d [N, 2], conics [N, 3], opacities [N], features [N, C]) over the
+    tiles in ``bins``. Returns features [H, W, C] and alpha [H, W, 1] (no background).
+    Differentiable w.r.t. the four float inputs."""
     dtype = means2d.dtype
     return _RasterizeCPU.apply(
         means2d.contiguous(),
@@ -134,13 +183,27 @@ def rasterize_cpu(
 
 
 class _ProjectCPU(torch.autograd.Function):
-    """Fused EWA projection (same formulas as projection.project_gaussians, hand-written backward)."""
+    """Fused EWA projection (same formulas as projection.project_gaussians, hand-written
+    backward)."""
 
     @staticmethod
     def forward(ctx, means, quats, scales, viewmat, K, ortho, width, height):
         ext = load_extension()
         n_threads = torch.get_num_threads()
-        args = (means, quats, scales, viewmat, K, ortho, width, height, EPS2D, NEAR_PLANE, FAR_PLANE, n_threads)
+        args = (
+            means,
+            quats,
+            scales,
+            viewmat,
+            K,
+            ortho,
+            width,
+            height,
+            EPS2D,
+            NEAR_PLANE,
+            FAR_PLANE,
+            n_threads,
+        )
         means2d, conics, depths, abc = ext.project_forward(*args)
         ctx.save_for_backward(means, quats, scales, viewmat, K)
         ctx.flags = (ortho, width, height, n_threads)
@@ -157,23 +220,50 @@ class _ProjectCPU(torch.autograd.Function):
         v_depths = zeros(means[:, 0]) if v_depths is None else v_depths.contiguous()
         ext = load_extension()
         v_means, v_quats, v_scales, v_view = ext.project_backward(
-            means, quats, scales, viewmat, K, ortho, width, height, EPS2D, NEAR_PLANE, FAR_PLANE, n_threads,
-            v_means2d, v_conics, v_depths,
+            means,
+            quats,
+            scales,
+            viewmat,
+            K,
+            ortho,
+            width,
+            height,
+            EPS2D,
+            NEAR_PLANE,
+            FAR_PLANE,
+            n_threads,
+            v_means2d,
+            v_conics,
+            v_depths,
         )
         return v_means, v_quats, v_scales, v_view, None, None, None, None
 
 
 def project_cpu(
-    means: Tensor, quats: Tensor, scales: Tensor, opacities: Tensor, viewmat: Tensor, K: Tensor, width: int,
-    height: int, camera_model: str = "pinhole",
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    opacities: Tensor,
+    viewmat: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    camera_model: str = "pinhole",
 ) -> Projection:
-    """The compiled counterpart of ``projection.project_gaussians`` (CPU tensors; gradients for means, quats,
-    scales and viewmat). ``means_cam`` is not computed (None); ``cov2d`` is returned without gradient."""
+    """The compiled counterpart of ``projection.project_gaussians`` (CPU tensors; gradients for
+    means, quats, scales and viewmat). ``means_cam`` is not computed (None); ``cov2d`` is returned
+    without gradient."""
     _check_camera(viewmat, K, camera_model)
     dtype = means.dtype
     means2d, conics, depths, abc = _ProjectCPU.apply(
-        means.contiguous(), quats.to(dtype).contiguous(), scales.to(dtype).contiguous(),
-        viewmat.to(dtype).contiguous(), K.to(dtype).contiguous(), camera_model == "ortho", int(width), int(height),
+        means.contiguous(),
+        quats.to(dtype).contiguous(),
+        scales.to(dtype).contiguous(),
+        viewmat.to(dtype).contiguous(),
+        K.to(dtype).contiguous(),
+        camera_model == "ortho",
+        int(width),
+        int(height),
     )
     a, b, c = abc.unbind(-1)
     radii, visible = footprint_radii(means2d, a, c, a * c - b * b, depths, opacities, width, height)
@@ -183,15 +273,24 @@ def project_cpu(
 
 @torch.no_grad()
 def bin_cpu(
-    means2d: Tensor, radii: Tensor, depths: Tensor, width: int, height: int, tile_size: int = TILE_SIZE
+    means2d: Tensor,
+    radii: Tensor,
+    depths: Tensor,
+    width: int,
+    height: int,
+    tile_size: int = TILE_SIZE,
 ) -> TileBins:
-    """The compiled counterpart of ``binning.bin_gaussians`` (identical output): the visible Gaussians are
-    depth-sorted in torch, then counting-sorted into tiles in C++ (linear time)."""
+    """The compiled counterpart of ``binning.bin_gaussians`` (identical output): the visible
+    Gaussians are depth-sorted in torch, then counting-sorted into tiles in C++ (linear time)."""
     vis = torch.nonzero((radii > 0).all(dim=-1)).squeeze(1)
     order = vis[torch.argsort(depths.detach()[vis], stable=True)]
     offsets, flat_ids = load_extension().bin_tiles(
-        means2d.detach().contiguous(), radii.to(torch.int32).contiguous(), order.contiguous(), int(width),
-        int(height), int(tile_size),
+        means2d.detach().contiguous(),
+        radii.to(torch.int32).contiguous(),
+        order.contiguous(),
+        int(width),
+        int(height),
+        int(tile_size),
     )
     tiles_x, tiles_y = tile_grid(width, height, tile_size)
     return TileBins(offsets, flat_ids, tiles_x, tiles_y, tile_size)

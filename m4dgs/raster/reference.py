@@ -1,12 +1,13 @@
-"""The ``torch`` backend: a slow, obvious, dense alpha-compositing reference (the test oracle and the fallback).
+"""The ``torch`` backend: a slow, obvious, dense alpha-compositing reference (the test oracle and
+the fallback).
 
-Every pixel sees every visible Gaussian, sorted front to back; the same thresholds as the tile rasterizers:
-alpha = min(0.999, o exp(-sigma)), contributions with alpha < 1/255 (or sigma < 0) are dropped, and a Gaussian is
-kept only while the transmittance after it stays above 1e-4. Pixels are processed in chunks; inside a chunk only
-the Gaussians that reach alpha >= 1/255 somewhere in the chunk are kept (the others contribute exactly zero), which
-keeps memory bounded. No tiles and no radii are used, so it also checks the binning of the tile backends.
-Works on any device; fine for tests and small scenes.
-"""
+Every pixel sees every visible Gaussian, sorted front to back; the same thresholds as the tile
+rasterizers: alpha = min(0.999, o exp(-sigma)), contributions with alpha < 1/255 (or sigma < 0) are
+dropped, and a Gaussian is kept only while the transmittance after it stays above 1e-4. Pixels are
+processed in chunks; inside a chunk only the Gaussians that reach alpha >= 1/255 somewhere in the
+chunk are kept (the others contribute exactly zero), which keeps memory bounded. No tiles and no
+radii are used, so it also checks the binning of the tile backends. Works on any device; fine for
+tests and small scenes."""
 
 from __future__ import annotations
 
@@ -40,21 +41,28 @@ def rasterize_dense(
     height: int,
     chunk: int = 256,
 ) -> tuple[Tensor, Tensor]:
-    """Composite visible Gaussians (means2d [N, 2], conics [N, 3], opacities [N], features [N, C], depths [N],
-    visible [N] bool) into features [H, W, C] and alpha [H, W, 1] (no background). Differentiable."""
+    """Composite visible Gaussians (means2d [N, 2], conics [N, 3], opacities [N], features [N, C],
+    depths [N], visible [N] bool) into features [H, W, C] and alpha [H, W, 1] (no background).
+    Differentiable."""
     device, dtype = means2d.device, means2d.dtype
     n_ch = features.shape[1]
     ids = torch.nonzero(visible).squeeze(1)
     ids = ids[torch.argsort(depths.detach()[ids], stable=True)]  # front to back
-    m, con, op, f = means2d[ids], conics[ids].to(dtype), opacities[ids].to(dtype), features[ids].to(dtype)
+    m, con, op, f = (
+        means2d[ids],
+        conics[ids].to(dtype),
+        opacities[ids].to(dtype),
+        features[ids].to(dtype),
+    )
     ys, xs = torch.meshgrid(
-        torch.arange(height, device=device, dtype=dtype), torch.arange(width, device=device, dtype=dtype),
+        torch.arange(height, device=device, dtype=dtype),
+        torch.arange(width, device=device, dtype=dtype),
         indexing="ij",
     )
     pixels = torch.stack([xs.reshape(-1), ys.reshape(-1)], dim=-1) + 0.5  # [P, 2] pixel centres
     out_f, out_a = [], []
     for start in range(0, pixels.shape[0], chunk):
-        pix = pixels[start:start + chunk]
+        pix = pixels[start : start + chunk]
         with torch.no_grad():
             cols = torch.nonzero((_alpha(pix, m, con, op) > 0).any(dim=0)).squeeze(1)
         if cols.numel() == 0:
@@ -63,7 +71,8 @@ def rasterize_dense(
             continue
         alpha = _alpha(pix, m[cols], con[cols], op[cols])  # [P, n], front to back
         with torch.no_grad():
-            included = torch.cumprod(1.0 - alpha, dim=1) > T_MIN  # stop (exclusive) once T would drop <= 1e-4
+            # stop (exclusive) once T would drop <= 1e-4
+            included = torch.cumprod(1.0 - alpha, dim=1) > T_MIN
         alpha = alpha * included
         one_minus = 1.0 - alpha
         t_after = torch.cumprod(one_minus, dim=1)
@@ -74,8 +83,11 @@ def rasterize_dense(
     feat = torch.cat(out_f, dim=0).reshape(height, width, n_ch)
     alpha = torch.cat(out_a, dim=0).reshape(height, width, 1)
     if not feat.requires_grad and torch.is_grad_enabled():
-        # nothing visible: keep the (all-zero) outputs attached to the inputs, as the compiled backends do
-        anchor = sum(t.sum() for t in (means2d, conics, opacities, features) if t.requires_grad) * 0.0
+        # nothing visible: keep the (all-zero) outputs attached to the inputs, as the compiled
+        # backends do
+        anchor = (
+            sum(t.sum() for t in (means2d, conics, opacities, features) if t.requires_grad) * 0.0
+        )
         if isinstance(anchor, Tensor):
             feat, alpha = feat + anchor, alpha + anchor
     return feat, alpha

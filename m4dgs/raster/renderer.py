@@ -1,4 +1,5 @@
-"""``render``: one differentiable Gaussian rasterization entry point over three backends (gsplat, cpu, torch)."""
+"""``render``: one differentiable Gaussian rasterization entry point over three backends (gsplat,
+cpu, torch)."""
 
 from __future__ import annotations
 
@@ -23,12 +24,13 @@ BACKENDS = ("auto", "gsplat", "cpu", "torch")
 class RenderMeta:
     """Per-Gaussian side outputs of one render.
 
-    means2d: the screen-space means whose ``.grad`` is filled by backward (retain_grad is on): [N, 2] for the
-        cpu/torch backends, gsplat's [1, N, 2] for gsplat; use ``means2d_grad()`` for a uniform [N, 2].
-    radii: [N, 2] int32 per-axis pixel radius (0 = culled).  visible: [N] bool.  depths: [N] camera z.
-    conics: [N, 3] inverse 2D covariance (inv00, inv01, inv11).  backend: the backend that ran.
-    n_isects: number of (tile, Gaussian) pairs (-1 for the dense torch backend).
-    """
+    means2d: the screen-space means whose ``.grad`` is filled by backward (retain_grad is on): [N,
+    2] for the
+        cpu/torch backends, gsplat's [1, N, 2] for gsplat; use ``means2d_grad()`` for a uniform [N,
+        2].
+    radii: [N, 2] int32 per-axis pixel radius (0 = culled).  visible: [N] bool.  depths: [N] camera
+    z. conics: [N, 3] inverse 2D covariance (inv00, inv01, inv11).  backend: the backend that ran.
+    n_isects: number of (tile, Gaussian) pairs (-1 for the dense torch backend)."""
 
     means2d: Tensor
     radii: Tensor
@@ -54,7 +56,8 @@ class RenderOutput(NamedTuple):
 
 
 def resolve_backend(backend: str, device: torch.device) -> str:
-    """Pick the backend: "auto" = gsplat on CUDA when it imports, else cpu when it compiles, else torch."""
+    """Pick the backend: "auto" = gsplat on CUDA when it imports, else cpu when it compiles, else
+    torch."""
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if backend != "auto":
@@ -62,8 +65,10 @@ def resolve_backend(backend: str, device: torch.device) -> str:
     if device.type == "cuda":
         if gsplat_available():
             return "gsplat"
-        warnings.warn("gsplat is not available for CUDA tensors; using the slow dense 'torch' rasterizer",
-                      stacklevel=3)
+        warnings.warn(
+            "gsplat is not available for CUDA tensors; using the slow dense 'torch' rasterizer",
+            stacklevel=3,
+        )
         return "torch"
     if device.type == "cpu":
         module, reason = _load_cpu()
@@ -90,24 +95,30 @@ def render(
     """Render N Gaussians into one camera.
 
     Args:
-        means: [N, 3] world positions.  quats: [N, 4] (w, x, y, z), normalised inside.
-        scales: [N, 3] standard deviations (not log).  opacities: [N] in [0, 1].
-        features: [N, C] any number of channels (HDR colour, flow targets, ...).
-        viewmat: [4, 4] world-to-camera.  K: [3, 3] pixel intrinsics (pixel centres at +0.5).
-        width, height: image size in pixels.
-        camera_model: "pinhole" or "ortho" (u = fx x + cx, v = fy y + cy; J = [[fx, 0, 0], [0, fy, 0]]).
-        backend: "auto", "gsplat" (CUDA), "cpu" (C++/OpenMP) or "torch" (dense reference).
-        background: [C] colour added as T_final * background (not to depth).
+        means: [N, 3] world positions.  quats: [N, 4] (w, x, y, z), normalised inside. scales: [N,
+        3] standard deviations (not log).  opacities: [N] in [0, 1]. features: [N, C] any number of
+        channels (HDR colour, flow targets, ...). viewmat: [4, 4] world-to-camera.  K: [3, 3] pixel
+        intrinsics (pixel centres at +0.5). width, height: image size in pixels. camera_model:
+        "pinhole" or "ortho" (u = fx x + cx, v = fy y + cy; J = [[fx, 0, 0], [0, fy, 0]]). backend:
+        "auto", "gsplat" (CUDA), "cpu" (C++/OpenMP) or "torch" (dense reference). background: [C]
+        colour added as T_final * background (not to depth).
 
     Returns:
-        RenderOutput(features [H, W, C], depth [H, W, 1] = accumulated z / max(alpha, 1e-10), alpha [H, W, 1],
-        meta). Differentiable w.r.t. means, quats, scales, opacities, features and viewmat.
+        RenderOutput(features [H, W, C], depth [H, W, 1] = accumulated z / max(alpha, 1e-10), alpha
+        [H, W, 1], meta). Differentiable w.r.t. means, quats, scales, opacities, features and
+        viewmat.
     """
     n = means.shape[0]
-    if means.shape != (n, 3) or quats.shape != (n, 4) or scales.shape != (n, 3) or opacities.shape != (n,):
+    if (
+        means.shape != (n, 3)
+        or quats.shape != (n, 4)
+        or scales.shape != (n, 3)
+        or opacities.shape != (n,)
+    ):
         raise ValueError(
             "expected means [N, 3], quats [N, 4], scales [N, 3], opacities [N]; got "
-            f"{tuple(means.shape)}, {tuple(quats.shape)}, {tuple(scales.shape)}, {tuple(opacities.shape)}"
+            f"{tuple(means.shape)}, {tuple(quats.shape)}, {tuple(scales.shape)}, "
+            f"{tuple(opacities.shape)}"
         )
     if features.dim() != 2 or features.shape[0] != n:
         raise ValueError(f"features must be [N, C] with N = {n}, got {tuple(features.shape)}")
@@ -127,8 +138,12 @@ def render(
         if radii.dim() == 1:  # older gsplat: one radius per Gaussian
             radii = radii[:, None].expand(-1, 2)
         meta = RenderMeta(
-            means2d=gmeta["means2d"], radii=radii.to(torch.int32), visible=(radii > 0).all(dim=-1),
-            depths=gmeta["depths"][0], conics=gmeta["conics"][0], backend="gsplat",
+            means2d=gmeta["means2d"],
+            radii=radii.to(torch.int32),
+            visible=(radii > 0).all(dim=-1),
+            depths=gmeta["depths"][0],
+            conics=gmeta["conics"][0],
+            backend="gsplat",
             n_isects=int(gmeta["flatten_ids"].numel()),
         )
     else:
@@ -140,19 +155,31 @@ def render(
         if means2d.requires_grad:
             means2d.retain_grad()
         dtype = means.dtype
-        feats_d = torch.cat([features.to(dtype), proj.depths[:, None]], dim=-1)  # depth as an extra channel
+        # depth as an extra channel
+        feats_d = torch.cat([features.to(dtype), proj.depths[:, None]], dim=-1)
         if chosen == "cpu":
             bins = bin_cpu(means2d, proj.radii, proj.depths, width, height, TILE_SIZE)
-            acc, alpha = rasterize_cpu(means2d, proj.conics, opacities.to(dtype), feats_d, bins, width, height)
+            acc, alpha = rasterize_cpu(
+                means2d, proj.conics, opacities.to(dtype), feats_d, bins, width, height
+            )
             n_isects = int(bins.flat_ids.numel())
         else:
             acc, alpha = rasterize_dense(
-                means2d, proj.conics, opacities.to(dtype), feats_d, proj.depths, proj.visible, width, height
+                means2d,
+                proj.conics,
+                opacities.to(dtype),
+                feats_d,
+                proj.depths,
+                proj.visible,
+                width,
+                height,
             )
             n_isects = -1
         feat = acc[..., :n_ch]
         depth = acc[..., n_ch:] / alpha.clamp_min(1e-10)
-        meta = RenderMeta(means2d, proj.radii, proj.visible, proj.depths, proj.conics, chosen, n_isects)
+        meta = RenderMeta(
+            means2d, proj.radii, proj.visible, proj.depths, proj.conics, chosen, n_isects
+        )
     if background is not None:
         feat = feat + (1.0 - alpha) * background.to(feat.dtype)
     return RenderOutput(feat, depth, alpha, meta)
