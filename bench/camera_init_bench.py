@@ -10,8 +10,8 @@ Per clip (ground truth needed for the scores): wall time, focal error (%), ATE a
 alignment (absolute in GT units and relative to the GT trajectory path length, %), RPE (translation
 in GT units, rotation in degrees; eval.metrics.geometry conventions), dynamic-mask IoU against
 gt/masks/dynamic (pooled over the training frames), the chosen fov and the number of static tracks.
-Clips without priors/flow.npz use the OpenCV fallback (m4dgs.epipolar.opencv_flow_prior). Timings on
-a shared machine are noisy."""
+Clips without priors/flow.npz use the OpenCV fallback (m4dgs.priors.epipolar.opencv_flow_prior).
+Timings on a shared machine are noisy."""
 
 from __future__ import annotations
 
@@ -24,9 +24,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from m4dgs.camera_init import CameraInitConfig, initialize_cameras
 from m4dgs.clip import Clip
-from m4dgs.epipolar import EpipolarConfig, dynamic_masks, epipolar_error_maps, opencv_flow_prior
+from m4dgs.priors.camera_init import CameraInitConfig, initialize_cameras
+from m4dgs.priors.epipolar import (
+    EpipolarConfig,
+    dynamic_masks,
+    epipolar_error_maps,
+    opencv_flow_prior,
+)
 
 
 def run_clip(
@@ -180,7 +185,7 @@ def main(argv=None) -> int:
         print(f"done {c}", file=sys.stderr, flush=True)
     print(format_table(rows))
     if args.json:
-        from m4dgs.io import write_json
+        from m4dgs.core.io import write_json
 
         write_json(
             args.json, {"camera_init": cam_cfg.__dict__, "epipolar": epi_cfg.__dict__, "rows": rows}

@@ -17,9 +17,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import torch  # noqa: E402
 
 from m4dgs.clip import Clip  # noqa: E402
-from m4dgs.data import load_training_data  # noqa: E402
-from m4dgs.pipeline import resolve_config  # noqa: E402
-from m4dgs.stage1 import VideoStage  # noqa: E402
+from m4dgs.training.data import load_training_data  # noqa: E402
+from m4dgs.training.pipeline import resolve_config  # noqa: E402
+from m4dgs.training.stage1 import VideoStage  # noqa: E402
 
 
 def main():

@@ -133,7 +133,7 @@ def make(
     allow_misplaced,
 ):
     """Generate the clips of a suite (resumable: finished clips and frames are skipped)."""
-    from m4dgs.crf import CLIP_CRFS
+    from m4dgs.core.crf import CLIP_CRFS
 
     from .make import make_suite
 

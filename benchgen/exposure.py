@@ -1,7 +1,7 @@
 """Exposure levels, training-frame exposure schedules and the per-clip HDR scale (docs/exposure.md).
 
-The input video is tone-mapped with a CRF (``m4dgs.crf``, HDR-NeRF by default) and quantised to 8
-bits: ``LDR_g = floor(255 * f(s * H_g * dt_g) + 0.5)`` where ``H_g`` is the rendered linear HDR
+The input video is tone-mapped with a CRF (``m4dgs.core.crf``, HDR-NeRF by default) and quantised to
+8 bits: ``LDR_g = floor(255 * f(s * H_g * dt_g) + 0.5)`` where ``H_g`` is the rendered linear HDR
 frame, ``s`` the clip's single HDR scale (``benchgen.placement.choose_hdr_scale``, recorded in
 clip.json ``hdr_scale``) and ``dt_g`` the frame's exposure time.
 

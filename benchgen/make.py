@@ -36,7 +36,6 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
-from m4dgs import io as mio
 from m4dgs.clip import (
     Clip,
     ClipMeta,
@@ -48,7 +47,8 @@ from m4dgs.clip import (
     frame_name,
     load_trackset,
 )
-from m4dgs.crf import clip_crf, tonemap_ldr
+from m4dgs.core import io as mio
+from m4dgs.core.crf import clip_crf, tonemap_ldr
 
 from .exposure import ExposureSettings, exposure_gap_ev, schedule_train_dt, test_levels
 from .placement import PlacementTargets, choose_hdr_scale, measure_placement
@@ -191,7 +191,7 @@ def make_clip(
         if int(spp) < 1:
             raise ValueError(f"spp must be >= 1, got {spp}")
         render_settings = dataclasses.replace(render_settings, spp=int(spp))
-    # a response of the clip family (m4dgs.crf.CLIP_CRFS), recorded in clip.json
+    # a response of the clip family (m4dgs.core.crf.CLIP_CRFS), recorded in clip.json
     crf_fn = clip_crf(crf)
     gen = _generator_settings(
         scene_path, preset, settings, priors, seed, render_settings.spp, crf_fn.name
@@ -485,7 +485,7 @@ def make_suite(
     Clips that miss their exposure-placement targets are all finished first, then one PlacementError
     lists them (allow_misplaced: only warnings).
 
-    crf: the clips' camera response (m4dgs.crf.CLIP_CRFS; the paper's "hdrnerf" by default)."""
+    crf: the clips' camera response (m4dgs.core.crf.CLIP_CRFS; the paper's "hdrnerf" by default)."""
     from .exposure import exposure_preset
     from .suite import load_suite
 

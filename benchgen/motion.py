@@ -25,7 +25,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from m4dgs.camera import quat_to_rotmat, rotmat_to_quat
+from m4dgs.core.camera import quat_to_rotmat, rotmat_to_quat
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])
 

@@ -28,11 +28,11 @@ target                 statistic                                                
 
 Every statistic is a monotone function of ``s`` (codes only grow with exposure), so each target is
 an interval of scales, found exactly by bisection on the very quantiser the clip is written with
-(``m4dgs.crf.tonemap_ldr``); the chosen scale is the one inside the intersection closest (in log) to
-a middle-level median of 0.5. When the intersection is empty the targets are given up in reverse
-priority (dark, then long saturation, then highlights; the middle-level median is always kept) and
-the report says which cannot be met: `benchgen make` then fails with that message, because a scene
-that cannot be placed needs a change of its spec (deeper shadows, smaller lamps), not looser
+(``m4dgs.core.crf.tonemap_ldr``); the chosen scale is the one inside the intersection closest (in
+log) to a middle-level median of 0.5. When the intersection is empty the targets are given up in
+reverse priority (dark, then long saturation, then highlights; the middle-level median is always
+kept) and the report says which cannot be met: `benchgen make` then fails with that message, because
+a scene that cannot be placed needs a change of its spec (deeper shadows, smaller lamps), not looser
 targets.
 
 After the clip is written, :func:`measure_placement` recomputes every statistic from the 8-bit PNGs
@@ -46,7 +46,7 @@ from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-from m4dgs.crf import CRF, get_crf, tonemap_ldr
+from m4dgs.core.crf import CRF, get_crf, tonemap_ldr
 
 TARGET_NAMES = ("mid_median", "short_highlights", "long_saturated", "short_dark")
 # : relative margin kept inside every interval of scales (float32 storage of the scaled frames
@@ -331,8 +331,8 @@ def measure_placement(clip_root, meta, targets: Optional[PlacementTargets] = Non
     at it (gt/ldr/<dt>) and the source says so."""
     from pathlib import Path
 
-    from m4dgs import io as mio
     from m4dgs.clip import frame_name, level_name
+    from m4dgs.core import io as mio
 
     t = targets or PlacementTargets()
     root = Path(clip_root)

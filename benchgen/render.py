@@ -722,8 +722,8 @@ def render_clip_gt(
     import time
 
     from eval.metrics.temporal import depth_edges, hdr_tae_pairs, interior_visibility
-    from m4dgs import io as mio
     from m4dgs.clip import FlowSet, frame_name
+    from m4dgs.core import io as mio
 
     from .groundtruth import (
         SurfaceQueries,

@@ -19,7 +19,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from m4dgs.camera import K_from_fov
+from m4dgs.core.camera import K_from_fov
 
 from . import meshes as _meshes
 from . import motion as _motion

@@ -79,7 +79,7 @@ def score(
     run, clip_dir, lpips_weights, roundtrip, flip, tae_train_test, no_fps, no_model, device, force
 ):
     """Score one run folder and write RUN/metrics.json; prints the headline metrics as JSON."""
-    from m4dgs import io as mio
+    from m4dgs.core import io as mio
 
     from .score import score_run
 
@@ -130,7 +130,7 @@ def suites():
             click.echo(f"  - {r.name}: variant {r.variant}{ov}, clip {r.clip}  ({r.label})")
         bad = check_variants(s)
         if bad:
-            click.echo(f"  ! variants unknown to m4dgs.variants: {bad}")
+            click.echo(f"  ! variants unknown to m4dgs.training.variants: {bad}")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -268,7 +268,7 @@ def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) ->
     """Entries {"scene", "row", "label", "seed", "run_dir", "clip_dir", "metrics" (dict or None)} of
     a suite's jobs, for trainer seeds 0 .. seeds-1 (None: up to the largest seed with a run folder
     under OUT, for every row)."""
-    from m4dgs import io as mio
+    from m4dgs.core import io as mio
 
     from .runner import job_list, seeds_present
 
@@ -297,7 +297,7 @@ def collect_runs_dir(runs_dir) -> list:
     folder named <row>-seed-<n> is trainer seed n of <row> (eval run --seeds)."""
     import re
 
-    from m4dgs import io as mio
+    from m4dgs.core import io as mio
 
     from .runner import SEED_SUFFIX
     from .score import read_run_info
@@ -451,7 +451,7 @@ def build_tables(
 def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
     """Print the paper-style tables of TARGET: a suite (name or YAML; runs under OUT) or a folder of
     runs."""
-    from m4dgs import io as mio
+    from m4dgs.core import io as mio
 
     from .suite import TableDef, load_eval_suite
 

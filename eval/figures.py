@@ -2,8 +2,8 @@
 grids.
 
 - `crf_figure`: the learned tone curves (metrics.json "crf_curve", sampled from model.tonemap_curve
-  by eval.score) of every row against the clip's true CRF (m4dgs.crf.get_crf), LDR value vs log2
-  exposure (as the paper's "Recovered CRFs" figure; RGB mean per row, the true curve dashed).
+  by eval.score) of every row against the clip's true CRF (m4dgs.core.crf.get_crf), LDR value vs
+  log2 exposure (as the paper's "Recovered CRFs" figure; RGB mean per row, the true curve dashed).
 - `loss_figure`: every loss term of log.jsonl against the iteration (densification counters left
   out), log scale, running mean over 1/40 of the iterations, stage 1 then stage 2 on one axis (stage
   2 offset by the last stage-1 step; a dotted line marks the switch).
@@ -22,8 +22,8 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from m4dgs import io as mio
 from m4dgs.clip import Clip, frame_name, level_name
+from m4dgs.core import io as mio
 
 # keys of a log.jsonl record that are not loss terms (plus densification counters, see _is_loss)
 NON_LOSS_KEYS = {
@@ -113,7 +113,7 @@ def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> 
             label=lab,
         )
         if c.get("true") is not None and c.get("crf") not in true_done:
-            from m4dgs.crf import get_crf
+            from m4dgs.core.crf import get_crf
 
             zz = np.linspace(z.min(), z.max(), 401)
             f = get_crf(c["crf"])

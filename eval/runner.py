@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
-from m4dgs import io as mio
+from m4dgs.core import io as mio
 
 from .suite import EvalSuite, load_eval_suite, scene_suite_names
 
@@ -216,9 +216,9 @@ def make_job_clip(job: Job, progress: bool = False) -> Path:
 
 
 def train_job(job: Job, device: str = "auto", progress: bool = False) -> Path:
-    """Train the job's run (m4dgs.pipeline.train resumes an interrupted run and returns at once when
-    done)."""
-    from m4dgs.pipeline import train
+    """Train the job's run (m4dgs.training.pipeline.train resumes an interrupted run and returns at
+    once when done)."""
+    from m4dgs.training.pipeline import train
 
     run_dir = Path(job.run_dir)
     with folder_lock(run_dir):

@@ -23,7 +23,7 @@ LPIPS weights, no model, no file):
 - dyn_ldr_psnr (observed levels) / dyn_hdr_psnr (mu-law): PSNR over the gt dynamic-mask pixels of
   the test frames.
 - mask_precision / mask_recall / mask_iou: the run's dynamic masks (model/camera_init.pt "masks",
-  one per training frame; epipolar, or their union with the rigidity masks of m4dgs.rigidity)
+  one per training frame; epipolar, or their union with the rigidity masks of m4dgs.priors.rigidity)
   against the gt dynamic masks, pooled over all training-frame pixels. Low recall means moving
   objects that the video-to-world transform will treat as static (e.g. motion along the epipolar
   lines).
@@ -41,9 +41,9 @@ LPIPS weights, no model, no file):
 PSNR of identical images is +inf; every PSNR is capped at PSNR_CAP_DB = 100 dB per image before
 averaging (so a perfect render reads 100.00 and JSON stays standard). NaN is stored as None.
 
-LDR renders are read from the 8-bit PNG files written by m4dgs.render, so LDR is scored on 8-bit
-renders (the PNG round-trip convention; `roundtrip="jpeg"` adds a JPEG round trip to compare with
-the authors' numbers)."""
+LDR renders are read from the 8-bit PNG files written by m4dgs.outputs.render, so LDR is scored on
+8-bit renders (the PNG round-trip convention; `roundtrip="jpeg"` adds a JPEG round trip to compare
+with the authors' numbers)."""
 
 from __future__ import annotations
 
@@ -54,8 +54,8 @@ from typing import Dict, Iterable, List, Optional
 
 import numpy as np
 
-from m4dgs import io as mio
 from m4dgs.clip import Cameras, Clip, frame_name, level_name
+from m4dgs.core import io as mio
 
 PSNR_CAP_DB = 100.0
 CHUNK = 8  # frames per batch when scoring (bounds memory at 864x480)
@@ -158,7 +158,7 @@ def resolve_clip_dir(run_dir, clip=None) -> Path:
 
 
 def render_paths(run_dir, clip: Clip) -> Dict[str, List[Path]]:
-    """The render files scoring needs (m4dgs.render layout), grouped."""
+    """The render files scoring needs (m4dgs.outputs.render layout), grouped."""
     r = Path(run_dir) / "renders"
     ex = clip.meta.exposures
     out = {
@@ -179,11 +179,11 @@ def missing_renders(run_dir, clip: Clip) -> List[Path]:
 
 
 def ensure_renders(run_dir, clip: Clip, progress: bool = False, device: str = "cpu") -> bool:
-    """Render what is missing through m4dgs.render.render_run; returns True when it had to
+    """Render what is missing through m4dgs.outputs.render.render_run; returns True when it had to
     render."""
     if not missing_renders(run_dir, clip):
         return False
-    from m4dgs.render import render_run
+    from m4dgs.outputs.render import render_run
 
     render_run(
         run_dir,
@@ -357,9 +357,9 @@ def _load_model(run_dir: Path, device: str):
     """(model, None) or (None, reason) when the trained model cannot be loaded (module or checkpoint
     missing)."""
     try:
-        from m4dgs.model import load_model
+        from m4dgs.model.trained import load_model
     except ImportError as e:
-        return None, f"m4dgs.model unavailable ({e})"
+        return None, f"m4dgs.model.trained unavailable ({e})"
     try:
         return load_model(run_dir, device=device), None
     except FileNotFoundError as e:
@@ -379,7 +379,7 @@ def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
     import torch
 
     from eval.metrics import measure_fps, track_error
-    from m4dgs.crf import get_crf
+    from m4dgs.core.crf import get_crf
 
     out: dict = {}
     # learned CRF vs the true one

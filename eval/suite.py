@@ -10,10 +10,10 @@ A suite file names
   ``priors`` profile
   (oracle | realistic | harsh), the ``observed`` / ``novel`` levels, the ``seed`` and the camera
   response ``crf``
-  (a name of ``m4dgs.crf.CLIP_CRFS``; default the paper's ``hdrnerf``);
+  (a name of ``m4dgs.core.crf.CLIP_CRFS``; default the paper's ``hdrnerf``);
 - ``rows``: the table rows, each ``{name, label, variant, overrides, clip}``: ``name`` is the run
   folder (default: the variant), ``label`` the text in the table (default: the name), ``variant`` a
-  name of ``m4dgs.variants.VARIANTS`` (default ``full``), ``overrides`` extra dotted config
+  name of ``m4dgs.training.variants.VARIANTS`` (default ``full``), ``overrides`` extra dotted config
   overrides (e.g. ``{"exposure.perturb_ev": 0.5}``), ``clip`` the clip setting (default
   ``default``);
 - ``tables``: each ``{title, columns, paper}`` with ``columns`` a layout name of ``LAYOUTS``
@@ -64,7 +64,9 @@ class ClipSetting:
     observed: Optional[tuple] = None
     novel: Optional[tuple] = None
     seed: int = 0
-    crf: Optional[str] = None  # camera response (m4dgs.crf.CLIP_CRFS); None = the paper's hdrnerf
+    crf: Optional[str] = (
+        None  # camera response (m4dgs.core.crf.CLIP_CRFS); None = the paper's hdrnerf
+    )
 
     def setting_id(self, scene_suite: str) -> str:
         """Folder name under OUT/clips: the scene suite plus every non-default value (shared across
@@ -324,7 +326,7 @@ def _parse_clip(key: str, d: Any, path) -> ClipSetting:
             f"clips.{key}.{unknown[0]}",
             "unknown key (schedule, priors, observed, novel, seed, crf)",
         )
-    from m4dgs.crf import CLIP_CRFS
+    from m4dgs.core.crf import CLIP_CRFS
 
     crf = d.get("crf")
     if crf is not None and crf not in CLIP_CRFS:
@@ -479,17 +481,17 @@ def scene_suite_names(suite: EvalSuite) -> List[str]:
 
 
 def known_variants() -> Optional[List[str]]:
-    """Names in m4dgs.variants.VARIANTS, or None while that module does not exist yet."""
+    """Names in m4dgs.training.variants.VARIANTS, or None while that module does not exist yet."""
     try:
-        from m4dgs.variants import VARIANTS
+        from m4dgs.training.variants import VARIANTS
     except ImportError:
         return None
     return sorted(VARIANTS)
 
 
 def check_variants(suite: EvalSuite) -> List[str]:
-    """Variant names of the suite unknown to m4dgs.variants ([] when all are known or the module is
-    missing)."""
+    """Variant names of the suite unknown to m4dgs.training.variants ([] when all are known or the
+    module is missing)."""
     known = known_variants()
     if known is None:
         return []

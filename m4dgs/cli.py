@@ -90,8 +90,8 @@ def main():
 def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quiet):
     """Train on a clip: camera init, stage 1, video-to-world, stage 2, renders. Resumes an
     interrupted run."""
-    from .pipeline import train as run_train
-    from .variants import VARIANTS
+    from m4dgs.training.pipeline import train as run_train
+    from m4dgs.training.variants import VARIANTS
 
     if variant not in VARIANTS:
         raise click.BadParameter(
@@ -132,12 +132,12 @@ def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quie
 def render(run_dir, overwrite, videos, tracks, device):
     """Render the train/test frames of a run (HDR EXR, LDR PNG at every level, depth) and optional
     videos."""
-    from .render import render_run
+    from m4dgs.outputs.render import render_run
 
     n = render_run(run_dir, overwrite=overwrite, device=device)
     click.echo(f"rendered {n['train']} train and {n['test']} test frames")
     if videos or tracks:
-        from .videos import render_tracks, render_videos
+        from m4dgs.outputs.videos import render_tracks, render_videos
 
         if videos:
             for p in render_videos(run_dir, device=device):
@@ -169,7 +169,7 @@ def render(run_dir, overwrite, videos, tracks, device):
 )
 def export_ply_cmd(run_dir, g, exposure, out_path):
     """Export the Gaussians at one time as a standard 3DGS .ply (opens in common splat viewers)."""
-    from .export import export_run_ply
+    from m4dgs.outputs.export import export_run_ply
 
     p = export_run_ply(run_dir, g, out_path, exposure=exposure)
     click.echo(str(p))
@@ -187,7 +187,7 @@ def variants(preset):
     """List the variants (full method, ablations, adapted baselines) with their stage-1 / stage-2 /
     total iterations under a preset. Every variant gets full's total; one without stage 1 spends it
     in stage 2."""
-    from .variants import VARIANTS, budget, describe
+    from m4dgs.training.variants import VARIANTS, budget, describe
 
     click.echo(f"{'variant':24s} {'stage1':>7s} {'stage2':>7s} {'total':>7s}  (preset {preset})")
     for name in VARIANTS:

@@ -23,7 +23,7 @@ evaluation::
         TrackSet over ALL frames with points3d [N, G, 3] (world) and dynamic [N] bool
         masks/dynamic/<g>.png   dynamic-object mask (0 / 255)
 
-Pixel coordinates are continuous with pixel centres at integer + 0.5 (see m4dgs.camera). Errors
+Pixel coordinates are continuous with pixel centres at integer + 0.5 (see m4dgs.core.camera). Errors
 raised by the reader name the file and the field (`ClipError`)."""
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
 
-from . import io as mio
+from m4dgs.core import io as mio
 
 SCHEMA_VERSION = 1
 SUPPORTED_SCHEMA_VERSIONS = (1,)

@@ -8,7 +8,7 @@ writes atomic.
   model/ckpt.pt          the latest resumable checkpoint (overwritten atomically)
   model/stage1.pt        final stage-1 model;  model/final.pt  final model
   cameras.json           estimated cameras (BA, then refined)
-  renders/...            written by m4dgs.render
+  renders/...            written by m4dgs.outputs.render
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any, Dict, Optional
 import torch
 import yaml
 
-from . import io as mio
+from m4dgs.core import io as mio
 
 
 def save_torch(path, obj: Any) -> None:

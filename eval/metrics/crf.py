@@ -50,12 +50,12 @@ def observed_exposure_range(
 
     Args:
         hdr_frames: ground-truth linear HDR frames [H, W, C] (an iterable, consumed once). dts:
-        exposure time of each frame. crf: the true response (m4dgs.crf.CRF; per-channel curves use
-        channel c's curve for channel c). percentiles: the lower and upper percentile of the
+        exposure time of each frame. crf: the true response (m4dgs.core.crf.CRF; per-channel curves
+        use channel c's curve for channel c). percentiles: the lower and upper percentile of the
         unclipped exposures. max_pixels: per frame, a strided sample of at most this many pixels is
         used.
     """
-    from m4dgs.crf import get_crf
+    from m4dgs.core.crf import get_crf
 
     f = get_crf(crf)
     per_c: List[list] = []
@@ -95,13 +95,14 @@ def crf_error(
         learned: log2 exposures [n] (numpy) -> LDR values [n, C] (e.g. TrainedModel.tonemap_curve;
         torch or numpy
             out), or [n] for a curve shared by the channels.
-        crf: the true response (m4dgs.crf name or CRF). ranges: per channel (lo, hi) exposure range,
-        or None for a channel without recorded exposures. n: samples per channel, log2-uniform.
+        crf: the true response (m4dgs.core.crf name or CRF). ranges: per channel (lo, hi) exposure
+        range, or None for a channel without recorded exposures. n: samples per channel,
+        log2-uniform.
     Returns:
         {"crf_error": mean over channels (None if no channel has a range), "per_channel": [codes or
         None], "ranges": [[lo, hi] or None], "samples": n, "units": "8-bit codes"}.
     """
-    from m4dgs.crf import get_crf
+    from m4dgs.core.crf import get_crf
 
     f = get_crf(crf)
     per = []

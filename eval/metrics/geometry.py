@@ -3,7 +3,7 @@ track error.
 
 Conventions (docs/metrics.md):
 - ATE: the estimated camera centres are aligned to the ground-truth centres by the least-squares
-  Sim(3) (Umeyama, m4dgs.camera.umeyama_sim3: s R c_est + t ~ c_gt); ATE = RMSE of the aligned
+  Sim(3) (Umeyama, m4dgs.core.camera.umeyama_sim3: s R c_est + t ~ c_gt); ATE = RMSE of the aligned
   centre errors, in GT units.
 - RPE: the same Sim(3) applied to the estimated c2w poses (R_i -> R R_i, c_i -> s R c_i + t); for
   each pair of
@@ -54,7 +54,7 @@ def _centres(poses: torch.Tensor) -> torch.Tensor:
 
 def align_sim3(est, gt, with_scale: bool = True):
     """Least-squares Sim(3) (s, R [3, 3], t [3]) with s R c_est + t ~ c_gt (float64 torch)."""
-    from m4dgs.camera import umeyama_sim3
+    from m4dgs.core.camera import umeyama_sim3
 
     ce = _centres(as_tensor(est, uint8_scale=False))
     cg = _centres(as_tensor(gt, uint8_scale=False, device=ce.device))

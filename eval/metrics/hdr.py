@@ -21,7 +21,7 @@ import math
 import numpy as np
 import torch
 
-from m4dgs.ssim import ssim as _ssim
+from m4dgs.core.ssim import ssim as _ssim
 
 from ._util import as_tensor, batched, check_pair, psnr_from_mse
 

@@ -3,8 +3,8 @@ round trips.
 
 Conventions (docs/metrics.md; shared/notes/metric-conventions.md):
 - PSNR per image with data range 1, then the mean over images (never a batch-pooled MSE).
-- SSIM is the 3DGS one (m4dgs.ssim: 11x11 Gaussian window, sigma 1.5, zero padding, mean over the
-  WHOLE map). `crop=5` gives scikit-image's Gaussian SSIM instead (interior mean).
+- SSIM is the 3DGS one (m4dgs.core.ssim: 11x11 Gaussian window, sigma 1.5, zero padding, mean over
+  the WHOLE map). `crop=5` gives scikit-image's Gaussian SSIM instead (interior mean).
 - SSIM runs its convolutions in float32 (float64 conv2d is ~50x slower on CPU; the difference is <
   1e-6).
 - Images are [H, W, 3] (or a batch [N, H, W, 3]) in [0, 1]; numpy or torch; uint8 input is divided
@@ -22,8 +22,8 @@ import numpy as np
 import torch
 from PIL import Image
 
-from m4dgs.ssim import ssim as _ssim
-from m4dgs.ssim import ssim_map as _ssim_map
+from m4dgs.core.ssim import ssim as _ssim
+from m4dgs.core.ssim import ssim_map as _ssim_map
 
 from ._util import as_mask, as_tensor, batched, check_pair, psnr_from_mse
 

@@ -3,14 +3,14 @@ HDR_T_std, DIS flow.
 
 HDR-TAE convention (the authors' compute_HDR_TAE; shared/notes/metric-conventions.md):
 - H_{t+1->t} = W(H_{t+1}, F_{t->t+1}): backward warp, bilinear, border padding, align_corners=True
-  (m4dgs.warp).
+  (m4dgs.core.warp).
 - per pixel, the SUM over RGB of |H_t - H_{t+1->t}| / (H_t + H_{t+1->t} + 1e-10), times the
 visibility V_{t->t+1},
   summed and divided by the COUNT of visible pixels (so 3x the per-channel mean);
 - the same for t+1 with H_{t->t+1} = W(H_t, F_{t+1->t}) and V_{t+1->t}; per pair (fwd + bwd) / 2;
   mean over pairs.
 - visibility: given masks (exact from ground truth) or forward-backward consistency
-  |f + b(x + f)| < 0.5 (|f| + |b(x + f)|) + 0.5 (m4dgs.warp.fb_consistency).
+  |f + b(x + f)| < 0.5 (|f| + |b(x + f)|) + 0.5 (m4dgs.core.warp.fb_consistency).
 A direction with no visible pixel is skipped (a pair with none in both directions too); all empty ->
 NaN.
 
@@ -25,7 +25,7 @@ import math
 import numpy as np
 import torch
 
-from m4dgs.warp import backward_warp, fb_consistency
+from m4dgs.core.warp import backward_warp, fb_consistency
 
 from ._util import as_mask, as_tensor
 from .hdr import MU

@@ -9,8 +9,8 @@ blended destination position:
 
 - Video space (stage 1, orthographic): P holds (x, y, z) of video Gaussians at t'; the destination
   pixel in continuous coordinates (pixel centres at integer + 0.5, DESIGN.md) is ``u = (x + 1) W /
-  2, v = (y + 1) H / 2`` (`m4dgs.camera.ortho_to_pixel`). The authors write ``u = (x + 1) W / 2 -
-  0.5`` because they work in pixel-index coordinates (centre of pixel i at i); flows, being
+  2, v = (y + 1) H / 2`` (`m4dgs.core.camera.ortho_to_pixel`). The authors write ``u = (x + 1) W / 2
+  - 0.5`` because they work in pixel-index coordinates (centre of pixel i at i); flows, being
   differences of two positions in the same coordinates, are identical in both conventions. Source
   pixel = the pixel's own centre, so ``F~_{t->t'}(p) = ortho_to_pixel(P(p)[:2]) - centre(p)``.
 - World space (stage 2, pinhole): the paper's flow is F_{t->t'} = pi(K, w2c_t' mu_t') - pi(K, w2c_t
@@ -41,8 +41,8 @@ from __future__ import annotations
 
 import torch
 
-from m4dgs.camera import ortho_to_pixel, pixel_centers, project_pinhole, transform_points
-from m4dgs.warp import backward_warp, pixel_grid
+from m4dgs.core.camera import ortho_to_pixel, pixel_centers, project_pinhole, transform_points
+from m4dgs.core.warp import backward_warp, pixel_grid
 
 Z_MIN = 1e-4  # authors: destination depth must exceed 1e-4
 TRACK_CLAMP_AUTHORS = 100.0  # authors: L2 pixel distance clamped at 100
@@ -174,7 +174,7 @@ def sample_map(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
     """Bilinear samples of an [H, W, C] map at continuous pixel coordinates uv [N, 2] (centres at
     +0.5).
 
-    Same sampling convention as `m4dgs.warp.backward_warp` (index coordinates uv - 0.5,
+    Same sampling convention as `m4dgs.core.warp.backward_warp` (index coordinates uv - 0.5,
     align_corners=True, border padding); implemented through it. Returns [N, C]."""
     n = uv.shape[0]
     idx = uv - 0.5

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from m4dgs.rotation import relative_rotation_angle
+from m4dgs.core.rotation import relative_rotation_angle
 
 ARAP_K = 5  # paper appendix: k = 5
 
@@ -109,7 +109,8 @@ def arap_loss(
 
 
 def quat_relative_angle(q1: torch.Tensor, q2: torch.Tensor) -> torch.Tensor:
-    """Rotation angle of R(q1) R(q2)^-1 in [0, pi] (= m4dgs.rotation.relative_rotation_angle)."""
+    """Rotation angle of R(q1) R(q2)^-1 in [0, pi] (=
+    m4dgs.core.rotation.relative_rotation_angle)."""
     return relative_rotation_angle(q1, q2)
 
 

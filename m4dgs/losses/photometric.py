@@ -2,7 +2,7 @@
 
 - LDR RGB loss: L_rgb = lambda_d * DSSIM(L~, L) + (1 - lambda_d) * |L~ - L|_1 with lambda_d = 0.2
 and
-  DSSIM = (1 - SSIM) / 2 (3DGS convention, m4dgs.ssim).
+  DSSIM = (1 - SSIM) / 2 (3DGS convention, m4dgs.core.ssim).
 - Unit-exposure loss: L_ue = ||phi(0) - C0||_2^2 (HDR-NeRF), C0 = 0.73 for synthetic clips (f(1) of
 the HDR-NeRF CRF),
   0.5 for real clips; read it from the clip's ``unit_exposure_value``.
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import torch
 
-from m4dgs.ssim import ssim_map
+from m4dgs.core.ssim import ssim_map
 
 LAMBDA_DSSIM = 0.2  # paper appendix, "LDR RGB Loss"
 
@@ -43,8 +43,8 @@ def dssim_loss(
     """(1 - SSIM) / 2 with SSIM the mean of the 3DGS SSIM map over the (masked) pixels. [..., H, W,
     C] -> scalar.
 
-    Without a mask this equals ``m4dgs.ssim.dssim``. With a mask the SSIM map (computed on the full
-    images) is averaged over the masked pixels only."""
+    Without a mask this equals ``m4dgs.core.ssim.dssim``. With a mask the SSIM map (computed on the
+    full images) is averaged over the masked pixels only."""
     return (1.0 - _masked_mean(ssim_map(pred, target), mask)) / 2.0
 
 

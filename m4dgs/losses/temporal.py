@@ -30,21 +30,21 @@ sampled bilinearly at u_{t->t'} and compared with H_t:
 Gradients reach the rendered depth D_t, H_t and the camera poses (through the sampling position).
 The LDR variant (`ldr_reprojection_loss`, SplineGS-style baselines) uses a plain L1 between two LDR
 frames: of the same exposure (i +- N_e), or consecutive and differently exposed (i +- 1) as
-SplineGS-HDR in the paper (m4dgs.stage2.ldr_reprojection_refs)."""
+SplineGS-HDR in the paper (m4dgs.training.stage2.ldr_reprojection_refs)."""
 
 from __future__ import annotations
 
 import torch
 
-from m4dgs.camera import (
+from m4dgs.core.camera import (
     invert_rigid,
     pixel_centers,
     project_pinhole,
     transform_points,
     unproject_pinhole,
 )
+from m4dgs.core.warp import backward_warp
 from m4dgs.losses.geometry import Z_MIN, in_bounds
-from m4dgs.warp import backward_warp
 
 TLR_DEPTH_RATIO = 1.1  # authors: occlusion test at 1.1x depth
 

@@ -24,7 +24,7 @@ from typing import Optional
 import torch
 from torch import Tensor
 
-from m4dgs.camera import quat_to_rotmat as _camera_quat_to_rotmat
+from m4dgs.core.camera import quat_to_rotmat as _camera_quat_to_rotmat
 
 ALPHA_THRESHOLD = 1.0 / 255.0  # contributions below this are skipped (gsplat's ALPHA_THRESHOLD)
 EPS2D = 0.3  # 2D covariance dilation in pixels^2 (gsplat default)
@@ -53,8 +53,8 @@ class Projection:
 
 
 def quat_to_rotmat(quats: Tensor) -> Tensor:
-    """Rotation matrices [N, 3, 3] from quaternions [N, 4] (w, x, y, z), normalised (m4dgs.camera's
-    convention)."""
+    """Rotation matrices [N, 3, 3] from quaternions [N, 4] (w, x, y, z), normalised
+    (m4dgs.core.camera's convention)."""
     return _camera_quat_to_rotmat(quats)
 
 

@@ -1,0 +1,2 @@
+"""The representation: Gaussians, colour, tone mapper, background, rendering, and a trained
+model."""

@@ -1,0 +1,1 @@
+"""Priors precomputed from the clip: epipolar and rigidity dynamic masks, initial cameras."""

@@ -1,0 +1,106 @@
+"""Training inputs of one clip as tensors: LDR frames, exposures, priors (never ground truth).
+
+Time axis: the trainer measures time in training-frame indices 0..T-1 (the spline knots live there).
+A global frame g maps to the fractional index obtained by linear interpolation over the training
+frames, so with the default split (even g train, odd g test) the test frame between training frames
+i and i + 1 sits at t = i + 0.5."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import List, Optional, Tuple
+
+import numpy as np
+import torch
+
+from m4dgs.clip import Clip
+
+
+@dataclass
+class TrainingData:
+    """Everything the trainer may see. Shapes: T training frames, H x W pixels, N tracks, P flow
+    pairs."""
+
+    clip_name: str
+    frames: List[int]  # [T] global indices of the training frames
+    width: int
+    height: int
+    ldr: torch.Tensor  # [T, H, W, 3] float in [0, 1]
+    log2_dt: torch.Tensor  # [T] log2 exposure time of each training frame (as written on the input)
+    depth: torch.Tensor  # [T, H, W] depth prior (arbitrary scale), > 0 where valid
+    tracks: torch.Tensor  # [N, T, 2] pixel coordinates (centres at +0.5)
+    track_vis: torch.Tensor  # [N, T] bool
+    flow_pairs: List[Tuple[int, int]]  # [P] (i, j) training-frame indices of F_{i->j}
+    flow: Optional[torch.Tensor]  # [P, H, W, 2] pixels, or None when the clip has no flow prior
+    flow_valid: Optional[torch.Tensor]  # [P, H, W] bool
+    unit_exposure_value: float  # C0 of the unit-exposure loss
+    num_levels: int  # N_e: number of observed exposure levels
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.frames)
+
+    def flow_index(self, i: int, j: int) -> Optional[int]:
+        try:
+            return self.flow_pairs.index((i, j))
+        except ValueError:
+            return None
+
+    def flow_targets(self, i: int) -> List[int]:
+        """Training indices j with a prior flow F_{i->j}."""
+        return [b for (a, b) in self.flow_pairs if a == i]
+
+
+def frame_time(clip: Clip, g: float) -> float:
+    """Fractional training-frame index of global frame g (linear interpolation over the training
+    frames)."""
+    train = np.asarray(clip.train_frames, np.float64)
+    return float(np.interp(g, train, np.arange(len(train), dtype=np.float64)))
+
+
+def load_training_data(
+    clip: Clip, device="cpu", max_tracks: Optional[int] = None, seed: int = 0
+) -> TrainingData:
+    """Read a clip's training inputs into tensors on `device` (float32).
+
+    Args:
+        clip: an opened clip (ground truth, if present, is not touched).
+        max_tracks: keep at most this many prior tracks (uniform random subset, seeded).
+    """
+    frames = clip.train_frames
+    ldr = np.stack([clip.load_ldr(g) for g in frames]).astype(np.float32) / 255.0
+    depth = np.stack([clip.load_depth_prior(g) for g in frames]).astype(np.float32)
+    ts = clip.load_tracks_prior()
+    tracks, vis = ts.tracks, ts.visible
+    keep = vis.sum(1) >= 2  # a track seen once carries no motion
+    tracks, vis = tracks[keep], vis[keep]
+    if max_tracks is not None and tracks.shape[0] > max_tracks:
+        idx = np.sort(
+            np.random.default_rng(seed).choice(tracks.shape[0], max_tracks, replace=False)
+        )
+        tracks, vis = tracks[idx], vis[idx]
+    index = {g: i for i, g in enumerate(frames)}
+    flow = valid = None
+    pairs: List[Tuple[int, int]] = []
+    if clip.has_flow_prior():
+        fs = clip.load_flow_prior()
+        pairs = [(index[int(a)], index[int(b)]) for a, b in fs.pairs]
+        flow = torch.from_numpy(fs.flow).to(device)
+        valid = torch.from_numpy(fs.valid).to(device)
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(device)  # noqa: E731
+    return TrainingData(
+        clip_name=clip.meta.name,
+        frames=list(frames),
+        width=clip.width,
+        height=clip.height,
+        ldr=t(ldr),
+        log2_dt=t(np.log2(clip.train_dt).astype(np.float32)),
+        depth=t(depth),
+        tracks=t(tracks.astype(np.float32)),
+        track_vis=t(vis),
+        flow_pairs=pairs,
+        flow=flow,
+        flow_valid=valid,
+        unit_exposure_value=float(clip.meta.unit_exposure_value),
+        num_levels=clip.meta.num_exposure_levels,
+    )

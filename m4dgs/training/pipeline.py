@@ -1,0 +1,535 @@
+"""`m4dgs train`: the whole method on one clip, resumable (DESIGN.md "Runs").
+
+Phases (status.json records the last finished one; each writes its result atomically before the next
+starts):
+
+1. camera_init  dynamic masks from the prior flow (epipolar error maps), MoSca-style cameras and
+   bundle adjustment
+                -> model/camera_init.pt, cameras_ba.json
+2. stage1       video HDR Gaussians (m4dgs.training.stage1), checkpointed every `checkpoint_every`
+   iterations to model/ckpt.pt
+                -> model/stage1.pt, renders/stage1/{hdr,depth}/<g>.exr, renders/stage1/ldr/<g>.png
+3. v2w          video-to-world transform (m4dgs.training.v2w) -> model/v2w.pt
+4. stage2       world Gaussians + camera refinement (m4dgs.training.stage2), checkpointed ->
+   model/final.pt, cameras.json
+5. render       renders/{train,test}/... (m4dgs.outputs.render.render_run)  -> status "done"
+
+A killed run restarts from the last checkpoint of the phase it was in. Only the clip's training
+frames, exposure times and priors are read (never gt/)."""
+
+from __future__ import annotations
+
+import os
+import resource
+import time
+from pathlib import Path
+from typing import Any, Dict, Optional
+
+import numpy as np
+import torch
+
+from m4dgs.clip import Cameras, Clip, TrackSet
+from m4dgs.core import camera as cam
+from m4dgs.core.io import write_json
+from m4dgs.model.gaussians import WorldGaussians, init_video_gaussians
+from m4dgs.run import RunDir, load_torch, save_torch
+from m4dgs.training.config import TrainConfig, to_dict
+from m4dgs.training.data import TrainingData, frame_time, load_training_data
+from m4dgs.training.variants import variant_config
+
+PHASES = ("camera_init", "stage1", "v2w", "stage2", "render", "done")
+
+
+def resolve_device(device: str) -> torch.device:
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
+
+
+def resolve_config(
+    clip: Clip,
+    preset: str = "small",
+    variant: str = "full",
+    overrides: Optional[Dict[str, Any]] = None,
+) -> TrainConfig:
+    """Preset defaults, then the variant's overrides (a variant without stage 1 gets stage 1's
+    iterations in stage 2: m4dgs.training.variants.variant_config), then the user's; the processing
+    size is the clip's."""
+    cfg = variant_config(preset, variant, overrides)
+    cfg.width, cfg.height = clip.width, clip.height
+    return cfg
+
+
+def _phase_index(status: Dict[str, Any]) -> int:
+    """Index of the first phase still to run."""
+    last = status.get("finished")
+    return 0 if last is None else PHASES.index(last) + 1
+
+
+def peak_memory_mib(device: torch.device) -> float:
+    if device.type == "cuda":
+        return torch.cuda.max_memory_allocated(device) / 2**20
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+
+
+class Trainer:
+    """Runs the phases of one (clip, variant) into a run folder."""
+
+    def __init__(
+        self,
+        clip_dir,
+        run_dir,
+        preset: str = "small",
+        variant: str = "full",
+        overrides: Optional[Dict[str, Any]] = None,
+        device: str = "auto",
+        progress: bool = True,
+        backend: Optional[str] = None,
+    ):
+        self.clip = Clip.open(clip_dir)
+        self.run = RunDir(run_dir)
+        self.device = resolve_device(device)
+        self.progress = progress
+        cfg = resolve_config(self.clip, preset, variant, overrides)
+        if backend is not None:
+            cfg.raster_backend = backend
+        # bad option values fail here, not after minutes of camera initialisation and stage 1
+        cfg.masks.validate()
+        cfg.stage2.validate()
+        self.variant = variant
+        want = to_dict(cfg)
+        have = self.run.read_config()
+        if have is not None and have != want:
+            diff = sorted(k for k in set(have) | set(want) if have.get(k) != want.get(k))
+            raise ValueError(
+                f"{self.run.config_path}: an existing run with a different configuration "
+                f"(sections {diff}); "
+                "use another --out or --force"
+            )
+        self.cfg = cfg
+        self.run.root.mkdir(parents=True, exist_ok=True)
+        if have is None:
+            self.run.write_config(want)
+        torch.manual_seed(cfg.seed)
+        self.data: TrainingData = load_training_data(self.clip, self.device)
+        self.seconds: Dict[str, float] = dict(self.run.status().get("stage_seconds", {}))
+        self._write_run_info()
+
+    def _write_run_info(self, **extra) -> None:
+        info = {
+            "clip": os.path.relpath(self.clip.root.resolve(), self.run.root.resolve()),
+            "clip_abs": str(self.clip.root.resolve()),
+            "variant": self.variant,
+            "preset": self.cfg.preset,
+            "method": self.cfg.method,
+            "device": str(self.device),
+            "torch_threads": torch.get_num_threads(),
+            **extra,
+        }
+        write_json(self.run.path("run.json"), info)
+
+    # -- bookkeeping
+    # ----------------------------------------------------------------------------------------------
+    def _finish(self, phase: str, seconds: float) -> None:
+        self.seconds[phase] = self.seconds.get(phase, 0.0) + seconds
+        self.run.set_status(
+            stage=PHASES[PHASES.index(phase) + 1], finished=phase, stage_seconds=self.seconds
+        )
+
+    def _progress_seconds(self, phase: str, seconds: float) -> None:
+        self.seconds[phase] = self.seconds.get(phase, 0.0) + seconds
+        self.run.set_status(stage=phase, stage_seconds=self.seconds)
+
+    def _log_fn(self, stage: str, stage_obj, start_time: float):
+        every = max(int(self.cfg.checkpoint_every), 1)
+        n_total = getattr(self.cfg, stage).iterations
+
+        def on_step(it: int, rec: Dict[str, float]) -> None:
+            rec = {"stage": stage, "step": it, **rec}
+            self.run.log(rec)
+            if (it + 1) % every == 0 and it + 1 < n_total:
+                save_torch(
+                    self.run.ckpt_path,
+                    {"stage": stage, "step": it + 1, "state": stage_obj.state_dict()},
+                )
+                self._progress_seconds(stage, time.perf_counter() - start_time[0])
+                start_time[0] = time.perf_counter()
+
+        return on_step
+
+    def _checkpoint(self, stage: str) -> Optional[Dict[str, Any]]:
+        """The mid-stage checkpoint (model/ckpt.pt) if it belongs to `stage`, else None."""
+        p = self.run.ckpt_path
+        ck = load_torch(p, map_location=self.device) if p.exists() else None
+        return ck if ck is not None and ck.get("stage") == stage else None
+
+    def _resume(self, stage: str, stage_obj, ck: Optional[Dict[str, Any]] = None) -> int:
+        """Load `ck` (or the checkpoint on disk) into stage_obj; returns the step to continue from
+        (0 = none)."""
+        ck = self._checkpoint(stage) if ck is None else ck
+        if ck is None:
+            return 0
+        stage_obj.load_state_dict(ck["state"])
+        self.run.truncate_log(stage, ck["step"] - 1)
+        return int(ck["step"])
+
+    # -- phases
+    # ----------------------------------------------------------------------------------------------
+    def camera_init(self) -> None:
+        from m4dgs.priors.camera_init import initialize_cameras
+        from m4dgs.priors.epipolar import dynamic_masks, epipolar_error_maps, opencv_flow_prior
+
+        t0 = time.perf_counter()
+        d, cfg = self.data, self.cfg
+        if self.clip.has_flow_prior():
+            fs = self.clip.load_flow_prior()
+        else:
+            ldr = [self.clip.load_ldr(g) for g in d.frames]
+            fs = opencv_flow_prior(ldr, self.clip.train_dt.tolist(), d.frames)
+        emaps = epipolar_error_maps(fs, d.frames, cfg.epipolar)
+        masks_epi = dynamic_masks(emaps, cfg.epipolar.threshold)
+        ts = TrackSet(d.tracks.cpu().numpy(), d.track_vis.cpu().numpy(), np.asarray(d.frames))
+        depth = d.depth.cpu()
+        res = initialize_cameras(ts, depth, masks_epi, d.width, d.height, cfg.camera_init)
+        masks, mask_diag = (
+            masks_epi,
+            {"method": "epipolar", "fraction_epipolar": float(masks_epi.float().mean())},
+        )
+        if cfg.masks.method != "epipolar" and "warning" not in res.diagnostics:
+            masks, mask_diag, res = self._rigidity_masks(fs, depth, masks_epi, res, ts)
+        save_torch(
+            self.run.path("model", "camera_init.pt"),
+            {
+                "K": res.K.float(),
+                "c2w": res.c2w.float(),
+                "depth_scale": res.depth_scale.float(),
+                "masks": masks.bool(),
+                "masks_epipolar": masks_epi.bool(),
+                "diagnostics": {
+                    **{
+                        k: v
+                        for k, v in res.diagnostics.items()
+                        if isinstance(v, (int, float, str, list, dict))
+                    },
+                    "masks": mask_diag,
+                },
+            },
+        )
+        self._write_cameras("cameras_ba.json", res.K.float(), res.c2w.float())
+        self._finish("camera_init", time.perf_counter() - t0)
+
+    def _rigidity_masks(self, fs, depth, masks_epi, res, ts):
+        """(masks [T, H, W], diagnostics, camera result) for cfg.masks.method ("reprojection" |
+        "union") from the BA result `res`; with refine_cameras the BA is re-run once on these masks
+        and the masks recomputed with its cameras (that BA result is returned when it succeeds, else
+        `res`)."""
+        from m4dgs.priors.camera_init import initialize_cameras
+        from m4dgs.priors.rigidity import rigidity_masks
+
+        d, mc = self.data, self.cfg.masks
+        index = {g: i for i, g in enumerate(d.frames)}
+        keep = [p for p, (a, b) in enumerate(fs.pairs.tolist()) if a in index and b in index]
+        pairs = [(index[a], index[b]) for a, b in fs.pairs[keep].tolist()]
+        flow, valid = torch.from_numpy(fs.flow[keep]), torch.from_numpy(fs.valid[keep])
+
+        def make(r):
+            m = rigidity_masks(depth, r.depth_scale, r.K, r.c2w, flow, valid, pairs, mc)
+            return m | masks_epi if mc.method == "union" else m
+
+        masks = make(res)
+        diag = {
+            "method": mc.method,
+            "fraction_epipolar": float(masks_epi.float().mean()),
+            "fraction_first_pass": float(masks.float().mean()),
+        }
+        if mc.refine_cameras:
+            r2 = initialize_cameras(ts, depth, masks, d.width, d.height, self.cfg.camera_init)
+            if "warning" not in r2.diagnostics:
+                r2.diagnostics["first_pass"] = {
+                    k: res.diagnostics[k] for k in ("num_static", "fov_final_deg")
+                }
+                res = r2
+                masks = make(res)
+        diag["fraction"] = float(masks.float().mean())
+        return masks, diag, res
+
+    def _camera_init_result(self):
+        return load_torch(self.run.path("model", "camera_init.pt"), map_location=self.device)
+
+    def _write_cameras(self, name: str, K: torch.Tensor, c2w_train: torch.Tensor) -> None:
+        """Cameras for every global frame: training frames as given, the others interpolated (slerp
+        + lerp)."""
+        times = np.array([frame_time(self.clip, g) for g in self.clip.meta.frames])
+        c2w_all = cam.interpolate_trajectory(
+            np.arange(len(self.data.frames), dtype=np.float64),
+            c2w_train.detach().cpu().double().numpy(),
+            times,
+        )
+        G = len(times)
+        cams = Cameras(
+            np.asarray(self.clip.meta.frames),
+            np.tile(K.detach().cpu().double().numpy(), (G, 1, 1)),
+            c2w_all,
+        )
+        write_json(self.run.path(name), cams.to_json())
+
+    def stage1(self) -> None:
+        from m4dgs.core.io import write_exr, write_png
+        from m4dgs.training.stage1 import VideoStage, train_stage1
+
+        t0 = [time.perf_counter()]
+        ck = self._checkpoint("stage1")  # resuming: skip the lift + tone-mapper pre-training
+        stage = VideoStage(
+            self.data, self.cfg, self.device, self.cfg.raster_backend, init=ck is None
+        )
+        start = self._resume("stage1", stage, ck)
+        train_stage1(stage, start, self._log_fn("stage1", stage, t0), self.progress)
+        save_torch(
+            self.run.path("model", "stage1.pt"), {**stage.state_dict(), "frames": self.data.frames}
+        )
+        out = stage.render_training_video()
+        from m4dgs.clip import frame_name
+
+        for i, g in enumerate(self.data.frames):
+            write_exr(
+                self.run.path("renders", "stage1", "hdr", frame_name(g, "exr")),
+                out["hdr"][i].cpu().numpy(),
+            )
+            write_exr(
+                self.run.path("renders", "stage1", "depth", frame_name(g, "exr")),
+                out["depth"][i].cpu().numpy(),
+            )
+            write_png(
+                self.run.path("renders", "stage1", "ldr", frame_name(g, "png")),
+                out["ldr"][i].cpu().numpy(),
+            )
+        self._finish("stage1", time.perf_counter() - t0[0])
+
+    def _stage1_video(self):
+        from m4dgs.clip import frame_name
+        from m4dgs.core.io import read_exr
+
+        hdr = torch.stack(
+            [
+                torch.from_numpy(
+                    read_exr(self.run.path("renders", "stage1", "hdr", frame_name(g, "exr")))
+                )
+                for g in self.data.frames
+            ]
+        ).to(self.device)
+        depth = torch.stack(
+            [
+                torch.from_numpy(
+                    read_exr(self.run.path("renders", "stage1", "depth", frame_name(g, "exr")))
+                )
+                for g in self.data.frames
+            ]
+        ).to(self.device)
+        return hdr, depth
+
+    def v2w(self) -> None:
+        from m4dgs.training.stage1 import VideoStage
+        from m4dgs.training.v2w import transform
+
+        t0 = time.perf_counter()
+        cfg, d = self.cfg, self.data
+        ci = self._camera_init_result()
+        masks = ci["masks"].to(self.device)
+        if cfg.method == "static-hdr":
+            masks = torch.zeros_like(masks)  # every Gaussian static
+        if cfg.ablation.use_video_init:
+            sd = load_torch(self.run.path("model", "stage1.pt"), map_location=self.device)
+            stage = VideoStage(d, cfg, self.device, cfg.raster_backend, init=False)
+            stage.load_state_dict(sd)
+            video = stage.gauss
+            _, depth = self._stage1_video()
+            appearance = {
+                "color": sd["color"],
+                "tonemap": sd["tonemap"],
+                "background": sd["background"],
+            }
+        else:
+            # lifted tracks/depth without the video-Gaussian optimisation (ablation (a) and the
+            # world-only baselines)
+            video = init_video_gaussians(
+                d.tracks, d.track_vis, d.depth, d.width, d.height, cfg.stage1.init, cfg.model
+            )
+            depth = d.depth
+            appearance = None
+        world, report = _transform_with_scale(transform, video, ci, masks, depth, cfg, d)
+        save_torch(
+            self.run.path("model", "v2w.pt"),
+            {"gaussians": world.to_state(), "appearance": appearance, "report": _plain(report)},
+        )
+        self._finish("v2w", time.perf_counter() - t0)
+
+    def stage2(self) -> None:
+        from m4dgs.training.stage1 import build_appearance
+        from m4dgs.training.stage2 import WorldStage, train_stage2
+
+        t0 = [time.perf_counter()]
+        cfg, d = self.cfg, self.data
+        ci = self._camera_init_result()
+        v = load_torch(self.run.path("model", "v2w.pt"), map_location=self.device)
+        c0 = float(cfg.exposure.unit_exposure_value or d.unit_exposure_value)
+        color, tm, bg = build_appearance(cfg, c0, self.device, pretrain=v["appearance"] is None)
+        if v["appearance"] is not None:
+            color.load_state_dict(v["appearance"]["color"])
+            tm.load_state_dict(v["appearance"]["tonemap"])
+            bg.load_state_dict(v["appearance"]["background"])
+        stage1_hdr = self._stage1_video()[0] if cfg.ablation.use_video_init else None
+        log2_dt = d.log2_dt
+        if cfg.exposure.perturb_ev > 0:
+            from m4dgs.training.exposure import perturb_exposures
+
+            log2_dt = perturb_exposures(log2_dt, cfg.exposure.perturb_ev, cfg.exposure.perturb_seed)
+        stage = WorldStage(
+            d,
+            cfg,
+            WorldGaussians.from_state(v["gaussians"]),
+            color,
+            tm,
+            bg,
+            ci["K"],
+            ci["c2w"],
+            ci["depth_scale"],
+            ci["masks"] if cfg.method != "static-hdr" else None,
+            stage1_hdr,
+            log2_dt,
+            self.device,
+            cfg.raster_backend,
+            ldr_reproj=cfg.method == "ldr-reproj",
+            static_only=cfg.method == "static-hdr",
+        )
+        start = self._resume("stage2", stage)
+        train_stage2(stage, start, self._log_fn("stage2", stage, t0), self.progress)
+        c2w = stage.cameras().detach()
+        save_torch(
+            self.run.path("model", "final.pt"),
+            {
+                "gaussians": stage.gauss.to_state(),
+                "color": color.state_dict(),
+                "tonemap": tm.state_dict(),
+                "background": bg.state_dict(),
+                "K": stage.rig.K.detach().cpu(),
+                "c2w": c2w.cpu(),
+                "frames": d.frames,
+                "log2_dt": log2_dt.cpu(),
+                "config": to_dict(cfg),
+                "variant": self.variant,
+                "feature_dim": cfg.model.feature_dim,
+            },
+        )
+        self._write_cameras("cameras.json", stage.rig.K, c2w)
+        self._finish("stage2", time.perf_counter() - t0[0])
+
+    def render(self) -> None:
+        from m4dgs.outputs.render import render_run
+
+        t0 = time.perf_counter()
+        render_run(self.run.root, device=str(self.device), progress=self.progress)
+        self._finish("render", time.perf_counter() - t0)
+
+    # -- all
+    # ----------------------------------------------------------------------------------------------
+    def train(self) -> Path:
+        status = self.run.status()
+        if status.get("stage") == "done":
+            return self.run.root
+        first = _phase_index(status)
+        steps = {
+            "camera_init": self.camera_init,
+            "stage1": self.stage1,
+            "v2w": self.v2w,
+            "stage2": self.stage2,
+            "render": self.render,
+        }
+        for phase in PHASES[first:-1]:
+            if phase == "stage1" and not self.cfg.ablation.use_video_init:
+                self._finish("stage1", 0.0)
+                continue
+            steps[phase]()
+        if self.run.ckpt_path.exists():
+            self.run.ckpt_path.unlink()
+        train_seconds = sum(v for k, v in self.seconds.items() if k != "render")
+        self._write_run_info(
+            train_seconds=train_seconds,
+            stage_seconds=self.seconds,
+            num_gaussians=_num_gaussians(self.run),
+            peak_memory_mib=peak_memory_mib(self.device),
+        )
+        return self.run.root
+
+
+def _plain(x):
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if torch.is_tensor(x):
+        return x.tolist()
+    if isinstance(x, (np.generic,)):
+        return x.item()
+    return x
+
+
+def _num_gaussians(run: RunDir) -> Optional[int]:
+    p = run.path("model", "final.pt")
+    if not p.exists():
+        return None
+    g = load_torch(p)["gaussians"]
+    return int(g["static"]["means"].shape[0] + g["dynamic"]["ctrl"].shape[0])
+
+
+def _transform_with_scale(transform, video, ci, masks, depth, cfg, d):
+    """V2W with the bundle-adjustment depth scales: video z (prior units) becomes world depth z *
+    s_t per frame."""
+    from m4dgs.core import spline
+    from m4dgs.model.gaussians import VideoGaussians
+
+    s = ci["depth_scale"].to(video.knots)
+    times = torch.arange(d.num_frames, dtype=video.knots.dtype, device=video.knots.device)
+    # rescale the video trajectory's depth per frame and refit the control points on the same knots
+    with torch.no_grad():
+        pos = spline.evaluate(video.params["ctrl"], video.knots, times)  # [N, T, 3]
+        pos = torch.cat([pos[..., :2], pos[..., 2:3] * s[None, :, None]], -1)
+        ctrl = spline.fit_control_points(pos, None, times, video.knots)
+    scaled = VideoGaussians(
+        ctrl,
+        video.params["rot"].detach(),
+        video.params["scales"].detach(),
+        video.params["opacities"].detach(),
+        video.params["features"].detach(),
+        video.knots,
+        video.num_frames,
+        video.scale_kind,
+        video.scale_max,
+    )
+    return transform(
+        scaled,
+        ci["K"],
+        ci["c2w"],
+        masks,
+        depth * s[:, None, None],
+        cfg.v2w,
+        cfg.ablation,
+        d.width,
+        d.height,
+        world_scale_kind=cfg.model.world_scale_activation,
+        world_scale_max=cfg.model.world_scale_max,
+    )
+
+
+def train(
+    clip_dir,
+    run_dir,
+    preset: str = "small",
+    variant: str = "full",
+    overrides: Optional[Dict[str, Any]] = None,
+    device: str = "auto",
+    progress: bool = True,
+    backend: Optional[str] = None,
+) -> Path:
+    """Train one variant on one clip into run_dir (resumes; returns at once when the run is
+    done)."""
+    return Trainer(clip_dir, run_dir, preset, variant, overrides, device, progress, backend).train()

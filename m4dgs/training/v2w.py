@@ -1,0 +1,774 @@
+"""Video-to-world (V2W) Gaussian transformation (paper sec. 3.3.2, Fig. 3(a); details from the
+authors' code).
+
+Turns the fully dynamic stage-1 *video* Gaussians (orthographic camera space, x, y in [-1, 1], z =
+depth) into the stage-2 *world* Gaussians (static set + dynamic set) with the bundle-adjusted
+cameras K, c2w_t:
+
+1. Dynamic / static identification with occlusion handling (`dynamic_counts`, `classify_dynamic`):
+   each video trajectory mu^v_t is looked up in the dynamic masks M_t at its nearest pixel; N_d
+   counts the frames where the mask is 1 and the Gaussian is not occluded (o_t = [z^v_t > D_t(x,
+   y)], D the rendered video depth); dynamic iff N_d / N_f > ratio (0.1). The occlusion test can be
+   switched off (ablation (b)).
+2. Position / rotation transform (`video_to_world_trajectories`): mu^w_t = R_t pi_K^-1(mu^v_t) +
+   T_t, R^w_t = R_t R^v_t.
+3. Static Gaussians: mean world position over the observed frames, Markley average of the world
+   quaternions. Dynamic Gaussians: spline control points re-sampled from the world trajectory on the
+   video knots (`m4dgs.core.spline.resample_control_points`) and a least-squares re-fit of the
+   quaternion polynomial
+   (`m4dgs.core.rotation.fit_rotation_poly`), optionally refined on 1 - |<q, q*>| (authors' code).
+4. Opacity logits and colour features are copied.
+5. Scales (`refit_scales`): min_{S^w} sum_t || Sigma'^v_t - Sigma'^w_t ||_1 with the video 2D
+covariance from the
+   orthographic camera (W^v = identity) and the world one from the pinhole EWA Jacobian in camera t
+   (W^w = R_t^-1), both computed by the rasterizer's own `m4dgs.raster.projection.project_gaussians`
+   (so the 1.3 tan-fov clamp and the 0.3 px^2 dilation are exactly the rasterizer's). Ablation (c)
+   "inherit scale" (`ablation.cov_invariance = False`) instead copies the video scale *values*: the
+   world Gaussian gets the same numbers (standard deviations) as the video one, now read in world
+   units, i.e. world raw scale = scale_inverse(video_scales, world activation). Video scales are NDC
+   / depth units (~0.01), so the inherited world Gaussians are far too small or large on screen -
+   which is why the paper's ablation degrades.
+
+"Observed frames" of a video Gaussian: z^v_t > 0 and (x^v_t, y^v_t) inside the image ([-1, 1)); the
+spline is only an extrapolation elsewhere. Static means / quaternion averages and the dynamic
+control-point fit use the observed frames (all frames with z > 0 when a Gaussian is never observed,
+all frames when not even that).
+
+Time is the training-frame index 0..T-1 (T = video.num_frames = len(c2w) = len(dynamic_masks)).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Dict, Optional, Tuple
+
+import numpy as np
+import torch
+
+from m4dgs.core import rotation as rot
+from m4dgs.core import spline
+from m4dgs.core.camera import quat_multiply, rotmat_to_quat, video_to_camera
+from m4dgs.model.gaussians import VideoGaussians, WorldGaussians, scale_activation, scale_inverse
+from m4dgs.raster.projection import NEAR_PLANE, intrinsics_ortho, project_gaussians
+from m4dgs.training.config import AblationConfig, V2WConfig
+
+Tensor = torch.Tensor
+
+# The rasterizer (m4dgs.raster.projection) widens the field of view by 30 % inside the EWA Jacobian;
+# the V2W refit uses that same code, so cfg.fov_clamp must agree with it.
+RASTER_FOV_CLAMP = 1.3
+# Relative depth tolerance of the occlusion test: occluded iff z > (1 + tol) * rendered depth. The
+# rendered depth is an alpha-weighted mean over the Gaussians of the visible surface, so a Gaussian
+# *on* that surface sits within a few percent of it; 5 % keeps those "visible" while anything
+# clearly behind (an occluded background) is "occluded".
+OCCLUSION_TOL = 0.05
+
+
+def _as_tensor(x, like: Tensor) -> Tensor:
+    if isinstance(x, np.ndarray):
+        x = torch.from_numpy(x)
+    return torch.as_tensor(x).to(device=like.device, dtype=like.dtype)
+
+
+# --------------------------------------------------------------------------------------------------
+# dynamic / static identification
+# --------------------------------------------------------------------------------------------------
+def video_pixels(positions_video: Tensor, width: int, height: int) -> Tuple[Tensor, Tensor, Tensor]:
+    """Nearest pixel of video-space points.
+
+    Args:
+        positions_video: [..., 3] (x, y in [-1, 1], z = depth).
+    Returns:
+        (col [...] long, row [...] long, inside [...] bool): the pixel (floor of the continuous
+        coordinate u = (x + 1) W / 2, v = (y + 1) H / 2, whose centre is the nearest) and whether
+        the point is in the image (0 <= u < W, 0 <= v < H, finite) and in front of the camera (z >
+        0). col / row are clamped into the image.
+    """
+    u = (positions_video[..., 0] + 1.0) * (width / 2.0)
+    v = (positions_video[..., 1] + 1.0) * (height / 2.0)
+    z = positions_video[..., 2]
+    finite = torch.isfinite(positions_video).all(-1)
+    inside = finite & (u >= 0) & (u < width) & (v >= 0) & (v < height) & (z > 0)
+    col = torch.nan_to_num(u).floor().clamp(0, width - 1).long()
+    row = torch.nan_to_num(v).floor().clamp(0, height - 1).long()
+    return col, row, inside
+
+
+def dynamic_counts(
+    positions_video: Tensor,
+    dynamic_masks: Tensor,
+    rendered_depth: Optional[Tensor],
+    width: int,
+    height: int,
+    occlusion_handling: bool = True,
+    occlusion_tol: float = OCCLUSION_TOL,
+) -> Tensor:
+    """N_d of the paper: frames where the Gaussian falls on the dynamic mask and is not occluded.
+
+    Args:
+        positions_video: [N, T, 3] video trajectories at the T frames. dynamic_masks: [T, H, W] bool
+        (True = dynamic region). rendered_depth: [T, H, W] rendered video depth, or None (no
+        occlusion information). occlusion_handling: apply o_t = [z > (1 + occlusion_tol) D_t(pixel)]
+        (pixels with D <= 0 or non-finite
+            never occlude); False (ablation) or rendered_depth None ignores occlusion.
+    Returns:
+        [N] long counts. Frames where the point is outside the image or behind the camera never
+        count.
+    """
+    n, t_count, _ = positions_video.shape
+    if dynamic_masks.shape[0] != t_count:
+        raise ValueError(
+            f"dynamic_masks has {dynamic_masks.shape[0]} frames, trajectories have {t_count}"
+        )
+    if tuple(dynamic_masks.shape[1:]) != (height, width):
+        raise ValueError(
+            f"dynamic_masks is {tuple(dynamic_masks.shape[1:])}, expected (H, W) = "
+            f"{(height, width)}"
+        )
+    masks = dynamic_masks.to(device=positions_video.device, dtype=torch.bool)
+    col, row, inside = video_pixels(positions_video, width, height)
+    frame = torch.arange(t_count, device=positions_video.device)[None, :].expand(n, -1)
+    hit = masks[frame, row, col] & inside  # [N, T]
+    if occlusion_handling and rendered_depth is not None:
+        if tuple(rendered_depth.shape) != tuple(dynamic_masks.shape):
+            raise ValueError(
+                f"rendered_depth is {tuple(rendered_depth.shape)}, masks "
+                f"{tuple(dynamic_masks.shape)}"
+            )
+        depth = rendered_depth.to(device=positions_video.device, dtype=positions_video.dtype)
+        d = depth[frame, row, col]
+        occluded = (
+            torch.isfinite(d) & (d > 0) & (positions_video[..., 2] > (1.0 + occlusion_tol) * d)
+        )
+        hit = hit & ~occluded
+    return hit.sum(dim=1)
+
+
+def classify_dynamic(
+    positions_video: Tensor,
+    dynamic_masks: Tensor,
+    rendered_depth: Optional[Tensor],
+    width: int,
+    height: int,
+    ratio: float = 0.1,
+    occlusion_handling: bool = True,
+    occlusion_tol: float = OCCLUSION_TOL,
+) -> Tensor:
+    """Dynamic in world space iff N_d / N_f > ratio (strict), N_f = T the number of frames (paper
+    sec. 3.3.2).
+
+    Args: as `dynamic_counts`; ratio: the paper's threshold 0.1.
+    Returns:
+        [N] bool.
+    """
+    nd = dynamic_counts(
+        positions_video,
+        dynamic_masks,
+        rendered_depth,
+        width,
+        height,
+        occlusion_handling,
+        occlusion_tol,
+    )
+    t_count = positions_video.shape[1]
+    return nd.double() / float(max(t_count, 1)) > float(ratio)
+
+
+def classify_by_motion(
+    positions_world: Tensor, valid: Tensor, std_threshold: float = 0.02
+) -> Tensor:
+    """Fallback without dynamic masks (authors' code): dynamic iff the world-position spread over
+    the valid frames,
+    sqrt(mean_t |mu^w_t - mean|^2) (world units), is at least `std_threshold`.
+
+    Args:
+        positions_world: [N, T, 3]; valid: [N, T] bool (frames that count; all-False rows count all
+        frames).
+    Returns:
+        [N] bool.
+    """
+    w = _frame_weights(valid)
+    mean = (positions_world * w[..., None]).sum(1) / w.sum(1, keepdim=True)
+    var = (((positions_world - mean[:, None]) ** 2).sum(-1) * w).sum(1) / w.sum(1)
+    return var.sqrt() >= std_threshold
+
+
+# --------------------------------------------------------------------------------------------------
+# position / rotation transform
+# --------------------------------------------------------------------------------------------------
+def video_to_world_trajectories(
+    positions_video: Tensor, quats_video: Tensor, K: Tensor, c2w: Tensor, width: int, height: int
+) -> Tuple[Tensor, Tensor]:
+    """mu^w_t = R_t pi_K^-1(mu^v_t) + T_t and R^w_t = R_t R^v_t (paper sec. 3.3.2).
+
+    Args:
+        positions_video: [N, T, 3] video-space positions; quats_video: [N, T, 4] (wxyz) video
+        rotations. K: [3, 3] pinhole intrinsics (pixels); c2w: [T, 4, 4] camera-to-world of the T
+        frames.
+    Returns:
+        (positions_world [N, T, 3], quats_world [N, T, 4] unit wxyz), dtype / device of
+        positions_video.
+    """
+    K = _as_tensor(K, positions_video)
+    c2w = _as_tensor(c2w, positions_video)
+    if c2w.shape[0] != positions_video.shape[1]:
+        raise ValueError(
+            f"c2w has {c2w.shape[0]} frames, trajectories have {positions_video.shape[1]}"
+        )
+    p_cam = video_to_camera(positions_video, K, width, height)  # [N, T, 3]
+    R, T = c2w[:, :3, :3], c2w[:, :3, 3]
+    pos_w = torch.einsum("tij,ntj->nti", R, p_cam) + T[None]
+    q_cam = rotmat_to_quat(R).to(quats_video.dtype)  # [T, 4]
+    q_w = rot.quat_normalize(quat_multiply(q_cam[None].expand_as(quats_video), quats_video))
+    return pos_w, q_w
+
+
+def world_to_cameras(
+    positions_world: Tensor, quats_world: Tensor, c2w: Tensor
+) -> Tuple[Tensor, Tensor]:
+    """World Gaussians seen from each camera t: means R_t^T (mu - T_t) and rotations R_t^-1 R^w (W^w
+    = R_t^-1).
+
+    Args:
+        positions_world: [N, T, 3]; quats_world: [N, T, 4]; c2w: [T, 4, 4].
+    Returns:
+        (means_cam [N, T, 3], quats_cam [N, T, 4]).
+    """
+    c2w = _as_tensor(c2w, positions_world)
+    R, T = c2w[:, :3, :3], c2w[:, :3, 3]
+    means_cam = torch.einsum("tji,ntj->nti", R, positions_world - T[None])
+    q_cam = rotmat_to_quat(R).to(quats_world.dtype)
+    q_inv = rot.quat_conjugate(q_cam)
+    quats_cam = quat_multiply(q_inv[None].expand_as(quats_world), quats_world)
+    return means_cam, quats_cam
+
+
+# --------------------------------------------------------------------------------------------------
+# 2D covariances (through the rasterizer's projection code)
+# --------------------------------------------------------------------------------------------------
+def _project_cov2d(
+    means: Tensor,
+    quats: Tensor,
+    scales: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    camera_model: str,
+) -> Tuple[Tensor, Tensor]:
+    """cov2d [M, 2, 2] (with the rasterizer's dilation) and pixel means [M, 2] of camera-space
+    Gaussians."""
+    eye = torch.eye(4, dtype=means.dtype, device=means.device)
+    ones = torch.ones(means.shape[0], dtype=means.dtype, device=means.device)
+    proj = project_gaussians(
+        means, quats, scales, ones, eye, K, width, height, camera_model=camera_model
+    )
+    return proj.cov2d, proj.means2d
+
+
+def video_cov2d(
+    positions_video: Tensor,
+    quats_video: Tensor,
+    scales_video: Tensor,
+    width: int,
+    height: int,
+    chunk: int = 1 << 20,
+) -> Tensor:
+    """Sigma'^v_t: orthographic 2D covariance (J_ortho, W^v = identity) of video Gaussians at each
+    frame.
+
+    Args:
+        positions_video: [N, T, 3]; quats_video: [N, T, 4]; scales_video: [N, 3] activated (standard
+        deviations).
+    Returns:
+        [N, T, 2, 2] pixel^2 (includes the rasterizer's 0.3 px^2 dilation).
+    """
+    n, t_count, _ = positions_video.shape
+    K = intrinsics_ortho(width, height, dtype=positions_video.dtype, device=positions_video.device)
+    means = positions_video.reshape(-1, 3)
+    quats = quats_video.reshape(-1, 4)
+    scales = scales_video[:, None].expand(n, t_count, 3).reshape(-1, 3)
+    out = []
+    for s in range(0, means.shape[0], chunk):
+        cov, _ = _project_cov2d(
+            means[s : s + chunk],
+            quats[s : s + chunk],
+            scales[s : s + chunk],
+            K,
+            width,
+            height,
+            "ortho",
+        )
+        out.append(cov)
+    cov = torch.cat(out) if out else positions_video.new_zeros(0, 2, 2)
+    return cov.reshape(n, t_count, 2, 2)
+
+
+def pinhole_cov2d(
+    means_cam: Tensor,
+    quats_cam: Tensor,
+    scales: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    chunk: int = 1 << 20,
+) -> Tuple[Tensor, Tensor]:
+    """Sigma'^w_t: pinhole EWA 2D covariance of Gaussians given in camera coordinates.
+
+    Args:
+        means_cam: [N, T, 3]; quats_cam: [N, T, 4] (camera-frame rotations R_t^-1 R^w); scales: [N,
+        3] activated.
+    Returns:
+        (cov2d [N, T, 2, 2], means2d [N, T, 2] pixels).
+    """
+    n, t_count, _ = means_cam.shape
+    K = _as_tensor(K, means_cam)
+    means = means_cam.reshape(-1, 3)
+    quats = quats_cam.reshape(-1, 4)
+    sc = scales[:, None].expand(n, t_count, 3).reshape(-1, 3)
+    covs, mus = [], []
+    for s in range(0, means.shape[0], chunk):
+        cov, mu = _project_cov2d(
+            means[s : s + chunk],
+            quats[s : s + chunk],
+            sc[s : s + chunk],
+            K,
+            width,
+            height,
+            "pinhole",
+        )
+        covs.append(cov)
+        mus.append(mu)
+    if not covs:
+        return means_cam.new_zeros(n, t_count, 2, 2), means_cam.new_zeros(n, t_count, 2)
+    return torch.cat(covs).reshape(n, t_count, 2, 2), torch.cat(mus).reshape(n, t_count, 2)
+
+
+def cov2d_fit_error(
+    target_cov2d: Tensor,
+    means_cam: Tensor,
+    quats_cam: Tensor,
+    valid: Tensor,
+    scales: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+) -> Dict[str, Tensor]:
+    """Per-Gaussian mismatch of the world 2D covariances against the video ones over the valid
+    frames.
+
+    Returns:
+        {"l1": [N] mean over valid frames of sum |Sigma^v - Sigma^w| (px^2), "rel": [N] mean of
+        ||Sigma^v - Sigma^w||_F / ||Sigma^v||_F, "count": [N] valid frames}; 0 where a Gaussian has
+        none.
+    """
+    with torch.no_grad():
+        cov, _ = pinhole_cov2d(means_cam, quats_cam, scales, K, width, height)
+        diff = cov - target_cov2d
+        w = valid.to(cov.dtype)
+        cnt = w.sum(1)
+        l1 = (diff.abs().sum((-1, -2)) * w).sum(1) / cnt.clamp_min(1)
+        rel = (
+            diff.flatten(-2).norm(dim=-1)
+            / target_cov2d.flatten(-2).norm(dim=-1).clamp_min(1e-12)
+            * w
+        ).sum(1)
+        rel = rel / cnt.clamp_min(1)
+    return {"l1": l1, "rel": rel, "count": cnt}
+
+
+def refit_scales(
+    target_cov2d: Tensor,
+    means_cam: Tensor,
+    quats_cam: Tensor,
+    valid: Tensor,
+    K: Tensor,
+    width: int,
+    height: int,
+    init_scales: Tensor,
+    *,
+    scale_kind: str = "exp",
+    scale_max: float = 1.0,
+    steps: int = 1000,
+    lr: float = 0.1,
+    lr_final_ratio: float = 0.01,
+    frames_per_step: int = 1,
+    seed: int = 0,
+) -> Tuple[Tensor, Dict[str, Any]]:
+    """World scales by 2D covariance invariance: min_{S^w} sum_t || Sigma'^v_t - Sigma'^w_t ||_1
+    (paper sec. 3.3.2).
+
+    Adam over the raw world scale parameters (log-scales for the "exp" activation), vectorised over
+    Gaussians. Each step draws, per Gaussian, `frames_per_step` frames uniformly among its valid
+    frames (the authors draw one random frame per step for all Gaussians; drawing per Gaussian only
+    over its valid frames never wastes a step on a frame where it is off-screen) and takes the L1
+    distance of the 2x2 covariances (sum of the 4 entries' absolute differences). The learning rate
+    decays exponentially from `lr` to `lr * lr_final_ratio` over the steps, so the stochastic frame
+    choice does not leave the scales jittering by ~lr (in log units) at the end.
+
+    Args:
+        target_cov2d: [N, T, 2, 2] video 2D covariances (`video_cov2d`). means_cam: [N, T, 3],
+        quats_cam: [N, T, 4]: the world Gaussians in each camera (`world_to_cameras`). valid: [N, T]
+        bool frames that enter the objective (in front of camera t and inside the image). K: [3, 3]
+        pinhole intrinsics. init_scales: [N, 3] activated initial world scales. scale_kind /
+        scale_max: the world scale activation (`m4dgs.model.gaussians.scale_activation`).
+    Returns:
+        (raw world scales [N, 3] (Gaussians without a valid frame keep their initial scales), info
+        with "loss_l1" (mean over Gaussians with frames of the per-frame L1, px^2), "rel_err" (mean
+        relative Frobenius error), "loss_l1_init", "rel_err_init", "num_fitted", "steps").
+    """
+    n, t_count = valid.shape
+    K = _as_tensor(K, means_cam)
+    raw0 = scale_inverse(init_scales.detach().to(means_cam.dtype), scale_kind, scale_max)
+    valid = valid.to(torch.bool)
+    has = valid.any(1)
+    rows = torch.where(has)[0]
+    target = target_cov2d.detach()
+    before = cov2d_fit_error(
+        target, means_cam, quats_cam, valid, init_scales.to(means_cam.dtype), K, width, height
+    )
+    raw_out = raw0.clone()
+    if rows.numel() > 0 and steps > 0:
+        raw = raw0[rows].clone().requires_grad_(True)
+        opt = torch.optim.Adam([raw], lr=lr)
+        gamma = lr_final_ratio ** (1.0 / max(steps - 1, 1)) if lr_final_ratio > 0 else 1.0
+        sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma=gamma)
+        gen = torch.Generator(device=means_cam.device)
+        gen.manual_seed(int(seed))
+        v_rows = valid[rows]
+        cums = v_rows.long().cumsum(1)  # [n, T]
+        count = cums[:, -1:]  # [n, 1]
+        b = max(int(frames_per_step), 1)
+        m_rows, q_rows, tgt_rows = means_cam[rows], quats_cam[rows], target[rows]
+        ar = torch.arange(rows.numel(), device=means_cam.device)[:, None]
+        for _ in range(steps):
+            u = torch.rand(
+                rows.numel(), b, generator=gen, device=means_cam.device, dtype=torch.float64
+            )
+            k = (u * count).floor().long().clamp_max(count - 1) + 1  # k-th valid frame, 1-based
+            idx = torch.searchsorted(cums, k)  # first frame whose cumulative count reaches k
+            m = m_rows[ar, idx].reshape(-1, 3)
+            q = q_rows[ar, idx].reshape(-1, 4)
+            tg = tgt_rows[ar, idx]  # [n, b, 2, 2]
+            s = (
+                scale_activation(raw, scale_kind, scale_max)[:, None]
+                .expand(-1, b, -1)
+                .reshape(-1, 3)
+            )
+            cov, _ = _project_cov2d(m, q, s, K, width, height, "pinhole")
+            loss = (cov.reshape(-1, b, 2, 2) - tg).abs().sum((-1, -2)).mean(1).sum()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+        raw_out[rows] = raw.detach()
+    after = cov2d_fit_error(
+        target,
+        means_cam,
+        quats_cam,
+        valid,
+        scale_activation(raw_out, scale_kind, scale_max),
+        K,
+        width,
+        height,
+    )
+
+    def _mean(x: Tensor) -> float:
+        return float(x[has].mean()) if rows.numel() else 0.0
+
+    info = {
+        "loss_l1": _mean(after["l1"]),
+        "rel_err": _mean(after["rel"]),
+        "loss_l1_init": _mean(before["l1"]),
+        "rel_err_init": _mean(before["rel"]),
+        "num_fitted": int(rows.numel()),
+        "steps": int(steps),
+    }
+    return raw_out, info
+
+
+# --------------------------------------------------------------------------------------------------
+# the whole transform
+# --------------------------------------------------------------------------------------------------
+def _frame_weights(valid: Tensor) -> Tensor:
+    """[N, T] float weights: the valid frames, or all frames for rows without any."""
+    has = valid.any(1, keepdim=True)
+    return torch.where(has, valid, torch.ones_like(valid)).to(torch.float64)
+
+
+def observed_frames(positions_video: Tensor, width: int, height: int) -> Tensor:
+    """[N, T] bool frames where the video Gaussian is in front of the camera and inside the image;
+    rows with no such frame fall back to their frames with z > 0 (then to all frames)."""
+    _, _, inside = video_pixels(positions_video, width, height)
+    front = torch.isfinite(positions_video).all(-1) & (positions_video[..., 2] > 0)
+    obs = torch.where(inside.any(1, keepdim=True), inside, front)
+    return torch.where(obs.any(1, keepdim=True), obs, torch.ones_like(obs))
+
+
+def _refine_rotation_keep_best(
+    coeffs: Tensor, target: Tensor, tn: Tensor, valid: Tensor, steps: int, lr: float
+) -> Tensor:
+    """`rot.refine_rotation_poly`, keeping per Gaussian whichever coefficients have the smaller mean
+    angle error."""
+    refined = rot.refine_rotation_poly(coeffs, target, tn, valid, steps=steps, lr=lr)
+    w = valid.to(torch.float64)
+
+    def err(c: Tensor) -> Tensor:
+        ang = rot.relative_rotation_angle(
+            rot.poly_evaluate(c.double(), tn.double()), target.double()
+        )
+        return (ang * w).sum(1) / w.sum(1).clamp_min(1)
+
+    better = err(refined) < err(coeffs)
+    return torch.where(better[:, None, None], refined.to(coeffs.dtype), coeffs)
+
+
+def transform(
+    video: VideoGaussians,
+    K,
+    c2w,
+    dynamic_masks: Optional[Tensor],
+    rendered_depth: Optional[Tensor],
+    cfg: Optional[V2WConfig] = None,
+    ablation: Optional[AblationConfig] = None,
+    width: int = 0,
+    height: int = 0,
+    *,
+    world_scale_kind: str = "exp",
+    world_scale_max: float = 1.0,
+    occlusion_tol: float = OCCLUSION_TOL,
+    frames_per_step: int = 1,
+) -> Tuple[WorldGaussians, Dict[str, Any]]:
+    """Video Gaussians -> world Gaussians (paper sec. 3.3.2).
+
+    Args:
+        video: the stage-1 Gaussians (T = video.num_frames training frames). K: [3, 3] pinhole
+        intrinsics; c2w: [T, 4, 4] camera-to-world (bundle adjustment), torch or numpy.
+        dynamic_masks: [T, H, W] bool (epipolar-error masks), or None: then the authors' fallback
+        classifies by
+            world-position spread (`classify_by_motion`, cfg.static_std_fallback).
+        rendered_depth: [T, H, W] video depth rendered from `video` (for the occlusion test), or
+        None (no occlusion). cfg: V2W settings; ablation: `occlusion_handling` (b) and
+        `cov_invariance` (c) switches. width, height: image size in pixels. world_scale_kind /
+        world_scale_max: the world scale activation (ModelConfig.world_scale_activation / _max).
+        occlusion_tol: relative depth tolerance of the occlusion test (see OCCLUSION_TOL).
+        frames_per_step: frames per Gaussian per refit step (`refit_scales`).
+    Returns:
+        (WorldGaussians (static first, then dynamic, each in video order), report) with report keys:
+        "num_static", "num_dynamic", "num_gaussians", "classification" ("masks" |
+        "motion_fallback"), "occlusion_used", "cov_invariance", "scale_fit" (the `refit_scales`
+        info, or the inherit-mode covariance error), "time_s" {classify, transform, scales, total};
+        and "is_dynamic": [N] bool tensor (video order) - the only non-JSON entry.
+    """
+    cfg = cfg or V2WConfig()
+    ablation = ablation or AblationConfig()
+    if width <= 0 or height <= 0:
+        raise ValueError("transform: width and height (pixels) are required")
+    if abs(cfg.fov_clamp - RASTER_FOV_CLAMP) > 1e-9:
+        raise ValueError(
+            f"V2WConfig.fov_clamp = {cfg.fov_clamp}, but the rasterizer's projection (used for "
+            "the scale refit) fixes "
+            f"{RASTER_FOV_CLAMP}"
+        )
+    t0 = time.perf_counter()
+    timings: Dict[str, float] = {}
+    ctrl_v = video.params["ctrl"].detach()
+    dtype, device = ctrl_v.dtype, ctrl_v.device
+    t_count = video.num_frames
+    times = torch.arange(t_count, dtype=dtype, device=device)
+    K_t = _as_tensor(K, ctrl_v)
+    c2w_t = _as_tensor(c2w, ctrl_v)
+    if c2w_t.shape[0] != t_count:
+        raise ValueError(
+            f"transform: c2w has {c2w_t.shape[0]} frames, the video Gaussians {t_count}"
+        )
+
+    with torch.no_grad():
+        pos_v = video.positions(times).detach()  # [N, T, 3]
+        quat_v = video.quats(times).detach()  # [N, T, 4]
+        scales_v = video.scales().detach()
+        obs = observed_frames(pos_v, width, height)
+        pos_w, quat_w = video_to_world_trajectories(pos_v, quat_v, K_t, c2w_t, width, height)
+
+        # 1. dynamic / static identification
+        tc = time.perf_counter()
+        occlusion_used = bool(
+            ablation.occlusion_handling and rendered_depth is not None and dynamic_masks is not None
+        )
+        if dynamic_masks is not None:
+            masks = torch.as_tensor(dynamic_masks).to(device=device, dtype=torch.bool)
+            depth = (
+                None
+                if rendered_depth is None
+                else torch.as_tensor(rendered_depth).to(device=device, dtype=dtype)
+            )
+            is_dyn = classify_dynamic(
+                pos_v,
+                masks,
+                depth,
+                width,
+                height,
+                cfg.dynamic_ratio,
+                ablation.occlusion_handling,
+                occlusion_tol,
+            )
+            how = "masks"
+        else:
+            is_dyn = classify_by_motion(pos_w, obs, cfg.static_std_fallback)
+            how = "motion_fallback"
+        timings["classify"] = time.perf_counter() - tc
+
+        # 2./3. positions and rotations
+        tt = time.perf_counter()
+        s_idx = torch.where(~is_dyn)[0]
+        d_idx = torch.where(is_dyn)[0]
+        w_s = _frame_weights(obs[s_idx]).to(dtype)  # [Ns, T]
+        means_s = (pos_w[s_idx] * w_s[..., None]).sum(1) / w_s.sum(1)[:, None]
+        quats_s = rot.quat_average_markley(quat_w[s_idx], w_s).to(dtype)
+
+        knots = video.knots.detach()
+        obs_d = obs[d_idx]
+        if cfg.resample == "lstsq":
+            ctrl_d = spline.resample_control_points(
+                pos_w[d_idx], times, knots, valid=obs_d, method="lstsq"
+            )
+        else:
+            ctrl_d = spline.resample_control_points(pos_w[d_idx], times, knots, method=cfg.resample)
+        degree = video.params["rot"].shape[1] - 1
+        tn = rot.normalize_time(times, t_count).to(dtype)
+    coeffs_d = rot.fit_rotation_poly(quat_w[d_idx], tn, obs_d, degree=degree)
+    if cfg.rotation_refine_steps > 0 and d_idx.numel() > 0:
+        coeffs_d = _refine_rotation_keep_best(
+            coeffs_d, quat_w[d_idx], tn, obs_d, cfg.rotation_refine_steps, cfg.rotation_refit_lr
+        )
+    timings["transform"] = time.perf_counter() - tt
+
+    # 5. scales
+    tsc = time.perf_counter()
+    with torch.no_grad():
+        # final world Gaussians along time (what stage 2 renders), seen from every camera
+        pos_final = torch.cat(
+            [means_s[:, None].expand(-1, t_count, -1), spline.evaluate(ctrl_d, knots, times)]
+        )
+        quat_final = torch.cat(
+            [
+                quats_s[:, None].expand(-1, t_count, -1),
+                rot.poly_evaluate(coeffs_d, tn, normalize=True),
+            ]
+        )
+        order = torch.cat([s_idx, d_idx])
+        means_cam, quats_cam = world_to_cameras(pos_final, quat_final, c2w_t)
+        target = video_cov2d(pos_v[order], quat_v[order], scales_v[order], width, height)
+        _, mu2d = pinhole_cov2d(
+            means_cam, quats_cam, torch.ones_like(scales_v[order]), K_t, width, height
+        )
+        in_img = (
+            (means_cam[..., 2] >= NEAR_PLANE)
+            & (mu2d[..., 0] >= 0)
+            & (mu2d[..., 0] < width)
+            & (mu2d[..., 1] >= 0)
+            & (mu2d[..., 1] < height)
+        )
+        _, _, inside_v = video_pixels(pos_v[order], width, height)
+        fit_valid = in_img & inside_v
+    if ablation.cov_invariance:
+        # initial guess: the NDC -> metric factor of the back-projection, x_c = x_ndc (W/2) z / fx,
+        # at the median depth
+        z = torch.where(
+            fit_valid, means_cam[..., 2], torch.full_like(means_cam[..., 2], float("nan"))
+        )
+        z_med = torch.nanmedian(z, dim=1).values
+        z_med = torch.where(
+            torch.isfinite(z_med),
+            z_med,
+            means_cam[..., 2].abs().median(dim=1).values.clamp_min(NEAR_PLANE),
+        )
+        init = scales_v[order] * (width / 2.0) * z_med[:, None] / K_t[0, 0]
+        raw_w, fit_info = refit_scales(
+            target,
+            means_cam,
+            quats_cam,
+            fit_valid,
+            K_t,
+            width,
+            height,
+            init,
+            scale_kind=world_scale_kind,
+            scale_max=world_scale_max,
+            steps=cfg.scale_refit_steps,
+            lr=cfg.scale_refit_lr,
+            frames_per_step=frames_per_step,
+            seed=cfg.seed,
+        )
+    else:
+        # "inherit": the same scale values, read in world units
+        raw_w = scale_inverse(scales_v[order], world_scale_kind, world_scale_max)
+        err = cov2d_fit_error(
+            target,
+            means_cam,
+            quats_cam,
+            fit_valid,
+            scale_activation(raw_w, world_scale_kind, world_scale_max),
+            K_t,
+            width,
+            height,
+        )
+        has = fit_valid.any(1)
+        fit_info = {
+            "loss_l1": float(err["l1"][has].mean()) if has.any() else 0.0,
+            "rel_err": float(err["rel"][has].mean()) if has.any() else 0.0,
+            "num_fitted": 0,
+            "steps": 0,
+        }
+    timings["scales"] = time.perf_counter() - tsc
+
+    ns = s_idx.numel()
+    opac = video.params["opacities"].detach()
+    feats = video.params["features"].detach()
+    static = {
+        "means": means_s.clone(),
+        "quats": quats_s.clone(),
+        "scales": raw_w[:ns].clone(),
+        "opacities": opac[s_idx].clone(),
+        "features": feats[s_idx].clone(),
+    }
+    dynamic = {
+        "ctrl": ctrl_d.to(dtype).clone(),
+        "rot": coeffs_d.detach().to(dtype).clone(),
+        "scales": raw_w[ns:].clone(),
+        "opacities": opac[d_idx].clone(),
+        "features": feats[d_idx].clone(),
+    }
+    world = WorldGaussians(
+        static, dynamic, knots.clone(), t_count, world_scale_kind, world_scale_max
+    )
+    timings["total"] = time.perf_counter() - t0
+    report = {
+        "num_static": int(ns),
+        "num_dynamic": int(d_idx.numel()),
+        "num_gaussians": int(ns + d_idx.numel()),
+        "classification": how,
+        "occlusion_used": occlusion_used,
+        "cov_invariance": bool(ablation.cov_invariance),
+        "scale_fit": fit_info,
+        "time_s": {k: float(v) for k, v in timings.items()},
+        "is_dynamic": is_dyn,
+    }
+    return world, report
+
+
+__all__ = [
+    "OCCLUSION_TOL",
+    "RASTER_FOV_CLAMP",
+    "video_pixels",
+    "dynamic_counts",
+    "classify_dynamic",
+    "classify_by_motion",
+    "video_to_world_trajectories",
+    "world_to_cameras",
+    "video_cov2d",
+    "pinhole_cov2d",
+    "cov2d_fit_error",
+    "refit_scales",
+    "observed_frames",
+    "transform",
+]

@@ -1,0 +1,167 @@
+"""Cubic Hermite spline (paper appendix) against hand computations, finite differences and exact
+fits."""
+
+import numpy as np
+import pytest
+import torch
+
+from m4dgs.core import spline
+
+
+def _hand_hermite(p, tk, t):
+    """Independent numpy evaluation of the appendix formula for one scalar trajectory."""
+    p = np.asarray(p, dtype=np.float64)
+    tk = np.asarray(tk, dtype=np.float64)
+    k = len(p)
+    m = np.zeros(k)
+    for i in range(k):
+        if i == 0:
+            m[i] = (p[1] - p[0]) / (tk[1] - tk[0])
+        elif i == k - 1:
+            m[i] = (p[-1] - p[-2]) / (tk[-1] - tk[-2])
+        else:
+            m[i] = 0.5 * (
+                (p[i + 1] - p[i]) / (tk[i + 1] - tk[i]) + (p[i] - p[i - 1]) / (tk[i] - tk[i - 1])
+            )
+    i = min(int(np.searchsorted(tk, t, side="right") - 1), k - 2)
+    h = tk[i + 1] - tk[i]
+    s = (t - tk[i]) / h
+    h00 = 2 * s**3 - 3 * s**2 + 1
+    h10 = s**3 - 2 * s**2 + s
+    h01 = -2 * s**3 + 3 * s**2
+    h11 = s**3 - s**2
+    return h00 * p[i] + h10 * h * m[i] + h01 * p[i + 1] + h11 * h * m[i + 1]
+
+
+def test_make_knots_grid_and_last_frame():
+    assert spline.make_knots(13, 4).tolist() == [0, 4, 8, 12]
+    assert spline.make_knots(15, 4).tolist() == [0, 4, 8, 12, 14]
+    assert spline.make_knots(5, 1).tolist() == [0, 1, 2, 3, 4]
+    assert spline.make_knots(3, 16).tolist() == [0, 2]
+    assert spline.make_knots(1, 4).tolist() == [0]
+
+
+def test_four_point_example_matches_hand_formula():
+    # worked example: p = (0, 1, 4, 2) at t = (0, 4, 8, 10) (non-uniform last knot)
+    p = [0.0, 1.0, 4.0, 2.0]
+    tk = [0.0, 4.0, 8.0, 10.0]
+    # explicit value at t = 6 (segment 1, s = 0.5): m1 = (0.25 + 0.75)/2 = 0.5, m2 = (0.75 + -1)/2 =
+    # -0.125 mu = 0.5*1 + 0.125*4*0.5 + 0.5*4 + (-0.125)*4*(-0.125) = 0.5 + 0.25 + 2 + 0.0625
+    ctrl = torch.tensor(p, dtype=torch.float64).reshape(1, 4, 1)
+    knots = torch.tensor(tk, dtype=torch.float64)
+    assert spline.evaluate(ctrl, knots, 6.0).item() == pytest.approx(2.8125, abs=1e-12)
+    ts = torch.linspace(0, 10, 41, dtype=torch.float64)
+    got = spline.evaluate(ctrl, knots, ts)[0, :, 0].numpy()
+    want = np.array([_hand_hermite(p, tk, float(t)) for t in ts])
+    np.testing.assert_allclose(got, want, atol=1e-12)
+
+
+def test_passes_through_control_points_and_shapes():
+    g = torch.Generator().manual_seed(0)
+    ctrl = torch.randn(5, 6, 3, generator=g, dtype=torch.float64)
+    knots = spline.make_knots(19, 4, dtype=torch.float64)  # [0,4,8,12,16,18]
+    out = spline.evaluate(ctrl, knots, knots)
+    assert out.shape == (5, 6, 3)
+    torch.testing.assert_close(out, ctrl, atol=1e-12, rtol=0)
+    assert spline.evaluate(ctrl, knots, 3.0).shape == (5, 3)
+    # clamped outside the range
+    torch.testing.assert_close(spline.evaluate(ctrl, knots, -2.0), ctrl[:, 0])
+    torch.testing.assert_close(spline.evaluate(ctrl, knots, 25.0), ctrl[:, -1])
+
+
+def test_c1_continuity_at_joins():
+    g = torch.Generator().manual_seed(1)
+    ctrl = torch.randn(3, 5, 2, generator=g, dtype=torch.float64)
+    knots = torch.tensor([0.0, 4.0, 8.0, 12.0, 14.0], dtype=torch.float64)
+    eps = 1e-6
+    for tj in knots[1:-1].tolist():
+        at = spline.evaluate(ctrl, knots, tj)
+        left = (at - spline.evaluate(ctrl, knots, tj - eps)) / eps
+        right = (spline.evaluate(ctrl, knots, tj + eps) - at) / eps
+        torch.testing.assert_close(left, right, atol=1e-5, rtol=0)
+        # and the value is continuous
+        torch.testing.assert_close(spline.evaluate(ctrl, knots, tj - 1e-9), at, atol=1e-7, rtol=0)
+
+
+def test_basis_matrix_matches_evaluate_and_gradients():
+    knots = spline.make_knots(11, 4, dtype=torch.float64)
+    ts = torch.linspace(0, 10, 23, dtype=torch.float64)
+    b = spline.basis_matrix(knots, ts)
+    torch.testing.assert_close(b.sum(1), torch.ones(23, dtype=torch.float64))
+    g = torch.Generator().manual_seed(2)
+    ctrl = torch.randn(4, knots.numel(), 3, generator=g, dtype=torch.float64, requires_grad=True)
+    out = spline.evaluate(ctrl, knots, ts)
+    torch.testing.assert_close(out, torch.einsum("tk,nkd->ntd", b, ctrl), atol=1e-12, rtol=0)
+    assert torch.autograd.gradcheck(lambda c: spline.evaluate(c, knots, ts), (ctrl,))
+
+
+def test_fit_recovers_known_spline_exactly():
+    g = torch.Generator().manual_seed(3)
+    t_count = 17
+    knots = spline.make_knots(t_count, 4, dtype=torch.float64)
+    times = torch.arange(t_count, dtype=torch.float64)
+    ctrl = torch.randn(50, knots.numel(), 3, generator=g, dtype=torch.float64)
+    traj = spline.evaluate(ctrl, knots, times)
+    fit = spline.fit_control_points(traj, None, times, knots, smooth=0.0, damping=0.0)
+    torch.testing.assert_close(fit, ctrl, atol=1e-8, rtol=0)
+    # with a random visibility mask that keeps >= 2 frames per segment, still exact (NaN at invalid
+    # frames ignored)
+    valid = torch.rand(50, t_count, generator=g) > 0.3
+    for s in range(knots.numel() - 1):
+        lo, hi = int(knots[s]), int(knots[s + 1])
+        valid[:, lo] = True
+        valid[:, hi] = True
+    traj_nan = traj.clone()
+    traj_nan[~valid] = float("nan")
+    fit = spline.fit_control_points(traj_nan, valid, times, knots, smooth=0.0, damping=0.0)
+    torch.testing.assert_close(fit, ctrl, atol=1e-8, rtol=0)
+
+
+def test_fit_fills_invisible_spans_linearly():
+    # linear motion observed only on frames 0..5 and 14..16: the smoothness term is zero for lines,
+    # so the fit is exact everywhere, including the hidden span and the non-uniform last knot.
+    t_count = 17
+    knots = spline.make_knots(t_count, 4)
+    times = torch.arange(t_count, dtype=torch.float32)
+    start = torch.tensor([[0.1, -0.3, 2.0], [0.5, 0.5, 1.0]])
+    vel = torch.tensor([[0.01, 0.02, -0.03], [-0.02, 0.0, 0.05]])
+    traj = start[:, None] + vel[:, None] * times[None, :, None]
+    valid = torch.zeros(2, t_count, dtype=torch.bool)
+    valid[:, :6] = True
+    valid[:, 14:] = True
+    fit = spline.fit_control_points(traj, valid, times, knots, smooth=1e-2, damping=0.0)
+    dense = spline.evaluate(fit, knots, times)
+    torch.testing.assert_close(dense, traj, atol=1e-4, rtol=0)
+    # few visible frames: one visible frame -> constant at that value; no visible frame -> zeros, no
+    # NaN
+    valid1 = torch.zeros(2, t_count, dtype=torch.bool)
+    valid1[0, 7] = True
+    fit1 = spline.fit_control_points(traj, valid1, times, knots)
+    assert torch.isfinite(fit1).all()
+    torch.testing.assert_close(
+        spline.evaluate(fit1[:1], knots, times)[0], traj[0, 7].expand(t_count, 3), atol=1e-4, rtol=0
+    )
+    assert (fit1[1] == 0).all()
+
+
+def test_fit_single_knot_and_resample():
+    traj = torch.tensor([[[1.0, 2.0, 3.0]]])
+    knots = spline.make_knots(1, 4)
+    fit = spline.fit_control_points(traj, None, torch.zeros(1), knots)
+    torch.testing.assert_close(fit, traj)
+    # resample: "sample" takes trajectory values at the knots; "lstsq" reproduces a smooth
+    # trajectory closely
+    t_count = 21
+    times = torch.arange(t_count, dtype=torch.float64)
+    knots = spline.make_knots(t_count, 4, dtype=torch.float64)
+    traj = torch.stack([torch.sin(times / 5), torch.cos(times / 7), times / 20], -1)[None]
+    samp = spline.resample_control_points(traj, times, knots, method="sample")
+    torch.testing.assert_close(samp[0], traj[0, knots.long()])
+    ls = spline.resample_control_points(traj, times, knots)
+    # least squares minimises the squared error over all samples: lower RMS than interpolating the
+    # knot samples
+    err_ls = (spline.evaluate(ls, knots, times) - traj).pow(2).mean().sqrt()
+    err_s = (spline.evaluate(samp, knots, times) - traj).pow(2).mean().sqrt()
+    assert err_ls < err_s and err_ls < 1e-2
+    with pytest.raises(ValueError):
+        spline.resample_control_points(traj, times, knots, method="nope")

@@ -1,0 +1,803 @@
+"""Tests of the eval command: score_run on a fake run, suites, job lists, tables and figures (fast,
+fakes only).
+
+The trainer API (m4dgs.training.pipeline / m4dgs.outputs.render / m4dgs.model.trained) is replaced
+by fake modules in sys.modules; every expected value is computed independently here with numpy
+(PSNR, mu-law, analytic HDR-TAE of a flicker, ...)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from eval.cli import main
+from m4dgs.clip import (
+    Cameras,
+    Clip,
+    ClipMeta,
+    ClipWriter,
+    Exposures,
+    FlowSet,
+    Split,
+    TrackSet,
+    frame_name,
+    level_name,
+)
+from m4dgs.core import io as mio
+from m4dgs.core.crf import get_crf, tonemap_ldr
+
+W, H, G = 48, 40, 7
+OBS, NOV = [0.5, 2.0], [1.0]
+# training-frame HDR renders alternate between x1 and x1.2 -> HDR-TAE = 3 (r - 1) / (r + 1)
+FLICKER = 1.2
+TRACK_OFFSET = (0.3, 0.4)  # fake induced tracks = gt + this -> EPE 0.5 px
+
+
+def _rot(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def _hdr(rng, g):
+    y, x = np.mgrid[0:H, 0:W] / 10.0
+    base = np.stack([1 + np.sin(x + 0.3 * g), 1 + np.cos(y), 1 + np.sin(x * y / 3)], -1) * 0.8
+    return (base + 0.05 * rng.random((H, W, 3))).astype(np.float32)
+
+
+def make_fake_clip(root: Path, seed: int = 0) -> Clip:
+    rng = np.random.default_rng(seed)
+    train, test = list(range(0, G, 2)), list(range(1, G, 2))
+    train_dt = [OBS[i % 2] for i in range(len(train))]
+    meta = ClipMeta(
+        name=root.name,
+        width=W,
+        height=H,
+        fps=10.0,
+        frames=list(range(G)),
+        split=Split(train, test),
+        exposures=Exposures(train_dt=train_dt, observed=OBS, novel=NOV),
+        crf="hdrnerf",
+    )
+    w = ClipWriter(root, meta)
+    crf = get_crf("hdrnerf")
+    base = _hdr(rng, 0)
+    for g in range(G):
+        # static training frames: the flicker test needs zero motion
+        hdr = base if g in train else _hdr(rng, g)
+        w.write_gt_hdr(g, hdr)
+        w.write_gt_depth(g, (2.0 + rng.random((H, W))).astype(np.float32))
+        mask = np.zeros((H, W), bool)
+        mask[10:20, 10 + g : 25 + g] = True
+        w.write_gt_dynamic_mask(g, mask)
+    for g, dt in zip(train, train_dt):
+        w.write_input_ldr(g, tonemap_ldr(base, dt, crf))
+        w.write_prior_depth(g, np.ones((H, W), np.float32))
+    for g in test:
+        for lv in OBS + NOV:
+            w.write_gt_ldr(
+                lv, g, tonemap_ldr(mio.read_exr(root / "gt/hdr" / frame_name(g, "exr")), lv, crf)
+            )
+    K = np.array([[40.0, 0, W / 2], [0, 40.0, H / 2], [0, 0, 1]])
+    c2w = np.stack(
+        [
+            np.block(
+                [
+                    [_rot(0.1 * g), np.array([[0.2 * g], [0.05 * g * g], [0.1]])],
+                    [np.zeros((1, 3)), np.ones((1, 1))],
+                ]
+            )
+            for g in range(G)
+        ]
+    )
+    w.write_gt_cameras(Cameras(np.arange(G), np.repeat(K[None], G, 0), c2w))
+    pairs = [(a, b) for a, b in zip(train[:-1], train[1:])] + [
+        (b, a) for a, b in zip(train[:-1], train[1:])
+    ]
+    w.write_gt_flow(
+        FlowSet(
+            np.array(pairs),
+            np.zeros((len(pairs), H, W, 2), np.float32),
+            np.ones((len(pairs), H, W), bool),
+        )
+    )
+    n = 40
+    tr = rng.uniform([2, 2], [W - 2, H - 2], size=(n, 1, 2)) + np.arange(G)[None, :, None] * 0.5
+    vis = np.ones((n, G), bool)
+    vis[:5, 0] = False  # not visible at the first frame: never sampled
+    w.write_gt_tracks(TrackSet(tr.astype(np.float32), vis, np.arange(G), dynamic=np.zeros(n, bool)))
+    w.write_prior_tracks(TrackSet(tr[:, train].astype(np.float32), vis[:, train], np.array(train)))
+    w.finalize()
+    return Clip.open(root)
+
+
+def make_fake_run(
+    run_dir: Path,
+    clip: Clip,
+    noise: float = 0.02,
+    seed: int = 1,
+    renders: bool = True,
+    hdr_gain: float = 1.0,
+    variant: str = "full",
+) -> dict:
+    """A finished run: run.json, status, log.jsonl, cameras (a Sim(3) copy of the gt), renders
+    (noisy gt)."""
+    rng = np.random.default_rng(seed)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    mio.write_json(
+        run_dir / "run.json",
+        {
+            "clip": str(clip.root),
+            "variant": variant,
+            "preset": "tiny",
+            "train_seconds": 120.0,
+            "num_gaussians": 1000,
+            "peak_memory_mib": 321.0,
+        },
+    )
+    mio.write_json(run_dir / "status.json", {"stage": "done", "step": 0})
+    with open(run_dir / "log.jsonl", "w") as f:
+        for st, n in (("stage1", 5), ("stage2", 5)):
+            for s in range(n):
+                f.write(
+                    json.dumps(
+                        {
+                            "stage": st,
+                            "step": s * 10,
+                            "total": 1.0 / (s + 1),
+                            "rgb": 0.5 / (s + 1),
+                            "depth": 0.1 + 0.01 * s,
+                            "num_gaussians": 100,
+                            "sec": 0.1,
+                        }
+                    )
+                    + "\n"
+                )
+    gt = clip.load_gt_cameras()
+    s, R, t = 2.0, _rot(0.7), np.array([1.0, -2.0, 0.5])
+    c2w = gt.c2w.copy()
+    c2w[:, :3, :3] = R @ gt.c2w[:, :3, :3]
+    c2w[:, :3, 3] = s * gt.c2w[:, :3, 3] @ R.T + t
+    mio.write_json(run_dir / "cameras.json", Cameras(gt.frames, gt.K, c2w).to_json())
+    truth = {"ldr": {}, "hdr": {}}
+    if not renders:
+        return truth
+    write_renders(run_dir, clip, noise, rng, hdr_gain, truth)
+    return truth
+
+
+def write_renders(run_dir, clip, noise, rng, hdr_gain, truth):
+    Rr = Path(run_dir) / "renders"
+    for i, g in enumerate(clip.train_frames):
+        h = clip.load_gt_hdr(g) * (FLICKER if i % 2 else 1.0)
+        mio.write_exr(Rr / "train/hdr" / frame_name(g, "exr"), h.astype(np.float32))
+        mio.write_png(Rr / "train/ldr" / frame_name(g, "png"), clip.load_ldr(g))
+    for g in clip.test_frames:
+        h = (clip.load_gt_hdr(g) * hdr_gain * (1 + noise * rng.standard_normal((H, W, 3)))).astype(
+            np.float32
+        )
+        h = np.maximum(h, 0)
+        mio.write_exr(Rr / "test/hdr" / frame_name(g, "exr"), h)
+        truth["hdr"][g] = h
+        mio.write_exr(
+            Rr / "test/depth" / frame_name(g, "exr"),
+            (2.5 * clip.load_gt_depth(g)).astype(np.float32),
+        )
+        for lv in OBS + NOV:
+            gt = clip.load_gt_ldr(lv, g).astype(np.int32)
+            p = np.clip(gt + rng.integers(-6, 7, gt.shape), 0, 255).astype(np.uint8)
+            mio.write_png(Rr / "test/ldr" / level_name(lv) / frame_name(g, "png"), p)
+            truth["ldr"][(lv, g)] = p
+
+
+class FakeModel:
+    """The TrainedModel interface (API.md) with known answers: the true CRF, gt tracks + a fixed
+    offset."""
+
+    def __init__(self, clip):
+        self.clip = clip
+        self.width, self.height, self.num_gaussians = clip.width, clip.height, 1000
+        self.calls = 0
+
+    def time_of(self, g):
+        return g / 10.0
+
+    def camera(self, g):
+        cams = self.clip.load_gt_cameras()
+        return cams.K[g], cams.c2w[g]
+
+    def render(self, t, c2w, K, width, height, log2_dt=None):
+        self.calls += 1
+        return {
+            "hdr": torch.zeros(height, width, 3),
+            "ldr": None,
+            "depth": torch.zeros(height, width),
+            "alpha": torch.zeros(height, width),
+        }
+
+    def tonemap_curve(self, log2_x):
+        y = get_crf("hdrnerf")(torch.exp2(log2_x.double()))
+        return y[:, None].repeat(1, 3)
+
+    def track_2d(self, uv, g0, frames):
+        ts = self.clip.load_gt_tracks()
+        uv = np.asarray(uv)
+        idx = [int(np.argmin(np.abs(ts.tracks[:, g0] - u).sum(-1))) for u in uv]
+        return torch.tensor(ts.tracks[idx][:, list(frames)] + np.array(TRACK_OFFSET))
+
+
+@pytest.fixture
+def fake_trainer(monkeypatch):
+    """Fake m4dgs.model.trained / m4dgs.outputs.render / m4dgs.training.pipeline modules; returns a
+    dict recording the calls."""
+    calls = {"render_run": [], "train": []}
+    mod = types.ModuleType("m4dgs.model.trained")
+    mod.load_model = lambda run_dir, device="cpu": FakeModel(
+        Clip.open(mio.read_json(Path(run_dir) / "run.json")["clip"])
+    )
+    rmod = types.ModuleType("m4dgs.outputs.render")
+
+    def render_run(run_dir, overwrite=False, progress=True):
+        calls["render_run"].append(str(run_dir))
+        clip = Clip.open(mio.read_json(Path(run_dir) / "run.json")["clip"])
+        write_renders(run_dir, clip, 0.02, np.random.default_rng(5), 1.0, {"ldr": {}, "hdr": {}})
+        return {}
+
+    rmod.render_run = render_run
+    pmod = types.ModuleType("m4dgs.training.pipeline")
+
+    def train(
+        clip_dir,
+        run_dir,
+        preset="small",
+        variant="full",
+        overrides=None,
+        device="auto",
+        progress=True,
+    ):
+        calls["train"].append((str(run_dir), variant, overrides))
+        run_dir = Path(run_dir)
+        make_fake_run(run_dir, Clip.open(clip_dir), seed=len(calls["train"]), variant=variant)
+        return run_dir
+
+    pmod.train = train
+    monkeypatch.setitem(sys.modules, "m4dgs.model.trained", mod)
+    monkeypatch.setitem(sys.modules, "m4dgs.outputs.render", rmod)
+    monkeypatch.setitem(sys.modules, "m4dgs.training.pipeline", pmod)
+    return calls
+
+
+# --------------------------------------------------------------------------------------------------
+def _psnr_np(p, g):
+    mse = np.mean((p.astype(np.float64) / 255 - g.astype(np.float64) / 255) ** 2)
+    return 10 * np.log10(1 / mse)
+
+
+def _mu_np(x):
+    return np.log1p(5000 * x) / np.log1p(5000)
+
+
+def test_score_run_values(tmp_path, fake_trainer):
+    from eval.score import METRIC_KEYS, score_run
+
+    clip = make_fake_clip(tmp_path / "clip")
+    run = tmp_path / "run"
+    truth = make_fake_run(run, clip)
+    m = score_run(run, fps=True)
+    assert fake_trainer["render_run"] == []  # nothing was missing
+    on_disk = json.loads((run / "metrics.json").read_text())
+    assert set(METRIC_KEYS) <= set(on_disk) and on_disk["ldr_oe_psnr"] == pytest.approx(
+        m["ldr_oe_psnr"]
+    )
+    # LDR: per image PSNR (numpy), mean over frames then levels
+    exp = {
+        lv: np.mean(
+            [_psnr_np(truth["ldr"][(lv, g)], clip.load_gt_ldr(lv, g)) for g in clip.test_frames]
+        )
+        for lv in OBS + NOV
+    }
+    assert m["ldr_oe_psnr"] == pytest.approx(np.mean([exp[lv] for lv in OBS]), abs=1e-9)
+    assert m["ldr_ne_psnr"] == pytest.approx(exp[1.0], abs=1e-9)
+    assert m["per_level"]["0.5"]["psnr"] == pytest.approx(exp[0.5], abs=1e-9)
+    assert m["per_level"]["1"]["kind"] == "novel"
+    # HDR mu-law with the GT max
+    hp = []
+    for g in clip.test_frames:
+        gt = clip.load_gt_hdr(g).astype(np.float64)
+        s = gt.max()
+        hp.append(
+            10
+            * np.log10(
+                1 / np.mean((_mu_np(np.clip(truth["hdr"][g] / s, 0, 1)) - _mu_np(gt / s)) ** 2)
+            )
+        )
+    assert m["hdr_psnr"] == pytest.approx(np.mean(hp), abs=1e-6)
+    # HDR-TAE of a global flicker with zero flow: 3 |r - 1| / (r + 1)
+    assert m["hdr_tae"] == pytest.approx(3 * (FLICKER - 1) / (FLICKER + 1), rel=1e-5)
+    # training LDR renders equal the input: capped PSNR, SSIM 1
+    assert m["ldr_train_psnr"] == 100.0 and m["ldr_train_ssim"] == pytest.approx(1.0, abs=1e-6)
+    # cameras are a Sim(3) copy of the gt; depth a scaled copy; tracks offset by 0.5 px; the true
+    # CRF
+    assert m["ate"] == pytest.approx(0, abs=1e-6) and m["rpe_rot"] == pytest.approx(0, abs=1e-3)
+    assert m["ate_ba"] is None  # no cameras_ba.json
+    assert m["depth_absrel"] == pytest.approx(0, abs=1e-6)
+    assert m["track_epe"] == pytest.approx(0.5, abs=1e-5) and m["track_delta_avg"] == pytest.approx(
+        1.0
+    )
+    assert m["track_epe_median"] == pytest.approx(0.5, abs=1e-5)
+    assert m["crf_rmse"] == pytest.approx(0, abs=1e-6)
+    # 8-bit codes
+    assert m["crf_error"] == pytest.approx(0, abs=1e-3) and "crf_error" in m["conventions"]
+    assert all(r is not None and r[0] < 1 < r[1] for r in m["crf_error_detail"]["ranges"])
+    # no LPIPS weights -> None; run.json values; FPS measured; conventions present
+    assert m["ldr_oe_lpips"] is None and m["hdr_lpips"] is None and "lpips_na" in m["conventions"]
+    assert m["train_minutes"] == pytest.approx(2.0) and m["peak_memory_mib"] == 321.0
+    assert m["fps"] > 0 and m["fps_864x480"] > 0
+    assert "hdr_mu_law" in m["conventions"] and "hdr_tae_gt_flow" in m["conventions"]
+    assert m["options"]["roundtrip"] is None and m["hdr_flip"] is None
+    assert m["dyn_hdr_psnr"] is not None and m["dyn_ldr_psnr"] is not None
+
+
+def test_score_dynamic_mask_metrics(tmp_path, fake_trainer):
+    """Epipolar masks vs gt: the fake gt mask of frame g is rows 10:20, columns 10+g:25+g; the run's
+    mask is the same box shifted 3 columns right, so precision = recall = 12/15 and IoU = 12/18
+    (analytic)."""
+    from eval.score import score_run
+
+    clip = make_fake_clip(tmp_path / "clip")
+    run = tmp_path / "run"
+    make_fake_run(run, clip)
+    m = score_run(run, fps=False, model=False)
+    assert m["mask_iou"] is None and "dyn_masks" not in m["conventions"]  # no camera_init.pt
+    masks = torch.zeros(len(clip.train_frames), H, W, dtype=torch.bool)
+    for i, g in enumerate(clip.train_frames):
+        masks[i, 10:20, 13 + g : 28 + g] = True
+    (run / "model").mkdir()
+    torch.save({"masks": masks}, run / "model" / "camera_init.pt")
+    m = score_run(run, fps=False, model=False)
+    assert m["mask_precision"] == pytest.approx(0.8) and m["mask_recall"] == pytest.approx(0.8)
+    assert m["mask_iou"] == pytest.approx(2 / 3) and "dyn_masks" in m["conventions"]
+    torch.save({"masks": masks[1:]}, run / "model" / "camera_init.pt")
+    with pytest.raises(ValueError, match="camera_init.pt: 'masks' has"):
+        score_run(run, fps=False, model=False)
+
+
+def test_score_renders_missing_and_identical(tmp_path, fake_trainer):
+    from eval.score import PSNR_CAP_DB, score_run
+
+    clip = make_fake_clip(tmp_path / "clip")
+    run = tmp_path / "run"
+    make_fake_run(run, clip, renders=False)
+    m = score_run(run, fps=False, model=False)
+    assert fake_trainer["render_run"] == [str(run)]  # rendered what was missing
+    assert (
+        m["track_epe"] is None
+        and m["fps"] is None
+        and m["crf_rmse"] is None
+        and m["crf_error"] is None
+    )
+    # identical HDR renders: PSNR capped, not inf, and valid JSON
+    for g in clip.test_frames:
+        mio.write_exr(run / "renders/test/hdr" / frame_name(g, "exr"), clip.load_gt_hdr(g))
+    m = score_run(run, fps=False, model=False)
+    assert m["hdr_psnr"] == PSNR_CAP_DB
+    json.loads(
+        (run / "metrics.json").read_text(),
+        parse_constant=lambda c: pytest.fail(f"non-standard JSON {c}"),
+    )
+
+
+def test_cli_score(tmp_path, fake_trainer):
+    clip = make_fake_clip(tmp_path / "clip")
+    run = tmp_path / "run"
+    make_fake_run(run, clip)
+    r = CliRunner().invoke(main, ["score", str(run), "--no-fps", "--roundtrip", "jpeg"])
+    assert r.exit_code == 0, r.output
+    head = json.loads(r.output.strip().splitlines()[-1])
+    assert head["ldr_oe_psnr"] > 20
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["options"]["roundtrip"] == "jpeg" and "ldr_jpeg" in m["conventions"]
+    r2 = CliRunner().invoke(main, ["score", str(run)])
+    assert r2.exit_code == 0 and "exists" in r2.output
+
+
+# --------------------------------------------------------------------------------------------------
+def test_suites_load_and_variants():
+    from eval.suite import LAYOUTS, builtin_suites, known_variants, load_eval_suite, metric_columns
+
+    names = builtin_suites()
+    assert {
+        "paper-main",
+        "paper-ablation",
+        "control-points",
+        "exposure-schedules",
+        "exposure-noise",
+        "priors",
+        "tiny",
+    } <= set(names)
+    known = known_variants()
+    reg = metric_columns()
+    for n in names:
+        s = load_eval_suite(n)
+        assert s.rows and s.tables
+        for t in s.tables:
+            keys = LAYOUTS[t.columns] if isinstance(t.columns, str) else t.columns
+            assert all(k in reg for k in keys)
+        if known is not None:
+            assert set(s.variants) <= set(known), (n, set(s.variants) - set(known))
+    abl = load_eval_suite("paper-ablation")
+    assert [r.variant for r in abl.rows] == [
+        "no-video-init",
+        "no-occlusion",
+        "no-cov-invariance",
+        "no-reproj",
+        "no-tlr",
+        "full",
+    ]
+    cp = load_eval_suite("control-points")
+    assert [r.variant for r in cp.rows] == [f"ns-{k}" for k in (1, 2, 4, 8, 16)]
+    noise = load_eval_suite("exposure-noise")
+    assert sorted(r.overrides.get("exposure.perturb_ev", 0.0) for r in noise.rows) == [
+        0.0,
+        0.25,
+        0.5,
+        0.75,
+    ]
+    sched = load_eval_suite("exposure-schedules")
+    assert {c.schedule or "alternating" for c in sched.clips.values()} == {
+        "alternating",
+        "random-order",
+        "random-values",
+    }
+    pri = load_eval_suite("priors")
+    assert {c.priors for c in pri.clips.values()} == {"oracle", "realistic", "harsh"}
+    assert {"no-depth-loss", "no-track-loss"} <= set(pri.variants)
+
+
+def test_suite_errors(tmp_path):
+    from eval.suite import SuiteError, parse_suite
+
+    base = {"name": "x", "scenes": "tiny", "rows": [{"variant": "full"}]}
+    assert parse_suite(base).rows[0].name == "full"
+    with pytest.raises(SuiteError, match="rows\\[0\\].clip"):
+        parse_suite({**base, "rows": [{"variant": "full", "clip": "nope"}]})
+    with pytest.raises(SuiteError, match="clips.a.schedule"):
+        parse_suite({**base, "clips": {"a": {"schedule": "weekly"}}})
+    with pytest.raises(SuiteError, match="duplicate"):
+        parse_suite({**base, "rows": [{"variant": "full"}, {"variant": "full"}]})
+    with pytest.raises(SuiteError, match="unknown layout"):
+        parse_suite({**base, "tables": [{"columns": "nope"}]})
+
+
+def test_list_jobs(tmp_path):
+    from eval.suite import load_eval_suite, scene_suite_names
+
+    r = CliRunner().invoke(
+        main,
+        ["run", "exposure-schedules", "--out", str(tmp_path), "--preset", "tiny", "--list-jobs"],
+    )
+    assert r.exit_code == 0, r.output
+    lines = [json.loads(x) for x in r.output.strip().splitlines()]
+    s = load_eval_suite("exposure-schedules")
+    assert len(lines) == len(s.rows) * len(scene_suite_names(s))
+    assert all(x["cmd"].startswith("python -m eval job exposure-schedules ") for x in lines)
+    assert {x["setting_id"] for x in lines} == {
+        "syn-exp-3",
+        "syn-exp-3-random-order",
+        "syn-exp-3-random-values",
+    }
+    assert len({x["run_dir"] for x in lines}) == len(lines)
+    x = lines[0]
+    assert x["clip_dir"] == str(tmp_path.resolve() / "clips" / x["setting_id"] / x["scene"])
+    assert x["run_dir"] == str(
+        tmp_path.resolve() / "runs" / "exposure-schedules" / x["scene"] / x["row"]
+    )
+
+
+# --------------------------------------------------------------------------------------------------
+SUITE_YAML = """name: t2
+description: test suite
+scenes: tiny
+rows:
+  - {name: base, label: "Baseline", variant: world-only}
+  - {name: full, label: "Ours", variant: full, overrides: {exposure.perturb_ev: 0.0}}
+tables:
+  - {title: "Main", columns: paper}
+  - {title: "Geo", columns: [ate, depth_absrel]}
+"""
+
+
+def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
+    from eval.runner import job_list, run_suite
+
+    suite = tmp_path / "t2.yaml"
+    suite.write_text(SUITE_YAML)
+    out = tmp_path / "exp"
+    jl = job_list(suite, out, "tiny")
+    assert len(jl) == 4
+    for j in {j.clip_dir for j in jl}:  # clips exist already: the runner must not regenerate them
+        make_fake_clip(Path(j), seed=len(j))
+    res = run_suite(suite, out, "tiny", score_kw={"fps": False}, progress=False, log=lambda s: None)
+    assert [r["steps"] for r in res] == [["train", "score"]] * 4
+    assert ("full" in fake_trainer["train"][1][0]) and fake_trainer["train"][1][2] == {
+        "exposure.perturb_ev": 0.0
+    }
+    res2 = run_suite(
+        suite, out, "tiny", score_kw={"fps": False}, progress=False, log=lambda s: None
+    )
+    assert [r["steps"] for r in res2] == [[]] * 4 and len(fake_trainer["train"]) == 4
+
+    # overwrite metrics with known numbers: Ours better in HDR PSNR, Baseline better in ATE
+    vals = {
+        ("tiny-lamp-box", "base"): (30.0, 0.2),
+        ("tiny-flag-arm", "base"): (32.0, 0.4),
+        ("tiny-lamp-box", "full"): (33.0, 0.5),
+        ("tiny-flag-arm", "full"): (34.0, 0.5),
+    }
+    for j in jl:
+        mp = Path(j.run_dir) / "metrics.json"
+        m = json.loads(mp.read_text())
+        m["hdr_psnr"], m["ate"] = vals[(j.scene, j.row)]
+        mio.write_json(mp, m)
+    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out)])
+    assert r.exit_code == 0, r.output
+    text = r.output
+    base_line = next(ln for ln in text.splitlines() if ln.startswith("| Baseline"))
+    ours_line = next(ln for ln in text.splitlines() if ln.startswith("| Ours"))
+    # mean over scenes
+    assert "**33.50**" in ours_line and "31.00" in base_line and "**31.00**" not in base_line
+    geo_base = [ln for ln in text.splitlines() if ln.startswith("| Baseline")][1]
+    assert "**0.3000**" in geo_base  # ATE: lower is better
+    assert "HDR PSNR/SSIM: mu-law" in text and "Means over scenes" in text  # footnotes
+    assert "LPIPS: n/a" in text
+    figs = out / "figures" / "t2"
+    for name in ("crf_tiny-lamp-box.png", "grid_tiny-lamp-box.png", "loss_tiny-flag-arm_full.png"):
+        assert (figs / name).exists() and (figs / name).stat().st_size > 1000, name
+    # a run without metrics.json: its row's means are n/a (never a mean over fewer scenes), and a
+    # note says so
+    mp = out / "runs/t2/tiny-flag-arm/base/metrics.json"
+    saved = mp.read_bytes()
+    mp.unlink()
+    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures"])
+    base_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Baseline"))
+    # 10 means and their 10 paired differences to the reference row (full) are n/a; n counts the one
+    # scored run
+    assert (
+        r.exit_code == 0
+        and base_line.count("n/a") == 20
+        and "1 of 4 runs have no metrics.json" in r.output
+    )
+    assert base_line.startswith("| Baseline | 1 | n/a | n/a |")
+    mp.write_bytes(saved)
+    # latex / csv / runs-dir forms
+    r = CliRunner().invoke(
+        main, ["table", str(suite), "--root", str(out), "--format", "latex", "--no-figures"]
+    )
+    assert r.exit_code == 0 and "\\textbf{33.50}" in r.output and "\\toprule" in r.output
+    outf = tmp_path / "t.csv"
+    r = CliRunner().invoke(
+        main,
+        ["table", str(out / "runs" / "t2"), "--format", "csv", "--out", str(outf), "--no-figures"],
+    )
+    assert r.exit_code == 0, r.output
+    rows = [ln.split(",") for ln in outf.read_text().splitlines() if ln and not ln.startswith("#")]
+    assert {rw[0] for rw in rows[1:] if rw[0] != "Method"} >= {"world-only", "full"}
+
+
+def test_job_command(tmp_path, fake_trainer):
+    suite = tmp_path / "t2.yaml"
+    suite.write_text(SUITE_YAML)
+    out = tmp_path / "exp"
+    make_fake_clip(out / "clips" / "tiny" / "tiny-flag-arm")
+    r = CliRunner().invoke(
+        main,
+        [
+            "job",
+            str(suite),
+            "--out",
+            str(out),
+            "--preset",
+            "tiny",
+            "--scene",
+            "tiny-flag-arm",
+            "--row",
+            "full",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    res = json.loads(r.output.strip().splitlines()[-1])
+    assert res["steps"] == ["train", "score"] and Path(res["metrics"]).exists()
+
+
+def test_figures_direct(tmp_path):
+    from eval.figures import crf_figure, loss_series, smooth
+
+    recs = [
+        {"stage": "stage1", "step": 0, "total": 1.0},
+        {"stage": "stage1", "step": 50, "total": 0.5},
+        {"stage": "stage2", "step": 0, "total": 0.4, "tlr": 0.0, "n_clone": 12, "static_prune": 3},
+        {"stage": "stage2", "step": 20, "total": 0.3, "num_dynamic": 5},
+    ]
+    series, off = loss_series(recs)
+    assert off == 50.0 and series["total"][0].tolist() == [0.0, 50.0, 50.0, 70.0]
+    assert set(series) == {"total"}  # zero loss (log scale) and densification counters are left out
+    y = np.random.default_rng(0).random(30)
+    ref = np.convolve(y, np.ones(5) / 5, mode="valid")  # interior of a centred running mean
+    assert np.allclose(smooth(y, 5)[2:-2], ref) and smooth(y, 5)[0] == pytest.approx(y[:3].mean())
+    z = np.linspace(-4, 4, 9)
+    p = crf_figure(
+        [
+            (
+                "a",
+                {
+                    "log2_x": z.tolist(),
+                    "learned": np.tile(z[:, None], 3).tolist(),
+                    "true": z.tolist(),
+                    "crf": "hdrnerf",
+                },
+            )
+        ],
+        tmp_path / "c.png",
+    )
+    assert p.exists() and p.stat().st_size > 1000
+    assert crf_figure([("a", None)], tmp_path / "d.png") is None
+
+
+def test_run_suite_process_pool(tmp_path, fake_trainer):
+    """jobs=2: the fake trainer modules reach the workers through fork (Linux default start
+    method)."""
+    import multiprocessing as mp
+
+    from eval.runner import job_list, run_suite
+
+    if mp.get_start_method(allow_none=True) not in (None, "fork") or sys.platform != "linux":
+        pytest.skip("needs the fork start method to pass the fake trainer to the workers")
+    suite = tmp_path / "t2.yaml"
+    suite.write_text(SUITE_YAML)
+    out = tmp_path / "exp"
+    jl = job_list(suite, out, "tiny")
+    for j in {j.clip_dir for j in jl}:
+        make_fake_clip(Path(j), seed=len(j))
+    res = run_suite(
+        suite, out, "tiny", jobs=2, score_kw={"fps": False, "model": False}, log=lambda s: None
+    )
+    assert [r["id"] for r in res] == [j.id for j in jl]
+    assert all(r["steps"] == ["train", "score"] for r in res)
+    assert all((Path(j.run_dir) / "metrics.json").exists() for j in jl)
+
+
+def test_score_with_lpips_weights(tmp_path, fake_trainer):
+    """Generated LPIPS weights: the per-level aggregation equals a direct per-image recomputation
+    (numpy mean)."""
+    from eval.metrics import lpips_metric, mu_law, save_lpips_weights
+    from eval.metrics.lpips import ALEX_CONVS, TAP_CHANNELS, LpipsWeights
+    from eval.score import score_run
+
+    g = torch.Generator().manual_seed(0)
+    conv_w = [
+        torch.randn(cout, cin, k, k, generator=g) * 0.05 for _, cin, cout, k, _, _ in ALEX_CONVS
+    ]
+    conv_b = [torch.zeros(cout) for _, _, cout, _, _, _ in ALEX_CONVS]
+    lin = [torch.rand(1, c, 1, 1, generator=g) for c in TAP_CHANNELS]
+    wpath = tmp_path / "alex_lpips.pth"
+    save_lpips_weights(LpipsWeights(conv_w, conv_b, lin), wpath)
+    clip = make_fake_clip(tmp_path / "clip")
+    run = tmp_path / "run"
+    truth = make_fake_run(run, clip)
+    m = score_run(run, lpips_weights=wpath, fps=False, model=False)
+    w = LpipsWeights(conv_w, conv_b, lin)
+    exp_ne = np.mean(
+        [
+            lpips_metric(truth["ldr"][(1.0, gg)], clip.load_gt_ldr(1.0, gg), w)
+            for gg in clip.test_frames
+        ]
+    )
+    assert m["ldr_ne_lpips"] == pytest.approx(exp_ne, rel=1e-5)
+    exp_hdr = []
+    for gg in clip.test_frames:
+        gt = clip.load_gt_hdr(gg).astype(np.float64)
+        s = gt.max()
+        exp_hdr.append(lpips_metric(mu_law(np.clip(truth["hdr"][gg] / s, 0, 1)), mu_law(gt / s), w))
+    assert m["hdr_lpips"] == pytest.approx(np.mean(exp_hdr), rel=1e-5)
+    assert (
+        m["ldr_oe_lpips"] > 0
+        and "lpips" in m["conventions"]
+        and m["options"]["lpips_weights"] == str(wpath)
+    )
+
+
+def test_score_real_clip_without_gt(tmp_path, fake_trainer):
+    """A real clip (no gt/): test-frame metrics are None, training LDR is scored, HDR-TAE falls back
+    to DIS flow."""
+    import shutil
+
+    from eval.score import score_run
+
+    clip = make_fake_clip(tmp_path / "clip")
+    run = tmp_path / "run"
+    make_fake_run(run, clip)
+    shutil.rmtree(clip.root / "gt")
+    m = score_run(run, fps=False, model=False)
+    assert (
+        m["ldr_oe_psnr"] is None
+        and m["hdr_psnr"] is None
+        and m["ate"] is None
+        and m["depth_absrel"] is None
+    )
+    assert m["ldr_train_psnr"] == 100.0  # train renders equal the input video
+    assert (
+        m["hdr_tae"] is not None
+        and math.isfinite(m["hdr_tae"])
+        and "hdr_tae_dis_flow" in m["conventions"]
+    )
+    assert m["run"]["has_gt"] is False
+
+
+def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
+    """--seeds 2: seed 0 keeps the run folders, seed 1 trains into <row>-seed-1 with seed=1 on the
+    same clips; the table pools the 2 scenes x 2 seeds with intervals and paired differences to the
+    reference row."""
+    from eval.runner import job_list, run_suite
+
+    suite = tmp_path / "t2.yaml"
+    suite.write_text(SUITE_YAML)
+    out = tmp_path / "exp"
+    for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
+        make_fake_clip(Path(j), seed=len(j))
+    r = CliRunner().invoke(
+        main,
+        ["run", str(suite), "--out", str(out), "--preset", "tiny", "--seeds", "2", "--list-jobs"],
+    )
+    assert r.exit_code == 0 and len(r.output.strip().splitlines()) == 8 and "--seed 1" in r.output
+    res = run_suite(
+        suite, out, "tiny", score_kw={"fps": False}, progress=False, log=lambda s: None, seeds=2
+    )
+    assert len(res) == 8 and len(fake_trainer["train"]) == 8
+    by_dir = {Path(d).name: ov for d, _, ov in fake_trainer["train"]}
+    assert by_dir["full"] == {"exposure.perturb_ev": 0.0} and by_dir["full-seed-1"] == {
+        "exposure.perturb_ev": 0.0,
+        "seed": 1,
+    }
+    assert by_dir["base"] is None and by_dir["base-seed-1"] == {"seed": 1}
+    # known numbers: Ours = Baseline + 1 dB HDR PSNR (+- 0.1) on every (scene, seed)
+    vals = {}
+    for j in job_list(suite, out, "tiny", seeds=2):
+        mp = Path(j.run_dir) / "metrics.json"
+        m = json.loads(mp.read_text())
+        b = 30.0 + 2.0 * (j.scene == "tiny-flag-arm") + 0.3 * j.seed
+        m["hdr_psnr"] = b + (1.0 + 0.1 * (j.seed - 0.5) if j.row == "full" else 0.0)
+        vals[(j.row, j.scene, j.seed)] = m["hdr_psnr"]
+        mio.write_json(mp, m)
+    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures"])
+    assert r.exit_code == 0, r.output
+    base_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Baseline"))
+    ours_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Ours"))
+    cells = [c.strip() for c in base_line.strip("|").split("|")]
+    assert cells[1] == "4"  # 2 scenes x 2 seeds
+    heads = [c.strip() for c in r.output.splitlines()[2].strip("|").split("|")]
+    k = heads.index("HDR PSNR↑")
+    base = [v for (row, _, _), v in vals.items() if row == "base"]
+    h = 3.182446305284263 * np.std(base, ddof=1) / 2  # t_{0.975, 3} s / sqrt(4)
+    assert cells[k] == f"{np.mean(base):.2f} ± {h:.2f}"
+    assert (
+        heads[k + 1] == "Δ HDR PSNR"
+        and cells[k + 1].startswith("-1.00 ± ")
+        and cells[k + 1].endswith("†")
+    )
+    assert "| Ours | 4 |" in ours_line and "ref" in ours_line
+    # with --seeds 1 only the seed-0 runs are tabulated
+    r1 = CliRunner().invoke(
+        main, ["table", str(suite), "--root", str(out), "--no-figures", "--seeds", "1"]
+    )
+    assert "| Baseline | 2 |" in r1.output
+    # the runs folder form: <row>-seed-<n> folders are seeds of the same row
+    r2 = CliRunner().invoke(main, ["table", str(out / "runs" / "t2"), "--no-figures"])
+    assert r2.exit_code == 0, r2.output
+    assert "| world-only | 4 |" in r2.output and "| full | 4 |" in r2.output

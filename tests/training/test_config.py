@@ -1,0 +1,160 @@
+"""Config defaults (against the paper's numbers), presets, YAML round trip, unknown keys and
+overrides."""
+
+import dataclasses
+
+import pytest
+import yaml
+
+from m4dgs.training import config
+from m4dgs.training.config import TrainConfig, apply_overrides, from_dict, preset, to_dict
+
+
+def test_paper_defaults():
+    cfg = preset("paper")
+    s1, s2 = cfg.stage1, cfg.stage2
+    # appendix "Implementation Details"
+    assert (cfg.width, cfg.height) == (864, 480)
+    assert (s1.iterations, s2.iterations) == (4000, 11000)
+    assert (s1.lambda_rgb, s1.lambda_ue, s1.lambda_dep, s1.lambda_track) == (1.0, 10.0, 1.0, 0.01)
+    assert (s1.lambda_arap, s1.lambda_vel, s1.lambda_acc, s1.lambda_tlr) == (0.01, 10.0, 10.0, 0.1)
+    assert s2.lambda_pr == 1.0 and s1.lambda_dssim == 0.2 and s1.arap_k == 5
+    assert (s1.densify.stop_iter, s1.densify.every, s1.densify.reset_every) == (3000, 200, 1000)
+    assert (
+        s2.densify_static.stop_iter,
+        s2.densify_static.every,
+        s2.densify_static.reset_every,
+    ) == (8000, 400, 2000)
+    assert (s2.densify_dynamic.every, s2.densify_dynamic.reset_every, s2.dynamic_removal_every) == (
+        200,
+        2000,
+        2000,
+    )
+    d = s1.densify
+    assert (d.grad_threshold, d.clone_split_scale, d.split_scale_factor) == (2e-4, 0.01, 1.6)
+    assert (d.prune_opacity, d.reset_opacity_value, d.max_gaussians) == (0.005, 0.01, 150_000)
+    lr = s1.lr
+    assert (lr.position_init, lr.position_final, lr.rotation, lr.scale) == (
+        1.6e-4,
+        1.6e-6,
+        1e-3,
+        5e-3,
+    )
+    assert (lr.opacity, lr.features, lr.mlp, lr.adam_eps, lr.camera_rotation) == (
+        5e-2,
+        2.5e-3,
+        5e-4,
+        1e-15,
+        3e-5,
+    )
+    assert cfg.model.control_every == 4 and cfg.model.feature_dim == 36
+    assert cfg.v2w.dynamic_ratio == 0.1 and cfg.v2w.scale_refit_steps == 1000
+    assert s2.pr_offsets == (1, 2)
+    assert all(dataclasses.asdict(cfg.ablation).values())
+    assert cfg.exposure.num_exposures is None and cfg.exposure.unit_exposure_value is None
+
+
+def test_presets_are_smaller_and_consistent():
+    tiny, small = preset("tiny"), preset("small")
+    assert (small.width, small.height) == (216, 120)
+    assert tiny.stage1.iterations + tiny.stage2.iterations <= 600
+    assert small.stage1.iterations + small.stage2.iterations < 15_000  # paper: 4K + 11K
+    for cfg in (tiny, small):
+        for d in (cfg.stage1.densify, cfg.stage2.densify_static, cfg.stage2.densify_dynamic):
+            assert 0 < d.start_iter < d.stop_iter and d.every >= 1
+        assert cfg.stage1.densify.stop_iter < cfg.stage1.iterations
+        assert cfg.stage2.densify_dynamic.stop_iter < cfg.stage2.iterations
+    # the paper preset is the paper's appendix; small uses the authors' synthetic TLR weight and
+    # reprojection window
+    assert preset("paper").stage2.lambda_tlr == 0.1 and preset("paper").stage2.pr_steps is None
+    assert small.stage1.lambda_tlr == small.stage2.lambda_tlr == 0.01
+    assert small.stage1.lambda_dep == 0.01 and preset("paper").stage1.lambda_dep == 1.0
+    assert 0 < small.stage2.pr_steps < small.stage2.iterations
+    with pytest.raises(ValueError, match="unknown preset"):
+        preset("huge")
+
+
+@pytest.mark.parametrize("name", ["tiny", "small", "paper"])
+def test_yaml_round_trip(name, tmp_path):
+    cfg = preset(name)
+    cfg = apply_overrides(cfg, {"stage2.pr_offsets": [1, 2, 3], "exposure.perturb_ev": 0.25})
+    path = tmp_path / "config.yaml"
+    config.save_yaml(cfg, path)
+    text = path.read_text()
+    data = yaml.safe_load(text)
+    assert data["stage1"]["lambda_tlr"] == cfg.stage1.lambda_tlr and data["stage2"][
+        "pr_offsets"
+    ] == [1, 2, 3]
+    assert data["stage2"]["pr_steps"] == cfg.stage2.pr_steps
+    back = config.load_yaml(path)
+    assert back == cfg
+    assert isinstance(back.stage2.pr_offsets, tuple)
+    # from a dict without the preset key: plain dataclass defaults + the given values
+    d = to_dict(cfg)
+    d.pop("preset")
+    assert from_dict(TrainConfig, d) == dataclasses.replace(cfg, preset="paper")
+
+
+def test_unknown_key_errors_name_the_path():
+    d = to_dict(preset("tiny"))
+    d["stage1"]["lamda_tlr"] = 0.0
+    with pytest.raises(KeyError, match=r"stage1\.lamda_tlr"):
+        from_dict(TrainConfig, d)
+    with pytest.raises(KeyError, match=r"stage2\.densify_static\.evry"):
+        from_dict(TrainConfig, {"stage2": {"densify_static": {"evry": 3}}})
+    with pytest.raises(KeyError, match="bogus"):
+        from_dict(TrainConfig, {"bogus": 1})
+    with pytest.raises(KeyError, match=r"stage1\.nope"):
+        apply_overrides(preset("tiny"), {"stage1.nope": 1})
+    with pytest.raises(KeyError, match=r"stagex"):
+        apply_overrides(preset("tiny"), {"stagex.lambda_tlr": 1})
+    with pytest.raises(TypeError, match=r"ablation\.tlr"):
+        apply_overrides(preset("tiny"), {"ablation.tlr": 3})
+    with pytest.raises(TypeError, match=r"stage1\.iterations"):
+        from_dict(TrainConfig, {"stage1": {"iterations": 1.5}})
+
+
+def test_apply_overrides_variants():
+    base = preset("paper")
+    v = apply_overrides(
+        base,
+        {
+            "stage1.lambda_tlr": 0,
+            "stage2.lambda_tlr": "0",  # CLI strings are parsed
+            "ablation.tlr": "false",
+            "model.control_every": 8,
+            "stage2.pr_steps": 3000,
+            "stage1.densify": {"every": 100},
+        },
+    )
+    assert v.stage1.lambda_tlr == 0.0 and isinstance(v.stage1.lambda_tlr, float)
+    assert v.stage2.lambda_tlr == 0.0 and v.ablation.tlr is False
+    assert v.model.control_every == 8 and v.stage2.pr_steps == 3000
+    assert v.stage1.densify.every == 100 and v.stage1.densify.stop_iter == 3000
+    # the original is untouched
+    assert (
+        base.stage1.lambda_tlr == 0.1
+        and base.model.control_every == 4
+        and base.stage1.densify.every == 200
+    )
+    # Optional fields accept null
+    assert apply_overrides(v, {"stage2.pr_steps": None}).stage2.pr_steps is None
+    # a dict with a preset key applies the rest on top of that preset
+    t = from_dict(TrainConfig, {"preset": "tiny", "stage1": {"lambda_vel": 1.0}})
+    assert (
+        t.width == 64
+        and t.stage1.lambda_vel == 1.0
+        and t.stage1.iterations == preset("tiny").stage1.iterations
+    )
+
+
+def test_position_lr_schedule_and_tlr_start():
+    lr = preset("paper").stage1.lr
+    assert lr.position_lr(0, 4000) == pytest.approx(1.6e-4)
+    assert lr.position_lr(4000, 4000) == pytest.approx(1.6e-6)
+    # log-linear: geometric mean
+    assert lr.position_lr(2000, 4000) == pytest.approx((1.6e-4 * 1.6e-6) ** 0.5)
+    assert lr.position_lr(9999, 4000) == pytest.approx(1.6e-6)
+    cfg = preset("paper")
+    assert cfg.stage1.tlr_start_step() == 3000 and cfg.stage2.tlr_start_step() == 8000
+    assert apply_overrides(cfg, {"stage1.tlr_start": 10}).stage1.tlr_start_step() == 10
