@@ -16,6 +16,8 @@ from pathlib import Path
 
 import click
 
+from m4dgs.core.errors import ReportingGroup
+
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
@@ -27,7 +29,7 @@ def _levels(text):
     return parse_levels(text)
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=ReportingGroup, context_settings={"help_option_names": ["-h", "--help"]})
 def main():
     """Synthetic benchmark generator for Mono4DGS-HDR (Mitsuba 3 renders, exact ground truth,
     degraded priors)."""

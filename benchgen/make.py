@@ -49,6 +49,7 @@ from m4dgs.clip import (
 )
 from m4dgs.core import io as mio
 from m4dgs.core.crf import clip_crf, tonemap_ldr
+from m4dgs.core.errors import InputError
 
 from .exposure import ExposureSettings, exposure_gap_ev, schedule_train_dt, test_levels
 from .placement import PlacementTargets, choose_hdr_scale, measure_placement
@@ -395,7 +396,7 @@ def make_clip(
     return out
 
 
-class PlacementError(ValueError):
+class PlacementError(InputError):
     """A finished clip misses its exposure-placement targets (benchgen.placement)."""
 
 

@@ -19,10 +19,12 @@ from typing import Any, List, Mapping, Optional, Sequence
 
 import yaml
 
+from m4dgs.core.errors import InputError
+
 _REQUIRED = object()
 
 
-class SpecError(ValueError):
+class SpecError(InputError):
     """A spec that does not validate. ``str(err)`` is ``"<file>: <key path>: expected <...>, got
     <...>"``."""
 

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import click
 
+from m4dgs.core.errors import ReportingGroup
+
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 DEFAULT_OUT = "experiments"
@@ -34,7 +36,7 @@ def _scenes(text):
     return None if not text else [s.strip() for s in text.split(",") if s.strip()]
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=ReportingGroup, context_settings={"help_option_names": ["-h", "--help"]})
 def main():
     """Evaluation of Mono4DGS-HDR runs: metrics, experiment suites, paper-style tables and
     figures."""

@@ -40,6 +40,8 @@ from typing import Any, Dict, List, Optional
 
 import yaml
 
+from m4dgs.core.errors import InputError
+
 SCHEDULES = ("alternating", "random-order", "random-values")
 PRIOR_PROFILES = ("oracle", "realistic", "harsh")
 DEFAULT_PRIORS = "realistic"
@@ -47,7 +49,7 @@ _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 _SEED_SUFFIX_RE = re.compile(r"-seed-[0-9]+$")
 
 
-class SuiteError(ValueError):
+class SuiteError(InputError):
     """A malformed eval suite file; the message names the file and the key."""
 
     def __init__(self, path, key: str, problem: str):

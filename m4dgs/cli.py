@@ -15,6 +15,8 @@ from pathlib import Path
 
 import click
 
+from m4dgs.core.errors import ReportingGroup
+
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 
@@ -28,7 +30,7 @@ def _parse_sets(sets):
     return out
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=ReportingGroup, context_settings={"help_option_names": ["-h", "--help"]})
 def main():
     """Mono4DGS-HDR: 4D HDR Gaussian splatting from unposed alternating-exposure monocular video."""
 

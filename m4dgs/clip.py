@@ -37,12 +37,13 @@ from typing import Any, Dict, List, Optional, Sequence
 import numpy as np
 
 from m4dgs.core import io as mio
+from m4dgs.core.errors import InputError
 
 SCHEMA_VERSION = 1
 SUPPORTED_SCHEMA_VERSIONS = (1,)
 
 
-class ClipError(ValueError):
+class ClipError(InputError):
     """A malformed clip. The message starts with the offending file and names the field."""
 
     def __init__(self, path, field_name: str, problem: str):

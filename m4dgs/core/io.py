@@ -16,8 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from m4dgs.core.errors import InputError
 
-class FileFormatError(ValueError):
+
+class FileFormatError(InputError):
     """A file exists but its content is not what the clip contract says (the message names file and
     field)."""
 

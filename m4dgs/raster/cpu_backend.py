@@ -13,6 +13,7 @@ import functools
 import os
 import shutil
 import sys
+import time
 from pathlib import Path
 
 import torch
@@ -74,6 +75,16 @@ def _load() -> tuple[object | None, str]:
         suffix, isa = _isa_flags()
         build_dir = extension_dir() / (EXT_NAME + suffix)
         build_dir.mkdir(parents=True, exist_ok=True)
+        # the first use compiles the kernel (about a minute): say so instead of sitting silent
+        first_build = not any(build_dir.glob("*.so"))
+        if first_build:
+            print(
+                f"[m4dgs] compiling the C++ rasterizer once for this torch/Python (about a minute) "
+                f"into {build_dir} ...",
+                file=sys.stderr,
+                flush=True,
+            )
+            t0 = time.perf_counter()
         module = cpp_extension.load(
             name=EXT_NAME + suffix,
             sources=[str(SOURCE)],
@@ -84,6 +95,8 @@ def _load() -> tuple[object | None, str]:
         )
     except Exception as exc:  # compiler errors, missing ninja, read-only cache, ...
         return None, f"building the C++ rasterizer failed: {type(exc).__name__}: {exc}"
+    if first_build:
+        print(f"[m4dgs] C++ rasterizer built in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
     return module, ""
 
 

@@ -1,0 +1,59 @@
+"""Every tool reports the project's own errors in one line (exit 1), usage errors through click
+(exit 2), and shows the traceback only with --debug (m4dgs.core.errors.ReportingGroup)."""
+
+from __future__ import annotations
+
+import pytest
+from click.testing import CliRunner
+
+from benchgen.cli import main as benchgen_main
+from eval.cli import main as eval_main
+from m4dgs.cli import main as m4dgs_main
+from m4dgs.clip import ClipError
+
+
+@pytest.fixture
+def not_a_clip(tmp_path):
+    d = tmp_path / "not-a-clip"
+    d.mkdir()
+    return d
+
+
+def test_data_error_is_one_line_exit_1(not_a_clip, tmp_path):
+    r = CliRunner().invoke(
+        m4dgs_main, ["train", "--clip", str(not_a_clip), "--out", str(tmp_path / "r")]
+    )
+    assert r.exit_code == 1
+    assert "Traceback" not in r.output
+    lines = [ln for ln in r.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("Error: ") and "clip.json" in lines[0]
+
+
+def test_debug_shows_the_exception(not_a_clip, tmp_path):
+    r = CliRunner().invoke(
+        m4dgs_main, ["--debug", "train", "--clip", str(not_a_clip), "--out", str(tmp_path / "r")]
+    )
+    assert r.exit_code != 0 and isinstance(r.exception, ClipError)
+
+
+def test_usage_error_exit_2(not_a_clip):
+    r = CliRunner().invoke(m4dgs_main, ["train", "--clip", str(not_a_clip), "--preset", "huge"])
+    assert r.exit_code == 2 and "huge" in r.output
+
+
+@pytest.mark.parametrize(
+    "main, args, needle",
+    [
+        (
+            benchgen_main,
+            ["make", "--suite", "/nonexistent/suite.yaml", "--out", "OUT"],
+            "suite.yaml",
+        ),
+        (eval_main, ["table", "no-such-suite"], "no-such-suite"),
+    ],
+)
+def test_other_tools_report_in_one_line(main, args, needle, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 1, r.output
+    assert "Traceback" not in r.output and needle in r.output
