@@ -33,6 +33,7 @@ from typing import List, Optional, Sequence, Tuple
 import numpy as np
 
 from m4dgs.clip import Cameras, TrackSet
+from m4dgs.core.hdr import mu_law
 
 DEFAULT_DEPTH_RTOL = 0.03
 
@@ -346,14 +347,6 @@ def sample_tracks(
 # --------------------------------------------------------------------------------------------------
 # Noise and temporal floors
 # --------------------------------------------------------------------------------------------------
-MU = 5000.0
-
-
-def mu_law(h: np.ndarray, scale: float) -> np.ndarray:
-    """T(H) = log(1 + 5000 clip(H / scale, 0, 1)) / log(5001) (metric-conventions.md)."""
-    return np.log1p(MU * np.clip(np.asarray(h, np.float64) / scale, 0.0, 1.0)) / np.log1p(MU)
-
-
 def render_noise(img_a: np.ndarray, img_b: np.ndarray, mask: Optional[np.ndarray] = None) -> dict:
     """Monte Carlo noise from two renders of the same frame with different seeds ([H, W, 3] linear
     each).
@@ -379,7 +372,7 @@ def render_noise(img_a: np.ndarray, img_b: np.ndarray, mask: Optional[np.ndarray
     ok = m > 1e-6
     rel = np.abs(a - b) / math.sqrt(2.0) / np.where(ok, m, 1.0)
     tae = (np.abs(a - b) / (a + b + 1e-10)).sum(axis=-1).mean()
-    mse = float(np.mean((mu_law(a, scale) - mu_law(b, scale)) ** 2))
+    mse = float(np.mean((mu_law(a / scale) - mu_law(b / scale)) ** 2))
     return {
         "rel_std": float(rel[ok].mean()) if ok.any() else 0.0,
         "tae_two_seeds": float(tae),

@@ -721,9 +721,9 @@ def render_clip_gt(
     out.finalize() (the caller owns clip.json)."""
     import time
 
-    from eval.metrics.temporal import depth_edges, hdr_tae_pairs, interior_visibility
     from m4dgs.clip import FlowSet, frame_name
     from m4dgs.core import io as mio
+    from m4dgs.core.temporal import depth_edges, hdr_tae_pairs, interior_visibility
 
     from .groundtruth import (
         SurfaceQueries,

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from m4dgs.clip import Clip
+from m4dgs.core.hdr import mu_law
 
 
 def summary(clip: Clip) -> dict:
@@ -45,8 +46,8 @@ def flow_to_color(flow: np.ndarray, max_mag: float = None) -> np.ndarray:
 
 
 def mu_law_view(hdr: np.ndarray) -> np.ndarray:
-    x = np.clip(hdr / max(float(hdr.max()), 1e-12), 0, 1)
-    return np.log1p(5000 * x) / np.log(5001)
+    """The HDR panel: mu-law of HDR divided by its own max."""
+    return mu_law(hdr / max(float(hdr.max()), 1e-12))
 
 
 def contact_sheet(clip: Clip, path) -> Path:

@@ -482,7 +482,7 @@ def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
         )
     text = build_tables(entries, defs, fmt, reference)
     if out_file:
-        mio._atomic_write_bytes(Path(out_file), text.encode())
+        mio.write_text_atomic(out_file, text)
         click.echo(f"wrote {out_file}", err=True)
     else:
         click.echo(text, nl=False)

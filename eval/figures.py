@@ -15,7 +15,6 @@ grids.
 from __future__ import annotations
 
 import io
-import json
 import math
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -24,6 +23,8 @@ import numpy as np
 
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
+from m4dgs.core.hdr import mu_law
+from m4dgs.run import RunDir
 
 # keys of a log.jsonl record that are not loss terms (plus densification counters, see _is_loss)
 NON_LOSS_KEYS = {
@@ -71,7 +72,7 @@ def _save(fig, path) -> Path:
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
     path = Path(path)
-    mio._atomic_write_bytes(path, buf.getvalue())
+    mio.write_bytes_atomic(path, buf.getvalue())
     return path
 
 
@@ -136,23 +137,6 @@ def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> 
 # --------------------------------------------------------------------------------------------------
 # losses
 # --------------------------------------------------------------------------------------------------
-def read_log(run_dir) -> List[dict]:
-    """Records of <run>/log.jsonl (an unparsable last line, from a killed run, is skipped)."""
-    p = Path(run_dir) / "log.jsonl"
-    if not p.exists():
-        return []
-    out = []
-    for line in p.read_text().splitlines():
-        line = line.strip()
-        if not line:
-            continue
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError:
-            continue
-    return out
-
-
 def loss_series(
     records: List[dict],
 ) -> Tuple[Dict[str, Tuple[np.ndarray, np.ndarray]], Optional[float]]:
@@ -184,7 +168,7 @@ def loss_series(
 
 def loss_figure(run_dir, out_png, title: str = "") -> Optional[Path]:
     """Loss curves of one run (every numeric loss term of log.jsonl, log scale, both stages)."""
-    series, off = loss_series(read_log(run_dir))
+    series, off = loss_series(RunDir(run_dir).read_log())
     if not series:
         return None
     plt = _plt()
@@ -220,9 +204,7 @@ def loss_figure(run_dir, out_png, title: str = "") -> Optional[Path]:
 # image grids
 # --------------------------------------------------------------------------------------------------
 def _mu(h: np.ndarray, scale: float) -> np.ndarray:
-    from eval.metrics import mu_law
-
-    return mu_law(np.clip(h / max(scale, 1e-12), 0.0, 1.0)).numpy()
+    return mu_law(np.asarray(h / max(scale, 1e-12), np.float64))
 
 
 def pick_frame_and_levels(clip: Clip) -> Tuple[int, float, Optional[float]]:

@@ -49,13 +49,42 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, Iterable, List, Optional
+from typing import Dict, Iterable, List, Optional, Tuple
 
 import numpy as np
+import torch
 
+from eval.metrics import (
+    CONVENTIONS,
+    ate,
+    crf_error,
+    depth_absrel,
+    dis_flow,
+    hdr_flip,
+    hdr_ssim,
+    hdr_t_std,
+    hdr_tae_pairs,
+    hdr_tonemap_pair,
+    load_lpips_weights,
+    lpips_metric,
+    masked_psnr,
+    measure_fps,
+    observed_exposure_range,
+    psnr_per_image,
+    pu21_psnr,
+    rpe,
+    ssim,
+    track_error,
+)
+from eval.metrics import roundtrip as ldr_roundtrip
+from eval.metrics.temporal import depth_edges, interior_visibility
 from m4dgs.clip import Cameras, Clip, frame_name, level_name
 from m4dgs.core import io as mio
+from m4dgs.core.crf import get_crf
+from m4dgs.core.device import resolve_device
+from m4dgs.run import load_torch
 
 PSNR_CAP_DB = 100.0
 CHUNK = 8  # frames per batch when scoring (bounds memory at 864x480)
@@ -90,8 +119,6 @@ SCORE_CONVENTIONS = {
 
 def all_conventions() -> Dict[str, str]:
     """eval.metrics.CONVENTIONS plus the scoring conventions of this module."""
-    from eval.metrics import CONVENTIONS
-
     return {**CONVENTIONS, **SCORE_CONVENTIONS}
 
 
@@ -183,6 +210,7 @@ def ensure_renders(run_dir, clip: Clip, progress: bool = False, device: str = "c
     render."""
     if not missing_renders(run_dir, clip):
         return False
+    # the trainer's entry points are imported when called (tests replace them in sys.modules)
     from m4dgs.outputs.render import render_run
 
     render_run(
@@ -200,9 +228,7 @@ def ensure_renders(run_dir, clip: Clip, progress: bool = False, device: str = "c
 
 
 def _ldr_pred(path: Path, rt):
-    from eval.metrics import roundtrip
-
-    return roundtrip(mio.read_png(path), rt)
+    return ldr_roundtrip(mio.read_png(path), rt)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -211,8 +237,6 @@ def _ldr_pred(path: Path, rt):
 def _score_ldr_set(preds: List[Path], gts: List, rt, lpips_w) -> dict:
     """PSNR (capped per image) / SSIM / LPIPS of rendered PNGs vs gt images (paths or arrays),
     chunked."""
-    from eval.metrics import lpips_metric, psnr_per_image, ssim
-
     ps, ss, ls = [], [], []
     for idx in _chunks(list(range(len(preds)))):
         p = np.stack([mio.read_png(preds[i]) for i in idx])
@@ -220,9 +244,7 @@ def _score_ldr_set(preds: List[Path], gts: List, rt, lpips_w) -> dict:
         ps += psnr_per_image(p, g, roundtrip_mode=rt)
         ss.append((ssim(p, g, roundtrip=rt), len(idx)))
         if lpips_w is not None:
-            from eval.metrics import roundtrip
-
-            ls.append((lpips_metric(roundtrip(p, rt), g, lpips_w), len(idx)))
+            ls.append((lpips_metric(ldr_roundtrip(p, rt), g, lpips_w), len(idx)))
     return {
         "psnr": _capped_mean(ps),
         "ssim": _weighted(ss),
@@ -235,15 +257,6 @@ def _score_hdr_set(
     preds: List[Path], gt_fn, frames: List[int], lpips_w, flip: bool, full: bool
 ) -> dict:
     """mu-law PSNR/SSIM/LPIPS (GT-max), own-max PSNR, PU21, FLIP over HDR frames, chunked."""
-    from eval.metrics import (
-        hdr_flip,
-        hdr_ssim,
-        hdr_tonemap_pair,
-        lpips_metric,
-        psnr_per_image,
-        pu21_psnr,
-    )
-
     ps, po, ss, ls, pu, fl = [], [], [], [], [], []
     for idx in _chunks(list(range(len(preds)))):
         p = np.stack([mio.read_exr(preds[i]) for i in idx])
@@ -273,8 +286,6 @@ def _score_hdr_set(
 def _tae_pairwise(frames: List[int], load, flow_fn) -> Optional[float]:
     """HDR-TAE over consecutive frames, one pair in memory at a time. flow_fn(a, b, Ha, Hb) -> (ff,
     fb, vf, vb)."""
-    from eval.metrics import hdr_tae_pairs
-
     vals, prev = [], None
     for a, b in zip(frames[:-1], frames[1:]):
         ha = prev if prev is not None else load(a)
@@ -294,14 +305,10 @@ def _tae_pairwise(frames: List[int], load, flow_fn) -> Optional[float]:
 
 
 def _dis_flows(a, b, ha, hb):
-    from eval.metrics import dis_flow
-
     return dis_flow(ha, hb), dis_flow(hb, ha), None, None
 
 
 def _cameras(run_dir: Path, clip: Clip, name: str) -> Dict[str, Optional[float]]:
-    from eval.metrics import ate, rpe
-
     p = run_dir / name
     if not p.exists() or not clip.has_gt or not (clip.root / "gt/cameras.json").exists():
         return {"ate": None, "rpe_trans": None, "rpe_rot": None}
@@ -324,8 +331,6 @@ def _mask_metrics(run_dir: Path, clip: Clip) -> Optional[Dict[str, Optional[floa
     p = run_dir / "model" / "camera_init.pt"
     if not p.exists() or not clip.has_gt or not (clip.root / "gt/masks/dynamic").is_dir():
         return None
-    from m4dgs.run import load_torch
-
     est = load_torch(p, map_location="cpu").get("masks")
     if est is None:
         return None
@@ -354,33 +359,19 @@ def _to_numpy(x) -> np.ndarray:
 
 
 def _load_model(run_dir: Path, device: str):
-    """(model, None) or (None, reason) when the trained model cannot be loaded (module or checkpoint
+    """(model, None) or (None, reason) when the trained model cannot be loaded (checkpoint
     missing)."""
-    try:
-        from m4dgs.model.trained import load_model
-    except ImportError as e:
-        return None, f"m4dgs.model.trained unavailable ({e})"
+    # the trainer's entry points are imported when called (tests replace them in sys.modules)
+    from m4dgs.model.trained import load_model
+
     try:
         return load_model(run_dir, device=device), None
     except FileNotFoundError as e:
         return None, f"no trained model ({e})"
 
 
-def _resolve_device(device: str) -> str:
-    if device != "auto":
-        return device
-    import torch
-
-    return "cuda" if torch.cuda.is_available() else "cpu"
-
-
 def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
     """Track error, learned CRF and render FPS from a loaded TrainedModel."""
-    import torch
-
-    from eval.metrics import measure_fps, track_error
-    from m4dgs.core.crf import get_crf
-
     out: dict = {}
     # learned CRF vs the true one
     z = np.linspace(*CRF_LOG2_RANGE, CRF_SAMPLES)
@@ -401,8 +392,6 @@ def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
         )
         out["crf_rmse"] = float(np.sqrt(np.mean((learned - true_rgb) ** 2)))
         if clip.has_gt and clip.train_frames:
-            from eval.metrics import crf_error, observed_exposure_range
-
             frames = (clip.load_gt_hdr(g) for g in clip.train_frames)
             ranges = observed_exposure_range(frames, clip.meta.exposures.train_dt, true_crf)
 
@@ -530,17 +519,23 @@ def score_run(
     metrics dict.
 
     Args:
-        run_dir: the run folder (DESIGN.md "Runs"). clip: clip folder (default: run.json "clip").
+        run_dir: the run folder (layout in m4dgs/run.py; docs/eval.md "eval score RUN"). clip: clip
+            folder (default: run.json "clip").
         lpips_weights: path of the LPIPS weights file (eval.metrics.lpips); None -> every *_lpips is
-        None.
+            None.
         roundtrip: None | "png" | "jpeg": 8-bit round trip of the LDR predictions (renders are PNG
-        already).
+            already).
         flip: also compute HDR-FLIP (slow: ~1 s per 864x480 frame).
         fps: time model.render at the clip resolution and at 864x480.
         tae_train_test: also HDR-TAE over all frames (train + test, DIS flow on the renders).
         device: "auto" | "cpu" | "cuda" for loading the model (tracks, CRF, FPS).
         model: load the trained model at all (tracks, CRF curve, FPS); False skips those metrics.
         write: write metrics.json.
+
+    The steps, in order (each adds metrics and the keys of the conventions it used): LDR test frames
+    per level, LDR training frames, HDR, temporal, cameras and dynamic masks, depth and dynamic
+    regions, run.json, model-based metrics; then the metrics are cleaned (NaN -> None, PSNR cap) and
+    the conventions, options and run description are attached.
     """
     t0 = time.perf_counter()
     run_dir = Path(run_dir)
@@ -549,241 +544,35 @@ def score_run(
     if roundtrip not in (None, "png", "jpeg"):
         raise ValueError(f"roundtrip must be None, 'png' or 'jpeg', got {roundtrip!r}")
     clip_obj = clip if isinstance(clip, Clip) else Clip.open(resolve_clip_dir(run_dir, clip))
-    rendered = ensure_renders(run_dir, clip_obj, progress=progress, device=_resolve_device(device))
-    lp_w = None
-    if lpips_weights is not None:
-        from eval.metrics import load_lpips_weights
-
-        lp_w = load_lpips_weights(lpips_weights)
+    dev = str(resolve_device(device))
+    rendered = ensure_renders(run_dir, clip_obj, progress=progress, device=dev)
+    job = _Job(
+        run_dir,
+        clip_obj,
+        roundtrip,
+        None if lpips_weights is None else load_lpips_weights(lpips_weights),
+    )
     conv_keys = [
         "psnr",
         "psnr_cap",
         "ssim",
         "ldr_jpeg" if roundtrip == "jpeg" else "ldr_png",
-        "lpips" if lp_w is not None else "lpips_na",
+        "lpips" if job.lpips_w is not None else "lpips_na",
     ]
     m: Dict[str, object] = {k: None for k in METRIC_KEYS}
-    ex = clip_obj.meta.exposures
-    R = run_dir / "renders"
-    has_gt = clip_obj.has_gt
-    test = clip_obj.test_frames
-    train = clip_obj.train_frames
-
-    # LDR test frames per level
-    # -------------------------------------------------------------------------------
-    per_level = {}
-    if has_gt and test:
-        for kind, levels in (("observed", ex.observed), ("novel", ex.novel)):
-            for lv in levels:
-                preds = [R / "test/ldr" / level_name(lv) / frame_name(g, "png") for g in test]
-                gts = [(lambda g=g, lv=lv: clip_obj.load_gt_ldr(lv, g)) for g in test]
-                res = _score_ldr_set(preds, gts, roundtrip, lp_w)
-                res["kind"] = kind
-                per_level[level_name(lv)] = res
-        for pre, kind in (("ldr_oe", "observed"), ("ldr_ne", "novel")):
-            lv = [v for v in per_level.values() if v["kind"] == kind]
-            if lv:
-                m[f"{pre}_psnr"] = _mean(v["psnr"] for v in lv)
-                m[f"{pre}_ssim"] = _mean(v["ssim"] for v in lv)
-                m[f"{pre}_lpips"] = _mean(v["lpips"] for v in lv) if lp_w is not None else None
-    # LDR training frames vs the input video
-    # -------------------------------------------------------------------
-    tr = _score_ldr_set(
-        [R / "train/ldr" / frame_name(g, "png") for g in train],
-        [(lambda g=g: clip_obj.load_ldr(g)) for g in train],
-        roundtrip,
-        lp_w,
-    )
-    m["ldr_train_psnr"], m["ldr_train_ssim"], m["ldr_train_lpips"] = (
-        tr["psnr"],
-        tr["ssim"],
-        tr["lpips"],
-    )
-
-    # HDR
-    # ----------------------------------------------------------------------------------------------
-    if has_gt:
-        conv_keys += ["hdr_mu_law", "hdr_mu_law_own", "pu21"]
-        if test:
-            h = _score_hdr_set(
-                [R / "test/hdr" / frame_name(g, "exr") for g in test],
-                clip_obj.load_gt_hdr,
-                test,
-                lp_w,
-                flip,
-                full=True,
-            )
-            m.update(
-                hdr_psnr=h["psnr"],
-                hdr_ssim=h["ssim"],
-                hdr_lpips=h["lpips"],
-                hdr_psnr_ownmax=h["psnr_ownmax"],
-                pu21_psnr=h["pu21_psnr"],
-                hdr_flip=h["flip"],
-            )
-            if flip:
-                conv_keys.append("hdr_flip")
-        h = _score_hdr_set(
-            [R / "train/hdr" / frame_name(g, "exr") for g in train],
-            clip_obj.load_gt_hdr,
-            train,
-            None,
-            False,
-            full=False,
-        )
-        m["hdr_train_psnr"], m["hdr_train_ssim"] = h["psnr"], h["ssim"]
-
-    # temporal
-    # ----------------------------------------------------------------------------------------------
-    def load_train(g):
-        return mio.read_exr(R / "train/hdr" / frame_name(g, "exr"))
-
-    gt_flow = has_gt and (clip_obj.root / "gt/flow.npz").exists()
-    if gt_flow:
-        fs = clip_obj.load_gt_flow()
-
-        def flows(a, b, ha, hb):
-            fab, vab = fs.get(a, b)
-            fba, vba = fs.get(b, a)
-            return fab, fba, vab, vba
-
-        m["hdr_tae"] = _tae_pairwise(train, load_train, flows)
-        conv_keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_gt_flow"]
-        if all((clip_obj.root / "gt/depth" / frame_name(g, "exr")).exists() for g in train):
-            from eval.metrics.temporal import depth_edges, interior_visibility
-
-            # the same pairs without occlusion-edge pixels (gt depth)
-            def interior_flows(a, b, ha, hb):
-                fab, fba, vab, vba = flows(a, b, ha, hb)
-                ea, eb = (
-                    depth_edges(clip_obj.load_gt_depth(a)),
-                    depth_edges(clip_obj.load_gt_depth(b)),
-                )
-                return (
-                    fab,
-                    fba,
-                    interior_visibility(vab, fab, ea, eb),
-                    interior_visibility(vba, fba, eb, ea),
-                )
-
-            m["hdr_tae_interior"] = _tae_pairwise(train, load_train, interior_flows)
-            conv_keys.append("hdr_tae_interior")
-    else:
-        m["hdr_tae"] = _tae_pairwise(train, load_train, _dis_flows)
-        conv_keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_dis_flow"]
-    if tae_train_test:
-
-        def load_any(g):
-            sub = "train" if g in set(train) else "test"
-            return mio.read_exr(R / sub / "hdr" / frame_name(g, "exr"))
-
-        allf = sorted(set(train) | set(test))
-        m["hdr_tae_train_test"] = _tae_pairwise(allf, load_any, _dis_flows)
-        conv_keys.append("hdr_tae_dis_flow")
-    from eval.metrics import hdr_t_std
-
-    means = np.array([float(load_train(g).mean()) for g in train])
-    m["hdr_t_std"] = hdr_t_std(means.reshape(-1, 1, 1, 1))
-    conv_keys.append("hdr_t_std")
-
-    # cameras
-    # ----------------------------------------------------------------------------------------------
-    cam = _cameras(run_dir, clip_obj, "cameras.json")
-    m.update(cam)
-    cba = _cameras(run_dir, clip_obj, "cameras_ba.json")
-    m.update(ate_ba=cba["ate"], rpe_trans_ba=cba["rpe_trans"], rpe_rot_ba=cba["rpe_rot"])
-    if m["ate"] is not None or m["ate_ba"] is not None:
-        conv_keys += ["ate", "rpe", "cameras_all_frames"]
-    mk = _mask_metrics(run_dir, clip_obj)
-    if mk is not None:
-        m.update(mk)
-        conv_keys.append("dyn_masks")
-
-    # depth and dynamic regions
-    # --------------------------------------------------------------------------------
-    if has_gt and test:
-        dpaths = [R / "test/depth" / frame_name(g, "exr") for g in test]
-        if all(p.exists() for p in dpaths):
-            from eval.metrics import depth_absrel
-
-            m["depth_absrel"] = depth_absrel(
-                np.stack([mio.read_exr(p) for p in dpaths]),
-                np.stack([clip_obj.load_gt_depth(g) for g in test]),
-            )
-            conv_keys.append("depth_absrel_clip")
-        if (clip_obj.root / "gt/masks/dynamic").is_dir():
-            from eval.metrics import hdr_tonemap_pair, masked_psnr
-
-            masks = {g: clip_obj.load_gt_dynamic_mask(g) for g in test}
-            if any(mk.any() for mk in masks.values()):
-                dl = []
-                for lv in ex.observed:
-                    for g in test:
-                        if masks[g].any():
-                            p = _ldr_pred(
-                                R / "test/ldr" / level_name(lv) / frame_name(g, "png"), roundtrip
-                            )
-                            dl.append(masked_psnr(p, clip_obj.load_gt_ldr(lv, g), masks[g]))
-                m["dyn_ldr_psnr"] = _capped_mean(dl)
-                dh = []
-                for g in test:
-                    if masks[g].any():
-                        tp, tg = hdr_tonemap_pair(
-                            mio.read_exr(R / "test/hdr" / frame_name(g, "exr")),
-                            clip_obj.load_gt_hdr(g),
-                        )
-                        dh.append(masked_psnr(tp, tg, masks[g]))
-                m["dyn_hdr_psnr"] = _capped_mean(dh)
-                conv_keys.append("masked")
-
-    # run.json
-    # ----------------------------------------------------------------------------------------------
+    per_level = _score_ldr_levels(job, m)
+    _score_ldr_train(job, m)
+    conv_keys += _score_hdr(job, m, flip)
+    conv_keys += _score_temporal(job, m, tae_train_test)
+    conv_keys += _score_cameras_and_masks(job, m)
+    conv_keys += _score_depth_and_dynamic(job, m)
     info = read_run_info(run_dir)
-    if info.get("train_seconds") is not None:
-        m["train_seconds"] = float(info["train_seconds"])
-        m["train_minutes"] = float(info["train_seconds"]) / 60.0
-    for k in ("num_gaussians", "peak_memory_mib"):
-        if info.get(k) is not None:
-            m[k] = float(info[k])
-    if info.get("peak_memory_mib") is not None:
-        conv_keys.append("peak_mem")
-
-    # model-based metrics
-    # ----------------------------------------------------------------------------------------
+    conv_keys += _run_info_metrics(info, m)
     model_note = "not loaded (model=False)"
     if model:
-        dev = _resolve_device(device)
-        mdl, why = _load_model(run_dir, dev)
-        if mdl is None:
-            model_note = why
-        else:
-            model_note = "loaded"
-            mm = _model_metrics(mdl, clip_obj, fps, dev)
-            if m["num_gaussians"] is None and getattr(mdl, "num_gaussians", None) is not None:
-                m["num_gaussians"] = float(mdl.num_gaussians)
-            m["crf_curve"] = mm.pop("crf_curve")
-            if "crf_error_detail" in mm:
-                m["crf_error_detail"] = mm.pop("crf_error_detail")
-            m.update(mm)
-            conv_keys.append("crf_rmse")
-            if mm.get("crf_error") is not None:
-                conv_keys.append("crf_error")
-            if mm.get("track_epe") is not None:
-                conv_keys += ["track", "track_first_frame"]
-            if fps:
-                conv_keys.append("fps")
-
-    # finish
-    # ----------------------------------------------------------------------------------------------
-    for k in METRIC_KEYS:
-        m[k] = _clean(m[k])
-    m["per_level"] = {
-        k: {kk: (_clean(vv) if kk not in ("kind", "frames") else vv) for kk, vv in v.items()}
-        for k, v in per_level.items()
-    }
-    allc = all_conventions()
-    m["conventions"] = {k: allc[k] for k in dict.fromkeys(conv_keys)}
-    m["ldr_convention"] = "ldr_jpeg" if roundtrip == "jpeg" else "ldr_png"
+        model_note, keys = _score_model(job, m, fps, dev)
+        conv_keys += keys
+    _finish(m, per_level, conv_keys, roundtrip)
     m["options"] = {
         "roundtrip": roundtrip,
         "lpips_weights": None if lpips_weights is None else str(Path(lpips_weights).resolve()),
@@ -799,9 +588,261 @@ def score_run(
         "preset": info.get("preset"),
         "clip": str(clip_obj.root),
         "clip_name": clip_obj.meta.name,
-        "has_gt": has_gt,
+        "has_gt": clip_obj.has_gt,
     }
     m["score_seconds"] = round(time.perf_counter() - t0, 3)
     if write:
         mio.write_json(run_dir / "metrics.json", m)
     return m
+
+
+# --------------------------------------------------------------------------------------------------
+# the steps of score_run (each fills its keys of the metrics dict `m` and returns the convention
+# keys it used)
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class _Job:
+    """What every step of score_run reads: the run, its clip, the LDR round trip, LPIPS weights."""
+
+    run_dir: Path
+    clip: Clip
+    roundtrip: Optional[str]
+    lpips_w: Optional[object]
+
+    @property
+    def renders(self) -> Path:
+        return self.run_dir / "renders"
+
+    def render(self, sub: str, g: int, ext: str) -> Path:
+        """renders/<sub>/<g>.<ext> (sub e.g. "train/hdr", "test/ldr/<level>")."""
+        return self.renders / sub / frame_name(g, ext)
+
+    def load_train_hdr(self, g: int) -> np.ndarray:
+        return mio.read_exr(self.render("train/hdr", g, "exr"))
+
+
+def _score_ldr_levels(job: _Job, m: dict) -> dict:
+    """LDR test frames at every observed and novel level: ldr_oe_* / ldr_ne_* (mean over levels);
+    returns the per-level results."""
+    clip, test = job.clip, job.clip.test_frames
+    ex = clip.meta.exposures
+    per_level = {}
+    if not (clip.has_gt and test):
+        return per_level
+    for kind, levels in (("observed", ex.observed), ("novel", ex.novel)):
+        for lv in levels:
+            preds = [job.render(f"test/ldr/{level_name(lv)}", g, "png") for g in test]
+            gts = [(lambda g=g, lv=lv: clip.load_gt_ldr(lv, g)) for g in test]
+            res = _score_ldr_set(preds, gts, job.roundtrip, job.lpips_w)
+            res["kind"] = kind
+            per_level[level_name(lv)] = res
+    for pre, kind in (("ldr_oe", "observed"), ("ldr_ne", "novel")):
+        lv = [v for v in per_level.values() if v["kind"] == kind]
+        if lv:
+            m[f"{pre}_psnr"] = _mean(v["psnr"] for v in lv)
+            m[f"{pre}_ssim"] = _mean(v["ssim"] for v in lv)
+            m[f"{pre}_lpips"] = _mean(v["lpips"] for v in lv) if job.lpips_w is not None else None
+    return per_level
+
+
+def _score_ldr_train(job: _Job, m: dict) -> None:
+    """LDR training frames against the input video (ldr_train_*)."""
+    train = job.clip.train_frames
+    tr = _score_ldr_set(
+        [job.render("train/ldr", g, "png") for g in train],
+        [(lambda g=g: job.clip.load_ldr(g)) for g in train],
+        job.roundtrip,
+        job.lpips_w,
+    )
+    m["ldr_train_psnr"], m["ldr_train_ssim"], m["ldr_train_lpips"] = (
+        tr["psnr"],
+        tr["ssim"],
+        tr["lpips"],
+    )
+
+
+def _score_hdr(job: _Job, m: dict, flip: bool) -> List[str]:
+    """HDR test frames (mu-law PSNR/SSIM/LPIPS, own-max PSNR, PU21, FLIP) and training frames."""
+    clip = job.clip
+    if not clip.has_gt:
+        return []
+    keys = ["hdr_mu_law", "hdr_mu_law_own", "pu21"]
+    test, train = clip.test_frames, clip.train_frames
+    if test:
+        h = _score_hdr_set(
+            [job.render("test/hdr", g, "exr") for g in test],
+            clip.load_gt_hdr,
+            test,
+            job.lpips_w,
+            flip,
+            full=True,
+        )
+        m.update(
+            hdr_psnr=h["psnr"],
+            hdr_ssim=h["ssim"],
+            hdr_lpips=h["lpips"],
+            hdr_psnr_ownmax=h["psnr_ownmax"],
+            pu21_psnr=h["pu21_psnr"],
+            hdr_flip=h["flip"],
+        )
+        if flip:
+            keys.append("hdr_flip")
+    h = _score_hdr_set(
+        [job.render("train/hdr", g, "exr") for g in train],
+        clip.load_gt_hdr,
+        train,
+        None,
+        False,
+        full=False,
+    )
+    m["hdr_train_psnr"], m["hdr_train_ssim"] = h["psnr"], h["ssim"]
+    return keys
+
+
+def _score_temporal(job: _Job, m: dict, tae_train_test: bool) -> List[str]:
+    """HDR-TAE of the training renders (gt flow and visibility, or DIS flow without them), its
+    interior variant (gt depth), optionally over all frames, and HDR_T_std."""
+    clip, train, test = job.clip, job.clip.train_frames, job.clip.test_frames
+    keys: List[str] = []
+    gt_flow = clip.has_gt and (clip.root / "gt/flow.npz").exists()
+    if gt_flow:
+        fs = clip.load_gt_flow()
+
+        def flows(a, b, ha, hb):
+            fab, vab = fs.get(a, b)
+            fba, vba = fs.get(b, a)
+            return fab, fba, vab, vba
+
+        m["hdr_tae"] = _tae_pairwise(train, job.load_train_hdr, flows)
+        keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_gt_flow"]
+        if all((clip.root / "gt/depth" / frame_name(g, "exr")).exists() for g in train):
+            # the same pairs without occlusion-edge pixels (gt depth)
+            def interior_flows(a, b, ha, hb):
+                fab, fba, vab, vba = flows(a, b, ha, hb)
+                ea, eb = depth_edges(clip.load_gt_depth(a)), depth_edges(clip.load_gt_depth(b))
+                return (
+                    fab,
+                    fba,
+                    interior_visibility(vab, fab, ea, eb),
+                    interior_visibility(vba, fba, eb, ea),
+                )
+
+            m["hdr_tae_interior"] = _tae_pairwise(train, job.load_train_hdr, interior_flows)
+            keys.append("hdr_tae_interior")
+    else:
+        m["hdr_tae"] = _tae_pairwise(train, job.load_train_hdr, _dis_flows)
+        keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_dis_flow"]
+    if tae_train_test:
+
+        def load_any(g):
+            sub = "train" if g in set(train) else "test"
+            return mio.read_exr(job.render(f"{sub}/hdr", g, "exr"))
+
+        allf = sorted(set(train) | set(test))
+        m["hdr_tae_train_test"] = _tae_pairwise(allf, load_any, _dis_flows)
+        keys.append("hdr_tae_dis_flow")
+    means = np.array([float(job.load_train_hdr(g).mean()) for g in train])
+    m["hdr_t_std"] = hdr_t_std(means.reshape(-1, 1, 1, 1))
+    keys.append("hdr_t_std")
+    return keys
+
+
+def _score_cameras_and_masks(job: _Job, m: dict) -> List[str]:
+    """ATE / RPE of the refined (cameras.json) and bundle-adjusted (cameras_ba.json) cameras, and
+    the run's dynamic masks against the gt ones."""
+    keys: List[str] = []
+    m.update(_cameras(job.run_dir, job.clip, "cameras.json"))
+    cba = _cameras(job.run_dir, job.clip, "cameras_ba.json")
+    m.update(ate_ba=cba["ate"], rpe_trans_ba=cba["rpe_trans"], rpe_rot_ba=cba["rpe_rot"])
+    if m["ate"] is not None or m["ate_ba"] is not None:
+        keys += ["ate", "rpe", "cameras_all_frames"]
+    mk = _mask_metrics(job.run_dir, job.clip)
+    if mk is not None:
+        m.update(mk)
+        keys.append("dyn_masks")
+    return keys
+
+
+def _score_depth_and_dynamic(job: _Job, m: dict) -> List[str]:
+    """depth_absrel of the test depth renders, and PSNR over the gt dynamic-mask pixels of the test
+    frames (dyn_ldr_psnr at the observed levels, dyn_hdr_psnr mu-law)."""
+    clip, test = job.clip, job.clip.test_frames
+    keys: List[str] = []
+    if not (clip.has_gt and test):
+        return keys
+    dpaths = [job.render("test/depth", g, "exr") for g in test]
+    if all(p.exists() for p in dpaths):
+        m["depth_absrel"] = depth_absrel(
+            np.stack([mio.read_exr(p) for p in dpaths]),
+            np.stack([clip.load_gt_depth(g) for g in test]),
+        )
+        keys.append("depth_absrel_clip")
+    if not (clip.root / "gt/masks/dynamic").is_dir():
+        return keys
+    masks = {g: clip.load_gt_dynamic_mask(g) for g in test}
+    if not any(mk.any() for mk in masks.values()):
+        return keys
+    moving = [g for g in test if masks[g].any()]
+    dl = []
+    for lv in clip.meta.exposures.observed:
+        for g in moving:
+            p = _ldr_pred(job.render(f"test/ldr/{level_name(lv)}", g, "png"), job.roundtrip)
+            dl.append(masked_psnr(p, clip.load_gt_ldr(lv, g), masks[g]))
+    m["dyn_ldr_psnr"] = _capped_mean(dl)
+    dh = []
+    for g in moving:
+        tp, tg = hdr_tonemap_pair(
+            mio.read_exr(job.render("test/hdr", g, "exr")), clip.load_gt_hdr(g)
+        )
+        dh.append(masked_psnr(tp, tg, masks[g]))
+    m["dyn_hdr_psnr"] = _capped_mean(dh)
+    keys.append("masked")
+    return keys
+
+
+def _run_info_metrics(info: dict, m: dict) -> List[str]:
+    """train_seconds / train_minutes, num_gaussians and peak_memory_mib from run.json."""
+    if info.get("train_seconds") is not None:
+        m["train_seconds"] = float(info["train_seconds"])
+        m["train_minutes"] = float(info["train_seconds"]) / 60.0
+    for k in ("num_gaussians", "peak_memory_mib"):
+        if info.get(k) is not None:
+            m[k] = float(info[k])
+    return ["peak_mem"] if info.get("peak_memory_mib") is not None else []
+
+
+def _score_model(job: _Job, m: dict, fps: bool, device: str) -> Tuple[str, List[str]]:
+    """Track error, learned CRF and render FPS from the trained model; returns (what happened to the
+    model, convention keys)."""
+    mdl, why = _load_model(job.run_dir, device)
+    if mdl is None:
+        return why, []
+    keys: List[str] = []
+    mm = _model_metrics(mdl, job.clip, fps, device)
+    if m["num_gaussians"] is None and getattr(mdl, "num_gaussians", None) is not None:
+        m["num_gaussians"] = float(mdl.num_gaussians)
+    m["crf_curve"] = mm.pop("crf_curve")
+    if "crf_error_detail" in mm:
+        m["crf_error_detail"] = mm.pop("crf_error_detail")
+    m.update(mm)
+    keys.append("crf_rmse")
+    if mm.get("crf_error") is not None:
+        keys.append("crf_error")
+    if mm.get("track_epe") is not None:
+        keys += ["track", "track_first_frame"]
+    if fps:
+        keys.append("fps")
+    return "loaded", keys
+
+
+def _finish(m: dict, per_level: dict, conv_keys: List[str], roundtrip: Optional[str]) -> None:
+    """JSON-safe metric values, the per-level table, and the conventions used (first-use order)."""
+    for k in METRIC_KEYS:
+        m[k] = _clean(m[k])
+    m["per_level"] = {
+        k: {kk: (_clean(vv) if kk not in ("kind", "frames") else vv) for kk, vv in v.items()}
+        for k, v in per_level.items()
+    }
+    allc = all_conventions()
+    m["conventions"] = {k: allc[k] for k in dict.fromkeys(conv_keys)}
+    m["ldr_convention"] = "ldr_jpeg" if roundtrip == "jpeg" else "ldr_png"

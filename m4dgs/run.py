@@ -1,5 +1,5 @@
-"""The run folder (DESIGN.md "Runs"): resolved config, JSON-lines log, checkpoints, status; all
-writes atomic.
+"""The run folder: resolved config, JSON-lines log, checkpoints, status; all writes atomic. The
+layout is below; docs/method.md lists the trainer phases that fill it, docs/outputs.md the renders.
 
 <run>/
   config.yaml            fully resolved configuration (written once; a resumed run must match it)
@@ -18,7 +18,7 @@ import json
 import os
 import time
 from pathlib import Path
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
 import torch
 import yaml
@@ -30,7 +30,7 @@ def save_torch(path, obj: Any) -> None:
     """torch.save to a temporary file, then rename: a crash never leaves a truncated checkpoint."""
     buf = _io.BytesIO()
     torch.save(obj, buf)
-    mio._atomic_write_bytes(Path(path), buf.getvalue())
+    mio.write_bytes_atomic(path, buf.getvalue())
 
 
 def load_torch(path, map_location="cpu") -> Any:
@@ -57,7 +57,7 @@ class RunDir:
     # -- config
     # ----------------------------------------------------------------------------------------------
     def write_config(self, cfg: Dict[str, Any]) -> None:
-        mio._atomic_write_bytes(self.config_path, yaml.safe_dump(cfg, sort_keys=False).encode())
+        mio.write_text_atomic(self.config_path, yaml.safe_dump(cfg, sort_keys=False))
 
     def read_config(self) -> Optional[Dict[str, Any]]:
         if not self.config_path.exists():
@@ -90,7 +90,9 @@ class RunDir:
             f.flush()
             os.fsync(f.fileno())
 
-    def read_log(self):
+    def read_log(self) -> List[Dict[str, Any]]:
+        """Records of log.jsonl in order ([] without a log); blank lines and an unparsable line (the
+        torn last line of a killed run) are skipped."""
         p = self.root / "log.jsonl"
         if not p.exists():
             return []
@@ -109,6 +111,4 @@ class RunDir:
         recs = [
             r for r in self.read_log() if not (r.get("stage") == stage and r.get("step", -1) > step)
         ]
-        mio._atomic_write_bytes(
-            self.root / "log.jsonl", "".join(json.dumps(r) + "\n" for r in recs).encode()
-        )
+        mio.write_text_atomic(self.root / "log.jsonl", "".join(json.dumps(r) + "\n" for r in recs))

@@ -20,7 +20,7 @@ from .image import (
 )
 from .lpips import LpipsWeights, load_lpips_weights, save_lpips_weights
 from .lpips import lpips as lpips_metric
-from .perf import measure_fps, peak_memory_mib
+from .perf import measure_fps, measure_peak_memory_mib
 from .temporal import dis_flow, dis_flow_sequence, hdr_t_std, hdr_tae, hdr_tae_pairs, tonemap_8bit
 
 CONVENTIONS: dict[str, str] = {}
@@ -54,9 +54,9 @@ __all__ = [
     "masked_psnr",
     "masked_ssim",
     "measure_fps",
+    "measure_peak_memory_mib",
     "mu_law",
     "observed_exposure_range",
-    "peak_memory_mib",
     "perf",
     "psnr",
     "psnr_per_image",

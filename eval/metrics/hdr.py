@@ -16,16 +16,15 @@ Conventions (docs/metrics.md; shared/notes/metric-conventions.md):
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 
+from m4dgs.core.hdr import MU
+from m4dgs.core.hdr import mu_law as _mu_law
 from m4dgs.core.ssim import ssim as _ssim
 
 from ._util import as_tensor, batched, check_pair, psnr_from_mse
 
-MU = 5000.0
 PU21_BANDING_GLARE = (
     0.353487901,
     0.3734658629,
@@ -56,9 +55,9 @@ CONVENTIONS = {
 
 
 def mu_law(x, mu: float = MU) -> torch.Tensor:
-    """mu-law tone curve log(1 + mu x) / log(1 + mu) of x (expected in [0, 1]); float64 tensor."""
-    x = as_tensor(x, uint8_scale=False)
-    return torch.log1p(mu * x) / math.log1p(mu)
+    """mu-law tone curve log(1 + mu x) / log(1 + mu) of x clipped to [0, 1] (m4dgs.core.hdr), as a
+    float64 tensor whatever the input (numpy, torch, list)."""
+    return _mu_law(as_tensor(x, uint8_scale=False), mu)
 
 
 def _normalise(

@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from m4dgs.core.io import atomic_target
+
 from ._util import as_tensor, batched, check_pair
 
 # (torchvision index, in channels, out channels, kernel, stride, padding)
@@ -140,10 +142,8 @@ def load_lpips_weights(path: str | os.PathLike) -> LpipsWeights:
 def save_lpips_weights(weights: LpipsWeights, path: str | os.PathLike) -> None:
     """Write weights in the torchvision + lpips layout (atomic: temp file in the same folder, then
     os.replace)."""
-    path = os.fspath(path)
-    tmp = f"{path}.tmp{os.getpid()}"
-    torch.save(weights.state_dict(), tmp)
-    os.replace(tmp, path)
+    with atomic_target(path, ".pth") as tmp:
+        torch.save(weights.state_dict(), tmp)
 
 
 def alexnet_taps(x: torch.Tensor, w: LpipsWeights) -> list[torch.Tensor]:

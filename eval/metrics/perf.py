@@ -1,5 +1,5 @@
 """Rendering speed and memory: FPS of a render callable (with warm-up and device synchronisation),
-peak memory.
+peak memory of a call (the device helpers are m4dgs.core.device's).
 
 Convention: FPS = iterations / wall time of `iters` calls after `warmup` untimed calls, the device
 synchronised before starting and after finishing the clock (CUDA kernels are asynchronous). The
@@ -10,18 +10,13 @@ from __future__ import annotations
 import time
 from typing import Callable
 
-import torch
+from m4dgs.core.device import is_cuda, peak_memory_mib, reset_peak_memory, synchronize
 
 CONVENTIONS = {
     "fps": "FPS: renders per second after warm-up, device synchronised, at the stated resolution",
     "peak_mem": "Peak memory: torch.cuda.max_memory_allocated during the call (GPU), process max "
     "RSS (CPU)",
 }
-
-
-def _sync(device) -> None:
-    if device is not None and torch.device(device).type == "cuda" and torch.cuda.is_available():
-        torch.cuda.synchronize(torch.device(device))
 
 
 def measure_fps(
@@ -47,34 +42,25 @@ def measure_fps(
         raise ValueError("measure_fps: iters must be >= 1")
     for _ in range(warmup):
         render()
-    _sync(device)
+    synchronize(device)
     t0 = clock()
     for _ in range(iters):
         render()
-    _sync(device)
+    synchronize(device)
     dt = clock() - t0
     fps = iters / dt if dt > 0 else float("inf")
     return {"fps": fps, "ms_per_frame": 1000.0 * dt / iters, "iters": iters, "seconds": dt}
 
 
-def peak_memory_mib(fn: Callable[[], object], *, device=None) -> float | None:
-    """Peak memory while running `fn` once, in MiB.
+def measure_peak_memory_mib(fn: Callable[[], object], *, device=None) -> float | None:
+    """Peak memory while running `fn` once, in MiB (m4dgs.core.device.peak_memory_mib).
 
     On CUDA: torch.cuda.max_memory_allocated after a reset of the peak statistics (allocator memory
     only). On CPU: the process's maximum resident set size (ru_maxrss; a lifetime high-water mark,
     not specific to `fn`), or None where the resource module is unavailable."""
-    if device is not None and torch.device(device).type == "cuda" and torch.cuda.is_available():
-        dev = torch.device(device)
-        torch.cuda.synchronize(dev)
-        torch.cuda.reset_peak_memory_stats(dev)
-        fn()
-        torch.cuda.synchronize(dev)
-        return torch.cuda.max_memory_allocated(dev) / 2**20
+    dev = device if is_cuda(device) else None
+    synchronize(dev)
+    reset_peak_memory(dev)
     fn()
-    try:
-        import resource
-        import sys
-    except ImportError:  # pragma: no cover - non-POSIX
-        return None
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return rss / 2**20 if sys.platform == "darwin" else rss / 1024.0
+    synchronize(dev)
+    return peak_memory_mib(dev)

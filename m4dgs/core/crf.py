@@ -77,6 +77,8 @@ from typing import Callable, Dict, Optional, Sequence, Union
 import numpy as np
 import torch
 
+from m4dgs.core.hdr import MU, mu_law, mu_law_inverse
+
 ArrayLike = Union[np.ndarray, torch.Tensor, float]
 
 #: exponent of the display gamma used by the hdrnerf and gamma curves
@@ -100,10 +102,6 @@ def _clip(x, lo, hi):
 
 def _where(c, a, b):
     return torch.where(c, a, b) if _is_torch(c) else np.where(c, a, b)
-
-
-def _log1p(x):
-    return torch.log1p(x) if _is_torch(x) else np.log1p(x)
 
 
 def _expm1(x):
@@ -258,17 +256,6 @@ def _srgb_f(x):
 def _srgb_inv(y):
     hi = ((_clip(y, 0.04045, 1.0) + 0.055) / 1.055) ** 2.4
     return _where(y <= 0.04045, y / 12.92, hi)
-
-
-MULOG_MU = 5000.0
-
-
-def _mulog_f(x):
-    return _log1p(MULOG_MU * _clip(x, 0.0, 1.0)) / math.log1p(MULOG_MU)
-
-
-def _mulog_inv(y):
-    return _expm1(y * math.log1p(MULOG_MU)) / MULOG_MU
 
 
 def _linear_f(x):
@@ -479,9 +466,9 @@ register_crf(CRF("srgb", _srgb_f, _srgb_inv, "sRGB OETF of clip(x, 0, 1)"))
 register_crf(
     CRF(
         "mulog",
-        _mulog_f,
-        _mulog_inv,
-        f"log(1 + {MULOG_MU:g} clip(x, 0, 1)) / log(1 + {MULOG_MU:g})",
+        mu_law,  # m4dgs.core.hdr: the metrics' mu-law curve as a response
+        mu_law_inverse,
+        f"log(1 + {MU:g} clip(x, 0, 1)) / log(1 + {MU:g})",
     )
 )
 register_crf(CRF("linear", _linear_f, _linear_inv, "clip(x, 0, 1)"))

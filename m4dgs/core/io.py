@@ -11,8 +11,9 @@ import io as _io
 import json
 import os
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -30,42 +31,39 @@ def _umask() -> int:
     return mask
 
 
-def _publish(tmp: str, path: Path) -> None:
-    """Give the temporary file normal permissions (mkstemp makes it 0600) and rename it into
-    place."""
-    os.chmod(tmp, 0o666 & ~_umask())
-    os.replace(tmp, path)
+@contextmanager
+def atomic_target(path, suffix: str = ".tmp") -> Iterator[Path]:
+    """The one atomic-write mechanism: yield a temporary path beside `path` (same folder, so the
+    rename cannot cross file systems; named `.<name>.<random><suffix>`, so format-sniffing writers
+    see the right extension); on normal exit the file gets normal permissions (mkstemp makes it
+    0600) and is renamed onto `path` (os.replace), on an exception it is removed and `path` is
+    untouched. Creates the parent folder."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
 
 
 def write_bytes_atomic(path, data: bytes) -> None:
     """Write bytes to `path` atomically (temporary file in the same folder, then rename)."""
-    _atomic_write_bytes(Path(path), data)
+    with atomic_target(path) as tmp:
+        tmp.write_bytes(data)
 
 
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        _publish(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def _atomic_tmp(path: Path, suffix: str) -> str:
-    """A temporary file name beside `path` (for writers that need a file name rather than bytes)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    return tmp
+def write_text_atomic(path, text: str) -> None:
+    """Write UTF-8 text to `path` atomically (`write_bytes_atomic`)."""
+    write_bytes_atomic(path, text.encode())
 
 
 def write_json(path, obj: Any) -> None:
-    _atomic_write_bytes(Path(path), (json.dumps(obj, indent=2, sort_keys=False) + "\n").encode())
+    write_bytes_atomic(path, (json.dumps(obj, indent=2, sort_keys=False) + "\n").encode())
 
 
 def read_json(path) -> Any:
@@ -83,7 +81,7 @@ def write_npz(path, compressed: bool = True, **arrays) -> None:
     (np.savez_compressed if compressed else np.savez)(
         buf, **{k: np.ascontiguousarray(v) for k, v in arrays.items()}
     )
-    _atomic_write_bytes(Path(path), buf.getvalue())
+    write_bytes_atomic(path, buf.getvalue())
 
 
 def read_npz(path) -> dict:
@@ -113,14 +111,8 @@ def write_exr(path, image: np.ndarray) -> None:
     else:
         raise ValueError(f"write_exr({path}): expected [H, W] or [H, W, C], got shape {img.shape}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    tmp = _atomic_tmp(path, ".exr")
-    try:
-        OpenEXR.File(header, channels).write(tmp)
-        _publish(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_target(path, ".exr") as tmp:
+        OpenEXR.File(header, channels).write(str(tmp))
 
 
 def read_exr(path) -> np.ndarray:
@@ -160,7 +152,7 @@ def write_png(path, image: np.ndarray) -> None:
         img = np.clip(np.round(img.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
     buf = _io.BytesIO()
     Image.fromarray(np.ascontiguousarray(img)).save(buf, format="PNG")
-    _atomic_write_bytes(Path(path), buf.getvalue())
+    write_bytes_atomic(path, buf.getvalue())
 
 
 def read_png(path) -> np.ndarray:

@@ -51,6 +51,45 @@ def backward_warp(
     return out[0].permute(1, 2, 0)
 
 
+def sample_map(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """Bilinear samples of ONE map at N points: image [H, W, C], uv [N, 2] continuous pixel
+    coordinates (centres at +0.5) -> [N, C].
+
+    Same sampling convention as `backward_warp` (index coordinates uv - 0.5, align_corners=True,
+    border padding) and implemented through it, so it is differentiable in `image` and `uv`."""
+    n = uv.shape[0]
+    idx = uv - 0.5
+    grid = pixel_grid(1, n, dtype=uv.dtype, device=uv.device)  # [1, N, 2]: (i, 0)
+    flow = idx[None] - grid
+    return backward_warp(image, flow)[0]
+
+
+def sample_per_frame(maps: torch.Tensor, uv: torch.Tensor, mode: str = "bilinear") -> torch.Tensor:
+    """Samples of T single-channel maps along N tracks: maps [T, H, W], uv [N, T, 2] continuous
+    pixel coordinates (centres at +0.5; uv[:, t] samples maps[t]) -> [N, T].
+
+    Border clamp; mode "bilinear" (explicit four-tap gather in the maps' dtype, exact on pixel
+    centres; no gradient through uv) or "nearest". Used on CPU float64 prior maps by the camera
+    initialisation (m4dgs.priors.camera_init)."""
+    T, H, W = maps.shape
+    x = (uv[..., 0] - 0.5).clamp(0, W - 1)
+    y = (uv[..., 1] - 0.5).clamp(0, H - 1)
+    if mode == "nearest":
+        xi = x.round().long()
+        yi = y.round().long()
+        return maps[torch.arange(T)[None].expand_as(xi), yi, xi]
+    x0 = x.floor().long().clamp(0, W - 1)
+    y0 = y.floor().long().clamp(0, H - 1)
+    x1 = (x0 + 1).clamp(max=W - 1)
+    y1 = (y0 + 1).clamp(max=H - 1)
+    fx = (x - x0).to(maps.dtype)
+    fy = (y - y0).to(maps.dtype)
+    ti = torch.arange(T)[None].expand_as(x0)
+    v00, v01 = maps[ti, y0, x0], maps[ti, y0, x1]
+    v10, v11 = maps[ti, y1, x0], maps[ti, y1, x1]
+    return (v00 * (1 - fx) + v01 * fx) * (1 - fy) + (v10 * (1 - fx) + v11 * fx) * fy
+
+
 def fb_consistency(
     flow_fwd: torch.Tensor, flow_bwd: torch.Tensor, alpha: float = 0.5, beta: float = 0.5
 ) -> torch.Tensor:

@@ -42,7 +42,7 @@ from __future__ import annotations
 import torch
 
 from m4dgs.core.camera import ortho_to_pixel, pixel_centers, project_pinhole, transform_points
-from m4dgs.core.warp import backward_warp, pixel_grid
+from m4dgs.core.warp import sample_map
 
 Z_MIN = 1e-4  # authors: destination depth must exceed 1e-4
 TRACK_CLAMP_AUTHORS = 100.0  # authors: L2 pixel distance clamped at 100
@@ -168,19 +168,6 @@ def flow_from_destination_map(
     if valid_a is not None:
         valid = valid & valid_a
     return flow, valid
-
-
-def sample_map(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
-    """Bilinear samples of an [H, W, C] map at continuous pixel coordinates uv [N, 2] (centres at
-    +0.5).
-
-    Same sampling convention as `m4dgs.core.warp.backward_warp` (index coordinates uv - 0.5,
-    align_corners=True, border padding); implemented through it. Returns [N, C]."""
-    n = uv.shape[0]
-    idx = uv - 0.5
-    grid = pixel_grid(1, n, dtype=uv.dtype, device=uv.device)  # [1, N, 2]: (i, 0)
-    flow = idx[None] - grid
-    return backward_warp(image, flow)[0]
 
 
 def in_bounds(uv: torch.Tensor, width: int, height: int) -> torch.Tensor:

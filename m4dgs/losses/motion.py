@@ -19,9 +19,9 @@
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 
+from m4dgs.core.knn import knn
 from m4dgs.core.rotation import relative_rotation_angle
 
 ARAP_K = 5  # paper appendix: k = 5
@@ -36,60 +36,6 @@ def _safe_norm(x: torch.Tensor, dim: int = -1) -> torch.Tensor:
     )
 
 
-@torch.no_grad()
-def knn(
-    points: torch.Tensor, k: int = ARAP_K, chunk_elems: int = 1 << 24, backend: str = "auto"
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """k nearest neighbours of every point among the others (the point itself excluded).
-
-    Args:
-        points: [N, 3] positions (gradient is never tracked). k: neighbours per point (k < N).
-        chunk_elems: bound on the elements of one torch distance block (rows * N), keeping memory
-        flat for large N. backend: "torch" (chunked torch.cdist + topk; any device), "scipy"
-        (cKDTree on the CPU), or "auto"
-            (scipy for CPU tensors, torch otherwise). Measured on the shared 2-core CPU for N = 50k:
-            torch ~23 s, scipy well under a second.
-    Returns:
-        (idx [N, k] int64, dist [N, k]) sorted by increasing distance, on the input's device.
-    """
-    n = points.shape[0]
-    if not 0 < k < n:
-        raise ValueError(f"knn: need 0 < k < N, got k={k}, N={n}")
-    p = points.detach()
-    if backend == "auto":
-        backend = "scipy" if p.device.type == "cpu" else "torch"
-    if backend == "scipy":
-        from scipy.spatial import cKDTree
-
-        arr = p.double().numpy()
-        dist, idx = cKDTree(arr).query(arr, k=k + 1)
-        # drop each point's own entry (normally column 0; with duplicate points it may sit
-        # elsewhere)
-        own = idx == np.arange(n)[:, None]
-        keep = ~own
-        keep[own.sum(1) == 0, -1] = False  # self not returned (ties): drop the farthest instead
-        idx = idx[keep].reshape(n, k)
-        dist = dist[keep].reshape(n, k)
-        return (
-            torch.as_tensor(idx, dtype=torch.long, device=p.device),
-            torch.as_tensor(dist, dtype=p.dtype, device=p.device),
-        )
-    if backend != "torch":
-        raise ValueError(f"knn: unknown backend {backend!r}")
-    rows = max(1, int(chunk_elems) // max(n, 1))
-    idx_out = torch.empty(n, k, dtype=torch.long, device=p.device)
-    dist_out = torch.empty(n, k, dtype=p.dtype, device=p.device)
-    for s in range(0, n, rows):
-        e = min(n, s + rows)
-        d = torch.cdist(p[s:e], p)  # [rows, N]
-        ar = torch.arange(s, e, device=p.device)
-        d[ar - s, ar] = float("inf")
-        dv, di = torch.topk(d, k, dim=1, largest=False, sorted=True)
-        idx_out[s:e] = di
-        dist_out[s:e] = dv
-    return idx_out, dist_out
-
-
 def arap_loss(
     pos_t: torch.Tensor, pos_tp: torch.Tensor, nbr_idx: torch.Tensor | None = None, k: int = ARAP_K
 ) -> torch.Tensor:
@@ -97,7 +43,8 @@ def arap_loss(
 
     Args:
         pos_t: [N, 3] Gaussian positions at t; pos_tp: [N, 3] positions at t'. nbr_idx: [N, k]
-        neighbour indices found at time t (e.g. from `knn`); computed from pos_t if None.
+        neighbour indices found at time t (e.g. from `m4dgs.core.knn.knn`); computed from pos_t if
+        None.
     Returns:
         scalar: mean over the N * k pairs of (|mu_t^i - mu_t^j| - |mu_t'^i - mu_t'^j|)^2.
     """

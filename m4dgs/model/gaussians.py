@@ -12,8 +12,9 @@ attributes.
 
 Parameters live in `nn.ParameterDict`s whose tensors all have the number of Gaussians as first
 dimension, so the densification strategy (`m4dgs.training.densify`) can grow / prune them;
-`layout()` tells it which keys are which. Time is the training-frame index (0..T-1, fractional for
-in-between test frames); the rotation polynomial is evaluated at the normalised time t / (T - 1).
+`layout()` (a `m4dgs.model.layout.GaussianLayout`) tells it which keys are which. Time is the
+training-frame index (0..T-1, fractional for in-between test frames); the rotation polynomial is
+evaluated at the normalised time t / (T - 1).
 
 Scale activations: "exp" (3DGS log-scales) or "sigmoid" (scale = scale_max * sigmoid(raw), the
 authors' video-space choice with scale_max = 0.05)."""
@@ -30,8 +31,8 @@ from torch import nn
 
 from m4dgs.core import rotation as rot
 from m4dgs.core import spline
-from m4dgs.losses.motion import knn as _knn
-from m4dgs.training.densify import GaussianLayout
+from m4dgs.core.knn import knn
+from m4dgs.model.layout import GaussianLayout
 
 Tensor = torch.Tensor
 TimeLike = Union[Tensor, float, int]
@@ -427,28 +428,14 @@ def sample_depth(depth: Tensor, tracks: Tensor, width: int, height: int) -> Tens
     return z[:, 0, :, 0].T.reshape(tracks.shape[0], t_count)
 
 
-def knn(points: Tensor, k: int, backend: str = "auto") -> Tuple[Tensor, Tensor]:
-    """Exact k nearest neighbours of each point among the others (k clipped to N - 1).
-
-    Thin adapter over `m4dgs.losses.motion.knn` (one implementation: scipy KD-tree on CPU, chunked
-    torch on GPU). Returns:
-        (squared distances [N, k] ascending, indices [N, k] long), on the device of `points`.
-    """
-    n = points.shape[0]
-    k_eff = max(min(k, n - 1), 0)
-    if k_eff == 0:
-        return points.new_zeros(n, 0), torch.zeros(n, 0, dtype=torch.long, device=points.device)
-    idx, dist = _knn(points, k_eff, backend=backend)
-    return (dist**2).to(points.dtype), idx
-
-
 def knn_mean_sq_distance(points: Tensor, k: int = 3, backend: str = "auto") -> Tensor:
-    """Mean squared distance of each point to its k nearest other points, [N, D] -> [N] (1 for a
-    single point)."""
-    if points.shape[0] <= 1:
-        return torch.ones(points.shape[0], dtype=points.dtype, device=points.device)
-    d2, _ = knn(points, k, backend)
-    return d2.mean(dim=1)
+    """Mean squared distance of each point to its k nearest other points (k clipped to N - 1),
+    [N, D] -> [N] (1 for a single point)."""
+    n = points.shape[0]
+    if n <= 1:
+        return torch.ones(n, dtype=points.dtype, device=points.device)
+    _, dist = knn(points, min(k, n - 1), backend=backend)
+    return (dist**2).to(points.dtype).mean(dim=1)
 
 
 def init_video_gaussians(

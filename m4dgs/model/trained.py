@@ -11,7 +11,7 @@ import torch
 from m4dgs.clip import Cameras, Clip
 from m4dgs.core import camera as cam
 from m4dgs.core.io import read_json
-from m4dgs.losses.geometry import sample_map
+from m4dgs.core.warp import sample_map
 from m4dgs.model.color import ColorMLP
 from m4dgs.model.gaussians import WorldGaussians
 from m4dgs.model.tonemap import ToneMapper

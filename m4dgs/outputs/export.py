@@ -22,15 +22,14 @@ camera initialisation: x right, y down, z forward; arbitrary scale); the header 
 
 from __future__ import annotations
 
-import os
 import re
-import tempfile
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Dict, Iterator, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
+
+from m4dgs.core.io import atomic_target
 
 #: Y_0^0 = 1 / (2 sqrt(pi)); 3DGS colour = 0.5 + SH_C0 * f_dc (+ higher bands)
 SH_C0 = 0.28209479177387814
@@ -78,25 +77,6 @@ _NUMPY_TO_PLY = {
     "f4": "float",
     "f8": "double",
 }
-
-
-# --------------------------------------------------------------------------------------------------
-# atomic output
-# --------------------------------------------------------------------------------------------------
-@contextmanager
-def atomic_target(path, suffix: str = ".tmp") -> Iterator[Path]:
-    """Yield a temporary path beside `path` (same folder, same `suffix` so format-sniffing writers
-    work); on normal exit it is renamed onto `path` (os.replace), on an exception it is removed."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -42,20 +42,13 @@ import numpy as np
 import torch
 
 from m4dgs.core import camera as cam
-from m4dgs.core.io import _atomic_write_bytes, write_npz
-from m4dgs.outputs.export import atomic_target
-
-MU = 5000.0  # mu-law compression of the HDR panel (HDR-NeRF / HDR-GS convention)
+from m4dgs.core.hdr import mu_law
+from m4dgs.core.io import atomic_target, write_bytes_atomic, write_npz
 
 
 # --------------------------------------------------------------------------------------------------
 # small image helpers
 # --------------------------------------------------------------------------------------------------
-def mu_law(x: torch.Tensor, mu: float = MU) -> torch.Tensor:
-    """log(1 + mu x) / log(1 + mu) for x in [0, 1] (input clipped)."""
-    return torch.log1p(mu * x.clamp(0, 1)) / math.log1p(mu)
-
-
 def to_uint8(img) -> np.ndarray:
     """Float image [H, W, C] in [0, 1] (torch or numpy) -> uint8 with rounding."""
     a = img.detach().cpu().numpy() if isinstance(img, torch.Tensor) else np.asarray(img)
@@ -359,7 +352,7 @@ def _plot_tracks_3d(
     ax.legend(loc="upper right", fontsize=7)
     buf = _io.BytesIO()
     fig.savefig(buf, format="png")
-    _atomic_write_bytes(path, buf.getvalue())
+    write_bytes_atomic(path, buf.getvalue())
     return path
 
 

@@ -54,6 +54,7 @@ from m4dgs.core.camera import (
     umeyama_sim3,
     unproject_pinhole,
 )
+from m4dgs.core.warp import sample_per_frame
 
 
 @dataclass
@@ -134,31 +135,6 @@ def _t64(x) -> torch.Tensor:
     if isinstance(x, torch.Tensor):
         return x.detach().to(torch.float64).cpu()
     return torch.as_tensor(np.asarray(x), dtype=torch.float64)
-
-
-def sample_map(maps: torch.Tensor, uv: torch.Tensor, mode: str = "bilinear") -> torch.Tensor:
-    """Sample per-frame maps [T, H, W] at continuous pixel positions uv [N, T, 2] -> [N, T] (border
-    clamp).
-
-    Pixel centres are at integer + 0.5, so uv is converted to index space by subtracting 0.5.
-    """
-    T, H, W = maps.shape
-    x = (uv[..., 0] - 0.5).clamp(0, W - 1)
-    y = (uv[..., 1] - 0.5).clamp(0, H - 1)
-    if mode == "nearest":
-        xi = x.round().long()
-        yi = y.round().long()
-        return maps[torch.arange(T)[None].expand_as(xi), yi, xi]
-    x0 = x.floor().long().clamp(0, W - 1)
-    y0 = y.floor().long().clamp(0, H - 1)
-    x1 = (x0 + 1).clamp(max=W - 1)
-    y1 = (y0 + 1).clamp(max=H - 1)
-    fx = (x - x0).to(maps.dtype)
-    fy = (y - y0).to(maps.dtype)
-    ti = torch.arange(T)[None].expand_as(x0)
-    v00, v01 = maps[ti, y0, x0], maps[ti, y0, x1]
-    v10, v11 = maps[ti, y1, x0], maps[ti, y1, x1]
-    return (v00 * (1 - fx) + v01 * fx) * (1 - fy) + (v10 * (1 - fx) + v11 * fx) * fy
 
 
 def select_static_tracks(
@@ -588,8 +564,8 @@ def initialize_cameras(
         raise ValueError(
             f"depth_priors must be [T={T}, H={height}, W={width}], got {tuple(dmaps.shape)}"
         )
-    d_all = sample_map(dmaps, uv_all)
-    d_near = sample_map(dmaps, uv_all, mode="nearest")
+    d_all = sample_per_frame(dmaps, uv_all)
+    d_near = sample_per_frame(dmaps, uv_all, mode="nearest")
     inside = (
         (uv_all[..., 0] >= 0)
         & (uv_all[..., 0] <= width)
@@ -612,7 +588,7 @@ def initialize_cameras(
             if isinstance(dynamic_masks, torch.Tensor)
             else torch.as_tensor(np.asarray(dynamic_masks))
         )
-        in_dyn = sample_map(dm.to(torch.float64).cpu(), uv_all, mode="nearest") > 0.5
+        in_dyn = sample_per_frame(dm.to(torch.float64).cpu(), uv_all, mode="nearest") > 0.5
     static = select_static_tracks(
         vis_all, in_dyn, depth_ok, cfg.min_visible, cfg.max_dynamic_fraction
     )

@@ -12,9 +12,10 @@ opacity < 0.005, reset opacity to 0.01, at most 150k Gaussians.
 The strategy works on any dict of per-Gaussian parameters whose first dimension is N (any trailing
 shape: spline control points [N, K, 3], rotation polynomial coefficients [N, J, 4], features [N, C],
 opacity logits [N] ...), and keeps the Adam state (exp_avg, exp_avg_sq) row-aligned with the
-parameters: new rows get zero moments, removed rows are dropped. A `GaussianLayout` says which keys
-hold positions (offset when splitting), scales and opacities and how they are activated. Stage 2
-uses one strategy per Gaussian set (static and dynamic), each with its own config.
+parameters: new rows get zero moments, removed rows are dropped. A `GaussianLayout`
+(m4dgs.model.layout) says which keys hold positions (offset when splitting), scales and opacities
+and how they are activated. Stage 2 uses one strategy per Gaussian set (static and dynamic), each
+with its own config.
 
 Typical loop (gsplat-like):
 
@@ -34,6 +35,7 @@ import torch
 from torch import nn
 
 from m4dgs.core.camera import quat_to_rotmat
+from m4dgs.model.layout import GaussianLayout
 
 Tensor = torch.Tensor
 Optimizers = Union[
@@ -68,41 +70,6 @@ class DensifyConfig:
     prune_scale: Optional[float] = None
     # 3DGS prunes screen radius > 20 px after the first reset; None = off
     prune_radius2d: Optional[float] = None
-
-
-def _exp(x: Tensor) -> Tensor:
-    return torch.exp(x)
-
-
-def _log(x: Tensor) -> Tensor:
-    return torch.log(x.clamp_min(1e-12))
-
-
-@dataclass
-class GaussianLayout:
-    """Where the densification-relevant quantities live in a parameter dict.
-
-    position_keys: keys whose trailing dimension is 3 and that are offset by the split samples (a
-    static mean [N, 3]
-        or spline control points [N, K, 3]: every control point moves by the same sample).
-    scale_key / scale_fn / scale_inv_fn: raw scale parameter [N, 3] and its activation / inverse.
-    opacity_key: opacity logits [N] (sigmoid activation). rotation_fn: params -> [N, 4] wxyz
-    quaternion (any norm) orienting the split samples; default reads
-        `rotation_key` as [N, 4].
-    """
-
-    position_keys: tuple = ("means",)
-    scale_key: str = "scales"
-    opacity_key: str = "opacities"
-    rotation_key: str = "quats"
-    scale_fn: Callable[[Tensor], Tensor] = _exp
-    scale_inv_fn: Callable[[Tensor], Tensor] = _log
-    rotation_fn: Optional[Callable[[Mapping[str, Tensor]], Tensor]] = None
-
-    def rotations(self, params: Mapping[str, Tensor]) -> Tensor:
-        if self.rotation_fn is not None:
-            return self.rotation_fn(params)
-        return params[self.rotation_key]
 
 
 # --------------------------------------------------------------------------------------------------

@@ -20,7 +20,6 @@ frames, exposure times and priors are read (never gt/)."""
 from __future__ import annotations
 
 import os
-import resource
 import time
 from pathlib import Path
 from typing import Any, Dict, Optional
@@ -30,6 +29,7 @@ import torch
 
 from m4dgs.clip import Cameras, Clip, TrackSet
 from m4dgs.core import camera as cam
+from m4dgs.core.device import peak_memory_mib, resolve_device
 from m4dgs.core.io import write_json
 from m4dgs.model.gaussians import WorldGaussians, init_video_gaussians
 from m4dgs.run import RunDir, load_torch, save_torch
@@ -38,12 +38,6 @@ from m4dgs.training.data import TrainingData, frame_time, load_training_data
 from m4dgs.training.variants import variant_config
 
 PHASES = ("camera_init", "stage1", "v2w", "stage2", "render", "done")
-
-
-def resolve_device(device: str) -> torch.device:
-    if device == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
 
 
 def resolve_config(
@@ -64,12 +58,6 @@ def _phase_index(status: Dict[str, Any]) -> int:
     """Index of the first phase still to run."""
     last = status.get("finished")
     return 0 if last is None else PHASES.index(last) + 1
-
-
-def peak_memory_mib(device: torch.device) -> float:
-    if device.type == "cuda":
-        return torch.cuda.max_memory_allocated(device) / 2**20
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
 
 
 class Trainer:

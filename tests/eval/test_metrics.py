@@ -494,7 +494,7 @@ def test_measure_fps_with_injected_clock():
     r = perf.measure_fps(render, warmup=2, iters=10, clock=lambda: now[0])
     assert calls[0] == 12
     assert r["fps"] == pytest.approx(50.0) and r["ms_per_frame"] == pytest.approx(20.0)
-    mem = perf.peak_memory_mib(lambda: torch.zeros(10))
+    mem = perf.measure_peak_memory_mib(lambda: torch.zeros(10))
     assert mem is None or mem > 0
 
 

@@ -6,19 +6,19 @@ import numpy as np
 import pytest
 import torch
 
+from m4dgs.core.knn import knn
 from m4dgs.core.ssim import ssim
+from m4dgs.core.warp import sample_map
 from m4dgs.losses.geometry import (
     depth_loss,
     destination_pixels,
     flow_from_destination_map,
     flow_loss,
-    sample_map,
     track_loss,
 )
 from m4dgs.losses.motion import (
     acceleration_loss,
     arap_loss,
-    knn,
     quat_relative_angle,
     smoothness_terms,
     velocity_loss,

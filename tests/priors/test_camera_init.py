@@ -17,12 +17,12 @@ import torch
 
 from m4dgs.clip import Cameras, ClipMeta, ClipWriter, Exposures, FlowSet, Split, TrackSet
 from m4dgs.core.camera import K_from_fov, make_c2w, project_pinhole, umeyama_sim3
+from m4dgs.core.warp import sample_per_frame
 from m4dgs.priors.camera_init import (
     CameraInitConfig,
     chain_poses,
     initialize_cameras,
     robust_sim3,
-    sample_map,
     search_fov,
     select_static_tracks,
     umeyama_sim3_batched,
@@ -277,11 +277,11 @@ def _errors(res, sc):
 # --------------------------------------------------------------------------------------------------
 # Tests
 # --------------------------------------------------------------------------------------------------
-def test_sample_map_matches_direct_bilinear():
+def test_sample_per_frame_matches_direct_bilinear():
     rng = np.random.default_rng(0)
     maps = torch.as_tensor(rng.uniform(1, 2, (3, 7, 9)))
     uv = torch.tensor([[[2.5, 3.5], [4.0, 1.0], [0.2, 6.9]]], dtype=torch.float64)  # [1, 3, 2]
-    out = sample_map(maps, uv)
+    out = sample_per_frame(maps, uv)
     m = maps.numpy()
     assert abs(float(out[0, 0]) - m[0, 3, 2]) < 1e-12  # pixel centre -> the pixel's value
     # (4.0, 1.0): index (3.5, 0.5) -> mean of the 4 neighbours
@@ -340,7 +340,7 @@ def _lifted(sc, static_only=True):
     if static_only:
         keep = ~torch.as_tensor(ts.dynamic)
         uv, vis = uv[keep], vis[keep]
-    d = sample_map(torch.as_tensor(sc["depth_prior"], dtype=torch.float64), uv)
+    d = sample_per_frame(torch.as_tensor(sc["depth_prior"], dtype=torch.float64), uv)
     # exact per-track depth from the generator's 3D points (no bilinear blur across depth edges)
     p3 = (
         torch.as_tensor(ts.points3d, dtype=torch.float64)[~torch.as_tensor(ts.dynamic)]
