@@ -37,6 +37,7 @@ from typing import Any, Dict, List, Optional, Sequence
 import numpy as np
 
 from m4dgs.core import io as mio
+from m4dgs.core.crf import available_crfs as crf_names
 from m4dgs.core.errors import InputError
 
 SCHEMA_VERSION = 1
@@ -168,8 +169,8 @@ def _parse_meta(d: dict, path) -> ClipMeta:
     width = _positive_int(_req(d, "width", path), path, "width")
     height = _positive_int(_req(d, "height", path), path, "height")
     fps = _req(d, "fps", path)
-    if not isinstance(fps, (int, float)) or fps <= 0:
-        raise ClipError(path, "fps", f"expected a number > 0, got {fps!r}")
+    if not isinstance(fps, (int, float)) or not math.isfinite(fps) or fps <= 0:
+        raise ClipError(path, "fps", f"expected a finite number > 0, got {fps!r}")
     frames = _int_list(_req(d, "frames", path), path, "frames")
     if frames != list(range(len(frames))) or not frames:
         raise ClipError(path, "frames", "expected the global indices 0..G-1 in order")
@@ -200,6 +201,18 @@ def _parse_meta(d: dict, path) -> ClipMeta:
     )
     novel = _positive_float_list(ex.get("novel", []), path, "exposures.novel", allow_empty=True)
     schedule = ex.get("schedule", "alternating")
+    if schedule == "alternating":
+        # every training exposure is one of the observed levels (random-values schedules are not)
+        for i, dt in enumerate(train_dt):
+            if not any(abs(dt - o) <= 1e-6 * max(dt, o) for o in observed):
+                raise ClipError(
+                    path,
+                    f"exposures.train_dt[{i}]",
+                    f"{dt!r} is none of the observed levels {observed} (schedule alternating)",
+                )
+    crf = d.get("crf")
+    if crf is not None and str(crf) not in crf_names():
+        raise ClipError(path, "crf", f"unknown camera response {crf!r} (known: {crf_names()})")
     uev = d.get("unit_exposure_value", 0.73)
     if not isinstance(uev, (int, float)) or not 0 < uev < 1:
         raise ClipError(path, "unit_exposure_value", f"expected a number in (0, 1), got {uev!r}")
@@ -334,6 +347,13 @@ def _check_array(
             raise ClipError(path, name, "contains NaN or inf")
 
 
+# content bounds of the priors: below them training cannot be meaningful, so the clip is refused
+MIN_VALID_DEPTH_FRACTION = 0.05  # of the pixels of a depth-prior frame with depth > 0
+MAX_OFF_IMAGE_FRACTION = 0.05  # of the visible track points lying outside the image ...
+OFF_IMAGE_MARGIN = 0.1  # ... by more than this fraction of its width / height
+MAX_FLOW_IMAGE_SIZES = 4.0  # largest flow displacement, in image sizes
+
+
 def _load_npz_fields(path: Path, fields: Sequence[str]) -> dict:
     if not path.exists():
         raise ClipError(path, "<file>", "missing")
@@ -358,6 +378,22 @@ def load_trackset(
     _check_array(vis, path, "visible", (None, T))
     N = vis.shape[0]
     _check_array(tr, path, "tracks", (N, T, 2), mask=vis.astype(bool))
+    if width is not None and height is not None and vis.any():
+        # visible positions must lie on the image, up to a margin (trackers report points near the
+        # border slightly outside it)
+        pts = tr[vis.astype(bool)]
+        mx, my = OFF_IMAGE_MARGIN * width, OFF_IMAGE_MARGIN * height
+        off = (pts[:, 0] < -mx) | (pts[:, 0] > width + mx) | (pts[:, 1] < -my)
+        off |= pts[:, 1] > height + my
+        if off.mean() > MAX_OFF_IMAGE_FRACTION:
+            raise ClipError(
+                path,
+                "tracks",
+                f"{int(off.sum())} of {len(pts)} visible points lie outside the {width}x{height} "
+                "image by more than 10 % of its size (pixel coordinates expected)",
+            )
+    if (vis.sum(axis=1) >= 2).sum() == 0:
+        raise ClipError(path, "visible", "no track is visible in two or more frames")
     p3 = d.get("points3d")
     if p3 is not None:
         _check_array(p3, path, "points3d", (N, T, 3), mask=vis.astype(bool))
@@ -383,6 +419,14 @@ def load_flowset(
     P = pairs.shape[0]
     _check_array(flow, path, "flow", (P, height, width, 2))
     _check_array(valid, path, "valid", (P, height, width))
+    big = np.abs(flow).max() if flow.size else 0.0
+    if big > MAX_FLOW_IMAGE_SIZES * max(width, height):
+        i = int(np.abs(flow).reshape(P, -1).max(axis=1).argmax())
+        raise ClipError(
+            path,
+            f"flow[{i}]",
+            f"displacements up to {big:.3g} px on a {width}x{height} image (pixels expected)",
+        )
     if allowed_frames is not None:
         allowed = set(int(g) for g in allowed_frames)
         for i, (a, b) in enumerate(pairs.tolist()):
@@ -487,11 +531,30 @@ class Clip:
         return self._img(Path("input/ldr") / frame_name(g, "png"), 3)
 
     def load_depth_prior(self, g: int) -> np.ndarray:
-        """Depth prior of training frame g, float32 [H, W]."""
-        return self._exr(Path("priors/depth") / frame_name(g, "exr"), 1)
+        """Depth prior of training frame g, float32 [H, W] (> 0 where valid, 0 = no value)."""
+        rel = Path("priors/depth") / frame_name(g, "exr")
+        d = self._exr(rel, 1)
+        neg = int((d < 0).sum())
+        if neg:
+            raise ClipError(
+                self.root / rel, "pixels", f"{neg} negative depths (depth must be > 0, 0 = invalid)"
+            )
+        if (d > 0).mean() < MIN_VALID_DEPTH_FRACTION:
+            raise ClipError(
+                self.root / rel,
+                "pixels",
+                f"only {100 * (d > 0).mean():.1f} % of the pixels have a depth > 0 (at least "
+                f"{100 * MIN_VALID_DEPTH_FRACTION:.0f} % needed; 0 marks a pixel without depth)",
+            )
+        return d
 
     def load_tracks_prior(self) -> TrackSet:
-        ts = load_trackset(self.root / "priors/tracks.npz", num_frames=len(self.train_frames))
+        ts = load_trackset(
+            self.root / "priors/tracks.npz",
+            num_frames=len(self.train_frames),
+            width=self.width,
+            height=self.height,
+        )
         if ts.frames.tolist() != self.train_frames:
             raise ClipError(
                 self.root / "priors/tracks.npz", "frames", "must equal split.train of clip.json"
@@ -572,6 +635,13 @@ class Clip:
                 self.load_gt_flow()
             if (self.root / "gt/tracks.npz").exists():
                 self.load_gt_tracks()
+
+
+def frame_time(clip: Clip, g: float) -> float:
+    """Fractional training-frame index of global frame g (linear interpolation over the training
+    frames): the time axis of the trainer and of a trained model."""
+    train = np.asarray(clip.train_frames, np.float64)
+    return float(np.interp(g, train, np.arange(len(train), dtype=np.float64)))
 
 
 # --------------------------------------------------------------------------------------------------

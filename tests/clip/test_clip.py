@@ -242,3 +242,59 @@ def test_atomic_write_leaves_no_temp_files(tmp_path):
     mio.write_npz(tmp_path / "c.npz", a=np.zeros(3))
     mio.write_exr(tmp_path / "d.exr", np.zeros((2, 2), np.float32))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.png", "c.npz", "d.exr"]
+
+
+# -- content that makes training meaningless is refused before any compute (issue 20)
+@pytest.mark.parametrize(
+    "depth, needle",
+    [(np.zeros((H, W)), "have a depth > 0"), (-np.ones((H, W)), "negative depths")],
+)
+def test_depth_prior_content(clip_dir, depth, needle):
+    mio.write_exr(clip_dir / "priors/depth" / frame_name(2, "exr"), depth.astype(np.float32))
+    _expect(clip_dir, "priors/depth/00002.exr", needle)
+
+
+def test_tracks_off_image(clip_dir):
+    tr = np.random.default_rng(1).uniform(0, 1, (4, 3, 2))  # normalised, then shifted far away
+    mio.write_npz(
+        clip_dir / "priors/tracks.npz",
+        tracks=(tr * 10 * W).astype(np.float32),
+        visible=np.ones((4, 3), bool),
+        frames=np.array([0, 2, 4]),
+    )
+    _expect(clip_dir, "priors/tracks.npz", "outside")
+
+
+def test_tracks_never_visible_twice(clip_dir):
+    vis = np.zeros((4, 3), bool)
+    vis[:, 0] = True
+    mio.write_npz(
+        clip_dir / "priors/tracks.npz",
+        tracks=np.ones((4, 3, 2), np.float32),
+        visible=vis,
+        frames=np.array([0, 2, 4]),
+    )
+    _expect(clip_dir, "priors/tracks.npz", "two or more frames")
+
+
+def test_flow_absurd_magnitude(clip_dir):
+    f = np.zeros((2, H, W, 2), np.float32)
+    f[1, 0, 0, 0] = 1e30
+    mio.write_npz(
+        clip_dir / "priors/flow.npz",
+        pairs=np.array([[0, 2], [2, 0]]),
+        flow=f,
+        valid=np.ones((2, H, W), bool),
+    )
+    _expect(clip_dir, "priors/flow.npz", "flow[1]")
+
+
+def test_train_dt_not_an_observed_level(clip_dir):
+    _edit_meta(clip_dir, lambda d: d["exposures"]["train_dt"].__setitem__(1, 1e6))
+    _expect(clip_dir, "clip.json", "exposures.train_dt[1]", validate="meta")
+
+
+@pytest.mark.parametrize("key, value", [("fps", float("nan")), ("crf", "no-such-curve")])
+def test_meta_values(clip_dir, key, value):
+    _edit_meta(clip_dir, lambda d: d.__setitem__(key, value))
+    _expect(clip_dir, "clip.json", key, validate="meta")
