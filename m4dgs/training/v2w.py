@@ -40,6 +40,7 @@ Time is the training-frame index 0..T-1 (T = video.num_frames = len(c2w) = len(d
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any, Dict, Optional, Tuple
 
 import numpy as np
@@ -558,6 +559,10 @@ def transform(
         "motion_fallback"), "occlusion_used", "cov_invariance", "scale_fit" (the `refit_scales`
         info, or the inherit-mode covariance error), "time_s" {classify, transform, scales, total};
         and "is_dynamic": [N] bool tensor (video order) - the only non-JSON entry.
+
+    The steps of the module docstring, each a function: `_sample_video` (trajectories in video and
+    world space), `_identify_dynamic` (1), `_static_set` / `_dynamic_set` (2, 3), `_world_scales`
+    (5), `_assemble_world` (4: opacities and features copied, the two sets put together).
     """
     cfg = cfg or V2WConfig()
     ablation = ablation or AblationConfig()
@@ -571,6 +576,99 @@ def transform(
         )
     t0 = time.perf_counter()
     timings: Dict[str, float] = {}
+    v = _sample_video(video, K, c2w, width, height)
+
+    # 1. dynamic / static identification
+    tc = time.perf_counter()
+    is_dyn, how, occlusion_used = _identify_dynamic(
+        v, dynamic_masks, rendered_depth, cfg, ablation, width, height, occlusion_tol
+    )
+    timings["classify"] = time.perf_counter() - tc
+
+    # 2./3. positions and rotations
+    tt = time.perf_counter()
+    s_idx = torch.where(~is_dyn)[0]
+    d_idx = torch.where(is_dyn)[0]
+    means_s, quats_s = _static_set(v, s_idx)
+    degree = video.params["rot"].shape[1] - 1
+    ctrl_d, coeffs_d = _dynamic_set(v, d_idx, cfg, degree)
+    timings["transform"] = time.perf_counter() - tt
+
+    # 5. scales
+    tsc = time.perf_counter()
+    order = torch.cat([s_idx, d_idx])
+    pos_final, quat_final = _final_trajectories(v, means_s, quats_s, ctrl_d, coeffs_d)
+    raw_w, fit_info = _world_scales(
+        v,
+        order,
+        pos_final,
+        quat_final,
+        cfg,
+        ablation,
+        width,
+        height,
+        world_scale_kind,
+        world_scale_max,
+        frames_per_step,
+    )
+    timings["scales"] = time.perf_counter() - tsc
+
+    # 4. opacities and features, and the world Gaussians
+    world = _assemble_world(
+        video,
+        v,
+        s_idx,
+        d_idx,
+        means_s,
+        quats_s,
+        ctrl_d,
+        coeffs_d,
+        raw_w,
+        world_scale_kind,
+        world_scale_max,
+    )
+    timings["total"] = time.perf_counter() - t0
+    ns = s_idx.numel()
+    report = {
+        "num_static": int(ns),
+        "num_dynamic": int(d_idx.numel()),
+        "num_gaussians": int(ns + d_idx.numel()),
+        "classification": how,
+        "occlusion_used": occlusion_used,
+        "cov_invariance": bool(ablation.cov_invariance),
+        "scale_fit": fit_info,
+        "time_s": {k: float(sec) for k, sec in timings.items()},
+        "is_dynamic": is_dyn,
+    }
+    return world, report
+
+
+@dataclass
+class _Sampled:
+    """The stage-1 Gaussians at every training frame (no gradient), in video and world space."""
+
+    pos_v: Tensor  # [N, T, 3] video-space positions
+    quat_v: Tensor  # [N, T, 4] video-space quaternions
+    scales_v: Tensor  # [N, 3] video scales (activated)
+    obs: Tensor  # [N, T] bool observed frames (`observed_frames`)
+    pos_w: Tensor  # [N, T, 3] world trajectories
+    quat_w: Tensor  # [N, T, 4] world quaternions
+    times: Tensor  # [T] training-frame indices
+    tn: Tensor  # [T] normalised times of the rotation polynomial
+    knots: Tensor  # spline knots of the video Gaussians
+    K: Tensor  # [3, 3]
+    c2w: Tensor  # [T, 4, 4]
+    dtype: torch.dtype  # of the video Gaussians' parameters
+    device: torch.device
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.times.shape[0])
+
+
+def _sample_video(video: VideoGaussians, K, c2w, width: int, height: int) -> _Sampled:
+    """Positions, rotations and scales of the video Gaussians at the training frames, their
+    observed frames and their world trajectories (step 2's mu^w_t = R_t pi_K^-1(mu^v_t) + T_t)."""
     ctrl_v = video.params["ctrl"].detach()
     dtype, device = ctrl_v.dtype, ctrl_v.device
     t_count = video.num_frames
@@ -581,85 +679,133 @@ def transform(
         raise ValueError(
             f"transform: c2w has {c2w_t.shape[0]} frames, the video Gaussians {t_count}"
         )
-
     with torch.no_grad():
         pos_v = video.positions(times).detach()  # [N, T, 3]
         quat_v = video.quats(times).detach()  # [N, T, 4]
         scales_v = video.scales().detach()
         obs = observed_frames(pos_v, width, height)
         pos_w, quat_w = video_to_world_trajectories(pos_v, quat_v, K_t, c2w_t, width, height)
+        tn = rot.normalize_time(times, t_count).to(dtype)
+    knots = video.knots.detach()
+    return _Sampled(
+        pos_v, quat_v, scales_v, obs, pos_w, quat_w, times, tn, knots, K_t, c2w_t, dtype, device
+    )
 
-        # 1. dynamic / static identification
-        tc = time.perf_counter()
-        occlusion_used = bool(
-            ablation.occlusion_handling and rendered_depth is not None and dynamic_masks is not None
+
+def _identify_dynamic(
+    v: _Sampled,
+    dynamic_masks: Optional[Tensor],
+    rendered_depth: Optional[Tensor],
+    cfg: V2WConfig,
+    ablation: AblationConfig,
+    width: int,
+    height: int,
+    occlusion_tol: float,
+) -> Tuple[Tensor, str, bool]:
+    """Step 1: (is_dynamic [N] bool, "masks" | "motion_fallback", whether the occlusion test was
+    used): the dynamic masks with the occlusion test (`classify_dynamic`), or without masks the
+    authors' world-position spread fallback (`classify_by_motion`)."""
+    occlusion_used = bool(
+        ablation.occlusion_handling and rendered_depth is not None and dynamic_masks is not None
+    )
+    if dynamic_masks is None:
+        with torch.no_grad():
+            is_dyn = classify_by_motion(v.pos_w, v.obs, cfg.static_std_fallback)
+        return is_dyn, "motion_fallback", occlusion_used
+    with torch.no_grad():
+        masks = torch.as_tensor(dynamic_masks).to(device=v.device, dtype=torch.bool)
+        depth = (
+            None
+            if rendered_depth is None
+            else torch.as_tensor(rendered_depth).to(device=v.device, dtype=v.dtype)
         )
-        if dynamic_masks is not None:
-            masks = torch.as_tensor(dynamic_masks).to(device=device, dtype=torch.bool)
-            depth = (
-                None
-                if rendered_depth is None
-                else torch.as_tensor(rendered_depth).to(device=device, dtype=dtype)
-            )
-            is_dyn = classify_dynamic(
-                pos_v,
-                masks,
-                depth,
-                width,
-                height,
-                cfg.dynamic_ratio,
-                ablation.occlusion_handling,
-                occlusion_tol,
-            )
-            how = "masks"
-        else:
-            is_dyn = classify_by_motion(pos_w, obs, cfg.static_std_fallback)
-            how = "motion_fallback"
-        timings["classify"] = time.perf_counter() - tc
+        is_dyn = classify_dynamic(
+            v.pos_v,
+            masks,
+            depth,
+            width,
+            height,
+            cfg.dynamic_ratio,
+            ablation.occlusion_handling,
+            occlusion_tol,
+        )
+    return is_dyn, "masks", occlusion_used
 
-        # 2./3. positions and rotations
-        tt = time.perf_counter()
-        s_idx = torch.where(~is_dyn)[0]
-        d_idx = torch.where(is_dyn)[0]
-        w_s = _frame_weights(obs[s_idx]).to(dtype)  # [Ns, T]
-        means_s = (pos_w[s_idx] * w_s[..., None]).sum(1) / w_s.sum(1)[:, None]
-        quats_s = rot.quat_average_markley(quat_w[s_idx], w_s).to(dtype)
 
-        knots = video.knots.detach()
-        obs_d = obs[d_idx]
+def _static_set(v: _Sampled, s_idx: Tensor) -> Tuple[Tensor, Tensor]:
+    """Step 3, static Gaussians: (means [Ns, 3], quaternions [Ns, 4]) = the weighted mean world
+    position over the observed frames and the Markley average of the world quaternions."""
+    with torch.no_grad():
+        w_s = _frame_weights(v.obs[s_idx]).to(v.dtype)  # [Ns, T]
+        means_s = (v.pos_w[s_idx] * w_s[..., None]).sum(1) / w_s.sum(1)[:, None]
+        quats_s = rot.quat_average_markley(v.quat_w[s_idx], w_s).to(v.dtype)
+    return means_s, quats_s
+
+
+def _dynamic_set(v: _Sampled, d_idx: Tensor, cfg: V2WConfig, degree: int) -> Tuple[Tensor, Tensor]:
+    """Step 3, dynamic Gaussians: (spline control points re-sampled from the world trajectory on the
+    video knots, rotation-polynomial coefficients fitted by least squares, optionally refined)."""
+    obs_d = v.obs[d_idx]
+    with torch.no_grad():
         if cfg.resample == "lstsq":
             ctrl_d = spline.resample_control_points(
-                pos_w[d_idx], times, knots, valid=obs_d, method="lstsq"
+                v.pos_w[d_idx], v.times, v.knots, valid=obs_d, method="lstsq"
             )
         else:
-            ctrl_d = spline.resample_control_points(pos_w[d_idx], times, knots, method=cfg.resample)
-        degree = video.params["rot"].shape[1] - 1
-        tn = rot.normalize_time(times, t_count).to(dtype)
-    coeffs_d = rot.fit_rotation_poly(quat_w[d_idx], tn, obs_d, degree=degree)
+            ctrl_d = spline.resample_control_points(
+                v.pos_w[d_idx], v.times, v.knots, method=cfg.resample
+            )
+    coeffs_d = rot.fit_rotation_poly(v.quat_w[d_idx], v.tn, obs_d, degree=degree)
     if cfg.rotation_refine_steps > 0 and d_idx.numel() > 0:
         coeffs_d = _refine_rotation_keep_best(
-            coeffs_d, quat_w[d_idx], tn, obs_d, cfg.rotation_refine_steps, cfg.rotation_refit_lr
+            coeffs_d, v.quat_w[d_idx], v.tn, obs_d, cfg.rotation_refine_steps, cfg.rotation_refit_lr
         )
-    timings["transform"] = time.perf_counter() - tt
+    return ctrl_d, coeffs_d
 
-    # 5. scales
-    tsc = time.perf_counter()
+
+def _final_trajectories(
+    v: _Sampled, means_s: Tensor, quats_s: Tensor, ctrl_d: Tensor, coeffs_d: Tensor
+) -> Tuple[Tensor, Tensor]:
+    """The final world Gaussians along time (what stage 2 renders): positions [N, T, 3] and
+    quaternions [N, T, 4], static first then dynamic."""
+    t_count = v.num_frames
     with torch.no_grad():
-        # final world Gaussians along time (what stage 2 renders), seen from every camera
         pos_final = torch.cat(
-            [means_s[:, None].expand(-1, t_count, -1), spline.evaluate(ctrl_d, knots, times)]
+            [means_s[:, None].expand(-1, t_count, -1), spline.evaluate(ctrl_d, v.knots, v.times)]
         )
         quat_final = torch.cat(
             [
                 quats_s[:, None].expand(-1, t_count, -1),
-                rot.poly_evaluate(coeffs_d, tn, normalize=True),
+                rot.poly_evaluate(coeffs_d, v.tn, normalize=True),
             ]
         )
-        order = torch.cat([s_idx, d_idx])
-        means_cam, quats_cam = world_to_cameras(pos_final, quat_final, c2w_t)
-        target = video_cov2d(pos_v[order], quat_v[order], scales_v[order], width, height)
+    return pos_final, quat_final
+
+
+def _world_scales(
+    v: _Sampled,
+    order: Tensor,
+    pos_final: Tensor,
+    quat_final: Tensor,
+    cfg: V2WConfig,
+    ablation: AblationConfig,
+    width: int,
+    height: int,
+    world_scale_kind: str,
+    world_scale_max: float,
+    frames_per_step: int,
+) -> Tuple[Tensor, Dict[str, Any]]:
+    """Step 5: (raw world scales [N, 3] in `order`, fit info). With covariance invariance the scales
+    are refitted so the world 2D covariances match the video ones (`refit_scales`, started at the
+    NDC -> metric factor of the median depth); without (ablation (c)) the video scale values are
+    inherited and only their covariance error is reported."""
+    K_t = v.K
+    with torch.no_grad():
+        # the final world Gaussians seen from every camera
+        means_cam, quats_cam = world_to_cameras(pos_final, quat_final, v.c2w)
+        target = video_cov2d(v.pos_v[order], v.quat_v[order], v.scales_v[order], width, height)
         _, mu2d = pinhole_cov2d(
-            means_cam, quats_cam, torch.ones_like(scales_v[order]), K_t, width, height
+            means_cam, quats_cam, torch.ones_like(v.scales_v[order]), K_t, width, height
         )
         in_img = (
             (means_cam[..., 2] >= NEAR_PLANE)
@@ -668,7 +814,7 @@ def transform(
             & (mu2d[..., 1] >= 0)
             & (mu2d[..., 1] < height)
         )
-        _, _, inside_v = video_pixels(pos_v[order], width, height)
+        _, _, inside_v = video_pixels(v.pos_v[order], width, height)
         fit_valid = in_img & inside_v
     if ablation.cov_invariance:
         # initial guess: the NDC -> metric factor of the back-projection, x_c = x_ndc (W/2) z / fx,
@@ -682,8 +828,8 @@ def transform(
             z_med,
             means_cam[..., 2].abs().median(dim=1).values.clamp_min(NEAR_PLANE),
         )
-        init = scales_v[order] * (width / 2.0) * z_med[:, None] / K_t[0, 0]
-        raw_w, fit_info = refit_scales(
+        init = v.scales_v[order] * (width / 2.0) * z_med[:, None] / K_t[0, 0]
+        return refit_scales(
             target,
             means_cam,
             quats_cam,
@@ -699,28 +845,43 @@ def transform(
             frames_per_step=frames_per_step,
             seed=cfg.seed,
         )
-    else:
-        # "inherit": the same scale values, read in world units
-        raw_w = scale_inverse(scales_v[order], world_scale_kind, world_scale_max)
-        err = cov2d_fit_error(
-            target,
-            means_cam,
-            quats_cam,
-            fit_valid,
-            scale_activation(raw_w, world_scale_kind, world_scale_max),
-            K_t,
-            width,
-            height,
-        )
-        has = fit_valid.any(1)
-        fit_info = {
-            "loss_l1": float(err["l1"][has].mean()) if has.any() else 0.0,
-            "rel_err": float(err["rel"][has].mean()) if has.any() else 0.0,
-            "num_fitted": 0,
-            "steps": 0,
-        }
-    timings["scales"] = time.perf_counter() - tsc
+    # "inherit": the same scale values, read in world units
+    raw_w = scale_inverse(v.scales_v[order], world_scale_kind, world_scale_max)
+    err = cov2d_fit_error(
+        target,
+        means_cam,
+        quats_cam,
+        fit_valid,
+        scale_activation(raw_w, world_scale_kind, world_scale_max),
+        K_t,
+        width,
+        height,
+    )
+    has = fit_valid.any(1)
+    fit_info = {
+        "loss_l1": float(err["l1"][has].mean()) if has.any() else 0.0,
+        "rel_err": float(err["rel"][has].mean()) if has.any() else 0.0,
+        "num_fitted": 0,
+        "steps": 0,
+    }
+    return raw_w, fit_info
 
+
+def _assemble_world(
+    video: VideoGaussians,
+    v: _Sampled,
+    s_idx: Tensor,
+    d_idx: Tensor,
+    means_s: Tensor,
+    quats_s: Tensor,
+    ctrl_d: Tensor,
+    coeffs_d: Tensor,
+    raw_w: Tensor,
+    world_scale_kind: str,
+    world_scale_max: float,
+) -> WorldGaussians:
+    """Step 4 and the result: opacity logits and colour features copied from the video Gaussians,
+    the static set (mean + quaternion) and the dynamic set (spline + rotation polynomial)."""
     ns = s_idx.numel()
     opac = video.params["opacities"].detach()
     feats = video.params["features"].detach()
@@ -732,28 +893,15 @@ def transform(
         "features": feats[s_idx].clone(),
     }
     dynamic = {
-        "ctrl": ctrl_d.to(dtype).clone(),
-        "rot": coeffs_d.detach().to(dtype).clone(),
+        "ctrl": ctrl_d.to(v.dtype).clone(),
+        "rot": coeffs_d.detach().to(v.dtype).clone(),
         "scales": raw_w[ns:].clone(),
         "opacities": opac[d_idx].clone(),
         "features": feats[d_idx].clone(),
     }
-    world = WorldGaussians(
-        static, dynamic, knots.clone(), t_count, world_scale_kind, world_scale_max
+    return WorldGaussians(
+        static, dynamic, v.knots.clone(), v.num_frames, world_scale_kind, world_scale_max
     )
-    timings["total"] = time.perf_counter() - t0
-    report = {
-        "num_static": int(ns),
-        "num_dynamic": int(d_idx.numel()),
-        "num_gaussians": int(ns + d_idx.numel()),
-        "classification": how,
-        "occlusion_used": occlusion_used,
-        "cov_invariance": bool(ablation.cov_invariance),
-        "scale_fit": fit_info,
-        "time_s": {k: float(v) for k, v in timings.items()},
-        "is_dynamic": is_dyn,
-    }
-    return world, report
 
 
 __all__ = [
