@@ -12,13 +12,13 @@ irradiance are linear."""
 from __future__ import annotations
 
 import copy
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, List, Mapping, Optional, Sequence
 
 import yaml
 
+from m4dgs.core.checks import is_integer, is_number, unknown_keys
 from m4dgs.core.errors import InputError
 
 _REQUIRED = object()
@@ -64,10 +64,6 @@ class Node:
         return "value"
 
 
-def _is_num(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(float(v))
-
-
 class Num(Node):
     def __init__(self, lo=None, hi=None, *, integer=False, lo_open=False, doc=""):
         self.lo, self.hi, self.integer, self.lo_open, self.doc = lo, hi, integer, lo_open, doc
@@ -83,9 +79,9 @@ class Num(Node):
 
     def check(self, v, file, path):
         if self.integer:
-            if not (isinstance(v, int) and not isinstance(v, bool)):
+            if not is_integer(v):
                 raise SpecError(file, path, self.describe(), v)
-        elif not _is_num(v):
+        elif not is_number(v, finite=True):
             raise SpecError(file, path, self.describe(), v)
         if self.lo is not None and (v < self.lo or (self.lo_open and v == self.lo)):
             raise SpecError(file, path, self.describe(), v)
@@ -151,7 +147,7 @@ class Vec(Node):
         return s
 
     def check(self, v, file, path):
-        if self.broadcast and _is_num(v):
+        if self.broadcast and is_number(v, finite=True):
             v = [v] * self.n
         if not isinstance(v, (list, tuple)) or len(v) != self.n:
             raise SpecError(file, path, self.describe(), v)
@@ -216,14 +212,14 @@ class Dict(Node):
     def check(self, v, file, path):
         if not isinstance(v, dict):
             raise SpecError(file, path, f"a mapping with keys {sorted(self.fields)}", v)
-        for k in v:
-            if k not in self.fields:
-                raise SpecError(
-                    file,
-                    _join(path, str(k)),
-                    f"a known key (allowed here: {sorted(self.fields)})",
-                    _Raw("an unknown key"),
-                )
+        bad = unknown_keys(v, self.fields)
+        if bad:
+            raise SpecError(
+                file,
+                _join(path, str(bad[0])),
+                f"a known key (allowed here: {sorted(self.fields)})",
+                _Raw("an unknown key"),
+            )
         out = {}
         for k, f in self.fields.items():
             p = _join(path, k)

@@ -14,6 +14,8 @@ from importlib import resources
 from pathlib import Path
 from typing import List, Union
 
+from m4dgs.core import io as mio
+
 from .spec import SpecError, read_yaml, validate_suite
 
 
@@ -45,23 +47,22 @@ def builtin_suites() -> List[str]:
     return sorted(p.stem for p in (builtin_scenes_dir() / "suites").glob("*.yaml"))
 
 
-def find_suite(name_or_path: Union[str, Path]) -> Path:
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.is_file():
-        return p
-    cand = builtin_scenes_dir() / "suites" / f"{name_or_path}.yaml"
-    if cand.exists():
-        return cand
-    raise SpecError(
-        str(name_or_path),
-        "<suite>",
-        f"a suite file or one of the built-in suites {builtin_suites()}",
-    )
+def find_scene_suite(name_or_path: Union[str, Path]) -> Path:
+    """A benchgen scene suite: a suite YAML file by path, or the name of a shipped one
+    (scenes/suites/<name>.yaml). Raises SpecError naming the shipped suites."""
+    path = mio.find_file(name_or_path, builtin_scenes_dir() / "suites")
+    if path is None:
+        raise SpecError(
+            str(name_or_path),
+            "<suite>",
+            f"a suite file or one of the built-in suites {builtin_suites()}",
+        )
+    return path
 
 
 def load_suite(name_or_path: Union[str, Path]) -> Suite:
     """Load and validate a suite by built-in name or path; every listed scene file must exist."""
-    path = find_suite(name_or_path)
+    path = find_scene_suite(name_or_path)
     spec = validate_suite(read_yaml(path), file=str(path))
     scenes_dir = path.resolve().parent.parent
     resolved = []

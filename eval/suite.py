@@ -32,6 +32,7 @@ suites that use the same clips share them. Runs go to ``OUT/runs/<suite>/<scene>
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass, field
 from importlib import resources
@@ -40,6 +41,11 @@ from typing import Any, Dict, List, Optional
 
 import yaml
 
+from benchgen.suite import load_suite
+from eval.paper import load_paper_values
+from eval.tables import Column, TableSpec, paper_table_spec
+from m4dgs.core import io as mio
+from m4dgs.core.checks import is_integer, is_number, unknown_keys
 from m4dgs.core.errors import InputError
 
 SCHEDULES = ("alternating", "random-order", "random-values")
@@ -47,6 +53,11 @@ PRIOR_PROFILES = ("oracle", "realistic", "harsh")
 DEFAULT_PRIORS = "realistic"
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 _SEED_SUFFIX_RE = re.compile(r"-seed-[0-9]+$")
+# the keys a suite file may use, per level
+SUITE_KEYS = ("name", "description", "scenes", "clips", "rows", "tables", "reference")
+CLIP_KEYS = ("schedule", "priors", "observed", "novel", "seed", "crf")
+ROW_KEYS = ("name", "label", "variant", "overrides", "clip")
+TABLE_KEYS = ("title", "columns", "paper")
 
 
 class SuiteError(InputError):
@@ -138,14 +149,12 @@ class EvalSuite:
 # --------------------------------------------------------------------------------------------------
 # table columns
 # --------------------------------------------------------------------------------------------------
-def metric_columns() -> Dict[str, "Column"]:  # noqa: F821
+def metric_columns() -> Dict[str, Column]:
     """Every metrics.json key a table may show -> eval.tables.Column (header, direction, format,
     group, convention).
 
     The paper's main-table columns come from eval.tables.paper_table_spec (one definition for
     both)."""
-    from eval.tables import Column, paper_table_spec
-
     cols = {c.key: c for c in paper_table_spec().columns}
     extra = [
         Column("ldr_train_psnr", "PSNR", True, ".2f", "LDR-OE (train)", "psnr"),
@@ -259,10 +268,6 @@ def table_spec(
     methods: Optional[List[str]] = None,
 ):
     """eval.tables.TableSpec of a suite table (the `paper` layout is paper_table_spec itself)."""
-    import dataclasses
-
-    from eval.tables import TableSpec, paper_table_spec
-
     lp_key = "lpips" if lpips_available else "lpips_na"
     if table.columns == "paper":
         spec = paper_table_spec(
@@ -294,24 +299,21 @@ def builtin_suites() -> List[str]:
     return sorted(p.stem for p in suites_dir().glob("*.yaml"))
 
 
-def find_suite(name_or_path) -> Path:
-    p = Path(str(name_or_path))
-    if p.suffix in (".yaml", ".yml") and p.exists():
-        return p
-    cand = suites_dir() / f"{name_or_path}.yaml"
-    if cand.exists():
-        return cand
-    raise SuiteError(
-        name_or_path, "<suite>", f"not a suite file nor a built-in suite {builtin_suites()}"
-    )
+def find_eval_suite(name_or_path) -> Path:
+    """An eval experiment suite: a suite YAML file by path, or the name of a shipped one
+    (eval/suites/<name>.yaml). Raises SuiteError naming the shipped suites."""
+    path = mio.find_file(name_or_path, suites_dir())
+    if path is None:
+        raise SuiteError(
+            name_or_path, "<suite>", f"not a suite file nor a built-in suite {builtin_suites()}"
+        )
+    return path
 
 
 def _levels(v, path, key):
     if v is None:
         return None
-    if not isinstance(v, list) or not all(
-        isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in v
-    ):
+    if not isinstance(v, list) or not all(is_number(x) and x > 0 for x in v):
         raise SuiteError(path, key, f"expected a list of positive numbers, got {v!r}")
     return tuple(float(x) for x in v)
 
@@ -321,14 +323,10 @@ def _parse_clip(key: str, d: Any, path) -> ClipSetting:
         d = {}
     if not isinstance(d, dict):
         raise SuiteError(path, f"clips.{key}", "expected a mapping")
-    unknown = sorted(set(d) - {"schedule", "priors", "observed", "novel", "seed", "crf"})
+    unknown = sorted(unknown_keys(d, CLIP_KEYS))
     if unknown:
-        raise SuiteError(
-            path,
-            f"clips.{key}.{unknown[0]}",
-            "unknown key (schedule, priors, observed, novel, seed, crf)",
-        )
-    from m4dgs.core.crf import CLIP_CRFS
+        raise SuiteError(path, f"clips.{key}.{unknown[0]}", f"unknown key ({', '.join(CLIP_KEYS)})")
+    from m4dgs.core.crf import CLIP_CRFS  # deferred: m4dgs.core.crf imports torch
 
     crf = d.get("crf")
     if crf is not None and crf not in CLIP_CRFS:
@@ -344,7 +342,7 @@ def _parse_clip(key: str, d: Any, path) -> ClipSetting:
             path, f"clips.{key}.priors", f"expected one of {PRIOR_PROFILES}, got {pri!r}"
         )
     seed = d.get("seed", 0)
-    if not isinstance(seed, int) or isinstance(seed, bool):
+    if not is_integer(seed):
         raise SuiteError(path, f"clips.{key}.seed", f"expected an integer, got {seed!r}")
     return ClipSetting(
         key,
@@ -362,9 +360,7 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
     key."""
     if not isinstance(d, dict):
         raise SuiteError(path, "<root>", "expected a mapping")
-    unknown = sorted(
-        set(d) - {"name", "description", "scenes", "clips", "rows", "tables", "reference"}
-    )
+    unknown = sorted(unknown_keys(d, SUITE_KEYS))
     if unknown:
         raise SuiteError(path, unknown[0], "unknown key")
     for k in ("name", "scenes", "rows"):
@@ -383,11 +379,9 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
     for i, r in enumerate(d["rows"]):
         if not isinstance(r, dict):
             raise SuiteError(path, f"rows[{i}]", "expected a mapping")
-        bad = sorted(set(r) - {"name", "label", "variant", "overrides", "clip"})
+        bad = sorted(unknown_keys(r, ROW_KEYS))
         if bad:
-            raise SuiteError(
-                path, f"rows[{i}].{bad[0]}", "unknown key (name, label, variant, overrides, clip)"
-            )
+            raise SuiteError(path, f"rows[{i}].{bad[0]}", f"unknown key ({', '.join(ROW_KEYS)})")
         variant = str(r.get("variant", "full"))
         rname = str(r.get("name", variant))
         if not _NAME_RE.match(rname):
@@ -417,12 +411,12 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
     ):
         if not isinstance(t, dict) or "columns" not in t:
             raise SuiteError(path, f"tables[{i}]", "expected {title, columns}")
-        bad = sorted(set(t) - {"title", "columns", "paper"})
+        bad = sorted(unknown_keys(t, TABLE_KEYS))
         if bad:
-            raise SuiteError(path, f"tables[{i}].{bad[0]}", "unknown key (title, columns, paper)")
+            raise SuiteError(
+                path, f"tables[{i}].{bad[0]}", f"unknown key ({', '.join(TABLE_KEYS)})"
+            )
         if t.get("paper") is not None:
-            from .paper import load_paper_values
-
             known = load_paper_values()
             if t["paper"] not in known:
                 raise SuiteError(
@@ -469,7 +463,7 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
 
 def load_eval_suite(name_or_path) -> EvalSuite:
     """Load a built-in suite by name (eval/suites/<name>.yaml) or any suite file by path."""
-    path = find_suite(name_or_path)
+    path = find_eval_suite(name_or_path)
     with open(path, "r", encoding="utf-8") as f:
         d = yaml.safe_load(f)
     return parse_suite(d, path)
@@ -477,14 +471,13 @@ def load_eval_suite(name_or_path) -> EvalSuite:
 
 def scene_suite_names(suite: EvalSuite) -> List[str]:
     """Scene names of the suite's benchgen scene suite."""
-    from benchgen.suite import load_suite
-
     return load_suite(suite.scenes).scene_names
 
 
 def known_variants() -> Optional[List[str]]:
     """Names in m4dgs.training.variants.VARIANTS, or None while that module does not exist yet."""
     try:
+        # the trainer's variant registry: heavy (the whole trainer) and optional here
         from m4dgs.training.variants import VARIANTS
     except ImportError:
         return None

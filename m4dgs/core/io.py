@@ -13,7 +13,7 @@ import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Optional
 
 import numpy as np
 
@@ -60,6 +60,17 @@ def write_bytes_atomic(path, data: bytes) -> None:
 def write_text_atomic(path, text: str) -> None:
     """Write UTF-8 text to `path` atomically (`write_bytes_atomic`)."""
     write_bytes_atomic(path, text.encode())
+
+
+def find_file(name_or_path, folder, suffix: str = ".yaml") -> Optional[Path]:
+    """Look up a file given by path or by the name of a shipped one: `name_or_path` itself when it
+    is an existing file, else `<folder>/<name_or_path><suffix>` when that exists, else None (the
+    caller raises its own error, naming what it was looking for)."""
+    p = Path(str(name_or_path))
+    if p.is_file():
+        return p
+    cand = Path(folder) / f"{name_or_path}{suffix}"
+    return cand if cand.is_file() else None
 
 
 def write_json(path, obj: Any) -> None:
