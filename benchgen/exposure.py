@@ -5,7 +5,7 @@ The input video is tone-mapped with a CRF (``m4dgs.core.crf``, HDR-NeRF by defau
 frame, ``s`` the clip's single HDR scale (``benchgen.placement.choose_hdr_scale``, recorded in
 clip.json ``hdr_scale``) and ``dt_g`` the frame's exposure time.
 
-Presets (DESIGN.md "Conventions"; HDR-NeRF's ladder 0.125, 0.5, 2, 8, 32 — two stops apart):
+Presets (docs/exposure.md "Levels"; HDR-NeRF's ladder 0.125, 0.5, 2, 8, 32 — two stops apart):
 
 * ``--exposures 3``: observed {0.125, 2, 32}, novel {0.5, 8} (HDR-NeRF / Syn-Exp-3 protocol).
 * ``--exposures 2``: observed {0.5, 8}, novel {0.125, 2, 32}: a 4-stop bracket (+-2 EV around 2, the

@@ -1,5 +1,4 @@
-"""Exact ground truth from pixel-centre ray casts (project issue 3; docs/rendering.md "Ground
-truth").
+"""Exact ground truth from pixel-centre ray casts (docs/rendering.md "Ground truth definitions").
 
 Pure numpy. The unit of correspondence is a surface point named by (mesh index, triangle,
 barycentrics): the same triple gives the same material point in every frame, for rigid and for

@@ -1,4 +1,4 @@
-"""Procedural triangle meshes with uvs (project issue 3, "Scenes").
+"""Procedural triangle meshes with uvs (docs/scenes.md).
 
 Every closed mesh is wound counter-clockwise seen from outside (right-hand rule normals point
 outwards); open sheets (plane, grid) face local +z. Emitters are ordinary meshes with an emitter

@@ -1,4 +1,4 @@
-"""Camera trajectories and object motion as pure functions of time (project issue 3, "Scenes").
+"""Camera trajectories and object motion as pure functions of time (docs/scenes.md).
 
 Conventions: world is right-handed and z-up; cameras are OpenCV (x right, y down, z forward) and
 returned as 4x4 camera-to-world matrices (float64). Rigid object motions return 4x4 world transforms

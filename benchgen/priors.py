@@ -1,7 +1,7 @@
 """Prior degradation: depth, tracks and flow priors computed from exact ground truth
 (docs/priors.md).
 
-The method consumes priors, never ground truth (DESIGN.md "Priors"). A synthetic clip gets its
+The method consumes priors, never ground truth (docs/priors.md). A synthetic clip gets its
 priors by passing exact geometry through a ``PriorProfile``:
 
 * ``oracle``: the exact ground truth, bit for bit (identity degradation; depth keeps 0 for "no

@@ -1,4 +1,4 @@
-"""Declarative scene and suite specs: schema, validation, defaults (project issue 3, "Scenes").
+"""Declarative scene and suite specs: schema, validation, defaults (docs/scenes.md).
 
 A scene spec is a YAML mapping validated against :data:`SCENE_SCHEMA`; a suite file against
 :data:`SUITE_SCHEMA`. Validation fills in every default, rejects unknown keys and raises

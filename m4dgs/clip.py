@@ -1,4 +1,4 @@
-"""The clip folder contract (DESIGN.md "The clip folder"), schema version 1.
+"""The clip folder contract (docs/clip-format.md), schema version 1.
 
 A clip is one input video with its priors and, for synthetic clips, the ground truth kept apart for
 evaluation::

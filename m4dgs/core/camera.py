@@ -1,4 +1,5 @@
-"""Camera conventions, in one place (DESIGN.md "Conventions").
+"""Camera conventions, in one place (the clip format's, docs/clip-format.md; cameras in
+docs/cameras.md).
 
 - OpenCV camera frame: x right, y down, z forward. Extrinsics are camera-to-world 4x4 matrices
   (`c2w`), so a camera-space point p_c maps to the world as p_w = R p_c + T with [R | T] = c2w[:3]

@@ -1,8 +1,9 @@
 """Backward warping by optical flow and forward-backward flow consistency.
 
-Conventions (DESIGN.md): flow F_{a->b} is given per pixel of frame a as (dx, dy) in pixels, pixel
-centres at integer + 0.5. Backward warping W(I_b, F_{a->b}) samples I_b at x + F_{a->b}(x) and so
-expresses frame b on the pixel grid of frame a."""
+Conventions (m4dgs.core.camera, docs/clip-format.md): flow F_{a->b} is given per pixel of frame a
+as (dx, dy) in pixels, pixel centres at integer + 0.5. Backward warping W(I_b, F_{a->b}) samples I_b
+at x + F_{a->b}(x) and so expresses frame b on the pixel grid of frame a. `sample_map` and
+`sample_per_frame` sample maps at continuous pixel coordinates with the same convention."""
 
 from __future__ import annotations
 

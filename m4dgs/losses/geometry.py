@@ -8,11 +8,12 @@ positions at the destination time t' as 3 extra alpha-blended feature channels (
 blended destination position:
 
 - Video space (stage 1, orthographic): P holds (x, y, z) of video Gaussians at t'; the destination
-  pixel in continuous coordinates (pixel centres at integer + 0.5, DESIGN.md) is ``u = (x + 1) W /
-  2, v = (y + 1) H / 2`` (`m4dgs.core.camera.ortho_to_pixel`). The authors write ``u = (x + 1) W / 2
-  - 0.5`` because they work in pixel-index coordinates (centre of pixel i at i); flows, being
-  differences of two positions in the same coordinates, are identical in both conventions. Source
-  pixel = the pixel's own centre, so ``F~_{t->t'}(p) = ortho_to_pixel(P(p)[:2]) - centre(p)``.
+  pixel in continuous coordinates (pixel centres at integer + 0.5, m4dgs.core.camera) is
+  ``u = (x + 1) W / 2, v = (y + 1) H / 2`` (`m4dgs.core.camera.ortho_to_pixel`). The authors
+  write ``u = (x + 1) W / 2 - 0.5`` because they work in pixel-index coordinates (centre of pixel i
+  at i); flows, being differences of two positions in the same coordinates, are identical in both
+  conventions. Source pixel = the pixel's own centre, so
+  ``F~_{t->t'}(p) = ortho_to_pixel(P(p)[:2]) - centre(p)``.
 - World space (stage 2, pinhole): the paper's flow is F_{t->t'} = pi(K, w2c_t' mu_t') - pi(K, w2c_t
   mu_t). We blend *positions* and project *after* blending (the MoSca / Shape-of-Motion approach): P
   holds either world positions at t' (then pass ``w2c_dst`` = w2c_t' and they are moved to the

@@ -29,7 +29,8 @@ for each pixel only the pairs where its flow is valid; a pixel valid in no pair 
 pairs unmasked. A training frame that is the source of no pair takes the map of the nearest frame
 (in training order) that has one; if no pair exists at all the maps are 0 (everything static).
 
-Classical fallback for clips without flow priors (DESIGN.md "Priors"): `opencv_flow_prior` computes
+Classical fallback for clips without flow priors (docs/cameras.md "Classical fallback"):
+`opencv_flow_prior` computes
 DIS optical flow (OpenCV, preset MEDIUM) between training frames of the same exposure level after
 brightness normalisation, with a forward-backward validity mask, and `tracks_from_flow` chains a
 FlowSet into long-term tracks."""
