@@ -17,6 +17,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import torch  # noqa: E402
 
 from m4dgs.clip import Clip  # noqa: E402
+from m4dgs.raster import resolve_backend  # noqa: E402
 from m4dgs.training.data import load_training_data  # noqa: E402
 from m4dgs.training.pipeline import resolve_config  # noqa: E402
 from m4dgs.training.stage1 import VideoStage  # noqa: E402
@@ -59,7 +60,7 @@ def main():
     )
     print(
         f"threads {torch.get_num_threads()}, OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}, "
-        f"backend {stage._last_meta.backend}"
+        f"backend {resolve_backend(stage.backend, stage.device)}"
     )
     print(f"init (lift + tone-mapper pre-training): {t_init:.1f} s")
     print(f"Gaussians: {stage.gauss.num_gaussians}")

@@ -8,17 +8,16 @@ from typing import Dict, Optional, Sequence, Tuple
 import numpy as np
 import torch
 
-from m4dgs.clip import Cameras, Clip
+from m4dgs.clip import Cameras, Clip, frame_time
 from m4dgs.core import camera as cam
 from m4dgs.core.io import read_json
 from m4dgs.core.warp import sample_map
+from m4dgs.model.background import Background
 from m4dgs.model.color import ColorMLP
 from m4dgs.model.gaussians import WorldGaussians
+from m4dgs.model.render import render_world
 from m4dgs.model.tonemap import ToneMapper
 from m4dgs.run import RunDir, load_torch
-from m4dgs.training.data import frame_time
-from m4dgs.training.stage1 import Background
-from m4dgs.training.stage2 import render_world
 
 
 def _find_clip(run: RunDir) -> Clip:

@@ -5,19 +5,31 @@ Sections (each group cites the paper section its defaults come from; "authors' c
 the paper leaves open, filled from shared/notes/authors-implementation.md):
 
     TrainConfig
-      model      ModelConfig        Gaussian representation (N_s, features, scale activations,
-      rotation init) stage1     Stage1Config       video Gaussians: iterations, densification,
-      learning rates, loss weights, init v2w        V2WConfig          video-to-world transform
-      stage2     Stage2Config       world Gaussians + cameras tonemap    ToneMapConfig      tone
-      mapper / colour MLP sizes and pre-training exposure   ExposureConfig     clip-derived values
-      (N_e, unit-exposure target) and the exposure-perturbation study ablation   AblationConfig
-      the paper's ablation switches camera_init, epipolar, masks  priors-side configs owned by
-      m4dgs.priors.camera_init / m4dgs.priors.epipolar / m4dgs.priors.rigidity
+      model        ModelConfig        Gaussian representation (N_s, features, scale activations,
+                                      rotation init)
+      stage1       Stage1Config       video Gaussians: iterations, densification, learning rates,
+                                      init; stage1.loss (LossConfig) its loss weights and details
+      v2w          V2WConfig          video-to-world transform
+      stage2       Stage2Config       world Gaussians + cameras; stage2.loss (LossConfig) and the
+                                      stage-2 terms (HDR / LDR reprojection, dynamic removal)
+      tonemap      ToneMapConfig      tone mapper / colour MLP sizes and pre-training
+      exposure     ExposureConfig     clip-derived values (unit-exposure target) and the
+                                      exposure-perturbation study
+      ablation     AblationConfig     the paper's ablation switches
+      camera_init, epipolar, masks    priors-side configs owned by m4dgs.priors.camera_init /
+                                      m4dgs.priors.epipolar / m4dgs.priors.rigidity
 
 Presets: `tiny` (unit tests: tens of iterations, tiny images), `small` (CPU, 216x120), `paper`
 (864x480, 4K + 11K iterations). `to_dict` / `from_dict` round-trip through YAML (`from_dict` names
-an unknown key with its full dotted path); `apply_overrides(cfg, {"stage1.lambda_tlr": 0,
-"model.control_every": 8})` builds a variant."""
+an unknown key with its full dotted path); `apply_overrides(cfg, {"stage1.loss.lambda_tlr": 0,
+"model.control_every": 8})` builds a variant.
+
+String options with a fixed set of values are typed `Literal[...]`: a value outside the set is
+rejected with the key and the allowed values when a config is built, loaded or overridden
+(`validate`). Keys of older configs (the loss weights directly under stage1 / stage2, e.g.
+`stage1.lambda_dep`) are mapped to their new place (`stage1.loss.lambda_dep`) with a one-line
+FutureWarning; keys that were removed because nothing read them are ignored with a warning
+(`LEGACY_KEYS`, `REMOVED_KEYS`, `upgrade_dict`)."""
 
 from __future__ import annotations
 
@@ -27,9 +39,10 @@ import math
 import os
 import tempfile
 import typing
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, Mapping, Optional, Tuple
+from typing import Any, Dict, Literal, Mapping, Optional, Tuple
 
 import yaml
 
@@ -39,8 +52,18 @@ from m4dgs.priors.epipolar import EpipolarConfig
 from m4dgs.priors.rigidity import DynamicMaskConfig
 from m4dgs.training.densify import DensifyConfig
 
-PRESETS = ("tiny", "small", "paper")
-LDR_REPROJ_PAIRS = ("same-exposure", "consecutive")
+# typed choices of the string options (validated by `validate`, `from_dict`, `apply_overrides`)
+PresetName = Literal["tiny", "small", "paper"]
+# "mono4dgs" (the method) or an adapted baseline of the paper's comparisons
+# (m4dgs.training.variants)
+Method = Literal["mono4dgs", "static-hdr", "world-only", "ldr-reproj"]
+RasterBackend = Literal["auto", "gsplat", "cpu", "torch"]  # m4dgs.raster.BACKENDS
+PrQuery = Literal["stage1", "render"]
+LdrReprojPairs = Literal["same-exposure", "consecutive"]
+V2WResample = Literal["lstsq", "sample"]
+
+PRESETS: Tuple[str, ...] = typing.get_args(PresetName)
+LDR_REPROJ_PAIRS: Tuple[str, ...] = typing.get_args(LdrReprojPairs)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -60,9 +83,10 @@ class LRConfig:
     features: float = 2.5e-3
     mlp: float = 5e-4  # tone-mapper and colour MLPs (paper)
     adam_eps: float = 1e-15
-    camera_rotation: float = 3e-5  # stage 2 (authors' code)
+    # stage 2 (authors' code); the focal length stays fixed in stage 2 (authors' code: its learning
+    # rate is 0), so it has none
+    camera_rotation: float = 3e-5
     camera_translation: float = 3e-5
-    camera_focal: float = 0.0  # focal frozen in stage 2 (authors' code)
 
     def position_lr(self, step: int, max_steps: int) -> float:
         """3DGS exponential decay: log-linear from position_init (step 0) to position_final (step
@@ -80,6 +104,43 @@ class LRConfig:
         return lr
 
 
+@dataclass
+class LossConfig:
+    """Weights and details of the loss terms both stages share (paper sec. 3.3.3 "Overall Loss";
+    weights from appendix "Implementation Details", lambda_d from appendix "LDR RGB Loss"). A term
+    with weight 0 is not computed. The objective itself: m4dgs.training.objective."""
+
+    lambda_rgb: float = 1.0
+    lambda_dssim: float = 0.2  # lambda_d: L_rgb = lambda_d DSSIM + (1 - lambda_d) L1
+    lambda_ue: float = 10.0
+    lambda_dep: float = 1.0
+    lambda_track: float = 0.01
+    lambda_arap: float = 0.01
+    lambda_vel: float = 10.0
+    lambda_acc: float = 10.0
+    lambda_tlr: float = 0.1
+    # extra terms of the authors' code, off by default (paper does not list them): opacity -> 1
+    # (authors 1.0), scale standard deviation (authors 10.0)
+    lambda_opacity: float = 0.0
+    lambda_scale_std: float = 0.0
+    arap_k: int = 5  # k nearest neighbours of the ARAP loss (appendix "Rigidity Constraint")
+    # per-iteration probability of flow (vs track) supervision (appendix "Flow/Track Loss")
+    flow_prob: float = 0.5
+    smooth_window: int = 1  # velocity/acceleration over +-1 frame (paper); authors' code: 2
+    # first step of the TLR loss; None = after densification (sec. 3.3.3; the stage config's
+    # tlr_start_step says which densification)
+    tlr_start: Optional[int] = None
+    tlr_occlusion_ratio: float = 1.1  # authors' code: depth-order occlusion test at 1.1x depth
+
+
+def _stage1_loss() -> LossConfig:
+    # appendix "Implementation Details": lambda_rgb 1, lambda_ue 10, lambda_dep 1 (authors' base
+    # config: 0.01, used by the small preset), lambda_track 0.01, lambda_arap 0.01, lambda_vel 10,
+    # lambda_acc 10, lambda_tlr 0.1 (authors' synthetic configs: 0.01); TLR after the end of the
+    # stage-1 densification (sec. 3.3.3)
+    return LossConfig()
+
+
 def _stage1_densify() -> DensifyConfig:
     # appendix "Implementation Details": 3K densification iterations, every 200 steps, opacity reset
     # every 1K
@@ -95,35 +156,11 @@ class Stage1Config:
     densify: DensifyConfig = field(default_factory=_stage1_densify)
     lr: LRConfig = field(default_factory=LRConfig)
     init: VideoInitConfig = field(default_factory=VideoInitConfig)
-    # loss weights (appendix "Implementation Details"; lambda_d of the RGB loss from appendix "LDR
-    # RGB Loss")
-    lambda_rgb: float = 1.0
-    lambda_dssim: float = 0.2  # lambda_d: L_rgb = lambda_d DSSIM + (1 - lambda_d) L1
-    lambda_ue: float = 10.0
-    lambda_dep: float = 1.0  # authors' base config: 0.01 (used by the small preset)
-    lambda_track: float = 0.01
-    lambda_arap: float = 0.01
-    lambda_vel: float = 10.0
-    lambda_acc: float = 10.0
-    lambda_tlr: float = 0.1  # authors' synthetic configs: 0.01
-    # extra terms of the authors' code, off by default (paper does not list them): opacity -> 1
-    # (authors 1.0), scale standard deviation (authors 10.0)
-    lambda_opacity: float = 0.0
-    lambda_scale_std: float = 0.0
-    # loss details
-    arap_k: int = 5  # k nearest neighbours of the ARAP loss (appendix "Rigidity Constraint")
-    flow_prob: float = (
-        0.5  # per-iteration probability of flow (vs track) supervision (appendix "Flow/Track Loss")
-    )
-    track_clamp_px: float = 100.0  # authors' code: track L2 pixel distance clamped at 100
-    smooth_window: int = 1  # velocity/acceleration over +-1 frame (paper); authors' code: 2
-    # TLR after densification ends (sec. 3.3.3); None = densify.stop_iter
-    tlr_start: Optional[int] = None
-    tlr_occlusion_ratio: float = 1.1  # authors' code: depth-order occlusion test at 1.1x depth
+    loss: LossConfig = field(default_factory=_stage1_loss)
 
     def tlr_start_step(self) -> int:
-        """First step with the TLR loss: tlr_start, or the end of densification."""
-        return self.densify.stop_iter if self.tlr_start is None else self.tlr_start
+        """First step with the TLR loss: loss.tlr_start, or the end of densification."""
+        return self.densify.stop_iter if self.loss.tlr_start is None else self.loss.tlr_start
 
 
 @dataclass
@@ -139,8 +176,8 @@ class V2WConfig:
     )
     scale_refit_lr: float = 0.1  # authors' code
     rotation_refit_lr: float = 1e-3  # authors' code
-    fov_clamp: float = 1.3  # authors' code: EWA tan-fov clamp factor
-    resample: str = "lstsq"  # control points from the world trajectory: "lstsq" | "sample"
+    # (the EWA tan-fov clamp of the refit, authors' 1.3, is the rasterizer's own: not an option)
+    resample: V2WResample = "lstsq"  # control points from the world trajectory
     # 1 - |<q, q*>| refinement after the least-squares polynomial refit
     rotation_refine_steps: int = 200
     seed: int = 0
@@ -155,6 +192,13 @@ def _stage2_static_densify() -> DensifyConfig:
 def _stage2_dynamic_densify() -> DensifyConfig:
     # dynamic every 200, reset every 2K
     return DensifyConfig(start_iter=500, stop_iter=8_000, every=200, reset_every=2_000)
+
+
+def _stage2_loss() -> LossConfig:
+    # appendix "Implementation Details": the same weights as stage 1 (one list for both stages,
+    # lambda_pr apart: Stage2Config.lambda_pr); TLR after the end of both stage-2 densifications
+    # (sec. 3.3.3)
+    return LossConfig()
 
 
 @dataclass
@@ -174,55 +218,28 @@ class Stage2Config:
     near_camera_fraction: float = 0.0
     near_camera_samples: int = 2
     lr: LRConfig = field(default_factory=LRConfig)
-    lambda_rgb: float = 1.0
-    lambda_dssim: float = 0.2
-    lambda_ue: float = 10.0
-    lambda_dep: float = 1.0
-    lambda_track: float = 0.01
-    lambda_arap: float = 0.01
-    lambda_vel: float = 10.0
-    lambda_acc: float = 10.0
-    lambda_tlr: float = 0.1
-    lambda_pr: float = 1.0  # HDR photometric reprojection (stage 2 only)
-    lambda_opacity: float = 0.0
-    lambda_scale_std: float = 0.0
-    arap_k: int = 5
-    flow_prob: float = 0.5
-    track_clamp_px: float = 100.0
-    smooth_window: int = 1
-    tlr_start: Optional[int] = None  # None = the later of the two densification stops
-    tlr_occlusion_ratio: float = 1.1
-    pr_offsets: Tuple[int, ...] = (
-        1,
-        2,
-    )  # t' in {t +- 1, t +- 2} (appendix "HDR Photometric Reprojection Loss")
+    loss: LossConfig = field(default_factory=_stage2_loss)
+    lambda_pr: float = 1.0  # HDR photometric reprojection (stage 2 only; appendix)
+    # t' in {t +- 1, t +- 2} (appendix "HDR Photometric Reprojection Loss")
+    pr_offsets: Tuple[int, ...] = (1, 2)
     pr_steps: Optional[int] = None  # paper: whole stage; authors' code: first 3,000 steps only
     # HDR image at the query time t of L_pr: "stage1" = the stage-1 HDR frame (detached, like the
     # one at t'), so the loss moves only cameras and rendered depth (appendix: "we use the recovered
     # HDR training frames in the first stage for the computation of L_pr"; the authors' code
     # detaches both); "render" = the stage-2 render at t, which also pulls the stage-2 colours
     # towards the (less accurate) stage-1 frames
-    pr_query: str = "stage1"
+    pr_query: PrQuery = "stage1"
     # frame pairs of the LDR reprojection baselines (method "ldr-reproj";
     # m4dgs.training.stage2.ldr_reprojection_refs): "same-exposure" = i +- N_e (same level in an
     # alternating schedule), "consecutive" = i +- 1 (a different exposure: the SplineGS-HDR form the
     # paper compares with)
-    ldr_reproj_pairs: str = "same-exposure"
+    ldr_reproj_pairs: LdrReprojPairs = "same-exposure"
     optimize_cameras: bool = True
 
-    def validate(self) -> None:
-        if self.pr_query not in ("stage1", "render"):
-            raise ValueError(f"stage2.pr_query must be 'stage1' or 'render', got {self.pr_query!r}")
-        if self.ldr_reproj_pairs not in LDR_REPROJ_PAIRS:
-            raise ValueError(
-                f"stage2.ldr_reproj_pairs must be one of {LDR_REPROJ_PAIRS}, got "
-                f"{self.ldr_reproj_pairs!r}"
-            )
-
     def tlr_start_step(self) -> int:
-        """First step with the TLR loss: tlr_start, or the end of both densifications."""
-        if self.tlr_start is not None:
-            return self.tlr_start
+        """First step with the TLR loss: loss.tlr_start, or the end of both densifications."""
+        if self.loss.tlr_start is not None:
+            return self.loss.tlr_start
         return max(self.densify_static.stop_iter, self.densify_dynamic.stop_iter)
 
 
@@ -257,10 +274,9 @@ class ToneMapConfig:
 class ExposureConfig:
     """Exposure-related values. None means "from the clip" (clip.json)."""
 
-    num_exposures: Optional[int] = None  # N_e: flow pairs t +- N_e (appendix "Flow/Track Loss")
-    unit_exposure_value: Optional[float] = (
-        None  # C_0: 0.73 synthetic, 0.5 real (appendix "Unit Exposure Loss")
-    )
+    # C_0: 0.73 synthetic, 0.5 real (appendix "Unit Exposure Loss"); the number of exposure levels
+    # N_e always comes from the clip (clip.json)
+    unit_exposure_value: Optional[float] = None
     # exposure-perturbation study: uniform noise in [-r, r] EV on the input exposures
     perturb_ev: float = 0.0
     perturb_seed: int = 0
@@ -283,18 +299,18 @@ class AblationConfig:
 
 @dataclass
 class TrainConfig:
-    preset: str = "paper"
+    preset: PresetName = "paper"
     # "mono4dgs" (the method) or an adapted baseline of the paper's comparisons
     # (m4dgs.training.variants): "static-hdr" (static HDR Gaussians with the BA cameras),
     # "world-only" (world Gaussians from lifted priors), "ldr-reproj" (world-only + an LDR
     # photometric reprojection loss on the cameras, pairs: stage2.ldr_reproj_pairs)
-    method: str = "mono4dgs"
+    method: Method = "mono4dgs"
     seed: int = 0
     checkpoint_every: int = 500  # iterations between resumable checkpoints (model/ckpt.pt)
     width: int = 864  # processing resolution (paper: original 864x480)
     height: int = 480
     device: str = "auto"
-    raster_backend: str = "auto"
+    raster_backend: RasterBackend = "auto"
     model: ModelConfig = field(default_factory=ModelConfig)
     stage1: Stage1Config = field(default_factory=Stage1Config)
     v2w: V2WConfig = field(default_factory=V2WConfig)
@@ -307,6 +323,9 @@ class TrainConfig:
     # which dynamic-mask test (sec. 3.2 uses the epipolar one; m4dgs.priors.rigidity adds a rigidity
     # test)
     masks: DynamicMaskConfig = field(default_factory=DynamicMaskConfig)
+
+    def __post_init__(self) -> None:
+        validate(self)
 
     def to_dict(self) -> Dict[str, Any]:
         return to_dict(self)
@@ -369,12 +388,12 @@ def preset(name: str) -> TrainConfig:
         # TLR weight of the authors' synthetic configs (shared/notes/authors-implementation.md); the
         # paper's 0.1 cost 1.1 dB test LDR PSNR on pendulum-lamp-handheld (stage 2 with 0.1: 25.87
         # dB, without TLR: 26.98 dB)
-        s1.lambda_tlr = s2.lambda_tlr = 0.01
+        s1.loss.lambda_tlr = s2.loss.lambda_tlr = 0.01
         # stage-1 depth weight of the authors' base config: with the paper's 1.0 the (biased, noisy)
         # depth prior held the stage-1 fit of the training frames to 20.8 dB on
         # conveyor-occlusion-orbit / 23.5 dB on pendulum-lamp-handheld; with 0.01: 24.2 / 25.1 dB,
         # and the final depth AbsRel improved (0.067 -> 0.059)
-        s1.lambda_dep = 0.01
+        s1.loss.lambda_dep = 0.01
     # dynamic masks (tiny and small): the paper's epipolar test OR'd with the rigidity test
     # (m4dgs.priors.rigidity). Epipolar masks alone miss motion along the epipolar lines: IoU
     # against the gt masks 0.07 (conveyor-occlusion-orbit), 0.13 (lamp-room-orbit), 0.61
@@ -426,6 +445,11 @@ def _strip_optional(tp):
 def _coerce(value: Any, tp: Any, key: str) -> Any:
     """Convert a YAML / CLI value to the annotated field type, with an error naming the key."""
     base, optional = _strip_optional(tp)
+    if typing.get_origin(base) is Literal:
+        if value is None and optional:
+            return None
+        _check_choice(value, base, key)
+        return value
     if isinstance(value, str) and base is not str:
         value = yaml.safe_load(value) if value.strip() else value
     if value is None:
@@ -484,12 +508,15 @@ def from_dict(cls, data: Mapping[str, Any]):
     """Build a config dataclass from a (partial) nested dict; missing keys keep their defaults.
 
     Raises KeyError naming the full dotted path of an unknown key, TypeError for a value of the
-    wrong type. For TrainConfig, a "preset" key selects the defaults the other keys are applied to.
-    """
-    if cls is TrainConfig and "preset" in data:
-        base = preset(data["preset"])
-        rest = {k: v for k, v in data.items() if k != "preset"}
-        return apply_overrides(base, _flatten(rest))
+    wrong type, ValueError for a value outside a typed choice. For TrainConfig, a "preset" key
+    selects the defaults the other keys are applied to, and keys of older configs are upgraded
+    (`upgrade_dict`, with a warning each)."""
+    if cls is TrainConfig:
+        data = upgrade_dict(data)
+        if "preset" in data:
+            base = preset(_check_choice(data["preset"], PresetName, "preset"))
+            rest = {k: v for k, v in data.items() if k != "preset"}
+            return apply_overrides(base, _flatten(rest))
     return _from_dict(cls, data)
 
 
@@ -503,15 +530,89 @@ def _flatten(d: Mapping[str, Any], prefix: str = "") -> Dict[str, Any]:
     return out
 
 
+def _unflatten(flat: Mapping[str, Any]) -> Dict[str, Any]:
+    out: Dict[str, Any] = {}
+    for path, v in flat.items():
+        *parents, last = path.split(".")
+        node = out
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[last] = v
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# keys of older configs
+# --------------------------------------------------------------------------------------------------
+# the loss weights and details moved from stage1 / stage2 into their `loss` section (LossConfig)
+LEGACY_KEYS: Dict[str, str] = {
+    f"{stage}.{f.name}": f"{stage}.loss.{f.name}"
+    for stage in ("stage1", "stage2")
+    for f in dataclasses.fields(LossConfig)
+}
+# keys that nothing ever read, removed; an old config or command naming them still loads
+REMOVED_KEYS: Dict[str, str] = {
+    "stage1.track_clamp_px": "the track loss is the paper's L1 without a clamp",
+    "stage2.track_clamp_px": "the track loss is the paper's L1 without a clamp",
+    "stage1.lr.camera_focal": "stage 1 has no camera",
+    "stage2.lr.camera_focal": "the focal length stays fixed in stage 2",
+    "v2w.fov_clamp": "the V2W refit uses the rasterizer's fixed 1.3 tan-fov clamp",
+    "exposure.num_exposures": "N_e always comes from the clip",
+}
+
+
+def _upgrade_key(path: str, warn: bool, stacklevel: int = 3) -> Optional[str]:
+    """The current dotted key of `path` (itself when current), or None for a removed key."""
+    if path in LEGACY_KEYS:
+        new = LEGACY_KEYS[path]
+        if warn:
+            warnings.warn(
+                f"config key '{path}' is deprecated, use '{new}'",
+                FutureWarning,
+                stacklevel=stacklevel,
+            )
+        return new
+    if path in REMOVED_KEYS:
+        if warn:
+            warnings.warn(
+                f"config key '{path}' was removed ({REMOVED_KEYS[path]}); ignored",
+                FutureWarning,
+                stacklevel=stacklevel,
+            )
+        return None
+    return path
+
+
+def upgrade_dict(data: Mapping[str, Any], warn: bool = True) -> Dict[str, Any]:
+    """A nested TrainConfig dict (e.g. an older run's config.yaml) with the keys of older configs
+    moved to their current place (LEGACY_KEYS) and removed keys dropped (REMOVED_KEYS), warning
+    once per such key when `warn`. A current dict comes back equal."""
+    flat = _flatten(data)
+    out = {}
+    for path, v in flat.items():
+        new = _upgrade_key(path, warn, stacklevel=5)
+        if new is not None:
+            out[new] = v
+    # a mapping value for a section that held only removed keys disappears; keep empty sections
+    return _unflatten(out) if out != flat else dict(data)
+
+
 def apply_overrides(cfg: Any, overrides: Mapping[str, Any]) -> Any:
-    """A copy of `cfg` with dotted-path overrides applied, e.g. {"stage1.lambda_tlr": 0,
+    """A copy of `cfg` with dotted-path overrides applied, e.g. {"stage1.loss.lambda_tlr": 0,
     "ablation.tlr": False}.
 
     Values are coerced to the field type (strings are parsed as YAML scalars, so CLI values work); a
     mapping value overrides the nested fields it names. Unknown paths raise KeyError naming the
-    path."""
+    path, a value outside a typed choice ValueError. On a TrainConfig, the key of an older config
+    (e.g. "stage1.lambda_dep") is applied to its current place ("stage1.loss.lambda_dep") with a
+    FutureWarning, and a removed key is ignored with one; the result is validated (`validate`)."""
     out = copy.deepcopy(cfg)
+    root = isinstance(cfg, TrainConfig)
     for path, value in overrides.items():
+        if root:
+            path = _upgrade_key(path, warn=True)
+            if path is None:
+                continue
         parts = path.split(".")
         obj = out
         for i, part in enumerate(parts[:-1]):
@@ -530,10 +631,55 @@ def apply_overrides(cfg: Any, overrides: Mapping[str, Any]) -> Any:
         tp = typing.get_type_hints(type(obj))[last]
         base, _ = _strip_optional(tp)
         if dataclasses.is_dataclass(base) and isinstance(value, Mapping):
-            setattr(obj, last, apply_overrides(getattr(obj, last), _flatten(value)))
+            if root:  # through the root, so that older nested keys are upgraded too
+                flat = {f"{path}.{k}": v for k, v in _flatten(value).items()}
+                out = apply_overrides(out, flat)
+            else:
+                setattr(obj, last, apply_overrides(getattr(obj, last), _flatten(value)))
         else:
             setattr(obj, last, _coerce(value, tp, path))
+    if root:
+        validate(out)
     return out
+
+
+# --------------------------------------------------------------------------------------------------
+# validation
+# --------------------------------------------------------------------------------------------------
+def _check_choice(value: Any, tp: Any, key: str) -> Any:
+    """`value` if it is one of the Literal type's values, else ValueError naming key and values."""
+    allowed = typing.get_args(tp)
+    if not isinstance(value, str) or value not in allowed:
+        raise ValueError(
+            f"config key '{key}' must be one of {', '.join(map(repr, allowed))}; got {value!r}"
+        )
+    return value
+
+
+def validate(cfg: Any, prefix: str = "") -> None:
+    """Raise ValueError (naming the dotted key and the allowed values) for a typed-choice field
+    outside its values, anywhere in the config tree; nested configs with their own `validate()`
+    (e.g. masks: m4dgs.priors.rigidity.DynamicMaskConfig) are asked too, and the tone mapper's
+    pre-training curve must be a known one."""
+    hints = typing.get_type_hints(type(cfg))
+    for f in dataclasses.fields(cfg):
+        v = getattr(cfg, f.name)
+        base, optional = _strip_optional(hints[f.name])
+        if typing.get_origin(base) is Literal and not (v is None and optional):
+            _check_choice(v, base, prefix + f.name)
+        elif dataclasses.is_dataclass(v):
+            validate(v, f"{prefix}{f.name}.")
+    if callable(getattr(cfg, "validate", None)):
+        cfg.validate()
+    if isinstance(cfg, ToneMapConfig):
+        from m4dgs.core.crf import available_crfs
+
+        known = ("log-logistic", "reinhard-c0", "auto", *available_crfs())
+        if cfg.pretrain_crf not in known:
+            raise ValueError(
+                f"config key '{prefix}pretrain_crf' must be one of {', '.join(map(repr, known))}; "
+                f"got {cfg.pretrain_crf!r}"
+            )
 
 
 def to_yaml(cfg: Any) -> str:

@@ -2,8 +2,8 @@
 
 Time axis: the trainer measures time in training-frame indices 0..T-1 (the spline knots live there).
 A global frame g maps to the fractional index obtained by linear interpolation over the training
-frames, so with the default split (even g train, odd g test) the test frame between training frames
-i and i + 1 sits at t = i + 0.5."""
+frames (m4dgs.clip.frame_time), so with the default split (even g train, odd g test) the test frame
+between training frames i and i + 1 sits at t = i + 0.5."""
 
 from __future__ import annotations
 
@@ -49,13 +49,6 @@ class TrainingData:
     def flow_targets(self, i: int) -> List[int]:
         """Training indices j with a prior flow F_{i->j}."""
         return [b for (a, b) in self.flow_pairs if a == i]
-
-
-def frame_time(clip: Clip, g: float) -> float:
-    """Fractional training-frame index of global frame g (linear interpolation over the training
-    frames)."""
-    train = np.asarray(clip.train_frames, np.float64)
-    return float(np.interp(g, train, np.arange(len(train), dtype=np.float64)))
 
 
 def load_training_data(

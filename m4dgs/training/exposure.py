@@ -7,6 +7,8 @@ from a seeded numpy Generator and fixed for the whole run. Exposures are handled
 
 from __future__ import annotations
 
+from typing import Tuple
+
 import numpy as np
 import torch
 
@@ -41,3 +43,20 @@ def perturb_exposures(log2_dt, r_ev: float, seed: int):
     arr = np.asarray(log2_dt)
     out_dtype = arr.dtype if np.issubdtype(arr.dtype, np.floating) else np.float64
     return (arr.astype(np.float64) + exposure_offsets(arr.shape[0], r_ev, seed)).astype(out_dtype)
+
+
+def training_exposures(exposure_cfg, data, device) -> Tuple[float, torch.Tensor]:
+    """The exposure set-up both stages share: (C_0, log2_dt [T] on `device`).
+
+    C_0, the unit-exposure target, is `exposure.unit_exposure_value` or the clip's; log2_dt are the
+    training frames' log2 exposure times, perturbed by `exposure.perturb_ev` EV (seeded by
+    `exposure.perturb_seed`, so both stages see the same perturbed values) when it is > 0.
+
+    Args:
+        exposure_cfg: m4dgs.training.config.ExposureConfig; data: m4dgs.training.data.TrainingData.
+    """
+    c0 = float(exposure_cfg.unit_exposure_value or data.unit_exposure_value)
+    log2_dt = data.log2_dt.to(device)
+    if exposure_cfg.perturb_ev > 0:
+        log2_dt = perturb_exposures(log2_dt, exposure_cfg.perturb_ev, exposure_cfg.perturb_seed)
+    return c0, log2_dt

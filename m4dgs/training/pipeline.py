@@ -27,14 +27,14 @@ from typing import Any, Dict, Optional
 import numpy as np
 import torch
 
-from m4dgs.clip import Cameras, Clip, TrackSet
+from m4dgs.clip import Cameras, Clip, TrackSet, frame_time
 from m4dgs.core import camera as cam
 from m4dgs.core.device import peak_memory_mib, resolve_device
 from m4dgs.core.io import write_json
 from m4dgs.model.gaussians import WorldGaussians, init_video_gaussians
 from m4dgs.run import RunDir, load_torch, save_torch
-from m4dgs.training.config import TrainConfig, to_dict
-from m4dgs.training.data import TrainingData, frame_time, load_training_data
+from m4dgs.training.config import TrainConfig, to_dict, upgrade_dict, validate
+from m4dgs.training.data import TrainingData, load_training_data
 from m4dgs.training.variants import variant_config
 
 PHASES = ("camera_init", "stage1", "v2w", "stage2", "render", "done")
@@ -82,11 +82,14 @@ class Trainer:
         if backend is not None:
             cfg.raster_backend = backend
         # bad option values fail here, not after minutes of camera initialisation and stage 1
-        cfg.masks.validate()
-        cfg.stage2.validate()
+        validate(cfg)
         self.variant = variant
         want = to_dict(cfg)
         have = self.run.read_config()
+        if have is not None and have != want and upgrade_dict(have, warn=False) == want:
+            # a run of an older version with the same settings: its config in the current layout
+            self.run.write_config(want)
+            have = want
         if have is not None and have != want:
             diff = sorted(k for k in set(have) | set(want) if have.get(k) != want.get(k))
             raise ValueError(
@@ -352,28 +355,22 @@ class Trainer:
         self._finish("v2w", time.perf_counter() - t0)
 
     def stage2(self) -> None:
+        from m4dgs.training.exposure import training_exposures
         from m4dgs.training.stage1 import build_appearance
-        from m4dgs.training.stage2 import WorldStage, train_stage2
+        from m4dgs.training.stage2 import WorldInit, WorldStage, train_stage2
 
         t0 = [time.perf_counter()]
         cfg, d = self.cfg, self.data
         ci = self._camera_init_result()
         v = load_torch(self.run.path("model", "v2w.pt"), map_location=self.device)
-        c0 = float(cfg.exposure.unit_exposure_value or d.unit_exposure_value)
+        c0, _ = training_exposures(cfg.exposure, d, self.device)
         color, tm, bg = build_appearance(cfg, c0, self.device, pretrain=v["appearance"] is None)
         if v["appearance"] is not None:
             color.load_state_dict(v["appearance"]["color"])
             tm.load_state_dict(v["appearance"]["tonemap"])
             bg.load_state_dict(v["appearance"]["background"])
         stage1_hdr = self._stage1_video()[0] if cfg.ablation.use_video_init else None
-        log2_dt = d.log2_dt
-        if cfg.exposure.perturb_ev > 0:
-            from m4dgs.training.exposure import perturb_exposures
-
-            log2_dt = perturb_exposures(log2_dt, cfg.exposure.perturb_ev, cfg.exposure.perturb_seed)
-        stage = WorldStage(
-            d,
-            cfg,
+        init = WorldInit(
             WorldGaussians.from_state(v["gaussians"]),
             color,
             tm,
@@ -381,14 +378,10 @@ class Trainer:
             ci["K"],
             ci["c2w"],
             ci["depth_scale"],
-            ci["masks"] if cfg.method != "static-hdr" else None,
-            stage1_hdr,
-            log2_dt,
-            self.device,
-            cfg.raster_backend,
-            ldr_reproj=cfg.method == "ldr-reproj",
-            static_only=cfg.method == "static-hdr",
+            dynamic_masks=ci["masks"] if cfg.method != "static-hdr" else None,
+            stage1_hdr=stage1_hdr,
         )
+        stage = WorldStage(d, cfg, init, self.device, cfg.raster_backend)
         start = self._resume("stage2", stage)
         train_stage2(stage, start, self._log_fn("stage2", stage, t0), self.progress)
         c2w = stage.cameras().detach()
@@ -402,7 +395,7 @@ class Trainer:
                 "K": stage.rig.K.detach().cpu(),
                 "c2w": c2w.cpu(),
                 "frames": d.frames,
-                "log2_dt": log2_dt.cpu(),
+                "log2_dt": stage.log2_dt.cpu(),
                 "config": to_dict(cfg),
                 "variant": self.variant,
                 "feature_dim": cfg.model.feature_dim,

@@ -3,43 +3,46 @@ appendix).
 
 World Gaussians (the union of a static set and a dynamic spline set, from the video-to-world
 transform or, for the "no video init" ablation and the world-only baselines, from lifted tracks) are
-rendered with a pinhole camera whose per-frame pose corrections are optimised jointly. Losses: every
-stage-1 loss (now with pinhole flow/track maps and the depth prior mapped to world depth by the
-bundle-adjustment depth scales) plus the HDR photometric reprojection loss against the stage-1 HDR
-renders (stopped gradients, t' in {t +- 1, t +- 2}, static pixels only). Static and dynamic
-Gaussians have their own densification schedules; mistakenly densified dynamic Gaussians are removed
-periodically by re-running the dynamic/static identification on their projected trajectories."""
+rendered with a pinhole camera whose per-frame pose corrections are optimised jointly. Losses
+(m4dgs.training.objective, weights in `config.Stage2Config.loss`): every stage-1 loss (now with
+pinhole flow/track maps and the depth prior mapped to world depth by the bundle-adjustment depth
+scales) plus this stage's own term, the HDR photometric reprojection loss against the stage-1 HDR
+renders (stopped gradients, t' in {t +- 1, t +- 2}, static pixels only; `hdr_reprojection_term`).
+Static and dynamic Gaussians have their own densification schedules; mistakenly densified dynamic
+Gaussians are removed periodically by re-running the dynamic/static identification on their
+projected trajectories (`WorldStage.after_step`)."""
 
 from __future__ import annotations
 
-from typing import Any, Callable, Dict, Optional
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, List, Optional, Sequence
 
 import numpy as np
 import torch
 
 from m4dgs.core import camera as cam
-from m4dgs.core import rotation as rot
 from m4dgs.core import spline
-from m4dgs.losses.geometry import depth_loss, flow_from_destination_map, flow_loss, track_loss
-from m4dgs.losses.motion import acceleration_loss, knn, velocity_loss
-from m4dgs.losses.photometric import rgb_loss, unit_exposure_loss
-from m4dgs.losses.temporal import (
-    hdr_reprojection_loss,
-    ldr_reprojection_loss,
-    tlr_loss,
-    tlr_valid_mask,
-)
+from m4dgs.losses.temporal import hdr_reprojection_loss, ldr_reprojection_loss
+from m4dgs.model.background import Background
 from m4dgs.model.color import ColorMLP
 from m4dgs.model.gaussians import WorldGaussians
-from m4dgs.model.tonemap import ToneMapper, monotonicity_penalty
-from m4dgs.raster import render
-from m4dgs.training.config import TrainConfig
+from m4dgs.model.render import RenderResult, render_world
+from m4dgs.model.tonemap import ToneMapper
+from m4dgs.training.config import TrainConfig, validate
 from m4dgs.training.data import TrainingData
 from m4dgs.training.densify import Strategy
-from m4dgs.training.stage1 import Background, RenderResult, _arap_subset, train_loop
+from m4dgs.training.objective import CameraModel, FrameSample, Term, Trajectories
+from m4dgs.training.stage import (
+    SPLINE_KEYS,
+    STATIC_KEYS,
+    GaussianSet,
+    Stage,
+    gaussian_optimizers,
+    module_optimizers,
+    train_loop,
+)
 
-STATIC_KEYS = ("means", "quats", "scales", "opacities", "features")
-DYNAMIC_KEYS = ("ctrl", "rot", "scales", "opacities", "features")
+DYNAMIC_KEYS = SPLINE_KEYS
 
 
 def axis_angle_to_rotmat(w: torch.Tensor) -> torch.Tensor:
@@ -55,46 +58,6 @@ def axis_angle_to_rotmat(w: torch.Tensor) -> torch.Tensor:
     Kx = torch.stack([o, -z, y, z, o, -x, -y, x, o], -1).reshape(*w.shape[:-1], 3, 3)
     eye = torch.eye(3, dtype=w.dtype, device=w.device).expand_as(Kx)
     return eye + a * Kx + b * (Kx @ Kx)
-
-
-def render_world(
-    gauss: WorldGaussians,
-    color: ColorMLP,
-    bg: Background,
-    t: float,
-    c2w: torch.Tensor,
-    K: torch.Tensor,
-    width: int,
-    height: int,
-    backend: str = "auto",
-    dest_times=(),
-) -> RenderResult:
-    """Render world Gaussians at time t from a pinhole camera c2w [4, 4] with intrinsics K [3, 3].
-
-    Features: HDR colour (3) + the Gaussians' world positions at each destination time (3 each),
-    alpha-blended."""
-    means = gauss.positions(t)
-    feats = torch.cat(
-        [color(gauss.features())] + [gauss.positions(float(d)) for d in dest_times], -1
-    )
-    background = torch.cat([bg(), means.new_zeros(feats.shape[1] - 3)])
-    out = render(
-        means,
-        gauss.quats(t),
-        gauss.scales(),
-        gauss.opacities(),
-        feats,
-        cam.invert_rigid(c2w),
-        K,
-        width,
-        height,
-        camera_model="pinhole",
-        backend=backend,
-        background=background,
-    )
-    f = out.features
-    dest = [f[..., 3 + 3 * i : 6 + 3 * i] for i in range(len(dest_times))]
-    return RenderResult(f[..., :3], out.depth[..., 0], out.alpha[..., 0], dest, out.meta)
 
 
 class CameraRig(torch.nn.Module):
@@ -118,66 +81,64 @@ class CameraRig(torch.nn.Module):
         return torch.cat([top, bottom], -2)
 
 
-class WorldStage:
-    """Stage-2 model + optimisation state; `step(it)` runs one iteration,
-    `state_dict()`/`load_state_dict()` resume."""
+@dataclass
+class WorldInit:
+    """What stage 2 starts from (the V2W transform or lifted priors, camera initialisation and
+    stage 1): the world Gaussians and appearance modules, the bundle-adjusted cameras (K [3, 3],
+    c2w [T, 4, 4]) and per-frame depth-prior scales [T], the dynamic masks [T, H, W] (None: no
+    removal of misplaced dynamic Gaussians, no masking of L_pr) and the stage-1 HDR training frames
+    [T, H, W, 3] (None: no HDR reprojection loss)."""
+
+    gauss: WorldGaussians
+    color: ColorMLP
+    tonemap: ToneMapper
+    background: Background
+    K: torch.Tensor
+    c2w: torch.Tensor
+    depth_scale: torch.Tensor
+    dynamic_masks: Optional[torch.Tensor] = None
+    stage1_hdr: Optional[torch.Tensor] = None
+
+
+class WorldStage(Stage):
+    """Stage-2 model + optimisation state; `step(it)` runs one iteration
+    (m4dgs.training.stage.Stage), `state_dict()`/`load_state_dict()` resume. The method
+    (cfg.method) picks the variant: "ldr-reproj" replaces L_pr by the LDR reprojection loss of the
+    baselines, "static-hdr" keeps every Gaussian static and the cameras fixed."""
+
+    section = "stage2"
 
     def __init__(
         self,
         data: TrainingData,
         cfg: TrainConfig,
-        gauss: WorldGaussians,
-        color: ColorMLP,
-        tm: ToneMapper,
-        bg: Background,
-        K: torch.Tensor,
-        c2w: torch.Tensor,
-        depth_scale: torch.Tensor,
-        dynamic_masks: Optional[torch.Tensor],
-        stage1_hdr: Optional[torch.Tensor],
-        log2_dt: torch.Tensor,
+        init: WorldInit,
         device="cpu",
         backend: str = "auto",
-        ldr_reproj: bool = False,
-        static_only: bool = False,
     ):
-        self.data, self.cfg, self.device, self.backend = data, cfg, torch.device(device), backend
-        cfg.stage2.validate()
-        self.W, self.H = data.width, data.height
-        self.c0 = float(cfg.exposure.unit_exposure_value or data.unit_exposure_value)
-        self.log2_dt = log2_dt.to(self.device)
-        self.depth_scale = depth_scale.float().to(self.device)
-        self.dynamic_masks = None if dynamic_masks is None else dynamic_masks.bool().to(self.device)
-        self.stage1_hdr = None if stage1_hdr is None else stage1_hdr.float().to(self.device)
-        self.ldr_reproj, self.static_only = ldr_reproj, static_only
-        self.rng = np.random.default_rng(cfg.seed + 1)
-        self.rig = CameraRig(K.to(self.device), c2w.to(self.device))
+        validate(cfg)
+        super().__init__(data, cfg, device, backend, seed=cfg.seed + 1)
+        self.depth_scale = init.depth_scale.float().to(self.device)
+        masks = init.dynamic_masks
+        self.dynamic_masks = None if masks is None else masks.bool().to(self.device)
+        hdr = init.stage1_hdr
+        self.stage1_hdr = None if hdr is None else hdr.float().to(self.device)
+        self.ldr_reproj = cfg.method == "ldr-reproj"
+        self.static_only = cfg.method == "static-hdr"
+        self.rig = CameraRig(init.K.to(self.device), init.c2w.to(self.device))
         # position learning rates scale with the scene extent (3DGS); extent = median world depth
         d = data.depth.to(self.device) * self.depth_scale[:, None, None]
         self.extent = float(d[d > 0].median()) if bool((d > 0).any()) else 1.0
-        self._setup(gauss.to(self.device), color, tm, bg)
+        self._setup(init.gauss.to(self.device), init.color, init.tonemap, init.background)
 
     def _setup(self, gauss: WorldGaussians, color, tm, bg):
         s2 = self.cfg.stage2
         self.gauss, self.color, self.tm, self.bg = gauss, color, tm, bg
         lr = s2.lr
-        pos = lr.position_init * self.extent
-        mk = lambda p, l: torch.optim.Adam([p], lr=l, eps=lr.adam_eps)  # noqa: E731
-        lrs = {
-            "means": pos,
-            "ctrl": pos,
-            "quats": lr.rotation,
-            "rot": lr.rotation,
-            "scales": lr.scale,
-            "opacities": lr.opacity,
-            "features": lr.features,
-        }
-        self.opt_static = {k: mk(gauss.static[k], lrs[k]) for k in STATIC_KEYS}
-        self.opt_dynamic = {k: mk(gauss.dynamic[k], lrs[k]) for k in DYNAMIC_KEYS}
+        self.opt_static = gaussian_optimizers(gauss.static, STATIC_KEYS, lr, self.extent)
+        self.opt_dynamic = gaussian_optimizers(gauss.dynamic, DYNAMIC_KEYS, lr, self.extent)
         self.opt_other = {
-            "color": torch.optim.Adam(color.parameters(), lr=lr.mlp, eps=lr.adam_eps),
-            "tonemap": torch.optim.Adam(tm.parameters(), lr=lr.mlp, eps=lr.adam_eps),
-            "background": torch.optim.Adam(bg.parameters(), lr=lr.mlp, eps=lr.adam_eps),
+            **module_optimizers({"color": color, "tonemap": tm, "background": bg}, lr),
             "camera": torch.optim.Adam(
                 [
                     {"params": [self.rig.dw], "lr": lr.camera_rotation},
@@ -192,7 +153,7 @@ class WorldStage:
         )
         self.state_static = self.strat_static.initialize_state()
         self.state_dynamic = self.strat_dynamic.initialize_state()
-        self._knn_cache = None
+        self.knn.invalidate()
 
     @property
     def optimize_cameras(self) -> bool:
@@ -228,191 +189,98 @@ class WorldStage:
             dest_times,
         )
 
-    # -- one iteration
+    # -- the hooks of the shared iteration (m4dgs.training.stage.Stage)
     # ----------------------------------------------------------------------------------------------
-    def losses(self, it: int) -> Dict[str, torch.Tensor]:
-        cfg, s2, d = self.cfg, self.cfg.stage2, self.data
-        T = d.num_frames
+    @property
+    def motion(self) -> bool:
+        return not self.static_only
+
+    def camera_model(self) -> CameraModel:
         c2w = self.cameras()
-        w2c = cam.invert_rigid(c2w)
-        i = int(self.rng.integers(T))
-        motion = not self.static_only
-        flow_targets = d.flow_targets(i) if d.flow is not None else []
-        use_flow = bool(flow_targets) and self.rng.random() < s2.flow_prob
-        if use_flow:
-            j = int(self.rng.choice(flow_targets))
-        else:
-            j = int(self.rng.choice([k for k in range(T) if k != i])) if T > 1 else i
-        tlr_on = motion and cfg.ablation.tlr and s2.lambda_tlr > 0 and it >= s2.tlr_start_step()
-        nbrs = [k for k in (i - 1, i + 1) if 0 <= k < T] if tlr_on else []
-        track_on = motion and cfg.ablation.track_loss and s2.lambda_track > 0 and j != i
-        dests = ([float(j)] if track_on else []) + [float(k) for k in nbrs]
-        r = self.render_at(float(i), c2w[i], dest_times=dests)
-        L: Dict[str, torch.Tensor] = {}
-        ldr = self.tm(r.hdr, self.log2_dt[i])
-        L["rgb"] = rgb_loss(ldr, d.ldr[i], lambda_d=s2.lambda_dssim)
-        L["ue"] = unit_exposure_loss(self.tm.unit_exposure_value(), self.c0)
-        if cfg.ablation.depth_loss and s2.lambda_dep > 0:
-            L["dep"] = (
-                depth_loss(r.depth, d.depth[i] * self.depth_scale[i], valid=r.alpha.detach() > 0.5)
-                / self.extent
-            )
-        if track_on:
-            if use_flow:
-                p = d.flow_index(i, j)
-                pred, v = flow_from_destination_map(
-                    r.dest[0], K=self.rig.K, w2c_dst=w2c[j], alpha=r.alpha
-                )
-                L["track"] = flow_loss(pred, d.flow[p], d.flow_valid[p] & v, norm="l1")
-            else:
-                vis = d.track_vis[:, i] & d.track_vis[:, j]
-                if bool(vis.any()):
-                    L["track"] = track_loss(
-                        r.dest[0],
-                        d.tracks[vis, i],
-                        d.tracks[vis, j],
-                        K=self.rig.K,
-                        w2c_dst=w2c[j],
-                        alpha=r.alpha,
-                        norm="l1",
-                    )
+        return CameraModel(self.rig.K, c2w, cam.invert_rigid(c2w), self.depth_scale, self.extent)
+
+    def render_view(
+        self,
+        t: float,
+        view: int,
+        camera: CameraModel,
+        dest_times: Sequence[float] = (),
+        detach_camera: bool = False,
+    ) -> RenderResult:
+        c2w = camera.c2w[view]
+        return self.render_at(t, c2w.detach() if detach_camera else c2w, dest_times=dest_times)
+
+    def trajectories(self) -> Trajectories:
         g = self.gauss
-        nd = g.num_dynamic
-        if motion and nd > s2.arap_k:
-            sub = torch.from_numpy(self.rng.choice(nd, size=min(nd, 4096), replace=False)).to(
-                self.device
-            )
-            ctrl, coeff = g.dynamic["ctrl"], g.dynamic["rot"]
-            if s2.lambda_arap > 0:
-                pos_t = spline.evaluate(ctrl, g.knots, float(i))
-                pos_t2 = spline.evaluate(ctrl, g.knots, float(self.rng.integers(T)))
-                if (
-                    self._knn_cache is None
-                    or self._knn_cache[0] != nd
-                    or it - self._knn_cache[1] >= 100
-                ):
-                    self._knn_cache = (nd, it, knn(pos_t.detach(), s2.arap_k)[0])
-                L["arap"] = _arap_subset(pos_t, pos_t2, self._knn_cache[2], sub) / self.extent**2
-            if (s2.lambda_vel > 0 or s2.lambda_acc > 0) and T > 2:
-                w = s2.smooth_window
-                times = torch.arange(
-                    max(0, i - w - 1), min(T, i + w + 2), dtype=torch.float32, device=self.device
-                )
-                if times.numel() >= 3:
-                    pos = spline.evaluate(ctrl[sub], g.knots, times).transpose(0, 1) / self.extent
-                    q = rot.poly_evaluate(
-                        coeff[sub], rot.normalize_time(times, g.num_frames), normalize=True
-                    ).transpose(0, 1)
-                    L["vel"] = velocity_loss(pos, q)
-                    L["acc"] = acceleration_loss(pos, q)
-        if nbrs:
-            terms = []
-            base = 1 if track_on else 0
-            for n_idx, k in enumerate(nbrs):
-                with torch.no_grad():
-                    rn = self.render_at(float(k), c2w[k].detach())
-                dm = r.dest[base + n_idx].detach()
-                flow, fvalid = flow_from_destination_map(
-                    dm, K=self.rig.K, w2c_dst=w2c[k].detach(), alpha=r.alpha.detach()
-                )
-                p_cam = cam.transform_points(
-                    w2c[k].detach(), dm / r.alpha.detach().clamp_min(1e-6)[..., None]
-                )
-                valid = fvalid & tlr_valid_mask(
-                    flow, rn.depth, p_cam[..., 2], ratio=s2.tlr_occlusion_ratio
-                )
-                terms.append(tlr_loss(r.hdr, rn.hdr, flow, valid))
-            L["tlr"] = torch.stack(terms).mean()
-        pr_active = s2.pr_steps is None or it < s2.pr_steps
-        if pr_active and self.optimize_cameras:
-            mask = None if self.dynamic_masks is None else self.dynamic_masks[i]
-            if self.ldr_reproj:
-                refs = ldr_reprojection_refs(i, T, d.num_levels, s2.ldr_reproj_pairs)
-                if refs:
-                    L["pr"] = torch.stack(
-                        [
-                            ldr_reprojection_loss(
-                                d.ldr[i], d.ldr[k], r.depth, self.rig.K, c2w[i], c2w[k], mask
-                            )
-                            for k in refs
-                        ]
-                    ).mean()
-            elif cfg.ablation.reproj_loss and self.stage1_hdr is not None and s2.lambda_pr > 0:
-                refs = [i + o for off in s2.pr_offsets for o in (-off, off) if 0 <= i + o < T]
-                if refs:
-                    query = self.stage1_hdr[i] if s2.pr_query == "stage1" else r.hdr
-                    L["pr"] = torch.stack(
-                        [
-                            hdr_reprojection_loss(
-                                query, self.stage1_hdr[k], r.depth, self.rig.K, c2w[i], c2w[k], mask
-                            )
-                            for k in refs
-                        ]
-                    ).mean()
-        if cfg.tonemap.lambda_monotonic > 0:
-            L["mono"] = monotonicity_penalty(self.tm)
-        if s2.lambda_opacity > 0:
-            L["opacity"] = (1.0 - g.opacities()).mean()
-        if s2.lambda_scale_std > 0:
-            L["scale_std"] = g.scales().std(dim=-1).mean()
-        self._last_meta = r.meta
-        return L
+        return Trajectories(g.dynamic["ctrl"], g.dynamic["rot"], g.knots, g.num_frames)
 
-    def weights(self) -> Dict[str, float]:
-        s2, tm = self.cfg.stage2, self.cfg.tonemap
-        return {
-            "rgb": s2.lambda_rgb,
-            "ue": s2.lambda_ue,
-            "dep": s2.lambda_dep,
-            "track": s2.lambda_track,
-            "arap": s2.lambda_arap,
-            "vel": s2.lambda_vel,
-            "acc": s2.lambda_acc,
-            "tlr": s2.lambda_tlr,
-            "pr": s2.lambda_pr,
-            "mono": tm.lambda_monotonic,
-            "opacity": s2.lambda_opacity,
-            "scale_std": s2.lambda_scale_std,
-        }
+    def stage_terms(
+        self, it: int, sample: FrameSample, r: RenderResult, camera: CameraModel
+    ) -> List[Term]:
+        """The photometric reprojection term "pr" while it is active (stage2.pr_steps) and the
+        cameras are optimised: the HDR one against the stage-1 frames (paper), or the LDR one of
+        the ldr-reproj baselines."""
+        s2, d, i = self.cfg.stage2, self.data, sample.i
+        T = d.num_frames
+        if not ((s2.pr_steps is None or it < s2.pr_steps) and self.optimize_cameras):
+            return []
+        mask = None if self.dynamic_masks is None else self.dynamic_masks[i]
+        if self.ldr_reproj:
+            refs = ldr_reprojection_refs(i, T, d.num_levels, s2.ldr_reproj_pairs)
+            if refs:
+                return [
+                    ldr_reprojection_term(d.ldr, i, refs, r.depth, self.rig.K, camera.c2w, mask)
+                ]
+        elif self.cfg.ablation.reproj_loss and self.stage1_hdr is not None and s2.lambda_pr > 0:
+            refs = [i + o for off in s2.pr_offsets for o in (-off, off) if 0 <= i + o < T]
+            if refs:
+                query = self.stage1_hdr[i] if s2.pr_query == "stage1" else r.hdr
+                return [
+                    hdr_reprojection_term(
+                        query, self.stage1_hdr, i, refs, r.depth, self.rig.K, camera.c2w, mask
+                    )
+                ]
+        return []
 
-    def _all_optimizers(self):
+    def stage_weights(self) -> Dict[str, float]:
+        return {"pr": self.cfg.stage2.lambda_pr}
+
+    def gaussian_sets(self) -> List[GaussianSet]:
+        g = self.gauss
+        return [
+            GaussianSet(g.static, self.opt_static, self.strat_static, self.state_static, "static_"),
+            GaussianSet(
+                g.dynamic,
+                self.opt_dynamic,
+                self.strat_dynamic,
+                self.state_dynamic,
+                "dynamic_",
+                active=not self.static_only,
+            ),
+        ]
+
+    def split_render_info(self, info: Dict[str, Any]) -> List[Dict[str, Any]]:
+        return list(self.gauss.split_render_info(info))
+
+    def all_optimizers(self):
         return (
             list(self.opt_static.values())
             + list(self.opt_dynamic.values())
             + list(self.opt_other.values())
         )
 
-    def step(self, it: int) -> Dict[str, float]:
+    def position_optimizers(self):
+        return [self.opt_static["means"], self.opt_dynamic["ctrl"]]
+
+    def record(self) -> Dict[str, Any]:
+        return {"num_gaussians": self.gauss.num_gaussians, "num_dynamic": self.gauss.num_dynamic}
+
+    def after_step(self, it: int) -> Dict[str, int]:
+        """Remove mistakenly densified dynamic Gaussians every stage2.dynamic_removal_every steps
+        while the dynamic set densifies (appendix) and the near-camera floaters (not in the paper;
+        stage2.near_camera_fraction). A removal pass invalidates the kNN cache."""
         s2 = self.cfg.stage2
-        for o in self._all_optimizers():
-            o.zero_grad(set_to_none=True)
-        lr = s2.lr.position_lr(it, s2.iterations) * self.extent
-        for o in (self.opt_static["means"], self.opt_dynamic["ctrl"]):
-            for group in o.param_groups:
-                group["lr"] = lr
-        L = self.losses(it)
-        w = self.weights()
-        total = sum(w[k] * v for k, v in L.items())
-        meta = self._last_meta
-        info = {"means2d": meta.means2d, "radii": meta.radii, "width": self.W, "height": self.H}
-        if meta.means2d.requires_grad and not meta.means2d.is_leaf:
-            meta.means2d.retain_grad()
-        total.backward()
-        for o in self._all_optimizers():
-            o.step()
         counts = {}
-        if meta.means2d.grad is not None:
-            info_s, info_d = self.gauss.split_render_info(info)
-            cs = self.strat_static.step_post_backward(
-                self.gauss.static, self.opt_static, self.state_static, it, info_s
-            )
-            cd = {}
-            if not self.static_only:
-                cd = self.strat_dynamic.step_post_backward(
-                    self.gauss.dynamic, self.opt_dynamic, self.state_dynamic, it, info_d
-                )
-            counts = {f"static_{k}": v for k, v in cs.items() if v}
-            counts.update({f"dynamic_{k}": v for k, v in cd.items() if v})
         if (
             not self.static_only
             and s2.dynamic_removal_every > 0
@@ -433,13 +301,8 @@ class WorldStage:
         ):
             counts["dynamic_near_removed"] = self.remove_near_camera_dynamic()
         if counts:
-            self._knn_cache = None
-        rec = {k: float(v.detach()) for k, v in L.items()}
-        rec["total"] = float(total.detach())
-        rec["num_gaussians"] = self.gauss.num_gaussians
-        rec["num_dynamic"] = self.gauss.num_dynamic
-        rec.update(counts)
-        return rec
+            self.knn.invalidate()
+        return counts
 
     @torch.no_grad()
     def remove_misplaced_dynamic(self) -> int:
@@ -573,6 +436,43 @@ def ldr_reprojection_refs(
     else:
         raise ValueError(f"unknown LDR reprojection pairs {pairs!r} (same-exposure | consecutive)")
     return [k for k in (i - off, i + off) if 0 <= k < num_frames]
+
+
+def hdr_reprojection_term(
+    query: torch.Tensor,
+    hdr_frames: torch.Tensor,
+    i: int,
+    refs: Sequence[int],
+    depth: torch.Tensor,
+    K: torch.Tensor,
+    c2w: torch.Tensor,
+    mask: Optional[torch.Tensor] = None,
+) -> Term:
+    """L_pr (appendix "HDR Photometric Reprojection Loss"): the HDR image at t (`query`) against
+    the stage-1 HDR frames hdr_frames[t'] warped into view i through the rendered depth and the
+    cameras c2w [T, 4, 4], averaged over t' in `refs`; static pixels only (mask = dynamic)."""
+    return "pr", torch.stack(
+        [hdr_reprojection_loss(query, hdr_frames[k], depth, K, c2w[i], c2w[k], mask) for k in refs]
+    ).mean()
+
+
+def ldr_reprojection_term(
+    ldr_frames: torch.Tensor,
+    i: int,
+    refs: Sequence[int],
+    depth: torch.Tensor,
+    K: torch.Tensor,
+    c2w: torch.Tensor,
+    mask: Optional[torch.Tensor] = None,
+) -> Term:
+    """The LDR reprojection loss of the ldr-reproj baselines: input frame i against the input frames
+    t' in `refs` warped into view i, averaged (named "pr" like the HDR term it replaces)."""
+    return "pr", torch.stack(
+        [
+            ldr_reprojection_loss(ldr_frames[i], ldr_frames[k], depth, K, c2w[i], c2w[k], mask)
+            for k in refs
+        ]
+    ).mean()
 
 
 def near_camera_gaussians(

@@ -56,7 +56,7 @@ from m4dgs.training.config import AblationConfig, V2WConfig
 Tensor = torch.Tensor
 
 # The rasterizer (m4dgs.raster.projection) widens the field of view by 30 % inside the EWA Jacobian;
-# the V2W refit uses that same code, so cfg.fov_clamp must agree with it.
+# the V2W refit uses that same code, so its clamp is always this one (the authors' 1.3).
 RASTER_FOV_CLAMP = 1.3
 # Relative depth tolerance of the occlusion test: occluded iff z > (1 + tol) * rendered depth. The
 # rendered depth is an alpha-weighted mean over the Gaussians of the visible surface, so a Gaussian
@@ -568,12 +568,6 @@ def transform(
     ablation = ablation or AblationConfig()
     if width <= 0 or height <= 0:
         raise ValueError("transform: width and height (pixels) are required")
-    if abs(cfg.fov_clamp - RASTER_FOV_CLAMP) > 1e-9:
-        raise ValueError(
-            f"V2WConfig.fov_clamp = {cfg.fov_clamp}, but the rasterizer's projection (used for "
-            "the scale refit) fixes "
-            f"{RASTER_FOV_CLAMP}"
-        )
     t0 = time.perf_counter()
     timings: Dict[str, float] = {}
     v = _sample_video(video, K, c2w, width, height)

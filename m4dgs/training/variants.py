@@ -138,10 +138,10 @@ def stage2_only_budget(cfg):
     Stage 2's schedules scale with its longer length so that the phases keep the proportions of
     full's stage 2:
       - phase ends scale by f = new / old stage-2 length: densification stop (static and dynamic),
-        an explicit tlr_start (the default, the densification stop, follows by itself) and pr_steps
-        (the reprojection-loss window, also used by the LDR reprojection baselines). Paper: densify
-        until 8K of 11K -> 10 909 of 15K, TLR over the last 4 091 iterations (full: the last 3K of
-        stage 2 plus the last 1K of stage 1).
+        an explicit loss.tlr_start (the default, the densification stop, follows by itself) and
+        pr_steps (the reprojection-loss window, also used by the LDR reprojection baselines).
+        Paper: densify until 8K of 11K -> 10 909 of 15K, TLR over the last 4 091 iterations (full:
+        the last 3K of stage 2 plus the last 1K of stage 1).
       - the position learning rate decays log-linearly over stage2.iterations (3DGS), so it spans
         the whole budget.
       - cadences stay in iterations: densification warm-up (start_iter), interval (every), opacity
@@ -161,8 +161,8 @@ def stage2_only_budget(cfg):
     o2.iterations, o1.iterations = total, 0
     for d in (o2.densify_static, o2.densify_dynamic):
         d.stop_iter = min(_scaled(d.stop_iter, f), total)
-    if o2.tlr_start is not None:
-        o2.tlr_start = _scaled(o2.tlr_start, f)
+    if o2.loss.tlr_start is not None:
+        o2.loss.tlr_start = _scaled(o2.loss.tlr_start, f)
     if o2.pr_steps is not None:
         o2.pr_steps = _scaled(o2.pr_steps, f)
     return out

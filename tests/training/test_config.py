@@ -16,9 +16,16 @@ def test_paper_defaults():
     # appendix "Implementation Details"
     assert (cfg.width, cfg.height) == (864, 480)
     assert (s1.iterations, s2.iterations) == (4000, 11000)
-    assert (s1.lambda_rgb, s1.lambda_ue, s1.lambda_dep, s1.lambda_track) == (1.0, 10.0, 1.0, 0.01)
-    assert (s1.lambda_arap, s1.lambda_vel, s1.lambda_acc, s1.lambda_tlr) == (0.01, 10.0, 10.0, 0.1)
-    assert s2.lambda_pr == 1.0 and s1.lambda_dssim == 0.2 and s1.arap_k == 5
+    for lc in (s1.loss, s2.loss):  # one list of weights for both stages
+        assert (lc.lambda_rgb, lc.lambda_ue, lc.lambda_dep, lc.lambda_track) == (
+            1.0,
+            10.0,
+            1.0,
+            0.01,
+        )
+        assert (lc.lambda_arap, lc.lambda_vel, lc.lambda_acc, lc.lambda_tlr) == (0.01, 10, 10, 0.1)
+        assert lc.lambda_dssim == 0.2 and lc.arap_k == 5
+    assert s2.lambda_pr == 1.0 and s1.loss is not s2.loss
     assert (s1.densify.stop_iter, s1.densify.every, s1.densify.reset_every) == (3000, 200, 1000)
     assert (
         s2.densify_static.stop_iter,
@@ -51,7 +58,7 @@ def test_paper_defaults():
     assert cfg.v2w.dynamic_ratio == 0.1 and cfg.v2w.scale_refit_steps == 1000
     assert s2.pr_offsets == (1, 2)
     assert all(dataclasses.asdict(cfg.ablation).values())
-    assert cfg.exposure.num_exposures is None and cfg.exposure.unit_exposure_value is None
+    assert cfg.exposure.unit_exposure_value is None
 
 
 def test_presets_are_smaller_and_consistent():
@@ -66,9 +73,9 @@ def test_presets_are_smaller_and_consistent():
         assert cfg.stage2.densify_dynamic.stop_iter < cfg.stage2.iterations
     # the paper preset is the paper's appendix; small uses the authors' synthetic TLR weight and
     # reprojection window
-    assert preset("paper").stage2.lambda_tlr == 0.1 and preset("paper").stage2.pr_steps is None
-    assert small.stage1.lambda_tlr == small.stage2.lambda_tlr == 0.01
-    assert small.stage1.lambda_dep == 0.01 and preset("paper").stage1.lambda_dep == 1.0
+    assert preset("paper").stage2.loss.lambda_tlr == 0.1 and preset("paper").stage2.pr_steps is None
+    assert small.stage1.loss.lambda_tlr == small.stage2.loss.lambda_tlr == 0.01
+    assert small.stage1.loss.lambda_dep == 0.01 and preset("paper").stage1.loss.lambda_dep == 1.0
     assert 0 < small.stage2.pr_steps < small.stage2.iterations
     with pytest.raises(ValueError, match="unknown preset"):
         preset("huge")
@@ -82,9 +89,8 @@ def test_yaml_round_trip(name, tmp_path):
     config.save_yaml(cfg, path)
     text = path.read_text()
     data = yaml.safe_load(text)
-    assert data["stage1"]["lambda_tlr"] == cfg.stage1.lambda_tlr and data["stage2"][
-        "pr_offsets"
-    ] == [1, 2, 3]
+    assert data["stage1"]["loss"]["lambda_tlr"] == cfg.stage1.loss.lambda_tlr
+    assert data["stage2"]["pr_offsets"] == [1, 2, 3]
     assert data["stage2"]["pr_steps"] == cfg.stage2.pr_steps
     back = config.load_yaml(path)
     assert back == cfg
@@ -97,8 +103,8 @@ def test_yaml_round_trip(name, tmp_path):
 
 def test_unknown_key_errors_name_the_path():
     d = to_dict(preset("tiny"))
-    d["stage1"]["lamda_tlr"] = 0.0
-    with pytest.raises(KeyError, match=r"stage1\.lamda_tlr"):
+    d["stage1"]["loss"]["lamda_tlr"] = 0.0
+    with pytest.raises(KeyError, match=r"stage1\.loss\.lamda_tlr"):
         from_dict(TrainConfig, d)
     with pytest.raises(KeyError, match=r"stage2\.densify_static\.evry"):
         from_dict(TrainConfig, {"stage2": {"densify_static": {"evry": 3}}})
@@ -107,7 +113,7 @@ def test_unknown_key_errors_name_the_path():
     with pytest.raises(KeyError, match=r"stage1\.nope"):
         apply_overrides(preset("tiny"), {"stage1.nope": 1})
     with pytest.raises(KeyError, match=r"stagex"):
-        apply_overrides(preset("tiny"), {"stagex.lambda_tlr": 1})
+        apply_overrides(preset("tiny"), {"stagex.loss.lambda_tlr": 1})
     with pytest.raises(TypeError, match=r"ablation\.tlr"):
         apply_overrides(preset("tiny"), {"ablation.tlr": 3})
     with pytest.raises(TypeError, match=r"stage1\.iterations"):
@@ -119,31 +125,31 @@ def test_apply_overrides_variants():
     v = apply_overrides(
         base,
         {
-            "stage1.lambda_tlr": 0,
-            "stage2.lambda_tlr": "0",  # CLI strings are parsed
+            "stage1.loss.lambda_tlr": 0,
+            "stage2.loss.lambda_tlr": "0",  # CLI strings are parsed
             "ablation.tlr": "false",
             "model.control_every": 8,
             "stage2.pr_steps": 3000,
             "stage1.densify": {"every": 100},
         },
     )
-    assert v.stage1.lambda_tlr == 0.0 and isinstance(v.stage1.lambda_tlr, float)
-    assert v.stage2.lambda_tlr == 0.0 and v.ablation.tlr is False
+    assert v.stage1.loss.lambda_tlr == 0.0 and isinstance(v.stage1.loss.lambda_tlr, float)
+    assert v.stage2.loss.lambda_tlr == 0.0 and v.ablation.tlr is False
     assert v.model.control_every == 8 and v.stage2.pr_steps == 3000
     assert v.stage1.densify.every == 100 and v.stage1.densify.stop_iter == 3000
     # the original is untouched
     assert (
-        base.stage1.lambda_tlr == 0.1
+        base.stage1.loss.lambda_tlr == 0.1
         and base.model.control_every == 4
         and base.stage1.densify.every == 200
     )
     # Optional fields accept null
     assert apply_overrides(v, {"stage2.pr_steps": None}).stage2.pr_steps is None
     # a dict with a preset key applies the rest on top of that preset
-    t = from_dict(TrainConfig, {"preset": "tiny", "stage1": {"lambda_vel": 1.0}})
+    t = from_dict(TrainConfig, {"preset": "tiny", "stage1": {"loss": {"lambda_vel": 1.0}}})
     assert (
         t.width == 64
-        and t.stage1.lambda_vel == 1.0
+        and t.stage1.loss.lambda_vel == 1.0
         and t.stage1.iterations == preset("tiny").stage1.iterations
     )
 
@@ -157,4 +163,82 @@ def test_position_lr_schedule_and_tlr_start():
     assert lr.position_lr(9999, 4000) == pytest.approx(1.6e-6)
     cfg = preset("paper")
     assert cfg.stage1.tlr_start_step() == 3000 and cfg.stage2.tlr_start_step() == 8000
-    assert apply_overrides(cfg, {"stage1.tlr_start": 10}).stage1.tlr_start_step() == 10
+    assert apply_overrides(cfg, {"stage1.loss.tlr_start": 10}).stage1.tlr_start_step() == 10
+
+
+def test_old_loss_keys_map_to_the_loss_section_with_a_warning():
+    base = preset("tiny")
+    with pytest.warns(FutureWarning, match=r"'stage1\.lambda_dep' is deprecated.*stage1\.loss"):
+        v = apply_overrides(base, {"stage1.lambda_dep": "0.5"})
+    assert v.stage1.loss.lambda_dep == 0.5 and v.stage2.loss.lambda_dep == 1.0
+    # nested mappings and YAML-style dicts too
+    with pytest.warns(FutureWarning, match=r"stage2\.tlr_start"):
+        v = apply_overrides(base, {"stage2": {"tlr_start": 7}})
+    assert v.stage2.loss.tlr_start == 7 and v.stage2.tlr_start_step() == 7
+    with pytest.warns(FutureWarning, match=r"stage1\.lambda_vel"):
+        t = from_dict(TrainConfig, {"preset": "tiny", "stage1": {"lambda_vel": 2.0}})
+    assert t.stage1.loss.lambda_vel == 2.0
+    with pytest.warns(FutureWarning, match=r"stage2\.arap_k"):
+        t = from_dict(TrainConfig, {"stage2": {"arap_k": 3}})
+    assert t.stage2.loss.arap_k == 3 and t.stage1.loss.arap_k == 5
+    # a key that nothing read is ignored with a warning
+    with pytest.warns(FutureWarning, match=r"'stage1\.track_clamp_px' was removed"):
+        assert apply_overrides(base, {"stage1.track_clamp_px": 50}) == base
+    for key in ("stage2.lr.camera_focal", "v2w.fov_clamp", "exposure.num_exposures"):
+        with pytest.warns(FutureWarning, match="removed"):
+            assert apply_overrides(base, {key: 1}) == base
+
+
+def test_an_old_config_dict_upgrades_to_the_same_config():
+    old = to_dict(preset("small"))
+    for stage in ("stage1", "stage2"):
+        loss = old[stage].pop("loss")
+        old[stage].update(loss)
+        old[stage]["track_clamp_px"] = 100.0
+        old[stage]["lr"]["camera_focal"] = 0.0
+    old["v2w"]["fov_clamp"] = 1.3
+    old["exposure"]["num_exposures"] = None
+    assert config.upgrade_dict(old, warn=False) == to_dict(preset("small"))
+    with pytest.warns(FutureWarning):
+        assert from_dict(TrainConfig, old) == preset("small")
+    current = to_dict(preset("tiny"))
+    assert config.upgrade_dict(current) == current
+
+
+@pytest.mark.parametrize(
+    "key, value",
+    [
+        ("method", "mono4dgs-hdr"),
+        ("preset", "huge"),
+        ("raster_backend", "cuda"),
+        ("stage2.pr_query", "video"),
+        ("stage2.ldr_reproj_pairs", "adjacent"),
+        ("v2w.resample", "cubic"),
+        ("tonemap.pretrain_crf", "not-a-curve"),
+    ],
+)
+def test_typed_choices_are_rejected_naming_key_and_values(key, value):
+    with pytest.raises(ValueError, match=rf"'{key}' must be one of .*got '{value}'"):
+        apply_overrides(preset("tiny"), {key: value})
+    section, _, last = key.rpartition(".")
+    data = {last: value} if not section else {section: {last: value}}
+    with pytest.raises(ValueError, match=key.replace(".", r"\.")):
+        from_dict(TrainConfig, data)
+    with pytest.raises(ValueError, match="must be one of"):
+        config.from_yaml(yaml.safe_dump(data))
+
+
+def test_validate_catches_values_set_directly():
+    cfg = preset("tiny")
+    cfg.stage2.pr_query = "video"
+    with pytest.raises(ValueError, match=r"stage2\.pr_query"):
+        config.validate(cfg)
+    cfg = preset("tiny")
+    cfg.masks.method = "optical"
+    with pytest.raises(ValueError, match=r"masks\.method"):
+        config.validate(cfg)
+    with pytest.raises(ValueError, match="'method' must be one of"):
+        TrainConfig(method="bogus")
+    # every allowed value passes
+    for m in ("mono4dgs", "static-hdr", "world-only", "ldr-reproj"):
+        config.validate(apply_overrides(preset("tiny"), {"method": m}))

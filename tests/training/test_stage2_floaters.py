@@ -42,7 +42,7 @@ def test_world_stage_removes_only_the_near_camera_dynamic_gaussian(tiny_clip_rea
     from m4dgs.model.gaussians import WorldGaussians
     from m4dgs.training.data import load_training_data
     from m4dgs.training.stage1 import build_appearance
-    from m4dgs.training.stage2 import WorldStage
+    from m4dgs.training.stage2 import WorldInit, WorldStage
 
     d = load_training_data(Clip.open(tiny_clip_realistic))
     cfg = preset("tiny")
@@ -80,7 +80,7 @@ def test_world_stage_removes_only_the_near_camera_dynamic_gaussian(tiny_clip_rea
         static, dynamic, knots, T, cfg.model.world_scale_activation, cfg.model.world_scale_max
     )
     color, tm, bg = build_appearance(cfg, 0.73, "cpu", pretrain=False)
-    st = WorldStage(d, cfg, g, color, tm, bg, K, c2w, depth_scale, None, None, d.log2_dt)
+    st = WorldStage(d, cfg, WorldInit(g, color, tm, bg, K, c2w, depth_scale))
     assert abs(st.extent - 3.0) < 1e-3 and cfg.stage2.near_camera_fraction == 0.1
     assert st.remove_near_camera_dynamic() == 1
     assert (

@@ -19,7 +19,7 @@ def _stage(clip_dir, pr_query: str):
     from m4dgs.model.gaussians import WorldGaussians
     from m4dgs.training.data import load_training_data
     from m4dgs.training.stage1 import build_appearance
-    from m4dgs.training.stage2 import WorldStage
+    from m4dgs.training.stage2 import WorldInit, WorldStage
 
     torch.manual_seed(0)
     d = load_training_data(Clip.open(clip_dir))
@@ -59,11 +59,11 @@ def _stage(clip_dir, pr_query: str):
     )
     color, tm, bg = build_appearance(cfg, 0.73, "cpu", pretrain=False)
     stage1_hdr = torch.rand(T, d.height, d.width, 3) + 0.1  # stands in for the stage-1 HDR video
-    return WorldStage(d, cfg, g, color, tm, bg, K, c2w, depth_scale, None, stage1_hdr, d.log2_dt)
+    return WorldStage(d, cfg, WorldInit(g, color, tm, bg, K, c2w, depth_scale, None, stage1_hdr))
 
 
 def _grads_of_pr(st):
-    L = st.losses(0)
+    L = st.losses(0).terms
     assert "pr" in L and float(L["pr"].detach()) > 0
     params = {
         "color": list(st.color.parameters()),

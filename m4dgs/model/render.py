@@ -1,0 +1,90 @@
+"""Rendering the Gaussians of either stage: HDR colour, depth, alpha and, as extra feature channels,
+the Gaussians' positions at destination times (from which the rendered flow / track maps follow).
+
+`render_gaussians` works for any Gaussian set with positions(t), quats(t), scales(), opacities() and
+features(): stage 1 draws its video Gaussians with it through the orthographic video camera J_ortho
+(identity view, camera_model "ortho", paper sec. 3.3.1); `render_world` draws world Gaussians (stage
+2 and the trained model) from a pinhole camera."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, List, Sequence
+
+import torch
+
+from m4dgs.core import camera as cam
+from m4dgs.model.background import Background
+from m4dgs.model.color import ColorMLP
+from m4dgs.raster import render
+
+
+@dataclass
+class RenderResult:
+    hdr: torch.Tensor  # [H, W, 3]
+    depth: torch.Tensor  # [H, W]
+    alpha: torch.Tensor  # [H, W]
+    # destination-position maps [H, W, 3] (alpha-blended), one per requested destination time
+    dest: List[torch.Tensor]
+    meta: Any  # m4dgs.raster.RenderMeta (means2d / radii for densification)
+
+
+def render_gaussians(
+    gauss,
+    color: ColorMLP,
+    bg: Background,
+    t: float,
+    view: torch.Tensor,
+    K: torch.Tensor,
+    width: int,
+    height: int,
+    camera_model: str,
+    backend: str = "auto",
+    dest_times: Sequence[float] = (),
+) -> RenderResult:
+    """Render `gauss` at time t with intrinsics K [3, 3]: camera_model "ortho" (`view` is the
+    world-to-camera matrix [4, 4]) or "pinhole" (`view` is the camera-to-world pose c2w [4, 4]).
+
+    Features: HDR colour (3, background 2^b) + the Gaussians' positions at each destination time (3
+    each, background 0), alpha-blended."""
+    means = gauss.positions(t)
+    feats = torch.cat(
+        [color(gauss.features())] + [gauss.positions(float(d)) for d in dest_times], -1
+    )
+    background = torch.cat([bg(), means.new_zeros(feats.shape[1] - 3)])
+    out = render(
+        means,
+        gauss.quats(t),
+        gauss.scales(),
+        gauss.opacities(),
+        feats,
+        cam.invert_rigid(view) if camera_model == "pinhole" else view,
+        K,
+        width,
+        height,
+        camera_model=camera_model,
+        backend=backend,
+        background=background,
+    )
+    f = out.features
+    dest = [f[..., 3 + 3 * i : 6 + 3 * i] for i in range(len(dest_times))]
+    return RenderResult(f[..., :3], out.depth[..., 0], out.alpha[..., 0], dest, out.meta)
+
+
+def render_world(
+    gauss,
+    color: ColorMLP,
+    bg: Background,
+    t: float,
+    c2w: torch.Tensor,
+    K: torch.Tensor,
+    width: int,
+    height: int,
+    backend: str = "auto",
+    dest_times: Sequence[float] = (),
+) -> RenderResult:
+    """Render world Gaussians at time t from a pinhole camera c2w [4, 4] (OpenCV) with intrinsics
+    K [3, 3]; destination maps hold world positions."""
+    return render_gaussians(
+        gauss, color, bg, t, c2w, K, width, height, "pinhole", backend, dest_times
+    )

@@ -1,0 +1,255 @@
+"""The training machinery both stages share: exposure set-up, sampling generator, optimisers and the
+position learning-rate schedule, the kNN cache, one iteration (`Stage.step`: objective, backward,
+optimiser steps, densification through each Gaussian set's strategy) and the loop with its progress
+bar (`train_loop`).
+
+A stage (m4dgs.training.stage1.VideoStage, m4dgs.training.stage2.WorldStage) subclasses `Stage` and
+supplies its camera model, renderer, Gaussian sets and own loss terms; the objective itself is
+m4dgs.training.objective."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional, Sequence
+
+import numpy as np
+import torch
+
+from m4dgs.model.render import RenderResult
+from m4dgs.training.config import LossConfig, LRConfig, TrainConfig
+from m4dgs.training.data import TrainingData
+from m4dgs.training.densify import Strategy
+from m4dgs.training.exposure import training_exposures
+from m4dgs.training.objective import (
+    CameraModel,
+    FrameSample,
+    KnnCache,
+    LossOutput,
+    Term,
+    Trajectories,
+    assemble,
+    loss_weights,
+    total_loss,
+)
+
+# per-Gaussian attributes with their own optimiser: video / dynamic sets, static set
+SPLINE_KEYS = ("ctrl", "rot", "scales", "opacities", "features")
+STATIC_KEYS = ("means", "quats", "scales", "opacities", "features")
+
+
+def gaussian_optimizers(
+    params: Mapping[str, torch.nn.Parameter],
+    keys: Sequence[str],
+    lr: LRConfig,
+    position_scale: float = 1.0,
+) -> Dict[str, torch.optim.Optimizer]:
+    """One Adam per Gaussian attribute (so densification can edit rows): positions ("ctrl" /
+    "means") at lr.position_init x position_scale (the scene extent in world space, 3DGS), the
+    others at their LRConfig rates (appendix "Implementation Details")."""
+    pos = lr.position_init * position_scale
+    lrs = {
+        "ctrl": pos,
+        "means": pos,
+        "rot": lr.rotation,
+        "quats": lr.rotation,
+        "scales": lr.scale,
+        "opacities": lr.opacity,
+        "features": lr.features,
+    }
+    return {k: torch.optim.Adam([params[k]], lr=lrs[k], eps=lr.adam_eps) for k in keys}
+
+
+def module_optimizers(
+    modules: Mapping[str, torch.nn.Module], lr: LRConfig
+) -> Dict[str, torch.optim.Optimizer]:
+    """One Adam per module (colour MLP, tone mapper, background) at the MLP rate (paper: 5e-4)."""
+    return {
+        name: torch.optim.Adam(m.parameters(), lr=lr.mlp, eps=lr.adam_eps)
+        for name, m in modules.items()
+    }
+
+
+@dataclass
+class GaussianSet:
+    """One densified set of Gaussians: its parameters, their optimisers, its strategy and state;
+    `prefix` names its operation counts in the log ("n_clone", "static_split", ...)."""
+
+    params: Any
+    optimizers: Dict[str, torch.optim.Optimizer]
+    strategy: Strategy
+    state: Dict[str, Any]
+    prefix: str
+    active: bool = True  # False: never densified (the dynamic set of the static baseline)
+
+
+class Stage:
+    """Shared state and iteration of a training stage.
+
+    Subclasses set `section` ("stage1" / "stage2": the config section with iterations, lr and loss)
+    and implement the hooks below; they hold gauss, color, tm, bg after set-up."""
+
+    section = ""
+    extent = 1.0  # length unit of positions (world space: the scene's median depth)
+    # render the flow / track target's destination map even when that term is off
+    always_render_target = False
+
+    def __init__(self, data: TrainingData, cfg: TrainConfig, device, backend: str, seed: int):
+        self.data, self.cfg, self.device, self.backend = data, cfg, torch.device(device), backend
+        self.W, self.H = data.width, data.height
+        self.c0, self.log2_dt = training_exposures(cfg.exposure, data, self.device)
+        self.rng = np.random.default_rng(seed)
+        self.knn = KnnCache()
+
+    @property
+    def stage_cfg(self):
+        return getattr(self.cfg, self.section)
+
+    @property
+    def loss_cfg(self) -> LossConfig:
+        return self.stage_cfg.loss
+
+    # -- hooks
+    # ----------------------------------------------------------------------------------------------
+    @property
+    def motion(self) -> bool:
+        """Whether the Gaussians move (flow / track, TLR and motion regularisers apply)."""
+        return True
+
+    def tlr_start_step(self) -> int:
+        return self.stage_cfg.tlr_start_step()
+
+    def camera_model(self) -> CameraModel:
+        raise NotImplementedError
+
+    def render_view(
+        self,
+        t: float,
+        view: int,
+        camera: CameraModel,
+        dest_times: Sequence[float] = (),
+        detach_camera: bool = False,
+    ) -> RenderResult:
+        """Render at time t from training view `view` of `camera`."""
+        raise NotImplementedError
+
+    def trajectories(self) -> Trajectories:
+        raise NotImplementedError
+
+    def stage_terms(
+        self, it: int, sample: FrameSample, r: RenderResult, camera: CameraModel
+    ) -> Iterable[Term]:
+        """The stage's own loss terms (added after the shared ones)."""
+        return ()
+
+    def stage_weights(self) -> Dict[str, float]:
+        return {}
+
+    def gaussian_sets(self) -> List[GaussianSet]:
+        raise NotImplementedError
+
+    def split_render_info(self, info: Dict[str, Any]) -> List[Dict[str, Any]]:
+        """The render info of each Gaussian set (after backward)."""
+        return [info]
+
+    def all_optimizers(self) -> List[torch.optim.Optimizer]:
+        raise NotImplementedError
+
+    def position_optimizers(self) -> List[torch.optim.Optimizer]:
+        raise NotImplementedError
+
+    def after_step(self, it: int) -> Dict[str, int]:
+        """Stage-specific edits after densification (counts for the log)."""
+        return {}
+
+    def record(self) -> Dict[str, Any]:
+        return {"num_gaussians": self.gauss.num_gaussians}
+
+    # -- one iteration
+    # ----------------------------------------------------------------------------------------------
+    def losses(self, it: int) -> LossOutput:
+        """This iteration's loss terms and the query render's metadata
+        (m4dgs.training.objective.assemble)."""
+        return assemble(self, it)
+
+    def weights(self) -> Dict[str, float]:
+        return loss_weights(self.loss_cfg, self.cfg.tonemap, self.stage_weights())
+
+    def step(self, it: int) -> Dict[str, float]:
+        sc = self.stage_cfg
+        optimizers = self.all_optimizers()
+        for o in optimizers:
+            o.zero_grad(set_to_none=True)
+        lr = sc.lr.position_lr(it, sc.iterations) * self.extent
+        for o in self.position_optimizers():
+            for group in o.param_groups:
+                group["lr"] = lr
+        L, meta = self.losses(it)
+        total = total_loss(L, self.weights())
+        info = {"means2d": meta.means2d, "radii": meta.radii, "width": self.W, "height": self.H}
+        sets = self.gaussian_sets()
+        for s in sets:
+            s.strategy.step_pre_backward(s.params, s.optimizers, s.state, it, info)
+        total.backward()
+        for o in optimizers:
+            o.step()
+        counts = self.densify(it, info, sets)
+        if counts:
+            self.knn.invalidate()
+        counts.update(self.after_step(it))
+        rec = {k: float(v.detach()) for k, v in L.items()}
+        rec["total"] = float(total.detach())
+        rec.update(self.record())
+        rec.update(counts)
+        return rec
+
+    def densify(self, it: int, info: Dict[str, Any], sets: List[GaussianSet]) -> Dict[str, int]:
+        """Each active set's strategy after backward (statistics; clone / split / prune / reset on
+        schedule); nothing when no gradient reached the projected means. Returns the non-zero
+        operation counts."""
+        counts: Dict[str, int] = {}
+        if info["means2d"].grad is None:
+            return counts
+        for s, inf in zip(sets, self.split_render_info(info)):
+            if not s.active:
+                continue
+            c = s.strategy.step_post_backward(s.params, s.optimizers, s.state, it, inf)
+            counts.update({f"{s.prefix}{k}": v for k, v in c.items() if v})
+        return counts
+
+
+def train_loop(
+    stage,
+    iterations: int,
+    start: int = 0,
+    on_step: Optional[Callable[[int, Dict[str, float]], None]] = None,
+    progress: bool = True,
+    desc: str = "",
+    postfix_keys=("rgb",),
+) -> None:
+    """Run stage.step(it) for it in start..iterations-1 with a progress bar (loss, Gaussian count)
+    and a callback after each step (logging, checkpoints). Shared by both stages."""
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=iterations, initial=start, desc=desc, unit="it", dynamic_ncols=True)
+    for it in range(start, iterations):
+        t0 = time.perf_counter()
+        rec = stage.step(it)
+        rec["sec"] = time.perf_counter() - t0
+        if on_step is not None:
+            on_step(it, rec)
+        if bar is not None:
+            bar.update(1)
+            if it % 10 == 0 or it == iterations - 1:
+                post = {
+                    "loss": f"{rec['total']:.4f}",
+                    **{k: f"{rec[k]:.4f}" for k in postfix_keys if k in rec},
+                    "N": rec["num_gaussians"],
+                }
+                if "num_dynamic" in rec:
+                    post["dyn"] = rec["num_dynamic"]
+                bar.set_postfix(post)
+    if bar is not None:
+        bar.close()

@@ -1,0 +1,423 @@
+"""The loss assembly of both stages (m4dgs.training.objective through VideoStage / WorldStage) on
+small synthetic training data, no clip and no renderer of the benchmark.
+
+For one iteration: which terms are present under each config weight and ablation switch; each
+term's value against an independent recomputation from the m4dgs.losses functions on the same
+render (the frames drawn from a copy of the stage's generator, in the documented order); and which
+parameters each term's gradient reaches."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from m4dgs.core import camera as cam
+from m4dgs.core import rotation as rot
+from m4dgs.core import spline
+from m4dgs.core.camera import K_from_fov
+from m4dgs.core.knn import knn
+from m4dgs.losses.geometry import depth_loss, flow_from_destination_map, flow_loss, track_loss
+from m4dgs.losses.motion import acceleration_loss, velocity_loss
+from m4dgs.losses.photometric import rgb_loss, unit_exposure_loss
+from m4dgs.losses.temporal import hdr_reprojection_loss, tlr_loss, tlr_valid_mask
+from m4dgs.model.gaussians import WorldGaussians
+from m4dgs.training import objective
+from m4dgs.training.config import apply_overrides, preset
+from m4dgs.training.data import TrainingData
+from m4dgs.training.stage1 import VideoStage, build_appearance
+from m4dgs.training.stage2 import WorldInit, WorldStage
+
+T, W, H, N_TRACKS = 6, 32, 24, 40
+BACKEND = "torch"  # the dense reference rasterizer: no compiled extension needed
+
+
+def synthetic_data(seed: int = 0) -> TrainingData:
+    """Random LDR frames, a slanted depth prior, tracks drifting right, flows F_{i -> i +- 2}."""
+    g = torch.Generator().manual_seed(seed)
+    ys, xs = torch.meshgrid(torch.arange(H) + 0.5, torch.arange(W) + 0.5, indexing="ij")
+    depth = (2.0 + xs / W)[None].repeat(T, 1, 1) + 0.05 * torch.rand(T, H, W, generator=g)
+    start = torch.rand(N_TRACKS, 1, 2, generator=g) * torch.tensor([W - 8.0, H - 2.0]) + 1.0
+    tracks = start + torch.arange(T, dtype=torch.float32)[None, :, None] * torch.tensor([1.0, 0.0])
+    vis = torch.ones(N_TRACKS, T, dtype=torch.bool)
+    vis[::5, 0] = False  # some tracks unseen at frame 0
+    pairs = [(i, j) for i in range(T) for j in (i - 2, i + 2) if 0 <= j < T]
+    flow = torch.zeros(len(pairs), H, W, 2)
+    for p, (i, j) in enumerate(pairs):
+        flow[p, ..., 0] = float(j - i)
+    return TrainingData(
+        clip_name="synthetic",
+        frames=list(range(0, 2 * T, 2)),
+        width=W,
+        height=H,
+        ldr=torch.rand(T, H, W, 3, generator=g),
+        log2_dt=torch.tensor([-1.0, 1.0] * (T // 2)),
+        depth=depth,
+        tracks=tracks,
+        track_vis=vis,
+        flow_pairs=pairs,
+        flow=flow,
+        flow_valid=torch.ones(len(pairs), H, W, dtype=torch.bool),
+        unit_exposure_value=0.73,
+        num_levels=2,
+    )
+
+
+def tiny_config(**overrides):
+    cfg = preset("tiny")
+    cfg.width, cfg.height = W, H
+    cfg.tonemap.pretrain_steps = 0
+    return apply_overrides(cfg, overrides) if overrides else cfg
+
+
+def replay_sample(stage, it: int) -> dict:
+    """The iteration's frames drawn from a copy of the stage's generator in the documented order:
+    i; a flow-vs-track coin when frame i has prior flows; j; and, when the moving set has more
+    than arap_k Gaussians, the motion subset and the ARAP time t2."""
+    rng = np.random.default_rng()
+    rng.bit_generator.state = stage.rng.bit_generator.state
+    d, lc = stage.data, stage.loss_cfg
+    i = int(rng.integers(T))
+    targets = d.flow_targets(i)
+    use_flow = bool(targets) and rng.random() < lc.flow_prob
+    j = int(rng.choice(targets)) if use_flow else int(rng.choice([k for k in range(T) if k != i]))
+    out = {"i": i, "j": j, "use_flow": use_flow}
+    n = stage.trajectories().count
+    if stage.motion and n > lc.arap_k:
+        out["sub"] = torch.from_numpy(rng.choice(n, size=min(n, 4096), replace=False))
+        if lc.lambda_arap > 0:
+            out["t2"] = float(rng.integers(T))
+    return out
+
+
+def reseed_for_arap(stage, it: int) -> None:
+    """Reseed the stage's generator until the iteration's ARAP times differ (t2 != i), so that the
+    ARAP term has a gradient."""
+    for seed in range(100):
+        stage.rng = np.random.default_rng(seed)
+        draw = replay_sample(stage, it)
+        if draw.get("t2", draw["i"]) != draw["i"]:
+            return
+    raise AssertionError("no seed with t2 != i")
+
+
+def grads(value: torch.Tensor, params: dict) -> dict:
+    """{name: sum |d value / d p|} over each named group of parameters (0 where unused)."""
+    flat = [p for ps in params.values() for p in ps]
+    gs = torch.autograd.grad(value, flat, retain_graph=True, allow_unused=True)
+    out, k = {}, 0
+    for name, ps in params.items():
+        out[name] = sum(float(g.abs().sum()) for g in gs[k : k + len(ps)] if g is not None)
+        k += len(ps)
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# stage 1
+# --------------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def data():
+    return synthetic_data()
+
+
+def video_stage(data, **overrides) -> VideoStage:
+    torch.manual_seed(0)
+    return VideoStage(data, tiny_config(**overrides), "cpu", BACKEND)
+
+
+def test_stage1_terms_follow_weights_and_ablations(data):
+    late = 10_000  # past the TLR start
+    st = video_stage(data)
+    assert list(st.losses(late).terms) == ["rgb", "ue", "dep", "track", "arap", "vel", "acc", "tlr"]
+    assert "tlr" not in video_stage(data).losses(st.tlr_start_step() - 1).terms
+    cases = {
+        "ablation.depth_loss": (False, {"dep"}),
+        "ablation.track_loss": (False, {"track"}),
+        "ablation.tlr": (False, {"tlr"}),
+        "stage1.loss.lambda_dep": (0.0, {"dep"}),
+        "stage1.loss.lambda_track": (0.0, {"track"}),
+        "stage1.loss.lambda_tlr": (0.0, {"tlr"}),
+        "stage1.loss.lambda_arap": (0.0, {"arap"}),
+    }
+    for key, (value, gone) in cases.items():
+        names = set(video_stage(data, **{key: value}).losses(late).terms)
+        assert names == {"rgb", "ue", "dep", "track", "arap", "vel", "acc", "tlr"} - gone, key
+    names = video_stage(
+        data, **{"stage1.loss.lambda_vel": 0.0, "stage1.loss.lambda_acc": 0.0}
+    ).losses(late)
+    assert not {"vel", "acc"} & set(names.terms)
+    extra = video_stage(
+        data,
+        **{
+            "stage1.loss.lambda_opacity": 1.0,
+            "stage1.loss.lambda_scale_std": 1.0,
+            "tonemap.lambda_monotonic": 1.0,
+        },
+    ).losses(late)
+    assert list(extra.terms)[-3:] == ["mono", "opacity", "scale_std"]
+    # stage 2's own term is not a stage-1 term, and the weights follow the config
+    w = video_stage(data, **{"stage1.loss.lambda_dep": 0.25}).weights()
+    assert "pr" not in w and w["dep"] == 0.25 and w["ue"] == 10.0
+
+
+@pytest.mark.parametrize("flow_prob", [1.0, 0.0])  # flow supervision / track supervision
+def test_stage1_term_values_recomputed(data, flow_prob):
+    st = video_stage(data, **{"stage1.loss.flow_prob": flow_prob})
+    it = 10_000
+    draw = replay_sample(st, it)
+    i, j = draw["i"], draw["j"]
+    assert draw["use_flow"] == (flow_prob == 1.0 and bool(data.flow_targets(i)))
+    out = st.losses(it)
+    L = out.terms
+    nbrs = [k for k in (i - 1, i + 1) if 0 <= k < T]
+    with torch.no_grad():
+        r = st.render(float(i), [float(j)] + [float(k) for k in nbrs])
+        lc = st.loss_cfg
+        eq = lambda name, v: torch.testing.assert_close(L[name], v, rtol=1e-6, atol=1e-7)  # noqa: E731
+        eq("rgb", rgb_loss(st.tm(r.hdr, data.log2_dt[i]), data.ldr[i], lambda_d=0.2))
+        eq("ue", unit_exposure_loss(st.tm.unit_exposure_value(), 0.73))
+        eq("dep", depth_loss(r.depth, data.depth[i], valid=r.alpha > 0.5))
+        if draw["use_flow"]:
+            p = data.flow_pairs.index((i, j))
+            pred, v = flow_from_destination_map(r.dest[0], alpha=r.alpha)
+            eq("track", flow_loss(pred, data.flow[p], v, norm="l1"))
+        else:
+            vis = data.track_vis[:, i] & data.track_vis[:, j]
+            src, dst = data.tracks[vis, i], data.tracks[vis, j]
+            eq("track", track_loss(r.dest[0], src, dst, alpha=r.alpha, norm="l1"))
+        ctrl, coeff, knots = st.gauss.params["ctrl"], st.gauss.params["rot"], st.gauss.knots
+        sub = draw["sub"]
+        p_t = spline.evaluate(ctrl, knots, float(i))
+        p_2 = spline.evaluate(ctrl, knots, draw["t2"])
+        nb = knn(p_t, lc.arap_k)[0][sub]
+        d_t = (p_t[sub][:, None] - p_t[nb]).norm(dim=-1)
+        d_2 = (p_2[sub][:, None] - p_2[nb]).norm(dim=-1)
+        eq("arap", ((d_t - d_2) ** 2).mean())
+        times = torch.arange(max(0, i - 2), min(T, i + 3), dtype=torch.float32)
+        pos = spline.evaluate(ctrl[sub], knots, times).transpose(0, 1)
+        q = rot.poly_evaluate(coeff[sub], rot.normalize_time(times, T), normalize=True)
+        eq("vel", velocity_loss(pos, q.transpose(0, 1)))
+        eq("acc", acceleration_loss(pos, q.transpose(0, 1)))
+        terms = []
+        for n_idx, k in enumerate(nbrs):
+            rn = st.render(float(k))
+            dm = r.dest[1 + n_idx]
+            flow, fv = flow_from_destination_map(dm, alpha=r.alpha)
+            z = (dm / r.alpha.clamp_min(1e-6)[..., None])[..., 2]
+            valid = fv & tlr_valid_mask(flow, rn.depth, z, ratio=1.1)
+            terms.append(tlr_loss(r.hdr, rn.hdr, flow, valid))
+        eq("tlr", torch.stack(terms).mean())
+    # the render metadata of the query frame comes back with the terms
+    assert out.meta.means2d.shape[-2] == st.gauss.num_gaussians
+    total = objective.total_loss(L, st.weights())
+    manual = sum(st.weights()[k] * float(v.detach()) for k, v in L.items())
+    assert float(total.detach()) == pytest.approx(manual, rel=1e-6)
+
+
+def test_stage1_gradients_reach_the_intended_parameters(data):
+    st = video_stage(data, **{"stage1.loss.flow_prob": 0.0})
+    g = st.gauss.params
+    with torch.no_grad():  # rotating Gaussians (at identity rotations the angles have no slope)
+        g["rot"][:, 1:].normal_(0.0, 0.1, generator=torch.Generator().manual_seed(2))
+    reseed_for_arap(st, 10_000)
+    L = st.losses(10_000).terms
+    params = {
+        "ctrl": [g["ctrl"]],
+        "rot": [g["rot"]],
+        "scales": [g["scales"]],
+        "opacities": [g["opacities"]],
+        "features": [g["features"]],
+        "color": list(st.color.parameters()),
+        "tonemap": list(st.tm.parameters()),
+        "background": list(st.bg.parameters()),
+    }
+    reach = {
+        name: {k for k, v in grads(value, params).items() if v > 0} for name, value in L.items()
+    }
+    everything = set(params)
+    assert reach["rgb"] == everything
+    assert reach["ue"] == {"tonemap"}
+    # geometry terms never touch appearance
+    for name in ("dep", "track"):
+        assert reach[name] and not reach[name] & {"features", "color", "tonemap", "background"}
+    assert reach["arap"] == {"ctrl"}
+    assert reach["vel"] == {"ctrl", "rot"} and reach["acc"] == {"ctrl", "rot"}
+    # TLR compares HDR renders: no tone mapper; neighbours and flows are detached
+    assert "tonemap" not in reach["tlr"] and {"color", "features"} <= reach["tlr"]
+
+
+def test_stage1_step_densifies_through_the_strategy_and_records(data):
+    st = video_stage(data)
+    rec = st.step(0)
+    assert {"rgb", "total", "num_gaussians"} <= set(rec)
+    assert st.dstate["count"] is not None  # the strategy saw this step's means2d gradient
+    assert float(st.dstate["count"].sum()) > 0
+
+
+# --------------------------------------------------------------------------------------------------
+# stage 2
+# --------------------------------------------------------------------------------------------------
+def world_stage(data, n_static: int = 24, n_dynamic: int = 12, **overrides) -> WorldStage:
+    torch.manual_seed(1)
+    cfg = tiny_config(**overrides)
+    K = torch.as_tensor(K_from_fov(W, H, 60.0)).float()
+    c2w = torch.eye(4).expand(T, 4, 4).clone()
+    c2w[:, 0, 3] = torch.linspace(0, 0.3, T)
+    depth_scale = torch.full((T,), 1.5)
+    F = cfg.model.feature_dim
+    xy = (torch.rand(n_static, 2) - 0.5) * torch.tensor([2.5, 1.8])
+    static = {
+        "means": torch.cat([xy, 3.0 + torch.rand(n_static, 1)], -1),
+        "quats": torch.tensor([[1.0, 0, 0, 0]]).repeat(n_static, 1),
+        "scales": torch.full((n_static, 3), math.log(0.2)),
+        "opacities": torch.full((n_static,), 2.0),
+        "features": torch.randn(n_static, F),
+    }
+    knots = torch.tensor([0.0, 2.0, 4.0, float(T - 1)])
+    ctrl = torch.cat([(torch.rand(n_dynamic, 1, 2) - 0.5), torch.full((n_dynamic, 1, 1), 2.5)], -1)
+    ctrl = ctrl + torch.linspace(0, 0.3, len(knots))[None, :, None] * torch.rand(n_dynamic, 1, 3)
+    coeff = torch.zeros(n_dynamic, 4, 4)
+    coeff[:, 0, 0] = 1.0
+    coeff[:, 1, 1] = 0.1 * torch.rand(n_dynamic)
+    dynamic = {
+        "ctrl": ctrl,
+        "rot": coeff,
+        "scales": torch.full((n_dynamic, 3), math.log(0.15)),
+        "opacities": torch.full((n_dynamic,), 2.0),
+        "features": torch.randn(n_dynamic, F),
+    }
+    g = WorldGaussians(static, dynamic, knots, T, "exp", 1.0)
+    color, tm, bg = build_appearance(cfg, 0.73, "cpu", pretrain=False)
+    stage1_hdr = torch.rand(T, H, W, 3) + 0.1
+    masks = torch.zeros(T, H, W, dtype=torch.bool)
+    masks[:, :4] = True
+    init = WorldInit(g, color, tm, bg, K, c2w, depth_scale, masks, stage1_hdr)
+    return WorldStage(data, cfg, init, "cpu", BACKEND)
+
+
+FULL2 = ["rgb", "ue", "dep", "track", "arap", "vel", "acc", "tlr", "pr"]
+
+
+def test_stage2_terms_follow_weights_ablations_and_method(data):
+    late = 10_000
+    st = world_stage(data)
+    assert list(st.losses(late).terms) == FULL2
+    assert list(st.losses(0).terms) == [n for n in FULL2 if n != "tlr"]
+    assert "pr" not in world_stage(data, **{"stage2.pr_steps": 5}).losses(5).terms
+    assert "pr" in world_stage(data, **{"stage2.pr_steps": 5}).losses(4).terms
+    assert "pr" not in world_stage(data, **{"ablation.reproj_loss": False}).losses(late).terms
+    assert "pr" not in world_stage(data, **{"stage2.lambda_pr": 0.0}).losses(late).terms
+    assert "pr" not in world_stage(data, **{"stage2.optimize_cameras": False}).losses(late).terms
+    assert "dep" not in world_stage(data, **{"stage2.loss.lambda_dep": 0.0}).losses(late).terms
+    # too few dynamic Gaussians for ARAP: no motion regularisers (and no draws for them)
+    few = world_stage(data, n_dynamic=3).losses(late).terms
+    assert not {"arap", "vel", "acc"} & set(few) and "track" in few
+    # the static baseline: no motion, fixed cameras
+    static = world_stage(data, method="static-hdr").losses(late).terms
+    assert list(static) == ["rgb", "ue", "dep"]
+    # the LDR reprojection baseline replaces L_pr by its LDR term (also named "pr")
+    ldr = world_stage(data, method="ldr-reproj").losses(late).terms
+    assert "pr" in ldr
+    assert world_stage(data).weights()["pr"] == 1.0
+
+
+@pytest.mark.parametrize("flow_prob", [1.0, 0.0])
+def test_stage2_term_values_recomputed(data, flow_prob):
+    st = world_stage(data, **{"stage2.loss.flow_prob": flow_prob})
+    it = 10_000
+    draw = replay_sample(st, it)
+    i, j = draw["i"], draw["j"]
+    assert draw["use_flow"] == (flow_prob == 1.0)
+    out = st.losses(it)
+    L = out.terms
+    nbrs = [k for k in (i - 1, i + 1) if 0 <= k < T]
+    ext = st.extent
+    assert ext == pytest.approx(1.5 * float(data.depth.median()), rel=1e-6)
+    eq = lambda name, v: torch.testing.assert_close(L[name], v, rtol=1e-5, atol=1e-7)  # noqa: E731
+    with torch.no_grad():
+        c2w = st.rig.c2w()
+        w2c = cam.invert_rigid(c2w)
+        K = st.rig.K
+        dests = [float(j)] + [float(k) for k in nbrs]
+        r = st.render_at(float(i), c2w[i], dest_times=dests)
+        eq("rgb", rgb_loss(st.tm(r.hdr, data.log2_dt[i]), data.ldr[i], lambda_d=0.2))
+        eq("ue", unit_exposure_loss(st.tm.unit_exposure_value(), 0.73))
+        prior = data.depth[i] * 1.5
+        eq("dep", depth_loss(r.depth, prior, valid=r.alpha > 0.5) / ext)
+        if draw["use_flow"]:
+            p = data.flow_pairs.index((i, j))
+            pred, v = flow_from_destination_map(r.dest[0], K=K, w2c_dst=w2c[j], alpha=r.alpha)
+            eq("track", flow_loss(pred, data.flow[p], v, norm="l1"))
+        else:
+            vis = data.track_vis[:, i] & data.track_vis[:, j]
+            src, dst = data.tracks[vis, i], data.tracks[vis, j]
+            expect = track_loss(r.dest[0], src, dst, K=K, w2c_dst=w2c[j], alpha=r.alpha)
+            eq("track", expect)
+        ctrl, coeff, knots = st.gauss.dynamic["ctrl"], st.gauss.dynamic["rot"], st.gauss.knots
+        sub = draw["sub"]
+        p_t = spline.evaluate(ctrl, knots, float(i))
+        p_2 = spline.evaluate(ctrl, knots, draw["t2"])
+        nb = knn(p_t, 5)[0][sub]
+        d_t = (p_t[sub][:, None] - p_t[nb]).norm(dim=-1)
+        d_2 = (p_2[sub][:, None] - p_2[nb]).norm(dim=-1)
+        eq("arap", ((d_t - d_2) ** 2).mean() / ext**2)
+        times = torch.arange(max(0, i - 2), min(T, i + 3), dtype=torch.float32)
+        pos = spline.evaluate(ctrl[sub], knots, times).transpose(0, 1) / ext
+        q = rot.poly_evaluate(coeff[sub], rot.normalize_time(times, T), normalize=True)
+        eq("vel", velocity_loss(pos, q.transpose(0, 1)))
+        eq("acc", acceleration_loss(pos, q.transpose(0, 1)))
+        terms = []
+        for n_idx, k in enumerate(nbrs):
+            rn = st.render_at(float(k), c2w[k])
+            dm = r.dest[1 + n_idx]
+            flow, fv = flow_from_destination_map(dm, K=K, w2c_dst=w2c[k], alpha=r.alpha)
+            z = cam.transform_points(w2c[k], dm / r.alpha.clamp_min(1e-6)[..., None])[..., 2]
+            valid = fv & tlr_valid_mask(flow, rn.depth, z, ratio=1.1)
+            terms.append(tlr_loss(r.hdr, rn.hdr, flow, valid))
+        eq("tlr", torch.stack(terms).mean())
+        refs = [i + o for off in (1, 2) for o in (-off, off) if 0 <= i + o < T]
+        hdr1 = st.stage1_hdr
+        pr = [
+            hdr_reprojection_loss(hdr1[i], hdr1[k], r.depth, K, c2w[i], c2w[k], st.dynamic_masks[i])
+            for k in refs
+        ]
+        eq("pr", torch.stack(pr).mean())
+    assert out.meta.means2d.shape[-2] == st.gauss.num_gaussians
+
+
+def test_stage2_gradients_reach_the_intended_parameters(data):
+    st = world_stage(data, **{"stage2.loss.flow_prob": 1.0})
+    reseed_for_arap(st, 10_000)
+    L = st.losses(10_000).terms
+    gs, gd = st.gauss.static, st.gauss.dynamic
+    params = {
+        "static_means": [gs["means"]],
+        "static_features": [gs["features"]],
+        "ctrl": [gd["ctrl"]],
+        "rot": [gd["rot"]],
+        "color": list(st.color.parameters()),
+        "tonemap": list(st.tm.parameters()),
+        "camera": [st.rig.dw, st.rig.dt],
+    }
+    reach = {
+        name: {k for k, v in grads(value, params).items() if v > 0} for name, value in L.items()
+    }
+    assert {"color", "tonemap", "camera", "static_features"} <= reach["rgb"]
+    assert reach["ue"] == {"tonemap"}
+    for name in ("dep", "track"):
+        assert "camera" in reach[name] and not reach[name] & {"color", "tonemap", "static_features"}
+    assert reach["arap"] == {"ctrl"}
+    assert reach["vel"] == {"ctrl", "rot"} and reach["acc"] == {"ctrl", "rot"}
+    assert "tonemap" not in reach["tlr"] and "color" in reach["tlr"]
+    # L_pr from two stage-1 frames: cameras and rendered depth only, never colours
+    assert "camera" in reach["pr"] and not reach["pr"] & {"color", "tonemap", "static_features"}
+
+
+def test_stage2_step_uses_both_strategies(data):
+    st = world_stage(data)
+    rec = st.step(0)
+    assert {"rgb", "total", "num_gaussians", "num_dynamic"} <= set(rec)
+    for state, n in ((st.state_static, 24), (st.state_dynamic, 12)):
+        assert state["count"] is not None and state["count"].shape == (n,)
