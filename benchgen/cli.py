@@ -20,6 +20,9 @@ from m4dgs.core.errors import ReportingGroup
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+# Each command imports the modules it runs when it runs: `benchgen --help` and `benchgen list` stay
+# free of torch and the renderer stack (~2 s), and tests can replace benchgen.make's functions.
+
 
 def _levels(text):
     if text is None:

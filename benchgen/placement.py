@@ -42,10 +42,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
+from m4dgs.clip import frame_name, level_name
+from m4dgs.core import io as mio
 from m4dgs.core.crf import CRF, get_crf, tonemap_ldr
 
 TARGET_NAMES = ("mid_median", "short_highlights", "long_saturated", "short_dark")
@@ -329,11 +332,6 @@ def measure_placement(clip_root, meta, targets: Optional[PlacementTargets] = Non
     Each role's level is measured on the training frames taken at it (input/ldr); a role level that
     no training frame has (e.g. the random-values schedule) is measured on the test frames rendered
     at it (gt/ldr/<dt>) and the source says so."""
-    from pathlib import Path
-
-    from m4dgs.clip import frame_name, level_name
-    from m4dgs.core import io as mio
-
     t = targets or PlacementTargets()
     root = Path(clip_root)
     roles = level_roles(meta.exposures.observed)

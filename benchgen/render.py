@@ -36,7 +36,8 @@ import numpy as np
 
 from m4dgs.clip import TrackSet
 
-from .groundtruth import DEFAULT_DEPTH_RTOL, RayCast, pixel_rays
+from .denoise import denoise_hdr
+from .groundtruth import DEFAULT_DEPTH_RTOL, RayCast, pixel_rays, render_noise
 
 DEFAULT_LIBLLVM = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
 LLVM_VARIANT = "llvm_ad_rgb"
@@ -301,8 +302,6 @@ def choose_emitter_sampling(
     wins everywhere (irradiance weights halve the noise of a small-lamp room but raise it where a
     large window and a small lamp light different parts of the frame). Returns (mode, {mode:
     noise}); deterministic."""
-    from .groundtruth import render_noise
-
     base = RenderSettings.resolve(settings)
     scores: Dict[str, float] = {}
     if (
@@ -571,8 +570,6 @@ class Renderer:
         color = np.ascontiguousarray(img[..., :3])
         if not (self.settings.denoise if denoise is None else denoise):
             return color
-        from .denoise import denoise_hdr
-
         # the guides need few samples (first hits only: 16 spp cost ~4 % of a 64-spp colour render
         # at 216x120)
         if self._guides is None:

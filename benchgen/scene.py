@@ -12,6 +12,7 @@ cheaply, how much of each frame shows dynamic objects or emitters (:func:`dynami
 
 from __future__ import annotations
 
+import argparse
 import copy
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +25,7 @@ from m4dgs.core.camera import K_from_fov
 from . import meshes as _meshes
 from . import motion as _motion
 from .spec import SpecError, load_scene_spec, validate_scene  # noqa: F401  (SpecError re-exported)
+from .suite import load_suite
 from .textures import solid_color, texture_from_spec
 
 __all__ = [
@@ -375,10 +377,6 @@ def dynamic_pixel_fraction(
 def _main(argv: Optional[Sequence[str]] = None) -> None:
     """``python -m benchgen.scene [suite-or-scene.yaml ...]``: per-scene coverage table (z-buffered
     estimate)."""
-    import argparse
-
-    from .suite import load_suite
-
     ap = argparse.ArgumentParser(description=_main.__doc__)
     ap.add_argument(
         "items", nargs="*", default=["syn-exp-3"], help="suite names/paths or scene YAML files"

@@ -36,7 +36,7 @@ def summary(clip: Clip) -> dict:
 def flow_to_color(flow: np.ndarray, max_mag: float = None) -> np.ndarray:
     """Colour-wheel visualisation [H, W, 3] in [0, 1] of a flow field [H, W, 2] (hue = direction,
     value = magnitude)."""
-    import matplotlib.colors as mcolors
+    import matplotlib.colors as mcolors  # deferred: matplotlib (~0.6 s), only for pictures
 
     mag = np.linalg.norm(flow, axis=-1)
     ang = np.arctan2(flow[..., 1], flow[..., 0])
@@ -53,7 +53,7 @@ def mu_law_view(hdr: np.ndarray) -> np.ndarray:
 def contact_sheet(clip: Clip, path) -> Path:
     """Write a PNG grid: input LDR frames at each observed level, test LDR at every level, HDR,
     depth (gt and prior), flow (gt and prior), tracks, dynamic mask."""
-    import matplotlib
+    import matplotlib  # deferred: matplotlib (~0.6 s), only for pictures
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -20,13 +20,19 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 
 import click
 
+from m4dgs.core import io as mio
 from m4dgs.core.errors import ReportingGroup
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+# Each command imports the modules it runs when it runs: `eval --help` and the listing commands stay
+# free of torch (scoring), the trainer and the renderer stack, and tests can replace the trainer's
+# entry points.
 
 DEFAULT_OUT = "experiments"
 FORMATS = {"md": "markdown", "markdown": "markdown", "latex": "latex", "csv": "csv"}
@@ -81,8 +87,6 @@ def score(
     run, clip_dir, lpips_weights, roundtrip, flip, tae_train_test, no_fps, no_model, device, force
 ):
     """Score one run folder and write RUN/metrics.json; prints the headline metrics as JSON."""
-    from m4dgs.core import io as mio
-
     from .score import score_run
 
     mpath = Path(run) / "metrics.json"
@@ -270,8 +274,6 @@ def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) ->
     """Entries {"scene", "row", "label", "seed", "run_dir", "clip_dir", "metrics" (dict or None)} of
     a suite's jobs, for trainer seeds 0 .. seeds-1 (None: up to the largest seed with a run folder
     under OUT, for every row)."""
-    from m4dgs.core import io as mio
-
     from .runner import job_list, seeds_present
 
     if seeds is None:
@@ -297,10 +299,6 @@ def collect_runs_dir(runs_dir) -> list:
     """Entries of every run under RUNS_DIR with a metrics.json; rows = the variant names (run.json /
     metrics.json), or the run folder names where two runs of one scene and seed share a variant. A
     folder named <row>-seed-<n> is trainer seed n of <row> (eval run --seeds)."""
-    import re
-
-    from m4dgs.core import io as mio
-
     from .runner import SEED_SUFFIX
     from .score import read_run_info
 
@@ -453,8 +451,6 @@ def build_tables(
 def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
     """Print the paper-style tables of TARGET: a suite (name or YAML; runs under OUT) or a folder of
     runs."""
-    from m4dgs.core import io as mio
-
     from .suite import TableDef, load_eval_suite
 
     if Path(target).is_dir():

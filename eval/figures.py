@@ -23,6 +23,7 @@ import numpy as np
 
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
+from m4dgs.core.crf import get_crf
 from m4dgs.core.hdr import mu_law
 from m4dgs.run import RunDir
 
@@ -66,7 +67,7 @@ def smooth(y: np.ndarray, window: int) -> np.ndarray:
 def _save(fig, path) -> Path:
     """Save a matplotlib figure as PNG atomically (temp file in the same folder, then
     os.replace)."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # deferred, as in _plt
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
@@ -77,6 +78,7 @@ def _save(fig, path) -> Path:
 
 
 def _plt():
+    # deferred: matplotlib (~0.6 s) and its backend choice, only when a figure is drawn
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -114,8 +116,6 @@ def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> 
             label=lab,
         )
         if c.get("true") is not None and c.get("crf") not in true_done:
-            from m4dgs.core.crf import get_crf
-
             zz = np.linspace(z.min(), z.max(), 401)
             f = get_crf(c["crf"])
             # mean of RGB, as learned

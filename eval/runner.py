@@ -18,18 +18,23 @@ system with working flock (local disks, most NFS v4 set-ups)."""
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
+import re
 import shlex
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
+from benchgen.exposure import ExposureSettings
+from benchgen.suite import load_suite
 from m4dgs.core import io as mio
 
-from .suite import EvalSuite, load_eval_suite, scene_suite_names
+from .suite import EvalSuite, load_eval_suite, scene_suite_names, suites_dir
 
 PRESETS = ("tiny", "small", "paper")
 
@@ -110,8 +115,6 @@ def _suite_ref(suite) -> tuple:
     """(EvalSuite, the reference to put on job command lines: the built-in name, or the file's
     absolute path)."""
     s = suite if isinstance(suite, EvalSuite) else load_eval_suite(suite)
-    from .suite import suites_dir
-
     builtin = s.path.resolve().parent == suites_dir().resolve()
     return s, (s.name if builtin else str(s.path.resolve()))
 
@@ -168,8 +171,6 @@ def job_list(
 @contextlib.contextmanager
 def folder_lock(folder: Path):
     """Exclusive flock on <folder>.lock for the duration of the block."""
-    import fcntl
-
     folder = Path(folder)
     folder.parent.mkdir(parents=True, exist_ok=True)
     with open(folder.parent / f".{folder.name}.lock", "a+") as f:
@@ -186,9 +187,8 @@ def make_job_clip(job: Job, progress: bool = False) -> Path:
     clip_dir = Path(job.clip_dir)
     if (clip_dir / "clip.json").exists():
         return clip_dir
-    from benchgen.exposure import ExposureSettings
+    # deferred: benchgen.make loads the renderer stack (~2 s), needed only when a clip is missing
     from benchgen.make import make_clip
-    from benchgen.suite import load_suite
 
     s = load_eval_suite(job.suite)
     setting = s.clips[job.setting]
@@ -218,6 +218,7 @@ def make_job_clip(job: Job, progress: bool = False) -> Path:
 def train_job(job: Job, device: str = "auto", progress: bool = False) -> Path:
     """Train the job's run (m4dgs.training.pipeline.train resumes an interrupted run and returns at
     once when done)."""
+    # the trainer's entry point, imported when called (tests replace it in sys.modules)
     from m4dgs.training.pipeline import train
 
     run_dir = Path(job.run_dir)
@@ -266,7 +267,7 @@ def run_job(
         steps.append("train")
     mpath = run_dir / "metrics.json"
     if force or not mpath.exists():
-        from .score import score_run
+        from .score import score_run  # deferred: scoring loads torch and the metrics (~1.5 s)
 
         score_run(
             run_dir,
@@ -283,7 +284,7 @@ def run_job(
 def _worker_init(threads: int) -> None:
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     try:
-        import torch
+        import torch  # deferred: job listing and locking stay torch-free
 
         torch.set_num_threads(max(1, threads))
     except ImportError:  # pragma: no cover
@@ -338,8 +339,6 @@ def run_suite(
             say(f"[eval run] {i + 1}/{len(jl)} {j.id}")
             results.append(run_job(j, progress=progress, **kw))
         return results
-    from concurrent.futures import ProcessPoolExecutor
-
     threads = max(1, (os.cpu_count() or 1) // jobs)
     with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init, initargs=(threads,)) as ex:
         for f in [ex.submit(make_job_clip, j, False) for j in todo]:
@@ -381,8 +380,6 @@ def find_job(suite, out, preset: str, scene: str, row: str, seed: int = 0) -> Jo
 def seeds_present(suite, out, preset: str = "small", scenes=None) -> int:
     """1 + the largest trainer seed that has a run folder of this suite under OUT (1 when only seed
     0 exists)."""
-    import re
-
     top = 0
     for j in job_list(suite, out, preset, scenes):
         parent = Path(j.run_dir).parent

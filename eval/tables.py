@@ -33,6 +33,8 @@ import io
 import math
 from dataclasses import dataclass, field
 
+from eval.stats import agreement, by_key, mean_ci, paired_diff
+
 NA = "n/a"
 
 
@@ -130,8 +132,6 @@ def _has_reference(agg: list, spec: TableSpec) -> bool:
 
 def cell_stats(rows: list, spec: TableSpec, agg: list | None = None) -> list:
     """[row][col] CellStats in the order of aggregate(rows, spec)."""
-    from eval.stats import agreement, by_key, mean_ci, paired_diff
-
     agg = aggregate(rows, spec) if agg is None else agg
     rows = [r for r in rows if spec.scenes is None or r.get("scene") in spec.scenes]
     has_ref = _has_reference(agg, spec)
@@ -250,6 +250,7 @@ def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None
     order, then the statistics notes (intervals, paired differences, paper values; `agg` tells
     whether the reference row is there)."""
     if conventions is None:
+        # deferred: eval.metrics imports torch (~1.5 s); tables alone are torch-free
         from eval.metrics import CONVENTIONS as conventions  # noqa: N811
     notes = []
     for key in [c.convention for c in spec.columns if c.convention] + list(spec.conventions):

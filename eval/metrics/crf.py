@@ -24,6 +24,8 @@ from typing import Callable, Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from m4dgs.core.crf import get_crf
+
 CRF_ERROR_SAMPLES = 256
 CRF_ERROR_PERCENTILES = (1.0, 99.0)
 CRF_ERROR_MAX_PIXELS = 65536  # pixels per frame used for the range (strided sample)
@@ -55,8 +57,6 @@ def observed_exposure_range(
         unclipped exposures. max_pixels: per frame, a strided sample of at most this many pixels is
         used.
     """
-    from m4dgs.core.crf import get_crf
-
     f = get_crf(crf)
     per_c: List[list] = []
     for h, dt in zip(hdr_frames, dts):
@@ -102,8 +102,6 @@ def crf_error(
         {"crf_error": mean over channels (None if no channel has a range), "per_channel": [codes or
         None], "ranges": [[lo, hi] or None], "samples": n, "units": "8-bit codes"}.
     """
-    from m4dgs.core.crf import get_crf
-
     f = get_crf(crf)
     per = []
     for c, r in enumerate(ranges):

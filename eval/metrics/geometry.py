@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from m4dgs.core.camera import umeyama_sim3
+
 from ._util import as_mask, as_tensor
 
 TRACK_THRESHOLDS = (1.0, 2.0, 4.0, 8.0, 16.0)
@@ -54,8 +56,6 @@ def _centres(poses: torch.Tensor) -> torch.Tensor:
 
 def align_sim3(est, gt, with_scale: bool = True):
     """Least-squares Sim(3) (s, R [3, 3], t [3]) with s R c_est + t ~ c_gt (float64 torch)."""
-    from m4dgs.core.camera import umeyama_sim3
-
     ce = _centres(as_tensor(est, uint8_scale=False))
     cg = _centres(as_tensor(gt, uint8_scale=False, device=ce.device))
     if ce.shape != cg.shape or ce.shape[0] < 3:

@@ -16,6 +16,7 @@ Conventions (docs/metrics.md; shared/notes/metric-conventions.md):
 
 from __future__ import annotations
 
+import flip_evaluator as flip
 import numpy as np
 import torch
 
@@ -134,8 +135,6 @@ def hdr_flip(pred, gt) -> float:
 
     Uses pip `flip-evaluator` (CPU): flip.evaluate(reference, test, "HDR") with its default exposure
     range (computed from the reference) and ACES tone mapper."""
-    import flip_evaluator as flip
-
     g = batched(as_tensor(gt, uint8_scale=False))
     p = batched(as_tensor(pred, device=g.device, uint8_scale=False))
     check_pair(p, g, "hdr_flip")

@@ -98,7 +98,7 @@ def dis_flow(img_a, img_b, *, hdr: bool | None = None) -> np.ndarray:
     grey); float inputs are treated as linear HDR (`hdr=None` auto-detects from the dtype) and
     tone-mapped to 8-bit with the mu-law curve on H / max(H_a, H_b) (same scale for both frames).
     """
-    import cv2
+    import cv2  # deferred: OpenCV (~0.2 s), only for clips without ground-truth flow
 
     a_np = img_a.detach().cpu().numpy() if isinstance(img_a, torch.Tensor) else np.asarray(img_a)
     b_np = img_b.detach().cpu().numpy() if isinstance(img_b, torch.Tensor) else np.asarray(img_b)

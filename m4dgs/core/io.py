@@ -16,6 +16,8 @@ from pathlib import Path
 from typing import Any, Iterator, Optional
 
 import numpy as np
+import OpenEXR
+from PIL import Image
 
 from m4dgs.core.errors import InputError
 
@@ -109,8 +111,6 @@ def read_npz(path) -> dict:
 def write_exr(path, image: np.ndarray) -> None:
     """Write a float32 EXR: [H, W] as channel 'Z', [H, W, 3] as 'RGB', [H, W, C] as channels
     C0..C{C-1}."""
-    import OpenEXR
-
     path = Path(path)
     img = np.asarray(image, dtype=np.float32)
     if img.ndim == 2:
@@ -129,8 +129,6 @@ def write_exr(path, image: np.ndarray) -> None:
 def read_exr(path) -> np.ndarray:
     """Read an EXR written by `write_exr` (or any RGB / single-channel EXR) as float32 [H, W] or [H,
     W, C]."""
-    import OpenEXR
-
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: file missing")
@@ -156,8 +154,6 @@ def read_exr(path) -> np.ndarray:
 def write_png(path, image: np.ndarray) -> None:
     """Write an 8-bit PNG from uint8 [H, W] / [H, W, 3] (floats in [0, 1] are quantised with
     rounding)."""
-    from PIL import Image
-
     img = np.asarray(image)
     if img.dtype != np.uint8:
         img = np.clip(np.round(img.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
@@ -168,8 +164,6 @@ def write_png(path, image: np.ndarray) -> None:
 
 def read_png(path) -> np.ndarray:
     """Read an 8-bit PNG as uint8 [H, W] or [H, W, 3]."""
-    from PIL import Image
-
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: file missing")

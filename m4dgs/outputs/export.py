@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from m4dgs.core.io import atomic_target
+from m4dgs.model.trained import load_model
 
 #: Y_0^0 = 1 / (2 sqrt(pi)); 3DGS colour = 0.5 + SH_C0 * f_dc (+ higher bands)
 SH_C0 = 0.28209479177387814
@@ -334,8 +335,6 @@ def export_run_ply(
         the written path.
     """
     if model is None:
-        from m4dgs.model.trained import load_model
-
         model = load_model(run_dir, device=device)
     t = model.time_of(g)
     dt = 1.0 if exposure is None else float(exposure)

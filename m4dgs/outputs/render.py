@@ -11,6 +11,7 @@ from typing import Dict
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from m4dgs.clip import frame_name, level_name
 from m4dgs.core.io import write_exr, write_png
@@ -33,8 +34,6 @@ def render_run(
     jobs = [("train", g) for g in clip.train_frames] + [("test", g) for g in clip.test_frames]
     it = jobs
     if progress:
-        from tqdm import tqdm
-
         it = tqdm(jobs, desc="render", unit="frame", dynamic_ncols=True)
     written = {"train": 0, "test": 0}
     for split, g in it:

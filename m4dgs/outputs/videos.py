@@ -33,6 +33,7 @@ even numbers for yuv420p; encoding is libx264 via imageio-ffmpeg."""
 
 from __future__ import annotations
 
+import colorsys
 import io as _io
 import math
 from pathlib import Path
@@ -40,10 +41,13 @@ from typing import Iterable, List, Optional
 
 import numpy as np
 import torch
+from PIL import Image, ImageDraw
+from tqdm import tqdm
 
 from m4dgs.core import camera as cam
 from m4dgs.core.hdr import mu_law
 from m4dgs.core.io import atomic_target, write_bytes_atomic, write_npz
+from m4dgs.model.trained import load_model
 
 
 # --------------------------------------------------------------------------------------------------
@@ -68,8 +72,6 @@ def _label(frame: np.ndarray, text: str) -> np.ndarray:
     """Small white-on-black caption at the top-left (only for frames wide enough to hold it)."""
     if frame.shape[1] < 128 or frame.shape[0] < 48:
         return frame
-    from PIL import Image, ImageDraw
-
     im = Image.fromarray(frame)
     d = ImageDraw.Draw(im)
     x0, y0, x1, y1 = d.textbbox((4, 3), text)
@@ -81,7 +83,7 @@ def _label(frame: np.ndarray, text: str) -> np.ndarray:
 def write_mp4(path, frames: Iterable[np.ndarray], fps: float) -> Path:
     """Encode uint8 frames [H, W, 3] (all the same size; padded to even sizes here) as H.264 /
     yuv420p mp4, atomically. Returns the path."""
-    import imageio.v2 as imageio
+    import imageio.v2 as imageio  # deferred: imageio + ffmpeg plugin, only to encode videos
 
     path = Path(path)
     with atomic_target(path, ".mp4") as tmp:
@@ -111,8 +113,6 @@ def write_mp4(path, frames: Iterable[np.ndarray], fps: float) -> Path:
 def _progress(it, progress: bool, desc: str, total: Optional[int] = None):
     if not progress:
         return it
-    from tqdm import tqdm
-
     return tqdm(it, desc=desc, total=total, unit="frame", dynamic_ncols=True, leave=False)
 
 
@@ -162,8 +162,6 @@ def _hdr_scale(hdr: torch.Tensor, q: float = 0.99) -> float:
 def _load(run_dir, device, model, backend):
     if model is not None:
         return model
-    from m4dgs.model.trained import load_model
-
     return load_model(run_dir, device=device, backend=backend)
 
 
@@ -263,8 +261,6 @@ def query_grid(width: int, height: int, step: Optional[int] = None) -> np.ndarra
 
 def _track_colors(n: int) -> np.ndarray:
     """[n, 3] uint8 distinct-ish colours (HSV wheel)."""
-    import colorsys
-
     return np.array(
         [
             [int(255 * c) for c in colorsys.hsv_to_rgb((i * 0.618033988749895) % 1.0, 0.85, 1.0)]
@@ -283,7 +279,7 @@ def draw_trails(
         img: uint8 [H, W, 3] (already zoomed). tracks: [N, F, 2] pixels of the unzoomed image.
         colors: [N, 3] uint8.
     """
-    import cv2
+    import cv2  # deferred: OpenCV (~0.2 s), only to draw track videos
 
     out = np.ascontiguousarray(img.copy())
     lo = max(0, f - int(trail))
@@ -309,6 +305,7 @@ def _plot_tracks_3d(
 ) -> Path:
     """matplotlib 3D plot of world trails (x, z, -y axes so that OpenCV 'up' = -y points up),
     written atomically."""
+    # deferred: matplotlib (~0.6 s), only for the 3D track plot
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -423,7 +420,7 @@ def render_tracks(
     colors = _track_colors(tracks.shape[0])
 
     def video():
-        import cv2
+        import cv2  # deferred: OpenCV (~0.2 s), only to draw track videos
 
         for f, g in _progress(list(enumerate(frames)), progress, "tracks 2d", len(frames)):
             ldr = first["ldr"] if f == 0 else model.render_frame(g, log2_dt=l2_ref)["ldr"]

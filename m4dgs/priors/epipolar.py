@@ -429,7 +429,7 @@ def normalise_brightness(
 
 
 def _dis_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    import cv2
+    import cv2  # deferred: OpenCV (~0.2 s), only for clips without a flow prior
 
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     return dis.calc(np.ascontiguousarray(a), np.ascontiguousarray(b), None).astype(np.float32)

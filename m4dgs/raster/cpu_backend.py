@@ -70,6 +70,7 @@ def _load() -> tuple[object | None, str]:
     if cxx is None:
         return None, "no C++ compiler found (install g++ or set CXX)"
     try:
+        # deferred: cpp_extension pulls in setuptools and the build machinery, only to compile
         from torch.utils import cpp_extension
 
         suffix, isa = _isa_flags()

@@ -46,11 +46,17 @@ from typing import Any, Dict, Literal, Mapping, Optional, Tuple
 
 import yaml
 
+from m4dgs.core.errors import InputError
 from m4dgs.model.gaussians import ModelConfig, VideoInitConfig
 from m4dgs.priors.camera_init import CameraInitConfig
 from m4dgs.priors.epipolar import EpipolarConfig
 from m4dgs.priors.rigidity import DynamicMaskConfig
 from m4dgs.training.densify import DensifyConfig
+
+
+class ConfigError(InputError):
+    """A config value outside its allowed values (a ValueError; the tools report it in one line)."""
+
 
 # typed choices of the string options (validated by `validate`, `from_dict`, `apply_overrides`)
 PresetName = Literal["tiny", "small", "paper"]
@@ -561,26 +567,34 @@ REMOVED_KEYS: Dict[str, str] = {
 }
 
 
-def _upgrade_key(path: str, warn: bool, stacklevel: int = 3) -> Optional[str]:
+def _warn_key(message: str) -> None:
+    """One line on stderr (no source line): the key is the user's, not a line of this module."""
+    warnings.warn_explicit(message, FutureWarning, "m4dgs config", 0, module=__name__)
+
+
+def _upgrade_key(path: str, warn: bool) -> Optional[str]:
     """The current dotted key of `path` (itself when current), or None for a removed key."""
     if path in LEGACY_KEYS:
         new = LEGACY_KEYS[path]
         if warn:
-            warnings.warn(
-                f"config key '{path}' is deprecated, use '{new}'",
-                FutureWarning,
-                stacklevel=stacklevel,
-            )
+            _warn_key(f"config key '{path}' is deprecated, use '{new}'")
         return new
     if path in REMOVED_KEYS:
         if warn:
-            warnings.warn(
-                f"config key '{path}' was removed ({REMOVED_KEYS[path]}); ignored",
-                FutureWarning,
-                stacklevel=stacklevel,
-            )
+            _warn_key(f"config key '{path}' was removed ({REMOVED_KEYS[path]}); ignored")
         return None
     return path
+
+
+def upgrade_overrides(overrides: Mapping[str, Any], warn: bool = True) -> Dict[str, Any]:
+    """Dotted overrides (mapping values flattened) with the keys of older configs renamed and
+    removed keys dropped, warning once per such key when `warn` (see `apply_overrides`)."""
+    out = {}
+    for path, v in _flatten(overrides).items():
+        new = _upgrade_key(path, warn)
+        if new is not None:
+            out[new] = v
+    return out
 
 
 def upgrade_dict(data: Mapping[str, Any], warn: bool = True) -> Dict[str, Any]:
@@ -590,7 +604,7 @@ def upgrade_dict(data: Mapping[str, Any], warn: bool = True) -> Dict[str, Any]:
     flat = _flatten(data)
     out = {}
     for path, v in flat.items():
-        new = _upgrade_key(path, warn, stacklevel=5)
+        new = _upgrade_key(path, warn)
         if new is not None:
             out[new] = v
     # a mapping value for a section that held only removed keys disappears; keep empty sections
@@ -650,14 +664,14 @@ def _check_choice(value: Any, tp: Any, key: str) -> Any:
     """`value` if it is one of the Literal type's values, else ValueError naming key and values."""
     allowed = typing.get_args(tp)
     if not isinstance(value, str) or value not in allowed:
-        raise ValueError(
+        raise ConfigError(
             f"config key '{key}' must be one of {', '.join(map(repr, allowed))}; got {value!r}"
         )
     return value
 
 
 def validate(cfg: Any, prefix: str = "") -> None:
-    """Raise ValueError (naming the dotted key and the allowed values) for a typed-choice field
+    """Raise ConfigError (naming the dotted key and the allowed values) for a typed-choice field
     outside its values, anywhere in the config tree; nested configs with their own `validate()`
     (e.g. masks: m4dgs.priors.rigidity.DynamicMaskConfig) are asked too, and the tone mapper's
     pre-training curve must be a known one."""
@@ -670,13 +684,16 @@ def validate(cfg: Any, prefix: str = "") -> None:
         elif dataclasses.is_dataclass(v):
             validate(v, f"{prefix}{f.name}.")
     if callable(getattr(cfg, "validate", None)):
-        cfg.validate()
+        try:
+            cfg.validate()
+        except ValueError as e:
+            raise ConfigError(str(e)) from e
     if isinstance(cfg, ToneMapConfig):
         from m4dgs.core.crf import available_crfs
 
         known = ("log-logistic", "reinhard-c0", "auto", *available_crfs())
         if cfg.pretrain_crf not in known:
-            raise ValueError(
+            raise ConfigError(
                 f"config key '{prefix}pretrain_crf' must be one of {', '.join(map(repr, known))}; "
                 f"got {cfg.pretrain_crf!r}"
             )

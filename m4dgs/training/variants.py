@@ -175,11 +175,11 @@ def variant_config(
     transfer of a run without stage 1 (`stage2_only_budget`), then the user's overrides (which win:
     an explicit --set stage2.iterations=N is kept). The budget transfer also applies when the user's
     overrides switch stage 1 off."""
-    from m4dgs.training.config import apply_overrides
+    from m4dgs.training.config import apply_overrides, upgrade_overrides
     from m4dgs.training.config import preset as make_preset
 
     cfg = apply_overrides(make_preset(preset), overrides_for(variant))
-    user = dict(overrides or {})
+    user = upgrade_overrides(overrides or {})  # older keys: one warning each, here
     if not apply_overrides(cfg, user).ablation.use_video_init:
         cfg = stage2_only_budget(cfg)
     return apply_overrides(cfg, user) if user else cfg

@@ -129,3 +129,28 @@ def test_kill_in_stage1_resumes_from_checkpoint(tiny_clip_realistic, tmp_path, m
     log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log if r["stage"] == "stage1"] == list(range(30))
     assert json.loads((run / "status.json").read_text())["stage"] == "done"
+
+
+def test_a_run_of_the_older_config_layout_is_accepted(tiny_clip_realistic, tmp_path):
+    """An older run's config.yaml (loss weights directly under stage1 / stage2, since-removed
+    never-read keys) with the same settings is taken as this run's and rewritten in the current
+    layout; another setting is still refused."""
+    import warnings
+
+    from m4dgs.run import RunDir
+    from m4dgs.training.config import to_dict
+    from m4dgs.training.pipeline import Trainer
+
+    old = to_dict(resolve_config(Clip.open(tiny_clip_realistic), "tiny"))
+    for stage in ("stage1", "stage2"):
+        old[stage].update(old[stage].pop("loss"))
+        old[stage]["track_clamp_px"] = 100.0
+    old["v2w"]["fov_clamp"] = 1.3
+    run = tmp_path / "run"
+    RunDir(run).write_config(old)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # internal upgrade: no warning
+        tr = Trainer(tiny_clip_realistic, run, preset="tiny", progress=False)
+    assert RunDir(run).read_config() == to_dict(tr.cfg)
+    with pytest.raises(ValueError, match="different configuration"):
+        Trainer(tiny_clip_realistic, run, preset="tiny", variant="no-tlr", progress=False)

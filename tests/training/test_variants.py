@@ -168,3 +168,14 @@ def test_world_only_is_ablation_a_without_tlr():
     assert "MoSca" not in describe("world-only") and "ablation (a) without TLR" in describe(
         "world-only"
     )
+
+
+def test_older_override_keys_warn_once_each():
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cfg = variant_config("tiny", "full", {"stage1.lambda_dep": 0.5, "stage2.track_clamp_px": 1})
+    assert cfg.stage1.loss.lambda_dep == 0.5
+    msgs = sorted(str(w.message) for w in caught if w.category is FutureWarning)
+    assert len(msgs) == 2 and "stage1.loss.lambda_dep" in msgs[0] and "removed" in msgs[1]
