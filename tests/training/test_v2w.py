@@ -13,8 +13,8 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from m4dgs.training import v2w
 from m4dgs.model.gaussians import VideoGaussians, scale_inverse
+from m4dgs.training import v2w
 from m4dgs.training.config import AblationConfig, V2WConfig
 
 W = H = 64
