@@ -490,5 +490,112 @@ def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
         click.echo(f"wrote {len(paths)} figure(s) to {fig_dir}", err=True)
 
 
+# --------------------------------------------------------------------------------------------------
+@main.command()
+@click.argument("suites", nargs=-1, required=True)
+@click.option(
+    "--root",
+    "out",
+    default=DEFAULT_OUT,
+    show_default=True,
+    type=click.Path(file_okay=False),
+    help="Experiment root of the suites (runs in ROOT/runs/<suite>).",
+)
+@click.option(
+    "--csv",
+    "csv_path",
+    default="results/runs.csv",
+    show_default=True,
+    type=click.Path(dir_okay=False),
+    help="Runs CSV to create or merge into (learned CRF curves go to <stem>-crf.csv beside it).",
+)
+@click.option("--scenes", default=None, help="Comma-separated subset of the suites' scenes.")
+@click.option(
+    "--seeds",
+    default=None,
+    type=click.IntRange(min=1),
+    help="Trainer seeds 0..N-1 to collect (default: up to the largest seed with a run folder).",
+)
+def export(suites, out, csv_path, scenes, seeds):
+    """Collect the scored runs of SUITES under ROOT into one CSV of per-run metrics (one row per
+    suite, scene, row, seed), merging with the existing CSV: a scored run replaces the row of
+    the same key, a run without metrics.json never replaces a scored one, other rows stay."""
+    from .results import export as export_runs
+
+    summary = export_runs(
+        suites, out, csv_path, _scenes(scenes), seeds, log=lambda s: click.echo(s, err=True)
+    )
+    for name, c in summary.items():
+        click.echo(f"{name}: {c['scored']} scored, {c['missing']} without metrics.json", err=True)
+    click.echo(f"wrote {csv_path}", err=True)
+
+
+@main.command()
+@click.option(
+    "--csv",
+    "csv_path",
+    default="results/runs.csv",
+    show_default=True,
+    type=click.Path(dir_okay=False),
+    help="Runs CSV written by `export` (a missing file gives a page that says the runs are "
+    "pending).",
+)
+@click.option(
+    "--out",
+    "out_md",
+    default="docs/results.md",
+    show_default=True,
+    type=click.Path(dir_okay=False),
+    help="The results page to write.",
+)
+@click.option(
+    "--figures",
+    "figures_dir",
+    default=None,
+    type=click.Path(file_okay=False),
+    help="Folder for the figures (default: <folder of --out>/figures/results).",
+)
+@click.option("--no-figures", is_flag=True, help="Write no figures (and link none).")
+@click.option(
+    "--readme",
+    default="README.md",
+    show_default=True,
+    type=click.Path(dir_okay=False),
+    help="README whose block between <!-- results:main:start --> and <!-- results:main:end --> "
+    "is replaced by the main table.",
+)
+@click.option("--no-readme", is_flag=True, help="Leave the README alone.")
+@click.option(
+    "--notes",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Hand-written notes linked from the page (default: results-notes.md beside --out, "
+    "when it exists).",
+)
+def results(csv_path, out_md, figures_dir, no_figures, readme, no_readme, notes):
+    """Regenerate the results page (every suite's tables with intervals, the paper's values and
+    the agreement column, figures, findings) and the README's main table from the runs CSV."""
+    from .results import render_results
+
+    if notes is None:
+        cand = Path(out_md).parent / "results-notes.md"
+        notes = str(cand) if cand.exists() else None
+    fig = None if no_figures else (figures_dir or str(Path(out_md).parent / "figures/results"))
+    cmd = f"m4dgs-eval results --csv {csv_path} --out {out_md}"
+    res = render_results(
+        csv_path,
+        out_md,
+        figures_dir=fig,
+        readme=None if no_readme else readme,
+        notes=notes,
+        command=cmd,
+    )
+    click.echo(
+        f"wrote {out_md} ({len(res['suites'])} suite(s), {len(res['figures'])} figure(s))"
+        + (f"; updated {res['readme']}" if res["readme"] else ""),
+        err=True,
+    )
+
+
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -1,0 +1,1044 @@
+"""The published results: a small CSV of per-run metrics, and docs/results.md regenerated from it.
+
+    m4dgs-eval export SUITE [SUITE...] --root RUNS --csv results/runs.csv
+    m4dgs-eval results --csv results/runs.csv --out docs/results.md
+
+`export` collects the runs of suites (the records `m4dgs-eval table` aggregates: eval.cli
+collect_suite) into one tidy CSV, one row per (suite, scene, row, seed) with the scalar metrics of
+eval.suite.metric_columns() as columns (6 significant digits), and the learned CRF curves (mean of
+RGB on a fixed log2-exposure grid, 3 decimals) into a second CSV beside it (`<stem>-crf.csv`). It
+merges with an existing CSV: a scored run replaces the row of the same key, a run without
+metrics.json ("missing") never replaces a scored row, and rows of other suites, scenes or seeds
+stay, so suites run in different sessions accumulate.
+
+`results` renders, for every suite in the CSV, what stands behind it (scenes, seeds, presets, scored
+and missing runs), every table of the suite through eval.cli.build_tables (the same code as `eval
+table`: mean +- Student-t 95 % interval, paired differences to the reference row, the paper's values
+and the direction-agreement column), figures (per-scene bars of the main metric, learned CRF curves
+against the true ones, HDR-TAE vs LDR-OE PSNR), and a "Findings" section with one table per finding
+of the paper (FINDINGS): the paper's difference, ours with its interval and number of (scene, seed)
+pairs, and the verdict. It also replaces the block between README_START and README_END of the README
+with the main table. The output depends only on the CSV (no dates), so running it twice changes
+nothing. Prose that needs a human (the controls run for disagreements) lives in a hand-written notes
+file that the page links."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+from m4dgs.core import io as mio
+
+# --------------------------------------------------------------------------------------------------
+# CSV schema
+# --------------------------------------------------------------------------------------------------
+KEY = ("suite", "scene", "row", "seed")
+META = KEY + (
+    "label",  # the row's label in the tables
+    "variant",  # m4dgs.training.variants name
+    "clip_setting",  # clip setting id (OUT/clips/<id>: syn-exp-3, syn-exp-3-crf-aces-filmic)
+    "crf",  # the clip's true camera response
+    "preset",  # training preset of the run (run.json / metrics.json)
+    "status",  # scored | missing (a job of the suite without metrics.json)
+    "ldr_convention",  # ldr_png | ldr_jpeg (metrics.json)
+)
+SCORED, MISSING = "scored", "missing"
+CRF_GRID = [i / 2 for i in range(-20, 21)]  # log2 exposure -10 .. 10 in half stops
+CRF_KEY = KEY + ("crf",)
+SUITE_ORDER = (
+    "paper-main",
+    "paper-ablation",
+    "control-points",
+    "exposure-schedules",
+    "exposure-noise",
+    "priors",
+    "crf",
+)
+README_START = "<!-- results:main:start -->"
+README_END = "<!-- results:main:end -->"
+MAIN_SUITE = "paper-main"
+
+
+def metric_keys() -> List[str]:
+    """The metric columns of the CSV: every key a suite table may show (eval.suite)."""
+    from .suite import metric_columns
+
+    return list(metric_columns())
+
+
+def crf_csv_path(csv_path) -> Path:
+    """The CRF-curve CSV beside the runs CSV: results/runs.csv -> results/runs-crf.csv."""
+    p = Path(csv_path)
+    return p.with_name(p.stem + "-crf.csv")
+
+
+def fmt_number(v) -> str:
+    """A metric as CSV text: 6 significant digits (integers from 1e6 on), "" for None / NaN."""
+    if v is None or isinstance(v, bool):
+        return ""
+    v = float(v)
+    if math.isnan(v):
+        return ""
+    if math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    return f"{v:.0f}" if abs(v) >= 1e6 else f"{v:.6g}"
+
+
+def parse_number(text: str) -> Optional[float]:
+    return None if text is None or text.strip() == "" else float(text)
+
+
+def _key(r: dict) -> tuple:
+    return (r["suite"], r["scene"], r["row"], int(r["seed"]))
+
+
+# --------------------------------------------------------------------------------------------------
+# export
+# --------------------------------------------------------------------------------------------------
+def _crf_values(curve: dict) -> Optional[List[float]]:
+    """metrics.json crf_curve -> the learned curve (mean of RGB) on CRF_GRID (None without one)."""
+    import numpy as np
+
+    if not curve or not curve.get("learned") or not curve.get("log2_x"):
+        return None
+    z = np.asarray(curve["log2_x"], np.float64)
+    y = np.asarray(curve["learned"], np.float64).reshape(len(z), -1).mean(axis=1)
+    return [float(v) for v in np.interp(CRF_GRID, z, y)]
+
+
+def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List[dict]]:
+    """(runs rows, CRF rows) of one suite's jobs under ROOT (eval.cli.collect_suite): every job, a
+    scored one with its metrics, a job without metrics.json with status "missing". Without
+    `scenes`, only the scenes with at least one run folder of the suite (the subset that was run);
+    with `scenes`, every job of those scenes."""
+    from .cli import collect_suite
+    from .suite import load_eval_suite
+
+    s = load_eval_suite(suite)
+    entries = collect_suite(suite, root, scenes, seeds=seeds)
+    if scenes is None:  # scenes without any run folder were not run: not part of the subset
+        ran = {e["scene"] for e in entries if Path(e["run_dir"]).exists()}
+        entries = [e for e in entries if e["scene"] in ran]
+    keys = metric_keys()
+    rows, crfs = [], []
+    for e in entries:
+        row = s.row(e["row"])
+        setting = s.clips[row.clip]
+        m = e["metrics"] or {}
+        curve = m.get("crf_curve") or {}
+        r = {
+            "suite": s.name,
+            "scene": e["scene"],
+            "row": e["row"],
+            "seed": int(e.get("seed") or 0),
+            "label": row.label,
+            "variant": row.variant,
+            "clip_setting": setting.setting_id(s.scenes),
+            "crf": curve.get("crf") or setting.crf or "hdrnerf",
+            "preset": (m.get("run") or {}).get("preset") or "",
+            "status": SCORED if e["metrics"] else MISSING,
+            "ldr_convention": m.get("ldr_convention", "") if e["metrics"] else "",
+        }
+        for k in keys:
+            v = m.get(k)
+            r[k] = v if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+        rows.append(r)
+        vals = _crf_values(curve) if e["metrics"] else None
+        if vals is not None:
+            crfs.append({**{k: r[k] for k in CRF_KEY}, "values": vals})
+    return rows, crfs
+
+
+def read_runs_csv(path) -> List[dict]:
+    """Rows of a runs CSV: metric cells as floats (None when empty), seed as int, the rest text."""
+    p = Path(path)
+    if not p.exists():
+        return []
+    with open(p, newline="", encoding="utf-8") as f:
+        rd = csv.DictReader(f)
+        out = []
+        for r in rd:
+            d = {}
+            for k, v in r.items():
+                if k in META:
+                    d[k] = int(v) if k == "seed" else (v or "")
+                else:
+                    d[k] = parse_number(v)
+            out.append(d)
+    return out
+
+
+def read_crf_csv(path) -> Dict[tuple, dict]:
+    """{(suite, scene, row, seed): {"crf", "log2_x", "learned"}} of a CRF-curve CSV."""
+    p = Path(path)
+    if not p.exists():
+        return {}
+    with open(p, newline="", encoding="utf-8") as f:
+        rd = csv.reader(f)
+        head = next(rd, None)
+        if head is None:
+            return {}
+        n = len(CRF_KEY)
+        grid = [float(h) for h in head[n:]]
+        out = {}
+        for r in rd:
+            d = dict(zip(CRF_KEY, r[:n]))
+            d["seed"] = int(d["seed"])
+            out[_key(d)] = {
+                "crf": d["crf"],
+                "log2_x": grid,
+                "learned": [parse_number(v) for v in r[n:]],
+            }
+    return out
+
+
+def _sorted(rows: List[dict]) -> List[dict]:
+    return sorted(rows, key=_key)
+
+
+def write_runs_csv(path, rows: List[dict], extra: Sequence[str] = ()) -> None:
+    """Write the runs CSV atomically (META, the metric columns, then `extra` columns of an older
+    file), rows sorted by (suite, scene, row, seed)."""
+    cols = list(META) + metric_keys()
+    cols += [c for c in extra if c not in cols]
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for r in _sorted(rows):
+        w.writerow([r.get(c, "") if c in META else fmt_number(r.get(c)) for c in cols])
+    mio.write_bytes_atomic(Path(path), buf.getvalue().encode())
+
+
+def write_crf_csv(path, curves: Dict[tuple, dict]) -> None:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(list(CRF_KEY) + [f"{x:g}" for x in CRF_GRID])
+    for k in sorted(curves):
+        c = curves[k]
+        vals = list(c["learned"])
+        if list(c["log2_x"]) != CRF_GRID:
+            import numpy as np
+
+            vals = list(np.interp(CRF_GRID, c["log2_x"], vals))
+        w.writerow(list(k) + [c["crf"]] + ["" if v is None else f"{v:.3f}" for v in vals])
+    mio.write_bytes_atomic(Path(path), buf.getvalue().encode())
+
+
+def merge_rows(old: List[dict], new: List[dict]) -> List[dict]:
+    """New rows replace old rows of the same (suite, scene, row, seed); a missing run never replaces
+    a scored one; every other old row stays."""
+    idx = {_key(r): r for r in old}
+    for r in new:
+        k = _key(r)
+        if r["status"] == MISSING and k in idx and idx[k].get("status") == SCORED:
+            continue
+        idx[k] = r
+    return _sorted(list(idx.values()))
+
+
+def export(suites: Sequence[str], root, csv_path, scenes=None, seeds=None, log=None) -> dict:
+    """Collect the runs of `suites` under ROOT and merge them into csv_path and its CRF CSV.
+
+    Returns {suite: {"scored", "missing"}} of what was collected; raises InputError when a suite
+    has no scored run under ROOT (a wrong ROOT would otherwise add only missing rows)."""
+    from m4dgs.core.errors import InputError
+
+    say = log or (lambda s: None)
+    old = read_runs_csv(csv_path)
+    extra = []
+    if Path(csv_path).exists():
+        with open(csv_path, newline="", encoding="utf-8") as f:
+            head = next(csv.reader(f), [])
+        extra = [c for c in head if c not in META and c not in metric_keys()]
+    curves = read_crf_csv(crf_csv_path(csv_path))
+    new_rows, summary = [], {}
+    for suite in suites:
+        rows, crfs = export_suite(suite, root, scenes, seeds)
+        name = rows[0]["suite"] if rows else str(suite)
+        scored = [r for r in rows if r["status"] == SCORED]
+        if not scored:
+            raise InputError(
+                f"no metrics.json found for suite {name!r} under {root} "
+                "(run `m4dgs-eval run` first)"
+            )
+        presets = sorted(
+            {r["preset"] for r in scored}
+            | {r["preset"] for r in old if r["suite"] == name and r.get("status") == SCORED}
+        )
+        if len(presets) > 1:
+            say(f"warning: suite {name} mixes presets {presets} in {csv_path}")
+        for r in scored:  # a re-scored run's curve replaces the old one (or removes it)
+            curves.pop(_key(r), None)
+        for c in crfs:
+            curves[_key(c)] = {"crf": c["crf"], "log2_x": CRF_GRID, "learned": c["values"]}
+        new_rows += rows
+        summary[name] = {"scored": len(scored), "missing": len(rows) - len(scored)}
+    merged = merge_rows(old, new_rows)
+    Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
+    write_runs_csv(csv_path, merged, extra)
+    write_crf_csv(crf_csv_path(csv_path), curves)
+    return summary
+
+
+# --------------------------------------------------------------------------------------------------
+# suites in the CSV
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class SuiteData:
+    """The CSV rows of one suite, completed to the grid scenes x rows x seeds."""
+
+    name: str
+    suite: object  # eval.suite.EvalSuite, or None when the definition is unknown
+    rows: List[dict]  # the CSV rows of the suite
+    scenes: List[str]  # scenes with a CSV row, in the scene suite's order
+    all_scenes: List[str]  # every scene of the suite's scene suite
+    seeds: List[int]
+    row_names: List[str]  # in the suite's order
+    labels: Dict[str, str]
+    entries: List[dict] = field(default_factory=list)  # eval.cli.build_tables entries
+
+    @property
+    def scored(self) -> List[dict]:
+        return [e for e in self.entries if e["metrics"]]
+
+    @property
+    def missing(self) -> List[dict]:
+        return [e for e in self.entries if not e["metrics"]]
+
+    @property
+    def presets(self) -> Dict[str, int]:
+        out: Dict[str, int] = {}
+        for r in self.rows:
+            if r.get("status") == SCORED:
+                out[r.get("preset") or "?"] = out.get(r.get("preset") or "?", 0) + 1
+        return dict(sorted(out.items()))
+
+
+def _load_suite(name: str):
+    from .suite import builtin_suites, load_eval_suite
+
+    return load_eval_suite(name) if name in builtin_suites() else None
+
+
+def suite_data(name: str, rows: List[dict]) -> SuiteData:
+    """Entries of one suite for the tables: every (seed, clip setting, scene, row) of the grid in
+    the order of the suite's job list (so the row order matches `eval table`), a CSV row as a scored
+    entry with its metrics, a missing or absent one without."""
+    s = _load_suite(name)
+    keys = metric_keys()
+    by = {_key(r): r for r in rows if r["suite"] == name}
+    present = list(dict.fromkeys(r["scene"] for r in by.values()))
+    all_scenes = present
+    if s is not None:
+        try:
+            from .suite import scene_suite_names
+
+            all_scenes = scene_suite_names(s)
+        except Exception:  # noqa: BLE001 - an unknown scene suite: keep the scenes of the CSV
+            all_scenes = present
+    scenes = [sc for sc in all_scenes if sc in present] + sorted(
+        sc for sc in present if sc not in all_scenes
+    )
+    seeds = list(range(1 + max((k[3] for k in by), default=0)))
+    # rows grouped by clip setting, in the suite's order (the job list's order, so the tables list
+    # the rows as `eval table` does); rows the suite no longer defines come last
+    groups, labels = [], {}
+    if s is not None:
+        for key in s.clips:
+            groups.append([r.name for r in s.rows if r.clip == key])
+        labels = {r.name: r.label for r in s.rows}
+    extra = [rn for rn in dict.fromkeys(r["row"] for r in by.values()) if rn not in labels]
+    for rn in extra:
+        labels[rn] = next(r.get("label") or rn for r in by.values() if r["row"] == rn)
+    groups.append(extra)
+    row_names = ([r.name for r in s.rows] if s is not None else []) + extra
+    entries = []
+    for seed in seeds:
+        for group in groups:
+            for sc in scenes:
+                for rn in group:
+                    r = by.get((name, sc, rn, seed))
+                    metrics = None
+                    if r is not None and r.get("status") == SCORED:
+                        metrics = {k: r[k] for k in keys if r.get(k) is not None}
+                        metrics["ldr_convention"] = r.get("ldr_convention") or "ldr_png"
+                    run = rn if seed == 0 else f"{rn}-seed-{seed}"
+                    entries.append(
+                        {
+                            "scene": sc,
+                            "row": rn,
+                            "label": labels[rn],
+                            "seed": seed,
+                            "run_dir": f"{name}/{sc}/{run}",
+                            "clip_dir": None,
+                            "metrics": metrics,
+                        }
+                    )
+    return SuiteData(
+        name, s, [by[k] for k in sorted(by)], scenes, all_scenes, seeds, row_names, labels, entries
+    )
+
+
+def suites_in(rows: List[dict]) -> List[str]:
+    names = list(dict.fromkeys(r["suite"] for r in rows))
+    return [n for n in SUITE_ORDER if n in names] + sorted(n for n in names if n not in SUITE_ORDER)
+
+
+def suite_tables(data: SuiteData, fmt: str = "markdown", first_only: bool = False) -> str:
+    """The suite's tables rendered by eval.cli.build_tables (the code of `eval table`)."""
+    from .cli import build_tables
+    from .suite import TableDef
+
+    if data.suite is not None:
+        defs, ref = data.suite.tables, data.suite.reference
+    else:
+        defs = [TableDef(data.name, "paper")]
+        ref = "full" if "full" in data.row_names else None
+    if first_only:
+        defs = defs[:1]
+    return build_tables(data.entries, defs, fmt, ref)
+
+
+# --------------------------------------------------------------------------------------------------
+# findings
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Comparison:
+    """Δ = row - ref; `expect` the direction the finding claims for the row: "better" or "worse"
+    (used where the paper has no value for one of the two rows)."""
+
+    row: str
+    ref: str
+    expect: str
+
+
+@dataclass(frozen=True)
+class Finding:
+    key: str
+    title: str
+    suite: str
+    paper: Optional[str]  # table of eval/paper_values.yaml
+    comparisons: Tuple[Comparison, ...]
+    metrics: Tuple[str, ...] = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae")
+
+
+def _cmp(ref: str, expect: str, *rows: str) -> Tuple[Comparison, ...]:
+    return tuple(Comparison(r, ref, expect) for r in rows)
+
+
+FINDINGS: Tuple[Finding, ...] = (
+    Finding(
+        "baselines",
+        "The full method beats each baseline (paper Table 1)",
+        "paper-main",
+        "main",
+        tuple(
+            Comparison("full", b, "better")
+            for b in ("static-hdr", "ldr-reproj-consecutive", "ldr-reproj", "world-only")
+        ),
+    ),
+    Finding(
+        "ablations",
+        "Each ablation row costs quality (paper Table 3)",
+        "paper-ablation",
+        "ablation",
+        _cmp(
+            "full",
+            "worse",
+            "no-video-init",
+            "no-occlusion",
+            "no-cov-invariance",
+            "no-reproj",
+            "no-tlr",
+        ),
+    ),
+    Finding(
+        "control-points",
+        "N_s = 4 is the sweet spot of the control-point interval (paper Table 4)",
+        "control-points",
+        "control-points",
+        _cmp("ns-4", "better", "ns-1", "ns-2") + _cmp("ns-4", "worse", "ns-8", "ns-16"),
+    ),
+    Finding(
+        "perturbation",
+        "Exposure perturbation degrades gracefully (paper appendix)",
+        "exposure-noise",
+        "exposure-noise",
+        (
+            Comparison("ev-0.25", "ev-0", "worse"),
+            Comparison("ev-0.5", "ev-0.25", "worse"),
+            Comparison("ev-0.75", "ev-0.5", "worse"),
+            Comparison("ev-0.75", "ev-0", "worse"),
+        ),
+    ),
+    Finding(
+        "schedules",
+        "The alternating schedule is best; random schedules cost a little (paper appendix)",
+        "exposure-schedules",
+        "exposure-schedules",
+        _cmp("alternating", "worse", "random-order", "random-values"),
+    ),
+    Finding(
+        "priors",
+        "Better priors help: dropping the depth or track loss, or harsher priors, cost quality "
+        "(paper appendix; oracle and harsh priors beyond the paper)",
+        "priors",
+        "priors",
+        _cmp("full", "worse", "no-depth-loss", "no-track-loss")
+        + (Comparison("full-oracle", "full", "better"), Comparison("full-harsh", "full", "worse")),
+    ),
+)
+
+AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA = (
+    "agrees",
+    "disagrees",
+    "not significant",
+    "paper tie",
+    "not enough data",
+)
+
+
+@dataclass
+class ComparisonResult:
+    comparison: Comparison
+    metric: str
+    paper_diff: Optional[float]
+    claim: int  # expected sign of Δ (+1 / -1), 0 where the paper's two values are equal
+    claim_from: str  # "paper" or "finding"
+    ours: object  # eval.stats.Interval or None
+    verdict: str
+
+
+def claim_sign(c: Comparison, metric: str, paper_diff: Optional[float]) -> Tuple[int, str]:
+    """The sign the finding claims for Δ = row - ref: the paper's sign where it has both values
+    (0 for a tie as printed), else the finding's `expect` in the metric's direction."""
+    from .suite import metric_columns
+
+    if paper_diff is not None:
+        return (0 if abs(paper_diff) < 1e-9 else (1 if paper_diff > 0 else -1)), "paper"
+    hib = metric_columns()[metric].higher_is_better
+    better = 1 if hib else -1
+    return (better if c.expect == "better" else -better), "finding"
+
+
+def verdict(claim: int, ours) -> str:
+    if ours is None or ours.mean is None or ours.half is None:
+        return NO_DATA
+    if claim == 0:
+        return PAPER_TIE
+    if not ours.excludes_zero:
+        return NOT_SIG
+    return AGREES if (ours.mean > 0) == (claim > 0) else DISAGREES
+
+
+def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
+    """Every (comparison, metric) of a finding on the scored CSV rows of its suite: the paired
+    difference over the (scene, seed) runs both rows have (eval.stats.paired_diff)."""
+    from .paper import load_paper_values
+    from .stats import by_key, paired_diff
+
+    pt = load_paper_values().get(f.paper) if f.paper else None
+    mine = [r for r in rows if r["suite"] == f.suite and r.get("status") == SCORED]
+    out = []
+    for c in f.comparisons:
+        a = [r for r in mine if r["row"] == c.row]
+        b = [r for r in mine if r["row"] == c.ref]
+        for m in f.metrics:
+            pd = None
+            if pt is not None:
+                pa, pb = pt.value(c.row, m), pt.value(c.ref, m)
+                pd = None if pa is None or pb is None else pa - pb
+            sign, src = claim_sign(c, m, pd)
+            ours = paired_diff(by_key(a, m), by_key(b, m)) if a and b else None
+            if ours is not None and ours.n == 0:
+                ours = None
+            out.append(ComparisonResult(c, m, pd, sign, src, ours, verdict(sign, ours)))
+    return out
+
+
+def _claim_text(res: ComparisonResult, col) -> str:
+    if res.claim == 0:
+        return "tie"
+    up = res.claim > 0
+    better = up == col.higher_is_better
+    return ("+" if up else "-") + (" (better)" if better else " (worse)")
+
+
+def _paper_diff_text(v: float, fmt: str) -> str:
+    """A difference of the paper's values at the column precision, at most 3 decimals (the paper
+    prints 2 or 3), signed."""
+    if fmt.endswith("f") and fmt[1:-1].isdigit():
+        fmt = f".{min(int(fmt[1:-1]), 3)}f"
+    return format(v, "+" + fmt)
+
+
+def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
+    from .paper import load_paper_values
+    from .suite import metric_columns
+
+    cols = metric_columns()
+    present = {r["suite"] for r in rows if r.get("status") == SCORED}
+    lines = [
+        "## Findings",
+        "",
+        "One table per finding of the paper. Δ = row - ref, paired over the (scene, seed) runs "
+        "both rows have (mean ± the Student-t 95 % interval of the mean difference, as in the "
+        "tables; n = pairs). Claim: the sign of Δ the paper's own values show (its Syn-Exp-3 "
+        "table, `eval/paper_values.yaml`), or, where the paper has no value for one of the rows, "
+        "the direction the finding states. Verdict: agrees / disagrees (our interval excludes 0 "
+        "on the claimed / the other side), not significant (it includes 0), paper tie (the "
+        "paper's two values are equal as printed), not enough data (fewer than 2 pairs). The "
+        "verdicts are computed from the CSV; what they mean, and the controls run for "
+        "disagreements, are written by hand"
+        + (f" in [{Path(notes_link).name}]({notes_link})." if notes_link else "."),
+        "",
+    ]
+    for f in FINDINGS:
+        lines += [f"### {f.title}", ""]
+        if f.suite not in present:
+            lines += [f"**not enough data**: no scored run of suite `{f.suite}` in the CSV.", ""]
+            continue
+        res = evaluate_finding(f, rows)
+        src = load_paper_values()[f.paper].source if f.paper else None
+        lines += [
+            f"Suite `{f.suite}`" + (f"; paper values: {src}." if src else "."),
+            "",
+            "| row | ref | metric | paper Δ | claim | ours Δ | n | verdict |",
+            "|:---|:---|:---|---:|:---|---:|---:|:---|",
+        ]
+        for r in res:
+            col = cols[r.metric]
+            name = ((col.group + " ") if col.group else "") + col.header
+            pd = "n/a" if r.paper_diff is None else _paper_diff_text(r.paper_diff, col.fmt)
+            if r.ours is None or r.ours.mean is None:
+                ours, n = "n/a", 0 if r.ours is None else r.ours.n
+            else:
+                half = "n/a" if r.ours.half is None else format(r.ours.half, col.fmt)
+                ours, n = f"{format(r.ours.mean, '+' + col.fmt)} ± {half}", r.ours.n
+            claim = _claim_text(r, col) + ("" if r.claim_from == "paper" else " (finding)")
+            lines.append(
+                f"| {r.comparison.row} | {r.comparison.ref} | {name} | {pd} | {claim} | {ours} "
+                f"| {n} | {r.verdict} |"
+            )
+        counts = {
+            v: sum(r.verdict == v for r in res)
+            for v in (AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA)
+        }
+        pairs = max((r.ours.n for r in res if r.ours is not None), default=0)
+        lines += [
+            "",
+            f"Verdicts: {counts[AGREES]} agree, {counts[DISAGREES]} disagree, "
+            f"{counts[NOT_SIG]} not significant, {counts[PAPER_TIE]} paper tie, "
+            f"{counts[NO_DATA]} not enough data, of {len(res)} comparisons; "
+            f"at most {pairs} (scene, seed) pairs per comparison.",
+            "",
+        ]
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------------
+# figures
+# --------------------------------------------------------------------------------------------------
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path) -> Path:
+    """PNG without the Software tag (byte-stable across runs), written atomically."""
+    plt = _plt()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight", metadata={"Software": None})
+    plt.close(fig)
+    mio.write_bytes_atomic(Path(path), buf.getvalue())
+    return Path(path)
+
+
+def _colors(n: int) -> list:
+    plt = _plt()
+    cmap = plt.get_cmap("tab10")
+    return [cmap(i % 10) for i in range(n)]
+
+
+def _main_metric(data: SuiteData) -> str:
+    from .suite import LAYOUTS, metric_columns
+
+    if data.suite is not None and data.suite.tables:
+        cols = data.suite.tables[0].columns
+        keys = LAYOUTS[cols] if isinstance(cols, str) else list(cols)
+        for k in keys:
+            if k in metric_columns():
+                return k
+    return "ldr_oe_psnr"
+
+
+def bars_figure(data: SuiteData, out_png) -> Optional[Path]:
+    """Per-scene bars of the suite's main metric (first column of its first table), one bar per row
+    = the mean over seeds, a dot per seed."""
+    from .suite import metric_columns
+
+    key = _main_metric(data)
+    col = metric_columns()[key]
+    vals = {}
+    for e in data.scored:
+        v = e["metrics"].get(key)
+        if v is not None and math.isfinite(v):
+            vals.setdefault((e["scene"], e["row"]), []).append(v)
+    if not vals:
+        return None
+    plt = _plt()
+    rows, scenes = data.row_names, data.scenes
+    w = 0.8 / max(1, len(rows))
+    fig, ax = plt.subplots(figsize=(max(5.0, 0.35 * len(scenes) * len(rows) + 1.5), 3.6))
+    allv = [v for vs in vals.values() for v in vs]
+    for j, (rn, c) in enumerate(zip(rows, _colors(len(rows)))):
+        for i, sc in enumerate(scenes):
+            vs = vals.get((sc, rn))
+            if not vs:
+                continue
+            x = i - 0.4 + w * (j + 0.5)
+            ax.bar(
+                x,
+                sum(vs) / len(vs),
+                w * 0.9,
+                color=c,
+                label=data.labels[rn]
+                if i == 0 or not any(vals.get((s2, rn)) for s2 in scenes[:i])
+                else None,
+            )
+            ax.plot([x] * len(vs), vs, "k.", ms=3)
+    lo, hi = min(allv), max(allv)
+    pad = 0.1 * (hi - lo) if hi > lo else max(abs(hi) * 0.05, 1e-3)
+    ax.set_ylim(lo - 2 * pad, hi + pad)
+    ax.set_xticks(range(len(scenes)))
+    ax.set_xticklabels(scenes, rotation=30, ha="right", fontsize=7)
+    name = ((col.group + " ") if col.group else "") + col.header
+    ax.set_ylabel(f"{name} {'(higher better)' if col.higher_is_better else '(lower better)'}")
+    ax.set_title(
+        f"{data.name}: {name} per scene (bar: mean over seeds, dots: seeds; "
+        "the axis does not start at 0)",
+        fontsize=8,
+    )
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return _save(fig, out_png)
+
+
+def crf_figure(data: SuiteData, curves: Dict[tuple, dict], out_png) -> Optional[Path]:
+    """Learned CRFs (mean of RGB; the lowest seed of each row and scene) against the true ones
+    (dashed; black when every row shares one), one panel per scene."""
+    import numpy as np
+
+    panels = []
+    for sc in data.scenes:
+        lines = []
+        for rn in data.row_names:
+            for seed in data.seeds:
+                c = curves.get((data.name, sc, rn, seed))
+                if c is not None:
+                    lines.append((rn, c))
+                    break
+        if lines:
+            panels.append((sc, lines))
+    if not panels:
+        return None
+    plt = _plt()
+    ncol = min(3, len(panels))
+    nrow = math.ceil(len(panels) / ncol)
+    fig, axes = plt.subplots(
+        nrow,
+        ncol,
+        figsize=(3.3 * ncol + 2.4, 2.6 * nrow + 0.6),
+        squeeze=False,
+        layout="constrained",
+    )
+    color = dict(zip(data.row_names, _colors(len(data.row_names))))
+    crfs = {c["crf"] for _, ls in panels for _, c in ls}
+    handles = {}
+    for ax, (sc, lines) in zip(axes.flat, panels):
+        done = set()
+        for rn, c in lines:
+            z = np.asarray(c["log2_x"], np.float64)
+            y = np.asarray([np.nan if v is None else v for v in c["learned"]], np.float64)
+            (h,) = ax.plot(z, y, lw=1.2, color=color[rn])
+            handles.setdefault(data.labels[rn], h)
+            if c["crf"] in done:
+                continue
+            done.add(c["crf"])
+            try:
+                from m4dgs.core.crf import get_crf
+
+                f = get_crf(c["crf"])
+            except Exception:  # noqa: BLE001 - a response this installation does not know
+                continue
+            zz = np.linspace(z.min(), z.max(), 201)
+            true = np.asarray(f.rgb(np.repeat(np.exp2(zz)[:, None], 3, 1))).mean(axis=1)
+            (h,) = ax.plot(zz, true, "--", lw=1.0, color="k" if len(crfs) == 1 else color[rn])
+            handles.setdefault(f"true CRF ({c['crf']})", h)
+        ax.set_title(sc, fontsize=8)
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[len(panels) :]:
+        ax.set_visible(False)
+    fig.supxlabel("log2 exposure", fontsize=8)
+    fig.supylabel("LDR value (mean of RGB)", fontsize=8)
+    fig.legend(
+        list(handles.values()),
+        list(handles),
+        fontsize=6,
+        loc="outside right center",
+    )
+    fig.suptitle(f"{data.name}: learned CRFs (solid) vs true (dashed)", fontsize=9)
+    return _save(fig, out_png)
+
+
+def scatter_figure(data: SuiteData, out_png) -> Optional[Path]:
+    """HDR-TAE against LDR-OE PSNR, one point per scored run, one colour per row."""
+    pts = {}
+    for e in data.scored:
+        x, y = e["metrics"].get("ldr_oe_psnr"), e["metrics"].get("hdr_tae")
+        if x is not None and y is not None and math.isfinite(x) and math.isfinite(y):
+            pts.setdefault(e["row"], []).append((x, y))
+    if not pts:
+        return None
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 3.6))
+    for rn, c in zip(data.row_names, _colors(len(data.row_names))):
+        if rn in pts:
+            xs, ys = zip(*pts[rn])
+            ax.scatter(xs, ys, s=14, color=c, label=data.labels[rn])
+    ax.set_xlabel("LDR-OE PSNR (dB, higher better)")
+    ax.set_ylabel("HDR-TAE (lower better)")
+    ax.set_title(f"{data.name}: one point per run (scene, seed)", fontsize=8)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return _save(fig, out_png)
+
+
+def suite_result_figures(data: SuiteData, curves: Dict[tuple, dict], fig_dir) -> List[Path]:
+    fig_dir = Path(fig_dir)
+    out = [
+        bars_figure(data, fig_dir / f"{data.name}_bars.png"),
+        crf_figure(data, curves, fig_dir / f"{data.name}_crf.png"),
+        scatter_figure(data, fig_dir / f"{data.name}_tae_psnr.png"),
+    ]
+    return [p for p in out if p is not None]
+
+
+# --------------------------------------------------------------------------------------------------
+# the page
+# --------------------------------------------------------------------------------------------------
+def _rel(path, start) -> str:
+    return Path(os.path.relpath(Path(path).resolve(), Path(start).resolve())).as_posix()
+
+
+def _suite_summary(data: SuiteData) -> dict:
+    expected = len(data.entries)
+    return {
+        "scenes": len(data.scenes),
+        "all_scenes": len(data.all_scenes),
+        "seeds": len(data.seeds),
+        "rows": len(data.row_names),
+        "scored": len(data.scored),
+        "missing": len(data.missing),
+        "expected": expected,
+        "presets": data.presets,
+    }
+
+
+def _presets_text(p: Dict[str, int]) -> str:
+    if not p:
+        return "n/a"
+    if len(p) == 1:
+        return next(iter(p))
+    return "mixed: " + ", ".join(f"{k} ({v} runs)" for k, v in p.items())
+
+
+def suite_section(data: SuiteData, fig_paths: List[Path], out_dir: Path) -> str:
+    from .suite import suites_dir
+
+    sm = _suite_summary(data)
+    desc = data.suite.description if data.suite is not None else "(no suite definition found)"
+    lines = [f"## {data.name}", "", desc, ""]
+    if data.suite is not None:
+        lines += [
+            f"Definition: [eval/suites/{data.name}.yaml]"
+            f"({_rel(suites_dir() / (data.name + '.yaml'), out_dir)})."
+        ]
+        lines.append("")
+    missing = data.missing
+    miss_txt = f"{sm['missing']}" + (
+        " ("
+        + ", ".join(f"`{e['run_dir']}`" for e in missing[:8])
+        + (f", and {len(missing) - 8} more" if len(missing) > 8 else "")
+        + ")"
+        if missing
+        else ""
+    )
+    lines += [
+        f"- Scenes: {sm['scenes']} of the {sm['all_scenes']} of its scene suite: "
+        + ", ".join(data.scenes),
+        f"- Rows: {sm['rows']} ("
+        + ", ".join(f"`{r}`" for r in data.row_names)
+        + f"); reference row: `{data.suite.reference if data.suite is not None else 'n/a'}`",
+        f"- Trainer seeds: {sm['seeds']} (" + ", ".join(str(s) for s in data.seeds) + ")",
+        f"- Preset: {_presets_text(sm['presets'])}",
+        f"- Runs: {sm['scored']} scored of {sm['expected']} "
+        f"(= {sm['scenes']} scenes x {sm['rows']} rows x {sm['seeds']} seeds); missing: "
+        + miss_txt,
+        "",
+        suite_tables(data).rstrip("\n"),
+        "",
+    ]
+    if fig_paths:
+        lines += ["Figures:", ""]
+        for p in fig_paths:
+            lines += [f"![{p.stem}]({_rel(p, out_dir)})", ""]
+    return "\n".join(lines)
+
+
+def readme_block(main: Optional[SuiteData], results_link: str, csv_name: str) -> str:
+    """The README's results block (between the markers)."""
+    head = [
+        README_START,
+        "<!-- generated by `m4dgs-eval results`; do not edit between the markers -->",
+    ]
+    if main is None or not main.scored:
+        body = [
+            f"The result tables are pending: `{csv_name}` has no scored run of `{MAIN_SUITE}` yet. "
+            f"[{results_link}]({results_link}) lists what is there.",
+        ]
+    else:
+        sm = _suite_summary(main)
+        body = [
+            f"Suite `{MAIN_SUITE}`, preset {_presets_text(sm['presets'])}: {sm['scored']} of "
+            f"{sm['expected']} runs scored ({sm['scenes']} scenes x {sm['rows']} rows x "
+            f"{sm['seeds']} seeds). Every suite, the paper's values beside ours, figures and the "
+            f"findings: [{results_link}]({results_link}).",
+            "",
+            suite_tables(main, first_only=True).rstrip("\n"),
+        ]
+    return "\n".join(head + [""] + body + ["", README_END])
+
+
+def replace_readme_block(text: str, block: str, path="README") -> str:
+    from m4dgs.core.errors import InputError
+
+    i, j = text.find(README_START), text.find(README_END)
+    if i < 0 or j < i:
+        raise InputError(
+            f"{path}: no {README_START} ... {README_END} markers; add them where the results "
+            "table goes, or pass --no-readme"
+        )
+    return text[:i] + block + text[j + len(README_END) :]
+
+
+def render_results(
+    csv_path,
+    out_md,
+    *,
+    figures_dir=None,
+    readme=None,
+    notes=None,
+    command: Optional[str] = None,
+) -> dict:
+    """Write out_md (and the figures, and the README block) from the runs CSV.
+
+    figures_dir None: no figures. readme: a README path whose marked block is replaced (None: none).
+    notes: the hand-written notes file linked from the page (None: no link). Returns {"suites",
+    "figures", "readme"}."""
+    csv_path, out_md = Path(csv_path), Path(out_md)
+    out_dir = out_md.parent
+    rows = read_runs_csv(csv_path)
+    curves = read_crf_csv(crf_csv_path(csv_path))
+    names = suites_in(rows)
+    datas = {n: suite_data(n, rows) for n in names}
+    notes_link = _rel(notes, out_dir) if notes else None
+    csv_link = _rel(csv_path, out_dir)
+    cmd = command or f"m4dgs-eval results --csv {csv_path} --out {out_md}"
+    digest = hashlib.sha256(csv_path.read_bytes()).hexdigest()[:12] if csv_path.exists() else None
+    lines = [
+        "# Results",
+        "",
+        f"<!-- generated by `{cmd}` from {csv_path.as_posix()}; do not edit by hand -->",
+        "",
+        (
+            f"Generated by `{cmd}` from [{csv_path.as_posix()}]({csv_link}) (sha256 {digest}, "
+            f"with the CRF curves in `{crf_csv_path(csv_path).name}`)."
+            if digest
+            else f"Generated by `{cmd}` from `{csv_path.as_posix()}` (the file does not exist yet)."
+        ),
+        "The CSV is written by `m4dgs-eval export SUITE --root RUNS --csv "
+        f"{csv_path.as_posix()}` (docs/eval.md); the runs themselves stay out of git.",
+        "Tables: mean ± the half-width of the Student-t 95 % interval over a row's (scene, seed) "
+        "runs, Δ the paired difference to the suite's reference row († where its interval "
+        "excludes 0), the paper's value and the direction agreement where the paper has the "
+        'table (docs/eval.md, "eval table").',
+    ]
+    if notes_link:
+        lines.append(
+            f"Hand-written notes (what the verdicts mean, controls for disagreements): "
+            f"[{Path(notes_link).name}]({notes_link})."
+        )
+    lines.append("")
+    if not any(d.scored for d in datas.values()):
+        lines += [
+            "**The runs are pending**: "
+            + (
+                f"`{csv_path.as_posix()}` does not exist yet."
+                if not csv_path.exists()
+                else f"`{csv_path.as_posix()}` has no scored run yet."
+            )
+            + " Fill it with `m4dgs-eval run SUITE --preset small --seeds 2 --out "
+            "experiments-small` and `m4dgs-eval export SUITE --root experiments-small --csv "
+            f"{csv_path.as_posix()}`, then run `{cmd}` again.",
+            "",
+        ]
+    if names:
+        lines += [
+            "| suite | scenes | rows | seeds | preset | scored | missing |",
+            "|:---|---:|---:|---:|:---|---:|---:|",
+        ]
+        for n in names:
+            sm = _suite_summary(datas[n])
+            lines.append(
+                f"| [{n}](#{n}) | {sm['scenes']} of {sm['all_scenes']} | {sm['rows']} | "
+                f"{sm['seeds']} | {_presets_text(sm['presets'])} | {sm['scored']} of "
+                f"{sm['expected']} | {sm['missing']} |"
+            )
+        lines.append("")
+    absent = [n for n in SUITE_ORDER if n not in names]
+    if absent:
+        lines += [
+            "Suites without runs in the CSV: " + ", ".join(f"`{n}`" for n in absent) + ".",
+            "",
+        ]
+    figs = []
+    for n in names:
+        fp = suite_result_figures(datas[n], curves, figures_dir) if figures_dir else []
+        figs += fp
+        lines += [suite_section(datas[n], fp, out_dir), ""]
+    lines.append(findings_markdown(rows, notes_link))
+    text = "\n".join(lines).rstrip("\n") + "\n"
+    mio.write_bytes_atomic(out_md, text.encode())
+    res = {"suites": names, "figures": [str(p) for p in figs], "readme": None}
+    if readme:
+        rp = Path(readme)
+        block = readme_block(datas.get(MAIN_SUITE), _rel(out_md, rp.parent), csv_path.as_posix())
+        old = rp.read_text(encoding="utf-8")
+        new = replace_readme_block(old, block, rp)
+        if new != old:
+            mio.write_bytes_atomic(rp, new.encode())
+        res["readme"] = str(rp)
+    return res

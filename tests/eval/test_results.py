@@ -1,0 +1,460 @@
+"""`m4dgs-eval export` and `m4dgs-eval results` on fake run folders (metrics.json files with known
+values): the CSV holds the runs, merging keeps what it should, and the rendered page matches the
+CSV. Every expected number is recomputed here from the CSV with numpy / scipy.stats (means,
+Student-t intervals, paired differences via ttest_rel), independently of eval.stats / eval.tables;
+nothing here checks the numbers of a real run."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+from scipy import stats
+
+from eval.cli import main
+
+ABL_SCENES = ["lamp-room-orbit", "robot-arm-dolly", "pendulum-lamp-handheld"]
+MAIN_SCENES = ["wind-chimes-dolly", "night-street-orbit"]
+ABL_ROWS = ["no-video-init", "no-occlusion", "no-cov-invariance", "no-reproj", "no-tlr", "full"]
+MAIN_ROWS = ["static-hdr", "ldr-reproj-consecutive", "ldr-reproj", "world-only", "full"]
+METRICS = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_ssim", "hdr_tae")
+# per-row offsets of (ldr_oe_psnr, ldr_ne_psnr, hdr_psnr, hdr_ssim, hdr_tae) from the full row:
+# some agree with the paper, some disagree (no-cov-invariance PSNR, no-tlr TAE), some are noise
+OFFSETS = {
+    "no-video-init": (-1.0, -1.2, -1.5, -0.02, 0.01),
+    "no-occlusion": (-0.3, -0.4, -0.5, -0.01, 0.004),
+    "no-cov-invariance": (0.8, 0.9, 0.7, 0.01, 0.0),
+    "no-reproj": (0.0, 0.0, 0.0, 0.0, 0.0),
+    "no-tlr": (-0.05, 0.02, -0.1, 0.0, -0.01),
+    "full": (0.0, 0.0, 0.0, 0.0, 0.0),
+    "static-hdr": (-4.0, -4.0, -5.0, -0.05, 0.03),
+    "ldr-reproj-consecutive": (-6.0, -6.5, -7.0, -0.1, 0.2),
+    "ldr-reproj": (-0.5, -0.5, -0.4, 0.0, 0.001),
+    "world-only": (-0.8, -0.7, -1.1, -0.01, 0.005),
+}
+MISSING = ("paper-ablation", "robot-arm-dolly", "no-reproj", 1)  # a run folder without metrics
+
+
+def _value(rng, scene_base, row, k):
+    return scene_base[k] + OFFSETS[row][k] + rng.normal(0, [0.15, 0.15, 0.2, 0.003, 0.002][k])
+
+
+def _write_run(root, suite, scene, row, seed, vals, curve_gain=None):
+    d = Path(root) / "runs" / suite / scene / (row if seed == 0 else f"{row}-seed-{seed}")
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "run.json").write_text(json.dumps({"variant": row, "preset": "small"}))
+    if (suite, scene, row, seed) == MISSING:
+        return None
+    m = dict(vals)
+    m.update(
+        {
+            "ldr_convention": "ldr_png",
+            "run": {"variant": row, "preset": "small", "clip_name": scene},
+            "per_level": {},
+            "conventions": {},
+        }
+    )
+    if curve_gain is not None:
+        z = np.linspace(-10, 10, 81)
+        y = 1 / (1 + np.exp(-curve_gain * z))
+        m["crf_curve"] = {
+            "log2_x": z.tolist(),
+            "learned": np.stack([y, y, y], 1).tolist(),
+            "true": None,
+            "crf": "hdrnerf",
+        }
+    (d / "metrics.json").write_text(json.dumps(m))
+    return d
+
+
+def make_runs(root):
+    """paper-ablation: 3 scenes x 6 rows x 2 seeds (one run without metrics); paper-main: 2
+    scenes x 5 rows x 1 seed."""
+    rng = np.random.default_rng(7)
+    for suite, scenes, rows, seeds in (
+        ("paper-ablation", ABL_SCENES, ABL_ROWS, 2),
+        ("paper-main", MAIN_SCENES, MAIN_ROWS, 1),
+    ):
+        for sc in scenes:
+            base = [rng.uniform(25, 33), rng.uniform(24, 32), rng.uniform(28, 36), 0.9, 0.08]
+            for seed in range(seeds):
+                for i, row in enumerate(rows):
+                    vals = {k: _value(rng, base, row, j) for j, k in enumerate(METRICS)}
+                    _write_run(
+                        root, suite, sc, row, seed, vals, 0.5 + 0.1 * i if seed == 0 else None
+                    )
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+# --------------------------------------------------------------------------------------------------
+# independent statistics
+# --------------------------------------------------------------------------------------------------
+def mean_ci(xs):
+    xs = np.asarray(xs, float)
+    h = stats.t.ppf(0.975, len(xs) - 1) * xs.std(ddof=1) / math.sqrt(len(xs))
+    return xs.mean(), h
+
+
+def paired(a: dict, b: dict):
+    keys = sorted(set(a) & set(b))
+    x, y = np.array([a[k] for k in keys]), np.array([b[k] for k in keys])
+    lo, hi = stats.ttest_rel(x, y).confidence_interval(0.95)
+    return float((x - y).mean()), float((hi - lo) / 2), bool(lo > 0 or hi < 0), len(keys)
+
+
+def by_run(csv_rows, suite, row, metric):
+    return {
+        (r["scene"], int(r["seed"])): float(r[metric])
+        for r in csv_rows
+        if r["suite"] == suite and r["row"] == row and r["status"] == "scored" and r[metric]
+    }
+
+
+def sign(x):
+    return "+" if x > 0 else "-" if x < 0 else "0"
+
+
+def table_after(text: str, title: str) -> list:
+    """The rows of the Markdown table that follows the bold title: a list of cell lists, header
+    first."""
+    lines = text.splitlines()
+    i = lines.index(f"**{title}**")
+    out = []
+    for ln in lines[i + 2 :]:
+        if not ln.startswith("|"):
+            break
+        out.append([c.strip() for c in ln.strip().strip("|").split("|")])
+    return [out[0]] + out[2:]
+
+
+def unbold(s):
+    return s.replace("**", "")
+
+
+COLS = {  # metric -> (header in the tables, format, arrow)
+    "ldr_oe_psnr": ("LDR-OE PSNR", ".2f", "↑"),
+    "ldr_ne_psnr": ("LDR-NE PSNR", ".2f", "↑"),
+    "hdr_psnr": ("HDR PSNR", ".2f", "↑"),
+    "hdr_ssim": ("HDR SSIM", ".4f", "↑"),
+    "hdr_tae": ("HDR-TAE", ".4f", "↓"),
+}
+FINDING_METRICS = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae")
+
+
+def check_table(table, csv_rows, suite, labels, ref, paper=None):
+    """The cells of COLS in a rendered suite table against the CSV (value, Δ, Paper, agree);
+    returns how many metric columns were checked."""
+    head = table[0]
+    assert len(table) == 1 + len(labels)
+    checked = {m for m, (name, _, arrow) in COLS.items() if name + arrow in head}
+    body = {r[0]: dict(zip(head, r)) for r in table[1:]}
+    for row, label in labels.items():
+        cells = body[label]
+        complete = not any(
+            (suite, sc, row, seed) == MISSING
+            for sc in {r["scene"] for r in csv_rows if r["suite"] == suite}
+            for seed in (0, 1)
+        )
+        for metric, (name, fmt, arrow) in COLS.items():
+            if name + arrow not in head:
+                continue
+            vals = by_run(csv_rows, suite, row, metric)
+            value = unbold(cells[name + arrow])
+            if not complete:
+                assert value == "n/a" and cells[f"Δ {name}"] == "n/a", (row, metric)
+            else:
+                m, h = mean_ci(list(vals.values()))
+                assert value == f"{m:{fmt}} ± {h:{fmt}}", (row, metric, value)
+                assert cells["n"] == str(len(vals))
+            if row == ref:
+                assert cells[f"Δ {name}"] == "ref"
+                continue
+            d = None
+            if complete:
+                d, dh, excl, _ = paired(vals, by_run(csv_rows, suite, ref, metric))
+                want = f"{d:+{fmt}} ± {dh:{fmt}}" + ("†" if excl else "")
+                assert cells[f"Δ {name}"] == want, (row, metric)
+            if paper is None:
+                continue
+            pfmt = ".2f" if fmt == ".2f" else ".3f"
+            pv = paper.get(row, {}).get(metric)
+            assert cells[f"Paper {name}"] == ("n/a" if pv is None else f"{pv:{pfmt}}")
+            pd = None if pv is None else pv - paper[ref][metric]
+            pdir = "n/a" if pd is None else sign(0.0 if abs(pd) < 1e-9 else pd)
+            if d is None:
+                want = f"{pdir} / n/a / n/a"
+            elif not excl:
+                want = f"{pdir} / n.s. / " + ("n/a" if pd is None else "not significant")
+            elif pd is None:
+                want = f"n/a / {sign(d)} / n/a"
+            elif pdir == "0":
+                want = f"0 / {sign(d)} / paper tie"
+            else:
+                want = f"{pdir} / {sign(d)} / " + ("agree" if pdir == sign(d) else "disagree")
+            assert cells[f"{name}: paper / ours / agree"] == want, (row, metric)
+    return len(checked)
+
+
+def paper_values():
+    p = Path(__file__).resolve().parents[2] / "eval" / "paper_values.yaml"
+    return yaml.safe_load(p.read_text())
+
+
+# --------------------------------------------------------------------------------------------------
+def test_export_merge_results_readme(tmp_path):
+    root, csvp = tmp_path / "exp", tmp_path / "results" / "runs.csv"
+    make_runs(root)
+    cli = CliRunner()
+    r = cli.invoke(
+        main,
+        [
+            "export",
+            "paper-ablation",
+            "--root",
+            str(root),
+            "--csv",
+            str(csvp),
+            "--scenes",
+            ",".join(ABL_SCENES),
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    assert "paper-ablation: 35 scored, 1 without metrics.json" in r.output
+    # paper-main without --scenes: only the scenes that have run folders
+    r = cli.invoke(main, ["export", "paper-main", "--root", str(root), "--csv", str(csvp)])
+    assert r.exit_code == 0, r.output
+    rows = read_csv(csvp)
+    assert len(rows) == 36 + 10
+    assert {r["scene"] for r in rows if r["suite"] == "paper-main"} == set(MAIN_SCENES)
+    miss = [r for r in rows if r["status"] == "missing"]
+    assert [(r["suite"], r["scene"], r["row"], int(r["seed"])) for r in miss] == [MISSING]
+    assert miss[0]["ldr_oe_psnr"] == "" and miss[0]["preset"] == ""
+    one = next(r for r in rows if r["row"] == "no-tlr" and r["scene"] == "lamp-room-orbit")
+    src = json.loads((root / "runs/paper-ablation/lamp-room-orbit/no-tlr/metrics.json").read_text())
+    assert one["ldr_oe_psnr"] == f"{src['ldr_oe_psnr']:.6g}" and one["preset"] == "small"
+    assert (
+        one["label"] == "(e) w/o temporal luminance regularization" and one["variant"] == "no-tlr"
+    )
+    assert one["hdr_lpips"] == "" and one["clip_setting"] == "syn-exp-3"
+    # the CRF curves: seed-0 runs only (the others have none), mean of RGB at 3 decimals
+    crf = read_csv(tmp_path / "results" / "runs-crf.csv")
+    assert len(crf) == 3 * 6 + 2 * 5
+    c = next(x for x in crf if x["row"] == "full" and x["scene"] == "lamp-room-orbit")
+    gain = 0.5 + 0.1 * ABL_ROWS.index("full")
+    assert c["crf"] == "hdrnerf" and c["0"] == "0.500"
+    assert (
+        c["-10"] == f"{1 / (1 + math.exp(10 * gain)):.3f}"
+        and c["-1"] == f"{1 / (1 + math.exp(gain)):.3f}"
+    )
+
+    # merge: a re-scored run replaces its row, a run whose metrics.json is gone does not replace
+    # the scored row, and the other suite's rows stay
+    mp = root / "runs/paper-ablation/lamp-room-orbit/full/metrics.json"
+    m = json.loads(mp.read_text())
+    m["ldr_oe_psnr"] += 1.0
+    mp.write_text(json.dumps(m))
+    gone = root / "runs/paper-ablation/pendulum-lamp-handheld/no-tlr/metrics.json"
+    kept = next(
+        r["ldr_oe_psnr"]
+        for r in rows
+        if r["row"] == "no-tlr" and r["scene"] == "pendulum-lamp-handheld" and r["seed"] == "0"
+    )
+    gone.unlink()
+    r = cli.invoke(
+        main,
+        [
+            "export",
+            "paper-ablation",
+            "--root",
+            str(root),
+            "--csv",
+            str(csvp),
+            "--scenes",
+            ",".join(ABL_SCENES),
+        ],
+    )
+    assert r.exit_code == 0 and "34 scored, 2 without metrics.json" in r.output, r.output
+    rows = read_csv(csvp)
+    assert len(rows) == 46
+    full = next(
+        r
+        for r in rows
+        if r["row"] == "full" and r["scene"] == "lamp-room-orbit" and r["seed"] == "0"
+    )
+    assert full["ldr_oe_psnr"] == f"{m['ldr_oe_psnr']:.6g}"
+    tlr = next(
+        r
+        for r in rows
+        if r["row"] == "no-tlr" and r["scene"] == "pendulum-lamp-handheld" and r["seed"] == "0"
+    )
+    assert tlr["status"] == "scored" and tlr["ldr_oe_psnr"] == kept
+    # a wrong root adds nothing
+    r = cli.invoke(main, ["export", "priors", "--root", str(tmp_path / "nope"), "--csv", str(csvp)])
+    assert r.exit_code == 1 and "no metrics.json found" in r.output
+    assert len(read_csv(csvp)) == 46
+
+    # results
+    readme = tmp_path / "README.md"
+    readme.write_text(
+        "# Project\n\nintro\n\n## Results\n\n<!-- results:main:start -->\nstale\n"
+        "<!-- results:main:end -->\n\n## Next\n\ntail\n"
+    )
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    (docs / "results-notes.md").write_text("# Notes\n")
+    args = [
+        "results",
+        "--csv",
+        str(csvp),
+        "--out",
+        str(docs / "results.md"),
+        "--readme",
+        str(readme),
+    ]
+    r = cli.invoke(main, args)
+    assert r.exit_code == 0, r.output
+    text = (docs / "results.md").read_text()
+    pv = paper_values()
+    abl = {row: dict(v) for row, v in pv["ablation"]["rows"].items()}
+    from eval.suite import load_eval_suite
+
+    s = load_eval_suite("paper-ablation")
+    labels = {r.name: r.label for r in s.rows}
+    t = table_after(text, "Ablations on Syn-Exp-3 (paper Table 3)")
+    assert check_table(t, rows, "paper-ablation", labels, "full", abl) == 4
+    t = table_after(text, "Ablations, full metrics")
+    assert check_table(t, rows, "paper-ablation", labels, "full") == 5
+    main_labels = {r.name: r.label for r in load_eval_suite("paper-main").rows}
+    t = table_after(text, "Syn-Exp-3 test frames (paper Table 1)")
+    assert check_table(t, rows, "paper-main", main_labels, "full") == 5
+    title = (
+        "Syn-Exp-3 test frames against the paper's Table 1 (static-hdr ~ GaussHDR, "
+        "ldr-reproj-consecutive ~ SplineGS-HDR)"
+    )
+    t = table_after(text, title)
+    main_paper = {row: dict(v) for row, v in pv["main"]["rows"].items()}
+    assert check_table(t, rows, "paper-main", main_labels, "full", main_paper) == 4
+    # what stands behind each suite
+    assert (
+        "- Runs: 35 scored of 36 (= 3 scenes x 6 rows x 2 seeds); missing: 1 "
+        "(`paper-ablation/robot-arm-dolly/no-reproj-seed-1`)" in text
+    )
+    assert "- Runs: 10 scored of 10 (= 2 scenes x 5 rows x 1 seeds); missing: 0" in text
+    assert "- Preset: small" in text and "[results-notes.md](results-notes.md)" in text
+    assert "| [paper-ablation](#paper-ablation) | 3 of 9 | 6 | 2 | small | 35 of 36 | 1 |" in text
+    # figures
+    figs = docs / "figures" / "results"
+    for suite in ("paper-ablation", "paper-main"):
+        for kind in ("bars", "crf", "tae_psnr"):
+            p = figs / f"{suite}_{kind}.png"
+            assert p.exists() and p.read_bytes()[:4] == b"\x89PNG", p
+            assert f"](figures/results/{suite}_{kind}.png)" in text
+
+    # findings: every comparison of the ablation finding recomputed from the CSV
+    lines = text.split("## Findings", 1)[1].splitlines()
+    fl = [ln for ln in lines if ln.startswith("| ") and not ln.startswith("| row")]
+    checked = 0
+    for row in ABL_ROWS[:-1]:
+        for metric in FINDING_METRICS:
+            name, fmt, _ = COLS[metric]
+            line = next(
+                ln for ln in fl if ln.startswith(f"| {row} | full | {name} |")
+            )  # the first table that compares row with full: the ablation finding
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            pd = abl[row][metric] - abl["full"][metric]
+            assert cells[3] == format(pd, "+" + (".2f" if fmt == ".2f" else ".3f"))
+            d, h, excl, n = paired(
+                by_run(rows, "paper-ablation", row, metric),
+                by_run(rows, "paper-ablation", "full", metric),
+            )
+            assert cells[5] == f"{d:+{fmt}} ± {h:{fmt}}" and cells[6] == str(n)
+            assert n == (5 if row == "no-reproj" else 6)
+            if abs(pd) < 1e-9:
+                want = "paper tie"
+            elif not excl:
+                want = "not significant"
+            else:
+                want = "agrees" if (d > 0) == (pd > 0) else "disagrees"
+            assert cells[7] == want, (row, metric)
+            checked += 1
+    assert checked == 20
+    assert "| no-cov-invariance | full | LDR-OE PSNR | -0.44 | - (worse) |" in text
+    for suite in ("control-points", "exposure-noise", "exposure-schedules", "priors"):
+        assert f"**not enough data**: no scored run of suite `{suite}` in the CSV." in text
+    # the paper-main finding: full vs each baseline, 2 pairs each
+    line = next(ln for ln in fl if ln.startswith("| full | world-only | HDR-TAE |"))
+    assert line.rstrip().split("|")[-3].strip() == "2"
+
+    # README: the block is replaced, the rest kept, and a second run changes nothing
+    rd = readme.read_text()
+    assert rd.startswith("# Project\n\nintro\n\n## Results\n\n<!-- results:main:start -->")
+    assert rd.endswith("<!-- results:main:end -->\n\n## Next\n\ntail\n") and "stale" not in rd
+    block = rd.split("<!-- results:main:start -->")[1].split("<!-- results:main:end -->")[0]
+    assert "[docs/results.md](docs/results.md)" in block and "10 of 10 runs scored" in block
+    t = table_after(block, "Syn-Exp-3 test frames (paper Table 1)")
+    assert check_table(t, rows, "paper-main", main_labels, "full") == 5
+    snap = {p: p.read_bytes() for p in [readme, docs / "results.md", *figs.iterdir()]}
+    r = cli.invoke(main, args)
+    assert r.exit_code == 0, r.output
+    assert {p: p.read_bytes() for p in snap} == snap
+
+    # a README without the markers is an error, not a silent skip
+    readme.write_text("# no markers\n")
+    r = cli.invoke(main, args)
+    assert r.exit_code == 1 and "results:main:start" in r.output
+
+
+def test_results_pending(tmp_path):
+    """Without a CSV the page says the runs are pending and every finding lacks data."""
+    readme = tmp_path / "README.md"
+    readme.write_text("x\n<!-- results:main:start -->\n<!-- results:main:end -->\n")
+    out = tmp_path / "docs" / "results.md"
+    r = CliRunner().invoke(
+        main,
+        [
+            "results",
+            "--csv",
+            str(tmp_path / "runs.csv"),
+            "--out",
+            str(out),
+            "--readme",
+            str(readme),
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    text = out.read_text()
+    assert "**The runs are pending**" in text and "does not exist yet" in text
+    assert text.count("**not enough data**") == 6
+    assert "The result tables are pending" in readme.read_text()
+    assert not (tmp_path / "docs" / "figures" / "results").exists() or not any(
+        (tmp_path / "docs" / "figures" / "results").iterdir()
+    )
+
+
+@pytest.mark.parametrize(
+    "v, text",
+    [
+        (None, ""),
+        (float("nan"), ""),
+        (34.751234567, "34.7512"),
+        (0.0571234567, "0.0571235"),
+        (1234567.4, "1234567"),
+        (float("inf"), "inf"),
+    ],
+)
+def test_number_format(v, text):
+    from eval.results import fmt_number, parse_number
+
+    assert fmt_number(v) == text
+    if text:
+        assert parse_number(text) == pytest.approx(v, rel=1e-5)
