@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Dict, Mapping, Optional, Tuple, Union
+from typing import Any, Dict, Literal, Mapping, Optional, Tuple, Union
 
 import torch
 import torch.nn.functional as F
@@ -53,12 +53,14 @@ class ModelConfig:
     )
     feature_dim: int = 36  # 36-d colour features decoded by the colour MLP (paper)
     rotation_degree: int = 3  # cubic quaternion polynomial (sec. 3.1)
-    rotation_init: str = (
+    rotation_init: Literal["paper", "constant"] = (
         "paper"  # "paper": all coefficients [1,0,0,0]; "constant": only a_0 (authors' code)
     )
-    video_scale_activation: str = "sigmoid"  # authors: sigmoid bounded scale in video space
+    video_scale_activation: Literal["exp", "sigmoid"] = (
+        "sigmoid"  # authors: sigmoid bounded scale in video space
+    )
     video_scale_max: float = 0.05  # authors: maximum video-space scale
-    world_scale_activation: str = "exp"  # 3DGS log-scales in world space
+    world_scale_activation: Literal["exp", "sigmoid"] = "exp"  # 3DGS log-scales in world space
     world_scale_max: float = 1.0  # only used with a "sigmoid" world activation
 
 

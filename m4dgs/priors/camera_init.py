@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, Literal, Optional, Tuple
 
 import numpy as np
 import torch
@@ -100,7 +100,7 @@ class CameraInitConfig:
     w_depth: float = 1.0
     w_smooth: float = 0.1
     w_depth_correction: float = 0.1
-    robust: str = "cauchy"  # "cauchy" | "huber" on the reprojection error
+    robust: Literal["cauchy", "huber"] = "cauchy"  # on the reprojection error
     reproj_focal_invariant: bool = False  # residuals x f0 / f instead of pixels (see bundle_adjust)
     robust_scale_px: float = 2.0
     log_every: int = 100

@@ -38,7 +38,7 @@ FlowSet into long-term tracks."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional, Sequence, Tuple
+from typing import Literal, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
@@ -54,19 +54,19 @@ class EpipolarConfig:
 
     # Error definition: "sampson" (squared Sampson distance) or "symmetric" (mean of the two squared
     # point-to-epipolar-line distances).
-    error: str = "sampson"
+    error: Literal["sampson", "symmetric"] = "sampson"
     # "px": squared pixels; "ndc": the authors' stretched [-1, 1] coordinates (paper threshold 1e-5
     # in these units).
-    units: str = "px"
+    units: Literal["px", "ndc"] = "px"
     # Dynamic if error > threshold. Paper: 1e-5 in NDC^2 ~= 1e-5 * (W/2)(H/2) px^2 = 1.04 px^2 at
     # 864x480, so 1.0 px^2 (Sampson distance 1 px) reproduces the paper's setting; use 1e-5 with
     # units="ndc" for the exact authors' definition.
     threshold: float = 1.0
-    combine: str = "mean"  # "mean" | "max" over a frame's flow pairs
+    combine: Literal["mean", "max"] = "mean"  # over a frame's flow pairs
     # Robust fit (always in pixel units). "lmeds" (default, as the authors' OpenCV FM_LMEDS: no
     # threshold, needs a static majority) or "msac"; ransac_threshold_px2 is the msac inlier
     # threshold / the cap of the lmeds one.
-    ransac_method: str = "lmeds"
+    ransac_method: Literal["lmeds", "msac"] = "lmeds"
     ransac_threshold_px2: float = 1.0
     ransac_hypotheses: int = 256
     # correspondences used for RANSAC scoring (random subset of valid pixels)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional, Sequence, Tuple
+from typing import Literal, Optional, Sequence, Tuple, get_args
 
 import torch
 from torch import Tensor
@@ -34,7 +34,8 @@ from torch import Tensor
 from m4dgs.core import camera as cam
 from m4dgs.priors.epipolar import fill_from_nearest
 
-METHODS = ("epipolar", "reprojection", "union")
+MaskMethod = Literal["epipolar", "reprojection", "union"]
+METHODS = get_args(MaskMethod)
 
 
 @dataclass
@@ -47,11 +48,11 @@ class DynamicMaskConfig:
     two (the tiny and small presets; see the module docstring for why: the epipolar test misses
     motion along the epipolar lines)."""
 
-    method: str = "epipolar"  # sec. 3.2 "Prior Precompute" (paper preset)
+    method: MaskMethod = "epipolar"  # sec. 3.2 "Prior Precompute" (paper preset)
     median_factor: float = 3.0  # dynamic: rigidity error > median_factor x the frame's median error
     # ... and > this fraction of the image diagonal (floor for noise-free input)
     min_threshold: float = 1e-3
-    combine: str = "mean"  # "mean" | "max" over a frame's flow pairs
+    combine: Literal["mean", "max"] = "mean"  # over a frame's flow pairs
     # re-run bundle adjustment once with the refined masks (static tracks chosen with the better
     # masks); the final masks are then recomputed with the refined cameras
     refine_cameras: bool = True

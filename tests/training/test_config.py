@@ -215,6 +215,13 @@ def test_an_old_config_dict_upgrades_to_the_same_config():
         ("stage2.ldr_reproj_pairs", "adjacent"),
         ("v2w.resample", "cubic"),
         ("tonemap.pretrain_crf", "not-a-curve"),
+        ("masks.method", "optical"),
+        ("masks.combine", "median"),
+        ("epipolar.error", "algebraic"),
+        ("epipolar.ransac_method", "ransac"),
+        ("camera_init.robust", "l2"),
+        ("model.rotation_init", "random"),
+        ("model.world_scale_activation", "softplus"),
     ],
 )
 def test_typed_choices_are_rejected_naming_key_and_values(key, value):
