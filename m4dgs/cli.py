@@ -16,6 +16,7 @@ from pathlib import Path
 import click
 
 from m4dgs.core.errors import ReportingGroup
+from m4dgs.core.lock import FolderLock
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
@@ -104,7 +105,8 @@ def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quie
         )
     out = Path(out_dir) if out_dir else Path("runs") / Path(clip_dir).name / variant
     if force and out.exists():
-        shutil.rmtree(out)
+        with FolderLock(out):  # never delete a run another process is writing
+            shutil.rmtree(out)
     p = run_train(
         clip_dir,
         out,

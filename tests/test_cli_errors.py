@@ -57,3 +57,38 @@ def test_other_tools_report_in_one_line(main, args, needle, tmp_path, monkeypatc
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 1, r.output
     assert "Traceback" not in r.output and needle in r.output
+
+
+HOLD = """
+import sys, time
+from m4dgs.core.lock import FolderLock
+with FolderLock(sys.argv[1]):
+    print("locked", flush=True)
+    time.sleep(60)
+"""
+
+
+def test_second_writer_of_a_run_is_refused(not_a_clip, tmp_path):
+    """A run folder another live process writes is refused by train (also with --force, which
+    must not delete it) and by the renderer, naming that process."""
+    import subprocess
+    import sys
+
+    from m4dgs.core.errors import RunInUseError
+    from m4dgs.outputs.render import render_run
+
+    run = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-c", HOLD, str(run)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert p.stdout.readline().strip() == "locked"
+        for extra in ([], ["--force"]):
+            r = CliRunner().invoke(
+                m4dgs_main, ["train", "--clip", str(not_a_clip), "--out", str(run), *extra]
+            )
+            assert r.exit_code == 1 and f"process {p.pid}" in r.output, r.output
+            assert run.exists()
+        with pytest.raises(RunInUseError, match=str(p.pid)):
+            render_run(run, progress=False)
+    finally:
+        p.kill()
+        p.wait()

@@ -15,6 +15,7 @@ from tqdm import tqdm
 
 from m4dgs.clip import frame_name, level_name
 from m4dgs.core.io import write_exr, write_png
+from m4dgs.core.lock import FolderLock
 from m4dgs.model.trained import load_model
 from m4dgs.run import RunDir
 
@@ -24,7 +25,12 @@ def render_run(
     run_dir, overwrite: bool = False, progress: bool = True, device: str = "cpu"
 ) -> Dict[str, int]:
     """Write every train/test render that is missing (or all with overwrite); returns counts of
-    files written."""
+    files written. Holds the run folder's lock (a no-op inside the trainer, which holds it)."""
+    with FolderLock(run_dir):
+        return _render_run(run_dir, overwrite, progress, device)
+
+
+def _render_run(run_dir, overwrite: bool, progress: bool, device: str) -> Dict[str, int]:
     run = RunDir(run_dir)
     model = load_model(run_dir, device=device)
     clip = model.clip

@@ -31,6 +31,7 @@ from m4dgs.clip import Cameras, Clip, TrackSet, frame_time
 from m4dgs.core import camera as cam
 from m4dgs.core.device import peak_memory_mib, resolve_device
 from m4dgs.core.io import write_json
+from m4dgs.core.lock import FolderLock
 from m4dgs.model.gaussians import WorldGaussians, init_video_gaussians
 from m4dgs.run import RunDir, load_torch, save_torch
 from m4dgs.training.config import TrainConfig, to_dict, upgrade_dict, validate
@@ -512,5 +513,8 @@ def train(
     backend: Optional[str] = None,
 ) -> Path:
     """Train one variant on one clip into run_dir (resumes; returns at once when the run is
-    done)."""
-    return Trainer(clip_dir, run_dir, preset, variant, overrides, device, progress, backend).train()
+    done). The run folder is locked meanwhile: a second process writing it is refused
+    (RunInUseError naming the first one's PID)."""
+    with FolderLock(run_dir):
+        trainer = Trainer(clip_dir, run_dir, preset, variant, overrides, device, progress, backend)
+        return trainer.train()
