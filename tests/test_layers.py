@@ -1,0 +1,168 @@
+"""The package layers and their dependency rule (docs/architecture.md), checked on every import.
+
+Every `import` / `from ... import` in m4dgs/, benchgen/ and eval/ (module level or inside a
+function, relative imports resolved) is mapped to the layer of the importing and of the imported
+module; an import a layer is not allowed to make fails the test with file, line and module.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# layer of a module: the longest matching prefix wins
+LAYERS = {
+    "m4dgs.core": "core",
+    "m4dgs.clip": "formats",
+    "m4dgs.run": "formats",
+    "m4dgs.priors": "priors",
+    "m4dgs.raster": "raster",
+    "m4dgs.losses": "losses",
+    "m4dgs.model": "model",
+    "m4dgs.outputs": "outputs",
+    "m4dgs.training": "training",
+    "m4dgs.cli": "app",
+    "m4dgs.__main__": "app",
+    "m4dgs": "package",
+    "benchgen": "benchgen",
+    "eval": "eval",
+    "eval.score": "eval-driver",
+    "eval.runner": "eval-driver",
+    "eval.suite": "eval-driver",
+    "eval.cli": "eval-driver",
+    "eval.results": "eval-driver",
+    "eval.__main__": "eval-driver",
+}
+
+# which layers each layer may import (its own layer is always allowed)
+ALLOWED = {
+    "package": set(),
+    "core": set(),
+    "formats": {"core"},
+    "priors": {"core", "formats"},
+    "raster": {"core"},
+    "losses": {"core"},
+    "model": {"core", "formats", "raster"},
+    "outputs": {"core", "formats", "raster", "model"},
+    "training": {"core", "formats", "priors", "raster", "losses", "model", "outputs"},
+    "app": {"core", "formats", "priors", "raster", "losses", "model", "outputs", "training"},
+    # benchgen renders clips: it shares only the maths and the clip format with the method
+    "benchgen": {"core", "formats"},
+    # eval's metrics, statistics, tables and figures score files: no model, no trainer
+    "eval": {"core", "formats"},
+    # eval's drivers (score a run, run a suite, the CLI) call the public entry points below
+    "eval-driver": {"core", "formats", "eval", "benchgen"},
+}
+
+# the only modules of upper layers that eval's drivers may import: the trainer, the renderer,
+# the trained model and the variant registry (`m4dgs-eval run` trains and renders suites)
+DRIVER_ENTRY_POINTS = {
+    "m4dgs.training.pipeline",
+    "m4dgs.training.variants",
+    "m4dgs.outputs.render",
+    "m4dgs.model.trained",
+}
+
+
+def layer_of(module: str) -> str | None:
+    best = None
+    for prefix, layer in LAYERS.items():
+        if (module == prefix or module.startswith(prefix + ".")) and (
+            best is None or len(prefix) > len(best[0])
+        ):
+            best = (prefix, layer)
+    return best[1] if best else None
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def imports_of(path: Path):
+    """(line, imported module) for every import of the file, relative ones resolved."""
+    mod = module_name(path)
+    pkg = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield node.lineno, a.name
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            # `from m4dgs.core import camera` imports the module m4dgs.core.camera
+            for a in node.names:
+                sub = f"{target}.{a.name}"
+                yield node.lineno, sub if layer_of(sub) and _is_module(sub) else target
+
+
+def _is_module(name: str) -> bool:
+    p = ROOT / Path(*name.split("."))
+    return p.with_suffix(".py").exists() or (p / "__init__.py").exists()
+
+
+SOURCES = sorted(p for top in ("m4dgs", "benchgen", "eval") for p in (ROOT / top).rglob("*.py"))
+
+
+def violations():
+    out = []
+    for path in SOURCES:
+        src_layer = layer_of(module_name(path))
+        for line, target in imports_of(path):
+            dst_layer = layer_of(target)
+            if dst_layer is None or dst_layer == src_layer:
+                continue
+            if dst_layer == "package":  # `import m4dgs` itself
+                continue
+            ok = dst_layer in ALLOWED[src_layer]
+            if src_layer == "eval-driver" and not ok:
+                ok = any(target == e or target.startswith(e + ".") for e in DRIVER_ENTRY_POINTS)
+            if not ok:
+                out.append(
+                    f"{path.relative_to(ROOT)}:{line}: {src_layer} imports {target} ({dst_layer})"
+                )
+    return out
+
+
+def test_every_source_file_has_a_layer():
+    assert SOURCES, "no sources found"
+    missing = [str(p.relative_to(ROOT)) for p in SOURCES if layer_of(module_name(p)) is None]
+    assert not missing
+
+
+def test_import_layers():
+    bad = violations()
+    assert not bad, "imports against the layer rule (docs/architecture.md):\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize(
+    "src, target, expect_ok",
+    [
+        ("m4dgs.core.camera", "m4dgs.training.config", False),
+        ("m4dgs.model.gaussians", "m4dgs.training.densify", False),
+        ("m4dgs.model.trained", "m4dgs.core.io", True),
+        ("benchgen.render", "eval.metrics.temporal", False),
+        ("benchgen.make", "m4dgs.clip", True),
+        ("eval.metrics.hdr", "m4dgs.model.trained", False),
+        ("eval.score", "m4dgs.model.trained", True),
+        ("eval.score", "m4dgs.training.stage2", False),
+    ],
+)
+def test_rule_itself(src, target, expect_ok):
+    """The checker's own verdicts on known cases (so a broken checker cannot pass silently)."""
+    s, d = layer_of(src), layer_of(target)
+    ok = s == d or d in ALLOWED[s]
+    if s == "eval-driver" and not ok:
+        ok = any(target == e or target.startswith(e + ".") for e in DRIVER_ENTRY_POINTS)
+    assert ok is expect_ok
