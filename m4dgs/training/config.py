@@ -36,8 +36,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-import os
-import tempfile
 import typing
 import warnings
 from dataclasses import dataclass, field
@@ -47,6 +45,7 @@ from typing import Any, Dict, Literal, Mapping, Optional, Tuple
 import yaml
 
 from m4dgs.core.errors import InputError
+from m4dgs.core.io import write_text_atomic
 from m4dgs.model.gaussians import ModelConfig, VideoInitConfig
 from m4dgs.priors.camera_init import CameraInitConfig
 from m4dgs.priors.epipolar import EpipolarConfig
@@ -709,18 +708,8 @@ def from_yaml(text: str, cls=TrainConfig):
 
 
 def save_yaml(cfg: Any, path) -> None:
-    """Write the config as YAML atomically (temporary file in the same folder, then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(to_yaml(cfg))
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write the config as YAML atomically (m4dgs.core.io.write_text_atomic)."""
+    write_text_atomic(path, to_yaml(cfg))
 
 
 def load_yaml(path, cls=TrainConfig):

@@ -1,4 +1,4 @@
-"""`m4dgs train`: the whole method on one clip, resumable (DESIGN.md "Runs").
+"""`m4dgs train`: the whole method on one clip, resumable (the run folder: docs/outputs.md).
 
 Phases (status.json records the last finished one; each writes its result atomically before the next
 starts):
@@ -27,15 +27,24 @@ from typing import Any, Dict, Optional
 import numpy as np
 import torch
 
-from m4dgs.clip import Cameras, Clip, TrackSet, frame_time
+from m4dgs.clip import Cameras, Clip, TrackSet, frame_name, frame_time
 from m4dgs.core import camera as cam
+from m4dgs.core import spline
 from m4dgs.core.device import peak_memory_mib, resolve_device
-from m4dgs.core.io import write_json
+from m4dgs.core.io import read_exr, write_exr, write_json, write_png
 from m4dgs.core.lock import FolderLock
-from m4dgs.model.gaussians import WorldGaussians, init_video_gaussians
+from m4dgs.model.gaussians import VideoGaussians, WorldGaussians, init_video_gaussians
+from m4dgs.outputs.render import render_run
+from m4dgs.priors.camera_init import initialize_cameras
+from m4dgs.priors.epipolar import dynamic_masks, epipolar_error_maps, opencv_flow_prior
+from m4dgs.priors.rigidity import rigidity_masks
 from m4dgs.run import RunDir, load_torch, save_torch
 from m4dgs.training.config import TrainConfig, to_dict, upgrade_dict, validate
 from m4dgs.training.data import TrainingData, load_training_data
+from m4dgs.training.exposure import training_exposures
+from m4dgs.training.stage1 import VideoStage, build_appearance, train_stage1
+from m4dgs.training.stage2 import WorldInit, WorldStage, train_stage2
+from m4dgs.training.v2w import transform
 from m4dgs.training.variants import variant_config
 
 PHASES = ("camera_init", "stage1", "v2w", "stage2", "render", "done")
@@ -168,9 +177,6 @@ class Trainer:
     # -- phases
     # ----------------------------------------------------------------------------------------------
     def camera_init(self) -> None:
-        from m4dgs.priors.camera_init import initialize_cameras
-        from m4dgs.priors.epipolar import dynamic_masks, epipolar_error_maps, opencv_flow_prior
-
         t0 = time.perf_counter()
         d, cfg = self.data, self.cfg
         if self.clip.has_flow_prior():
@@ -215,8 +221,6 @@ class Trainer:
         "union") from the BA result `res`; with refine_cameras the BA is re-run once on these masks
         and the masks recomputed with its cameras (that BA result is returned when it succeeds, else
         `res`)."""
-        from m4dgs.priors.camera_init import initialize_cameras
-        from m4dgs.priors.rigidity import rigidity_masks
 
         d, mc = self.data, self.cfg.masks
         index = {g: i for i, g in enumerate(d.frames)}
@@ -266,9 +270,6 @@ class Trainer:
         write_json(self.run.path(name), cams.to_json())
 
     def stage1(self) -> None:
-        from m4dgs.core.io import write_exr, write_png
-        from m4dgs.training.stage1 import VideoStage, train_stage1
-
         t0 = [time.perf_counter()]
         ck = self._checkpoint("stage1")  # resuming: skip the lift + tone-mapper pre-training
         stage = VideoStage(
@@ -280,7 +281,6 @@ class Trainer:
             self.run.path("model", "stage1.pt"), {**stage.state_dict(), "frames": self.data.frames}
         )
         out = stage.render_training_video()
-        from m4dgs.clip import frame_name
 
         for i, g in enumerate(self.data.frames):
             write_exr(
@@ -298,9 +298,6 @@ class Trainer:
         self._finish("stage1", time.perf_counter() - t0[0])
 
     def _stage1_video(self):
-        from m4dgs.clip import frame_name
-        from m4dgs.core.io import read_exr
-
         hdr = torch.stack(
             [
                 torch.from_numpy(
@@ -320,9 +317,6 @@ class Trainer:
         return hdr, depth
 
     def v2w(self) -> None:
-        from m4dgs.training.stage1 import VideoStage
-        from m4dgs.training.v2w import transform
-
         t0 = time.perf_counter()
         cfg, d = self.cfg, self.data
         ci = self._camera_init_result()
@@ -356,10 +350,6 @@ class Trainer:
         self._finish("v2w", time.perf_counter() - t0)
 
     def stage2(self) -> None:
-        from m4dgs.training.exposure import training_exposures
-        from m4dgs.training.stage1 import build_appearance
-        from m4dgs.training.stage2 import WorldInit, WorldStage, train_stage2
-
         t0 = [time.perf_counter()]
         cfg, d = self.cfg, self.data
         ci = self._camera_init_result()
@@ -406,8 +396,6 @@ class Trainer:
         self._finish("stage2", time.perf_counter() - t0[0])
 
     def render(self) -> None:
-        from m4dgs.outputs.render import render_run
-
         t0 = time.perf_counter()
         render_run(self.run.root, device=str(self.device), progress=self.progress)
         self._finish("render", time.perf_counter() - t0)
@@ -466,8 +454,6 @@ def _num_gaussians(run: RunDir) -> Optional[int]:
 def _transform_with_scale(transform, video, ci, masks, depth, cfg, d):
     """V2W with the bundle-adjustment depth scales: video z (prior units) becomes world depth z *
     s_t per frame."""
-    from m4dgs.core import spline
-    from m4dgs.model.gaussians import VideoGaussians
 
     s = ci["depth_scale"].to(video.knots)
     times = torch.arange(d.num_frames, dtype=video.knots.dtype, device=video.knots.device)
