@@ -1,6 +1,6 @@
 """HDR image metrics: mu-law PSNR / SSIM (the paper's), PU21-PSNR and HDR-FLIP (beyond the paper).
 
-Conventions (docs/metrics.md; shared/notes/metric-conventions.md):
+Conventions (docs/metrics.md):
 - mu-law (HDR-NeRF / GaussHDR / Mono4DGS-HDR): T(H) = log(1 + mu x) / log(1 + mu), mu = 5000, with x
   = clip(H / max(H_gt), 0, 1) for the prediction AND the ground truth (GT-max normalisation,
   `norm="gt"`). `norm="own"` divides each image by its own max (HDR-GS); it hides global scale

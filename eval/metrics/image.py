@@ -1,7 +1,7 @@
 """LDR image metrics: PSNR, 3DGS-style SSIM, their dynamic-region (masked) variants, and the 8-bit
 round trips.
 
-Conventions (docs/metrics.md; shared/notes/metric-conventions.md):
+Conventions (docs/metrics.md):
 - PSNR per image with data range 1, then the mean over images (never a batch-pooled MSE).
 - SSIM is the 3DGS one (m4dgs.core.ssim: 11x11 Gaussian window, sigma 1.5, zero padding, mean over
   the WHOLE map). `crop=5` gives scikit-image's Gaussian SSIM instead (interior mean).

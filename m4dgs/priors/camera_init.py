@@ -60,7 +60,7 @@ from m4dgs.core.warp import sample_per_frame
 @dataclass
 class CameraInitConfig:
     """MoSca-style camera initialisation (paper section 3.2; MoSca's defaults per
-    shared/notes/authors-implementation.md "MoSca camera init")."""
+    the authors' released code, which uses MoSca's camera initialisation)."""
 
     # -- static tracks
     min_visible: int = 2

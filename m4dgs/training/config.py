@@ -2,7 +2,7 @@
 overrides.
 
 Sections (each group cites the paper section its defaults come from; "authors' code" marks choices
-the paper leaves open, filled from shared/notes/authors-implementation.md):
+the paper leaves open, filled from the authors' released code, LiuJF1226/Mono4DGS-HDR):
 
     TrainConfig
       model        ModelConfig        Gaussian representation (N_s, features, scale activations,
@@ -390,7 +390,7 @@ def preset(name: str) -> TrainConfig:
     if name == "small":
         # reprojection loss in the first 28 % of stage 2, the proportion of the authors' 3K of 11K
         s2.pr_steps = 700
-        # TLR weight of the authors' synthetic configs (shared/notes/authors-implementation.md); the
+        # TLR weight of the authors' synthetic configs (their released code); the
         # paper's 0.1 cost 1.1 dB test LDR PSNR on pendulum-lamp-handheld (stage 2 with 0.1: 25.87
         # dB, without TLR: 26.98 dB)
         s1.loss.lambda_tlr = s2.loss.lambda_tlr = 0.01

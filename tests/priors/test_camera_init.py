@@ -245,7 +245,7 @@ def write_synthetic_clip(root, **kw) -> Path:
         frames=list(range(T)),
         split=Split(train=list(range(T)), test=[]),
         exposures=Exposures(train_dt=dts, observed=[0.125, 2.0], novel=[]),
-        generator={"kind": "tests/test_camera_init.py synthetic room"},
+        generator={"kind": "tests/priors/test_camera_init.py synthetic room"},
     )
     wr = ClipWriter(root, meta)
     for t in range(T):
