@@ -101,21 +101,166 @@ class _Object:
         return self.motion["type"] != "none"
 
 
-def _material(spec: dict, seed: int) -> Material:
+def _material(spec: dict, seed: int, band_limit=None) -> Material:
     kind = spec["kind"]
     if kind == "emitter":
         return Material("emitter", None, radiance=tuple(float(x) for x in spec["radiance"]))
-    albedo = texture_from_spec(spec["texture"], seed) if spec["texture"] is not None else None
+    albedo = (
+        texture_from_spec(spec["texture"], seed, band_limit)
+        if spec["texture"] is not None
+        else None
+    )
     return Material(
         kind, albedo, color=solid_color(spec["color"]), roughness=float(spec.get("roughness", 0.2))
     )
+
+
+# --------------------------------------------------------------------------------------------------
+# Texture band limit from the screen footprint (docs/rendering.md "Band-limited textures")
+# --------------------------------------------------------------------------------------------------
+#: the pixel grid textures are band-limited for by default (the small preset's)
+BAND_LIMIT_SIZE = (216, 120)
+#: screen frequency (cycles per pixel) at which the band-limiting Gaussian's gain is
+#: benchgen.textures.CUTOFF_GAIN: half the Nyquist frequency, where a bilinear warp at a half-pixel
+#: offset keeps only 71 % of a sinusoid's amplitude (at 0.125 cycles per pixel, where the gain is
+#: 0.47, it keeps 92 %)
+TEXTURE_MAX_CYCLES_PER_PIXEL = 0.25
+#: the cutoff holds on all but this fraction of an object's on-screen area over the clip (the
+#: farther, more grazing half of the views, which the box pixel filter averages anyway); measured on
+#: lamp-room-orbit (albedo AOV, exact flow): 0.1 and 0.5 give a texture HDR-TAE of 0.006 and 0.009
+#: (raw textures 0.047), but 0.1 blurs every box-shaped object (its thin or grazing faces share
+#: one texture with the others) to a flat colour
+TEXTURE_FOOTPRINT_QUANTILE = 0.5
+#: frames of the spec's clip sampled for the footprint
+TEXTURE_FOOTPRINT_FRAMES = 12
+_NEAR = 0.05
+
+
+def _subtriangle_barycentrics(n: int) -> np.ndarray:
+    """[n * n, 3] barycentrics of the centroids of the n * n equal-area sub-triangles of a triangle
+    split n times along each edge."""
+    pts = []
+    for i in range(n):
+        for j in range(n - i):
+            pts.append(((i + 1 / 3) / n, (j + 1 / 3) / n))
+            if i + j <= n - 2:
+                pts.append(((i + 2 / 3) / n, (j + 2 / 3) / n))
+    b = np.asarray(pts, np.float64)
+    return np.c_[1.0 - b.sum(1), b]
+
+
+def uv_footprint(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    uvs: np.ndarray,
+    c2w: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    points_per_frame: int = 4096,
+) -> Tuple[np.ndarray, np.ndarray]:
+    """How a textured mesh is seen: (Q [N, 2, 2], area [N]) over sample points.
+
+    Each face is split into n x n equal sub-triangles (n from points_per_frame); at each centroid
+    that lies in front of the camera (z > 0.05) and inside the width x height image, J = d(pixel) /
+    d(uv) is the 2x2 Jacobian of the pinhole projection of the face's affine uv map. A texture
+    frequency k (cycles per texture side, (k_u, k_v)) shows there as J^-T k cycles per pixel, of
+    squared length k^T Q k with Q = (J^T J)^-1; area is the point's screen area in pixels^2 (|det J|
+    times its uv area). Occlusion is ignored. Faces with a degenerate uv map are skipped."""
+    V = np.asarray(vertices, np.float64)
+    F = np.asarray(faces, np.int64)
+    UV = np.asarray(uvs, np.float64)
+    w2c = np.linalg.inv(np.asarray(c2w, np.float64))
+    Vc = V @ w2c[:3, :3].T + w2c[:3, 3]
+    A = np.stack([UV[F[:, 1]] - UV[F[:, 0]], UV[F[:, 2]] - UV[F[:, 0]]], -1)  # [F, 2(uv), 2]
+    detA = np.linalg.det(A)
+    ok = np.abs(detA) > 1e-12
+    F, A, detA = F[ok], A[ok], detA[ok]
+    if F.shape[0] == 0:
+        return np.zeros((0, 2, 2)), np.zeros(0)
+    n = int(max(1, min(8, np.sqrt(points_per_frame / F.shape[0]))))
+    bary = _subtriangle_barycentrics(n)  # [S, 3]
+    E = np.stack([Vc[F[:, 1]] - Vc[F[:, 0]], Vc[F[:, 2]] - Vc[F[:, 0]]], -1)  # [F, 3, 2]
+    dXduv = E @ np.linalg.inv(A)  # [F, 3, 2]
+    X = np.einsum("sk,fkc->fsc", bary, Vc[F])  # [F, S, 3]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    z = X[..., 2]
+    zs = np.where(z > _NEAR, z, 1.0)
+    u = fx * X[..., 0] / zs + cx
+    v = fy * X[..., 1] / zs + cy
+    keep = (z > _NEAR) & (u >= 0) & (u <= width) & (v >= 0) & (v <= height)
+    P = np.zeros(z.shape + (2, 3))
+    P[..., 0, 0] = fx / zs
+    P[..., 0, 2] = -fx * X[..., 0] / zs**2
+    P[..., 1, 1] = fy / zs
+    P[..., 1, 2] = -fy * X[..., 1] / zs**2
+    J = np.einsum("fsij,fjk->fsik", P, dXduv)[keep]  # [N, 2, 2]
+    det = np.linalg.det(J)
+    good = np.abs(det) > 1e-12
+    J, det = J[good], det[good]
+    Ji = np.linalg.inv(J)
+    Q = Ji @ np.swapaxes(Ji, -1, -2)  # (J^T J)^-1 = J^-1 J^-T
+    uv_area = np.broadcast_to((np.abs(detA) / 2.0 / bary.shape[0])[:, None], z.shape)[keep][good]
+    return Q, np.abs(det) * uv_area
+
+
+def band_limit_from_footprint(
+    Q: np.ndarray,
+    area: np.ndarray,
+    max_cycles_per_pixel: float,
+    quantile: float,
+    num_directions: int = 12,
+) -> Optional[np.ndarray]:
+    """The uv-frequency metric B (benchgen.textures.band_matrix) of a texture seen with footprints
+    Q [N, 2, 2] weighted by area [N] (uv_footprint): for each of num_directions directions d in
+    uv-frequency space, r(d) = the (1 - quantile) area-quantile of d^T Q d, so that on all but
+    `quantile` of the area a frequency k along d lands at most at max_cycles_per_pixel when |k| <=
+    max_cycles_per_pixel / sqrt(r(d)); B is the least-squares quadratic form fitted to r(d) /
+    max_cycles_per_pixel^2, scaled up until it is at least that in every direction (the filter is
+    never weaker than the footprint asks). None when the texture is never in view."""
+    Q = np.asarray(Q, np.float64)
+    w = np.asarray(area, np.float64)
+    if Q.shape[0] == 0 or w.sum() <= 0:
+        return None
+    th = np.pi * np.arange(num_directions) / num_directions
+    d = np.stack([np.cos(th), np.sin(th)], -1)  # [D, 2] (k_u, k_v)
+    quad = np.einsum("di,nij,dj->dn", d, Q, d)  # [D, N]
+    r = np.array([weighted_quantile(q, w, 1.0 - quantile) for q in quad])
+    r = r / float(max_cycles_per_pixel) ** 2
+    X = np.stack([d[:, 0] ** 2, 2 * d[:, 0] * d[:, 1], d[:, 1] ** 2], -1)
+    (a, b, c), *_ = np.linalg.lstsq(X, r, rcond=None)
+    B = np.array([[a, b], [b, c]])
+    lam = np.linalg.eigvalsh(B)
+    if not np.all(lam > 0):
+        B = np.eye(2) * r.max()
+    fit = np.einsum("di,ij,dj->d", d, B, d)
+    return B * float(np.max(r / fit))
+
+
+def weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> float:
+    """The q-quantile of values under weights (the smallest value whose cumulative weight reaches q
+    of the total); nan when the weights sum to 0."""
+    v = np.asarray(values, np.float64).ravel()
+    w = np.asarray(weights, np.float64).ravel()
+    if v.size == 0 or w.sum() <= 0:
+        return float("nan")
+    o = np.argsort(v, kind="stable")
+    c = np.cumsum(w[o])
+    return float(v[o][min(int(np.searchsorted(c, q * c[-1])), v.size - 1)])
 
 
 class Scene:
     """A scene built from a validated spec (see benchgen.spec). ``frame(g, W, H)`` gives the full
     state of frame g."""
 
-    def __init__(self, spec: dict, path: Optional[str] = None):
+    def __init__(
+        self,
+        spec: dict,
+        path: Optional[str] = None,
+        band_limit: Optional[Tuple[int, int]] = BAND_LIMIT_SIZE,
+    ):
+        """band_limit: (width, height) of the pixel grid the textures are band-limited for
+        (texture_band_limits); None keeps the raw patterns (generator version <= 4)."""
         self.spec = spec
         self.path = path
         self.name: str = spec["name"]
@@ -138,16 +283,83 @@ class Scene:
             local = _meshes.mesh_from_spec(o["mesh"])
             tr = o["transform"]
             P = _motion.placement(tr["translate"], tr["rotate_deg"], tr["scale"])
-            mat = _material(o["material"], self.seed * 1000 + i)
+            # geometry first: the textures' band limits depend on where the object is seen
+            mat = _material({**o["material"], "texture": None}, self.seed * 1000 + i)
             obj = _Object(o["name"], i + 1, local, P, mat, o["motion"], o["mesh"], None)
             if not obj.dynamic:
                 obj.static_vertices = _motion.apply(P, local.vertices)
+            self.objects.append(obj)
+        #: {object index: band limit (2x2 uv-frequency metric) or None} of the textured objects
+        self.texture_band: Dict[int, Optional[np.ndarray]] = (
+            self.texture_band_limits(*band_limit) if band_limit is not None else {}
+        )
+        self.band_limit = None if band_limit is None else tuple(int(x) for x in band_limit)
+        for i, (o, obj) in enumerate(zip(spec["objects"], self.objects)):
+            if o["material"]["kind"] != "emitter" and o["material"]["texture"] is not None:
+                obj.material = _material(
+                    o["material"], self.seed * 1000 + i, self.texture_band.get(i)
+                )
             # arrays shared by every FrameState are read-only, so a consumer cannot corrupt later
             # frames
-            for arr in (obj.static_vertices, local.faces, local.uvs, local.vertices, mat.albedo):
+            for arr in (
+                obj.static_vertices,
+                obj.local.faces,
+                obj.local.uvs,
+                obj.local.vertices,
+                obj.material.albedo,
+            ):
                 if arr is not None:
                     arr.setflags(write=False)
-            self.objects.append(obj)
+
+    def texture_band_limits(
+        self,
+        width: int,
+        height: int,
+        max_cycles_per_pixel: float = TEXTURE_MAX_CYCLES_PER_PIXEL,
+        quantile: float = TEXTURE_FOOTPRINT_QUANTILE,
+        num_frames: int = TEXTURE_FOOTPRINT_FRAMES,
+    ) -> Dict[int, Optional[np.ndarray]]:
+        """Band limit (a 2x2 uv-frequency metric, benchgen.textures.band_matrix) of each textured
+        object's texture for a width x height grid, from its footprint (uv_footprint) in
+        `num_frames` frames evenly spread over the spec's clip (band_limit_from_footprint): on all
+        but `quantile` of the object's on-screen area, texture frequencies the filter keeps (gain
+        above CUTOFF_GAIN) land below max_cycles_per_pixel. None for an object never in view (the
+        texture keeps the bitmap's own limit, benchgen.textures.max_cutoff)."""
+        tex = [
+            i
+            for i, o in enumerate(self.spec["objects"])
+            if o["material"]["kind"] != "emitter" and o["material"]["texture"] is not None
+        ]
+        if not tex:
+            return {}
+        gs = np.unique(np.linspace(0, self.num_frames - 1, max(1, int(num_frames))).round())
+        K = self.K(width, height)
+        acc: Dict[int, List[Tuple[np.ndarray, np.ndarray]]] = {i: [] for i in tex}
+        for g in gs.astype(int):
+            t = self.time(int(g))
+            c2w = self.c2w(int(g))
+            for i in tex:
+                ob = self.objects[i]
+                acc[i].append(
+                    uv_footprint(
+                        self.object_vertices(i, t),
+                        ob.local.faces,
+                        ob.local.uvs,
+                        c2w,
+                        K,
+                        width,
+                        height,
+                    )
+                )
+        return {
+            i: band_limit_from_footprint(
+                np.concatenate([q for q, _ in acc[i]]),
+                np.concatenate([a for _, a in acc[i]]),
+                max_cycles_per_pixel,
+                quantile,
+            )
+            for i in tex
+        }
 
     # ----------------------------------------------------------------------------------------------
     def time(self, g: int) -> float:
@@ -227,14 +439,17 @@ class Scene:
         )
 
 
-def scene_from_dict(data: dict, file: str = "<dict>") -> Scene:
-    """Validate a spec given as a dict and build the scene."""
-    return Scene(validate_scene(data, file), path=None)
+def scene_from_dict(
+    data: dict, file: str = "<dict>", band_limit: Optional[Tuple[int, int]] = BAND_LIMIT_SIZE
+) -> Scene:
+    """Validate a spec given as a dict and build the scene (band_limit: see Scene)."""
+    return Scene(validate_scene(data, file), path=None, band_limit=band_limit)
 
 
-def load_scene(path) -> Scene:
-    """Load and validate a scene YAML file (raises SpecError(file, key_path, expected))."""
-    return Scene(load_scene_spec(path), path=str(path))
+def load_scene(path, band_limit: Optional[Tuple[int, int]] = BAND_LIMIT_SIZE) -> Scene:
+    """Load and validate a scene YAML file (raises SpecError(file, key_path, expected));
+    band_limit: the pixel grid (width, height) the textures are band-limited for (Scene)."""
+    return Scene(load_scene_spec(path), path=str(path), band_limit=band_limit)
 
 
 # --------------------------------------------------------------------------------------------------
