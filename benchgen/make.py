@@ -66,8 +66,10 @@ from .scene import load_scene
 
 # 2: small preset 64 spp with per-clip light selection (was 256 spp, uniform) 3: ground-truth track
 # queries scale with the preset (small: ~15k tracks, was ~1.3k) 4: denoised renders; HDR scale from
-# the clip's own converged frames with placement targets, measured in clip.json
-GENERATOR_VERSION = 4
+# the clip's own converged frames with placement targets, measured in clip.json 5: textures
+# band-limited for the preset's pixel grid (and coarser patterns in the scene specs), adaptive extra
+# samples where the relative variance is high
+GENERATOR_VERSION = 5
 
 #: where the unit-scale HDR frames wait for the clip's scale (removed when the clip is finished)
 UNIT_HDR_DIR = (".benchgen", "hdr_unit")
@@ -144,6 +146,39 @@ def _with_crf(gen: Optional[dict]) -> Optional[dict]:
     return None if gen is None else {"crf": "hdrnerf", **gen}
 
 
+@dataclass
+class _Job:
+    """What every step of make_clip needs: the scene, the clip folder and its settings, and the
+    resume state (.benchgen/state.json, written after each expensive step)."""
+
+    scene_path: Path
+    scene: object  # benchgen.scene.Scene
+    out: Path
+    preset: Preset
+    frames: List[int]
+    train: List[int]
+    test: List[int]
+    settings: ExposureSettings
+    render: object  # benchgen.render.RenderSettings (light selection resolved in step 1)
+    crf: object  # a response of the clip family (m4dgs.core.crf.CLIP_CRFS)
+    gen: dict
+    priors: str
+    seed: int
+    state: dict
+    state_path: Path
+
+    @property
+    def W(self) -> int:
+        return self.preset.width
+
+    @property
+    def H(self) -> int:
+        return self.preset.height
+
+    def save_state(self) -> None:
+        mio.write_json(self.state_path, self.state)
+
+
 def make_clip(
     scene_path,
     out_dir,
@@ -168,20 +203,33 @@ def make_clip(
 
     spp overrides the preset's samples per pixel of the HDR renders
     (benchgen.render.RENDER_PRESETS)."""
-    from .render import (
-        EMITTER_PROBE_SPP,
-        Renderer,
-        RenderSettings,
-        choose_emitter_sampling,
-        render_clip_gt,
-    )
-
     t_start = time.perf_counter()
+    job = _prepare_job(scene_path, out_dir, preset, settings, priors, seed, crf, max_frames, spp)
+    if _finished_clip(job, force, allow_misplaced):
+        return job.out
+    _open_state(job, force)
+    _choose_light_selection(job)  # 1
+    train_dt = schedule_train_dt(len(job.train), job.settings, job.seed)
+    meta = _clip_meta(job, train_dt)
+    writer = ClipWriter(job.out, meta)
+    _render_ground_truth(job, writer, progress)  # 2
+    _apply_hdr_scale(job, writer, meta, train_dt, targets)  # 3
+    hdr_train = _write_exposures(job, writer, train_dt)  # 4
+    _write_priors(job, writer, meta, train_dt)  # 5
+    _record_clip_stats(job, meta, hdr_train)
+    meta.generator["seconds"] = round(time.perf_counter() - t_start, 2)
+    _finish(job, writer, meta, targets, allow_misplaced)  # 6
+    return job.out
+
+
+def _prepare_job(scene_path, out_dir, preset, settings, priors, seed, crf, max_frames, spp) -> _Job:
+    """The scene (textures band-limited for the preset's pixel grid), frame split, render settings
+    (spp override), response and generator settings of a clip."""
+    from .render import RenderSettings
+
     settings = settings or ExposureSettings()
     pr = get_preset(preset)
-    scene = load_scene(scene_path)
-    out = Path(out_dir)
-    W, H = pr.width, pr.height
+    scene = load_scene(scene_path, band_limit=(pr.width, pr.height))
     G = min(scene.num_frames, pr.max_frames if max_frames is None else max_frames)
     if G < 3:
         raise ValueError(
@@ -197,132 +245,202 @@ def make_clip(
     gen = _generator_settings(
         scene_path, preset, settings, priors, seed, render_settings.spp, crf_fn.name
     )
+    frames = list(range(G))
+    out = Path(out_dir)
+    return _Job(
+        scene_path=Path(scene_path),
+        scene=scene,
+        out=out,
+        preset=pr,
+        frames=frames,
+        train=frames[0::2],
+        test=frames[1::2],
+        settings=settings,
+        render=render_settings,
+        crf=crf_fn,
+        gen=gen,
+        priors=priors,
+        seed=int(seed),
+        state={},
+        state_path=out / ".benchgen" / "state.json",
+    )
+
+
+def _finished_clip(job: _Job, force: bool, allow_misplaced: bool) -> bool:
+    """True when a finished clip with the same generator settings is there (its placement is
+    checked again); raises when a finished clip with other settings is there (unless force)."""
+    out = job.out
     if (out / "clip.json").exists() and not force:
         done = Clip.open(out).meta
         old = _with_crf(done.generator)
-        if {k: old.get(k) for k in gen} == gen:  # finished with the same settings
+        if {k: old.get(k) for k in job.gen} == job.gen:  # finished with the same settings
             check_clip_placement(out, done.gt.get("placement"), allow_misplaced)
-            return out
+            return True
         raise FileExistsError(
             f"{out}: a finished clip with other settings exists (generator {old}); pass force"
         )
+    return False
+
+
+def _open_state(job: _Job, force: bool) -> None:
+    """Load the resume state of an unfinished clip (refusing one made with other settings)."""
+    out = job.out
     if force and (out / "clip.json").exists():
         (out / "clip.json").unlink()
-    state_path = out / ".benchgen" / "state.json"
-    state = mio.read_json(state_path) if state_path.exists() else {}
-    if _with_crf(state.get("generator")) not in (None, gen):
+    state = mio.read_json(job.state_path) if job.state_path.exists() else {}
+    if _with_crf(state.get("generator")) not in (None, job.gen):
         raise FileExistsError(
             f"{out}: an unfinished clip with other settings is here; remove it or pick another "
             "--out"
         )
-    state["generator"] = gen
+    state["generator"] = job.gen
+    job.state = state
 
-    frames = list(range(G))
-    train, test = frames[0::2], frames[1::2]
 
-    # 1. light selection
-    # ----------------------------------------------------------------------------------------------
-    if render_settings.emitter_sampling == "auto":
-        if "emitter_sampling" not in state:
-            mode, scores = choose_emitter_sampling(scene.frame(0, W, H), W, H, render_settings)
-            state["emitter_sampling"], state["emitter_sampling_noise"] = mode, scores
-            mio.write_json(state_path, state)
-        render_settings = dataclasses.replace(
-            render_settings, emitter_sampling=state["emitter_sampling"]
-        )
-    train_dt = schedule_train_dt(len(train), settings, seed)
-    meta = ClipMeta(
+def _choose_light_selection(job: _Job) -> None:
+    """Step 1: light selection for next-event estimation (benchgen.render.choose_emitter_sampling)
+    when the preset asks for "auto"; the choice is kept in the resume state."""
+    from .render import choose_emitter_sampling
+
+    if job.render.emitter_sampling != "auto":
+        return
+    state = job.state
+    if "emitter_sampling" not in state:
+        W, H = job.W, job.H
+        mode, scores = choose_emitter_sampling(job.scene.frame(0, W, H), W, H, job.render)
+        state["emitter_sampling"], state["emitter_sampling_noise"] = mode, scores
+        job.save_state()
+    job.render = dataclasses.replace(job.render, emitter_sampling=state["emitter_sampling"])
+
+
+def _clip_meta(job: _Job, train_dt) -> ClipMeta:
+    scene = job.scene
+    return ClipMeta(
         name=scene.name,
-        width=W,
-        height=H,
+        width=job.W,
+        height=job.H,
         fps=float(scene.fps),
-        frames=frames,
-        split=Split(train, test),
+        frames=job.frames,
+        split=Split(job.train, job.test),
         exposures=Exposures(
             train_dt=[float(v) for v in train_dt],
-            observed=list(settings.observed),
-            novel=list(settings.novel),
-            schedule=settings.schedule,
+            observed=list(job.settings.observed),
+            novel=list(job.settings.novel),
+            schedule=job.settings.schedule,
         ),
-        crf=crf_fn.name,
-        unit_exposure_value=float(crf_fn(np.float64(1.0))),
+        crf=job.crf.name,
+        unit_exposure_value=float(job.crf(np.float64(1.0))),
         hdr_scale=1.0,
-        generator=gen,
+        generator=job.gen,
     )
-    writer = ClipWriter(out, meta)
 
-    # 2. ground truth at the scene's own (unit) emitter scale: HDR frames go to .benchgen/hdr_unit
-    #    --------------------
-    if "gt_notes" not in state:
-        notes = render_clip_gt(
-            scene,
-            W,
-            H,
-            frames,
-            render_settings,
-            writer,
-            progress=progress,
-            num_grid=pr.track_grid,
-            num_dynamic=pr.track_dynamic,
-            hdr_dir=UNIT_HDR_DIR,
-        )
-        state["gt_notes"] = notes
-        mio.write_json(state_path, state)
 
-    # 3. one global HDR scale from the clip's own converged frames, then gt/hdr = scale * unit frame
-    #    ------------------
-    # (light transport is linear in the emitters, so this equals rendering with every emitter
-    # scaled)
+def _render_ground_truth(job: _Job, writer: ClipWriter, progress: bool) -> None:
+    """Step 2: ground truth at the scene's own (unit) emitter scale; the HDR frames go to
+    .benchgen/hdr_unit until the scale is known."""
+    from .render import render_clip_gt
+
+    if "gt_notes" in job.state:
+        return
+    job.state["gt_notes"] = render_clip_gt(
+        job.scene,
+        job.W,
+        job.H,
+        job.frames,
+        job.render,
+        writer,
+        progress=progress,
+        num_grid=job.preset.track_grid,
+        num_dynamic=job.preset.track_dynamic,
+        hdr_dir=UNIT_HDR_DIR,
+    )
+    job.save_state()
+
+
+def _apply_hdr_scale(job: _Job, writer: ClipWriter, meta: ClipMeta, train_dt, targets) -> None:
+    """Step 3: one global HDR scale from the clip's own converged frames, then gt/hdr = scale *
+    unit frame (light transport is linear in the emitters, so this equals rendering with every
+    emitter scaled); the ground-truth notes go into meta.gt."""
+    from .render import EMITTER_PROBE_SPP
+
+    state, out = job.state, job.out
     if "hdr_scale" not in state:
         scale, report = choose_hdr_scale(
-            _frames_by_level(out, settings, train, train_dt, test),
-            crf_fn,
+            _frames_by_level(out, job.settings, job.train, train_dt, job.test),
+            job.crf,
             targets or PlacementTargets(),
         )
         state["hdr_scale"], state["hdr_scale_report"] = float(scale), report
-        mio.write_json(state_path, state)
+        job.save_state()
     scale = float(state["hdr_scale"])
     meta.hdr_scale = scale
-    for g in frames:
+    for g in job.frames:
         if not writer.exists("gt", "hdr", frame_name(g, "exr")):
             unit = mio.read_exr(out.joinpath(*UNIT_HDR_DIR, frame_name(g, "exr")))
             writer.write_gt_hdr(g, (unit * np.float32(scale)).astype(np.float32))
     meta.gt.update(state["gt_notes"])
     meta.gt["hdr_scale_report"] = state.get("hdr_scale_report")
     # formula, source, parameters and f(1) per channel of the response
-    meta.gt["crf"] = crf_fn.metadata()
+    meta.gt["crf"] = job.crf.metadata()
     if "emitter_sampling_noise" in state:
         meta.gt["emitter_sampling_probe"] = {
             "chosen": state["emitter_sampling"],
             "spp": EMITTER_PROBE_SPP,
             "noise_tae_two_seeds": state["emitter_sampling_noise"],
         }
+    meta.gt["textures"] = _texture_notes(job.scene)
 
-    # 4. exposures: input LDR and test LDR at every level
-    #    --------------------------------------------------------------
+
+def _texture_notes(scene) -> dict:
+    """clip.json gt.textures: the pixel grid the textures are band-limited for and, per textured
+    object, the lowest and highest cutoff (cycles per texture side) of its band limit (None: never
+    in view, only the bitmap's own limit)."""
+    from .textures import band_cutoffs
+
+    objs = {
+        scene.objects[i].name: None if B is None else [round(c, 3) for c in band_cutoffs(B)]
+        for i, B in sorted(scene.texture_band.items())
+    }
+    return {
+        "band_limit_grid": None if scene.band_limit is None else list(scene.band_limit),
+        "cutoff_cycles_per_side": objs,
+    }
+
+
+def _write_exposures(job: _Job, writer: ClipWriter, train_dt) -> Dict[int, np.ndarray]:
+    """Step 4: input LDR = CRF(H dt) in 8 bits for the training frames, and the test frames at
+    every observed and novel level under gt/ldr; returns the training HDR frames."""
+    out, crf_fn = job.out, job.crf
     hdr_train = {}
-    for g, dt in zip(train, train_dt):
+    for g, dt in zip(job.train, train_dt):
         hdr_train[g] = mio.read_exr(out / "gt/hdr" / frame_name(g, "exr"))
         if not writer.exists("input", "ldr", frame_name(g, "png")):
             writer.write_input_ldr(g, tonemap_ldr(hdr_train[g], float(dt), crf_fn))
-    levels = test_levels(settings)
-    for g in test:
+    levels = test_levels(job.settings)
+    for g in job.test:
         h = None
         for lv in levels:
             if not writer.exists("gt", "ldr", f"{float(lv):g}", frame_name(g, "png")):
                 h = mio.read_exr(out / "gt/hdr" / frame_name(g, "exr")) if h is None else h
                 writer.write_gt_ldr(lv, g, tonemap_ldr(h, float(lv), crf_fn))
+    return hdr_train
 
-    # 5. priors
-    # ----------------------------------------------------------------------------------------------
-    profile = get_profile(priors)
+
+def _write_priors(job: _Job, writer: ClipWriter, meta: ClipMeta, train_dt) -> None:
+    """Step 5: degraded priors through the profile (benchgen.priors): depth (with emitter/glossy
+    masks from pixel-centre ray casts), tracks (from the ground-truth tracks on the training frames)
+    and flow between training frames (t, t +- N_e)."""
+    from .groundtruth import flow_between
+    from .render import Renderer
+
+    out, scene, seed, train = job.out, job.scene, job.seed, job.train
+    W, H = job.W, job.H
+    profile = get_profile(job.priors)
     clip_key = scene.name
     depth_gt = np.stack([mio.read_exr(out / "gt/depth" / frame_name(g, "exr")) for g in train])
-    pairs = flow_pairs(train, train_dt, len(settings.observed))
+    pairs = flow_pairs(train, train_dt, len(job.settings.observed))
     need = sorted({g for p in pairs for g in p})
-    caster = Renderer(
-        scene.frame(0, W, H), W, H, dataclasses.replace(render_settings, denoise=False)
-    )
+    caster = Renderer(scene.frame(0, W, H), W, H, dataclasses.replace(job.render, denoise=False))
     casts, states = {}, {}
     emit, gloss = np.zeros(depth_gt.shape, bool), np.zeros(depth_gt.shape, bool)
     for i, g in enumerate(train):
@@ -348,8 +466,6 @@ def make_clip(
         degrade_tracks(gt_train, depth_gt, W, H, profile, make_rng(seed, clip_key, "tracks"))
     )
 
-    from .groundtruth import flow_between
-
     dt_of = dict(zip(train, train_dt))
     ldr_of = {g: mio.read_png(out / "input/ldr" / frame_name(g, "png")) for g in need}
     flows, valids = [], []
@@ -372,28 +488,32 @@ def make_clip(
         writer.write_prior_flow(
             FlowSet(np.array(pairs, np.int64), np.stack(flows), np.stack(valids))
         )
-
     meta.priors = priors_metadata(profile, seed)
+
+
+def _record_clip_stats(job: _Job, meta: ClipMeta, hdr_train: Dict[int, np.ndarray]) -> None:
+    """clip.json gt.dynamic_fraction (mean over frames) and gt.dynamic_range_stops."""
+    out = job.out
     meta.gt["dynamic_fraction"] = float(
         np.mean(
             [
                 (mio.read_png(out / "gt/masks/dynamic" / frame_name(g, "png")) > 127).mean()
-                for g in frames
+                for g in job.frames
             ]
         )
     )
-    stops = _dynamic_range_stops(hdr_train)
-    meta.gt["dynamic_range_stops"] = stops
-    meta.generator["seconds"] = round(time.perf_counter() - t_start, 2)
-    # 6. what the clip achieved, measured from its PNGs
-    #    ------------------------------------------------------------
-    meta.gt["placement"] = measure_placement(out, meta, targets)
+    meta.gt["dynamic_range_stops"] = _dynamic_range_stops(hdr_train)
+
+
+def _finish(job: _Job, writer: ClipWriter, meta: ClipMeta, targets, allow_misplaced) -> None:
+    """Step 6: what the clip achieved, measured from its PNGs (gt.placement); clip.json is written
+    last, the unit-scale frames removed, and a placement miss raised (or warned about)."""
+    meta.gt["placement"] = measure_placement(job.out, meta, targets)
     writer.meta = meta
     writer.finalize()
     # gt/hdr holds the same frames, scaled
-    shutil.rmtree(out.joinpath(*UNIT_HDR_DIR), ignore_errors=True)
-    check_clip_placement(out, meta.gt["placement"], allow_misplaced)
-    return out
+    shutil.rmtree(job.out.joinpath(*UNIT_HDR_DIR), ignore_errors=True)
+    check_clip_placement(job.out, meta.gt["placement"], allow_misplaced)
 
 
 class PlacementError(InputError):

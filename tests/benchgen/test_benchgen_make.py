@@ -38,8 +38,20 @@ def test_clip_contract_and_ground_truth_notes(tiny_clip_realistic):
     assert m.exposures.train_dt[:3] == [0.125, 2.0, 32.0]
     assert m.hdr_scale and m.hdr_scale > 0
     assert m.priors["profile"] == "realistic"
-    for key in ("render_noise", "hdr_tae_floor", "dynamic_fraction", "dynamic_range_stops"):
+    for key in (
+        "render_noise",
+        "hdr_tae_floor",
+        "hdr_tae_floor_interior",
+        "dynamic_fraction",
+        "dynamic_range_stops",
+    ):
         assert key in m.gt, key
+    # generator version 5: textures band-limited for the preset's grid, adaptive samples spent
+    assert m.generator["version"] == 5
+    assert m.gt["textures"]["band_limit_grid"] == [m.width, m.height]
+    lo, hi = m.gt["textures"]["cutoff_cycles_per_side"]["flag"]
+    assert 0 < lo <= hi
+    assert m.gt["render"]["adaptive_spp"] > 0 and m.gt["render"]["adaptive_extra_spp_mean"] > 0
     # the scene needs merging: the longest observed exposure saturates somewhere
     long_g = [
         g

@@ -558,6 +558,13 @@ def test_render_clip_gt_writes_and_resumes(tmp_path):
     assert (depth2 > 0).all()  # the wall fills the view: no "no surface" pixels
     assert notes["render_noise"]["rel_std"] > 0 and 0 < notes["hdr_tae_floor"] < 0.3
     assert out.meta.gt["hdr_tae_floor"] == notes["hdr_tae_floor"]
+    # the edge-excluded floor beside it, and the parts adding up
+    parts = notes["hdr_tae_floor_parts"]
+    assert notes["hdr_tae_floor_interior"] == parts["interior"] > 0
+    assert parts["edges"] == pytest.approx(notes["hdr_tae_floor"] - parts["interior"])
+    assert parts["rest_interior"] == pytest.approx(
+        parts["interior"] - parts["noise_interior_two_seeds"]
+    )
     # resume: existing HDR frames are not re-rendered
     mtime = (root / "gt/hdr/00003.exr").stat().st_mtime_ns
     notes2 = render_clip_gt(
