@@ -65,6 +65,7 @@ Method = Literal["mono4dgs", "static-hdr", "world-only", "ldr-reproj"]
 RasterBackend = Literal["auto", "gsplat", "cpu", "torch"]  # m4dgs.raster.BACKENDS
 PrQuery = Literal["stage1", "render"]
 LdrReprojPairs = Literal["same-exposure", "consecutive"]
+DynamicRemovalScope = Literal["new", "densified", "all"]
 V2WResample = Literal["lstsq", "sample"]
 
 PRESETS: Tuple[str, ...] = typing.get_args(PresetName)
@@ -173,6 +174,12 @@ class V2WConfig:
     """Video-to-world transform (sec. 3.3.2; details from the authors' code)."""
 
     dynamic_ratio: float = 0.1  # N_d / N_f above this: dynamic in world space (paper)
+    # Relative depth tolerance of the occlusion test (V2W and the stage-2 removal): occluded iff
+    # z > (1 + tol) x rendered depth. Not in the paper (it says only "occluded"); the rendered depth
+    # is an alpha-weighted mean over the Gaussians of the visible surface, so a Gaussian ON that
+    # surface sits within a few percent of it: 0.05 keeps those visible, while an occluded
+    # background is clearly behind. The authors' TLR occlusion test uses 1.1x depth (0.1).
+    occlusion_tol: float = 0.05
     static_std_fallback: float = (
         0.02  # authors' fallback without masks: world position std < 0.02 -> static
     )
@@ -215,6 +222,17 @@ class Stage2Config:
     densify_static: DensifyConfig = field(default_factory=_stage2_static_densify)
     densify_dynamic: DensifyConfig = field(default_factory=_stage2_dynamic_densify)
     dynamic_removal_every: int = 2_000  # remove mistakenly densified dynamic Gaussians (appendix)
+    # Which dynamic Gaussians the removal tests (appendix "Gaussian Densification": project their
+    # trajectories and apply the V2W dynamic/static identification to "those densified
+    # mistakenly"): "new" = those densified (cloned / split) since the previous removal, each tested
+    # once (paper, default); "densified" = every Gaussian densified so far, re-tested at every pass;
+    # "all" = the whole dynamic set, initial V2W Gaussians included (the previous behaviour: on
+    # lamp-room-orbit it removed 11,778 of world-only's 11,796 dynamic Gaussians)
+    dynamic_removal_scope: DynamicRemovalScope = "new"
+    # Guard (not in the paper): one pass never removes more than this fraction of the dynamic set;
+    # above it the most static-looking candidates (fewest N_d) go, with a warning. 1.0 = no guard
+    # (the last dynamic Gaussian is always kept)
+    dynamic_removal_max_fraction: float = 0.5
     # Not in the paper (0 = off; tiny/small presets 0.1): at every removal step and after the last
     # iteration, remove the dynamic Gaussians that pass in view closer to the camera than this
     # fraction of the median scene depth at any training or in-between time (near_camera_samples per
@@ -294,7 +312,11 @@ class AblationConfig:
 
     # (a) stage 1 + V2W; False: world Gaussians initialised from track/depth priors
     use_video_init: bool = True
-    occlusion_handling: bool = True  # (b) occlusion test in the dynamic/static identification
+    occlusion_handling: bool = True  # (b) occlusion test in the V2W dynamic/static identification
+    # the occlusion test in the stage-2 removal of mistakenly densified dynamic Gaussians; the
+    # paper's ablation (b) removes it from V2W only, so `no-occlusion` keeps it here. False: (b)
+    # extended to the removal too (the previous `no-occlusion`)
+    occlusion_handling_removal: bool = True
     cov_invariance: bool = True  # (c) 2D covariance scale refit; False: inherit video scales
     reproj_loss: bool = True  # (d) HDR photometric reprojection loss in stage 2
     tlr: bool = True  # (e) temporal luminance regularisation

@@ -53,7 +53,9 @@ class DensifyConfig:
     grad_quantile: Optional[float] = (
         None  # authors' code: threshold = max(grad_threshold, quantile(grads, q)); None = off
     )
-    # largest scale <= this: clone, else split (authors: 0.01 in video-space units)
+    # largest scale <= this x the strategy's extent: clone, else split (3DGS: percent_dense 0.01
+    # x scene extent; the authors' code: an absolute 0.01). The extent is the Strategy's `extent`
+    # (stage 1: 1, video space; stage 2: Stage2Config.clone_split_extent)
     clone_split_scale: float = 0.01
     split_count: int = 2  # split one Gaussian into this many samples (3DGS: 2)
     split_scale_factor: float = 1.6  # split samples get scales / 1.6 (3DGS)
@@ -203,17 +205,22 @@ class Strategy:
     """3DGS adaptive density control for one set of Gaussians (see module docstring).
 
     State (`initialize_state()`): "grad2d" [N] accumulated 2D gradient norms, "count" [N] visibility
-    counts, "radii" [N] largest screen radius seen (pixels); created lazily at the first update."""
+    counts, "radii" [N] largest screen radius seen (pixels), "born" [N] the step at which each
+    Gaussian was created by a clone or split (-1: initial set); created lazily at the first
+    update."""
 
     def __init__(
         self,
         cfg: Optional[DensifyConfig] = None,
         layout: Optional[GaussianLayout] = None,
         seed: int = 0,
+        extent: float = 1.0,
     ):
         self.cfg = cfg or DensifyConfig()
         self.layout = layout or GaussianLayout()
         self.seed = seed
+        # scene extent the clone/split boundary scales with (3DGS: percent_dense x extent)
+        self.extent = float(extent)
         self._generators: Dict[torch.device, torch.Generator] = {}
 
     def _generator(self, device: torch.device) -> torch.Generator:
@@ -226,7 +233,22 @@ class Strategy:
 
     @staticmethod
     def initialize_state() -> Dict[str, Any]:
-        return {"grad2d": None, "count": None, "radii": None, "last_reset": -(10**9)}
+        return {
+            "grad2d": None,
+            "count": None,
+            "radii": None,
+            "born": None,
+            "last_reset": -(10**9),
+        }
+
+    @staticmethod
+    def born(state: Mapping[str, Any], n: int, device=None) -> Tensor:
+        """[n] creation steps of the Gaussians ("born" state; -1 = initial set, also for a state
+        without the record, e.g. an older checkpoint's)."""
+        b = state.get("born")
+        if b is None or b.shape[0] != n:
+            return torch.full((n,), -1, dtype=torch.long, device=device)
+        return b
 
     def check_sanity(self, params: Mapping[str, Tensor]) -> None:
         """Raise ValueError if the layout's keys are missing or the first dimensions disagree."""
@@ -350,6 +372,7 @@ class Strategy:
         state["grad2d"] += (norms * vis).sum(0).float()
         state["count"] += vis.sum(0).float()
         state["radii"] = torch.maximum(state["radii"], (rmax.float() * vis).max(0).values)
+        state["born"] = self.born(state, n, dev)
 
     def grow(self, params, optimizers, state, step: int) -> tuple[int, int]:
         """Clone small and split large Gaussians whose mean 2D gradient exceeds the threshold
@@ -363,7 +386,7 @@ class Strategy:
         high = (avg > thr) & (count > 0)
         max_scale = lay.scale_fn(params[lay.scale_key].detach()).max(dim=-1).values
         n = max_scale.shape[0]
-        is_small = max_scale <= cfg.clone_split_scale
+        is_small = max_scale <= cfg.clone_split_scale * self.extent
         budget = cfg.max_gaussians - n
         if budget <= 0:
             return 0, 0
@@ -379,10 +402,12 @@ class Strategy:
         clone_mask = chosen & is_small
         split_mask = chosen & ~is_small
         n_clone, n_split = int(clone_mask.sum()), int(split_mask.sum())
+        state["born"] = self.born(state, n, high.device)
         if n_clone:
             duplicate_gaussians(params, optimizers, clone_mask)
             for key in ("grad2d", "count", "radii"):
                 state[key] = torch.cat([state[key], state[key][clone_mask]])
+            state["born"] = torch.cat([state["born"], state["born"].new_full((n_clone,), step)])
             split_mask = torch.cat(
                 [split_mask, torch.zeros(n_clone, dtype=torch.bool, device=split_mask.device)]
             )
@@ -400,6 +425,10 @@ class Strategy:
             for key in ("grad2d", "count", "radii"):
                 v = state[key]
                 state[key] = torch.cat([v[~split_mask], v[split_mask].repeat(cfg.split_count)])
+            b = state["born"]
+            state["born"] = torch.cat(
+                [b[~split_mask], b.new_full((n_split * cfg.split_count,), step)]
+            )
         return n_clone, n_split
 
     def remove(self, params, optimizers, state, mask: Tensor) -> int:
@@ -408,8 +437,8 @@ class Strategy:
         n_remove = int(mask.sum())
         if n_remove:
             remove_gaussians(params, optimizers, mask)
-            for key in ("grad2d", "count", "radii"):
-                if state.get(key) is not None:
+            for key in ("grad2d", "count", "radii", "born"):
+                if state.get(key) is not None and state[key].shape[0] == mask.shape[0]:
                     state[key] = state[key][~mask.to(state[key].device)]
         return n_remove
 

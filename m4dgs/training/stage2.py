@@ -14,6 +14,8 @@ projected trajectories (`WorldStage.after_step`)."""
 
 from __future__ import annotations
 
+import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, List, Optional, Sequence
 
@@ -277,7 +279,8 @@ class WorldStage(Stage):
 
     def after_step(self, it: int) -> Dict[str, int]:
         """Remove mistakenly densified dynamic Gaussians every stage2.dynamic_removal_every steps
-        while the dynamic set densifies (appendix) and the near-camera floaters (not in the paper;
+        while the dynamic set densifies (appendix; counts "dynamic_removal_tested" / "_removed" /
+        "_kept" in the run log) and the near-camera floaters (not in the paper;
         stage2.near_camera_fraction). A removal pass invalidates the kNN cache."""
         s2 = self.cfg.stage2
         counts = {}
@@ -289,7 +292,7 @@ class WorldStage(Stage):
             and it <= s2.densify_dynamic.stop_iter
             and self.dynamic_masks is not None
         ):
-            counts["dynamic_removed"] = self.remove_misplaced_dynamic()
+            counts.update(self.remove_misplaced_dynamic(it))
         if (
             not self.static_only
             and s2.near_camera_fraction > 0
@@ -304,20 +307,44 @@ class WorldStage(Stage):
             self.knn.invalidate()
         return counts
 
-    @torch.no_grad()
-    def remove_misplaced_dynamic(self) -> int:
-        """Re-run the dynamic/static identification on the dynamic Gaussians' projected trajectories
-        and remove the ones that no longer fall into dynamic regions (appendix: mistakenly densified
-        dynamic Gaussians)."""
-        from m4dgs.training.v2w import classify_dynamic
+    def removal_candidates(self) -> torch.Tensor:
+        """[N_dyn] bool: the dynamic Gaussians the removal pass tests
+        (stage2.dynamic_removal_scope): "new" those created by densification since the previous
+        pass, "densified" every one created by densification, "all" every dynamic Gaussian."""
+        scope, n = self.cfg.stage2.dynamic_removal_scope, self.gauss.num_dynamic
+        if scope == "all":
+            return torch.ones(n, dtype=torch.bool, device=self.device)
+        born = Strategy.born(self.state_dynamic, n, self.device)
+        last = int(self.state_dynamic.get("last_removal", -1)) if scope == "new" else -1
+        return born > last
 
-        g = self.gauss
-        if g.num_dynamic == 0:
-            return 0
+    @torch.no_grad()
+    def remove_misplaced_dynamic(self, it: int = 0) -> Dict[str, int]:
+        """Re-run the V2W dynamic/static identification (N_d / N_f > v2w.dynamic_ratio, occlusion
+        test unless ablation.occlusion_handling_removal is off) on the projected trajectories of the
+        candidate dynamic Gaussians (`removal_candidates`) and remove the ones identified as static
+        (appendix "Gaussian Densification": mistakenly densified dynamic Gaussians). At most
+        stage2.dynamic_removal_max_fraction of the dynamic set goes in one pass (the fewest N_d
+        first, with a warning), never all of it. Returns the counts for the run log:
+        dynamic_removal_tested / _removed / _kept (tested - removed) and, when the guard cut the
+        removal, dynamic_removal_capped = the number identified as static."""
+        from m4dgs.training.v2w import dynamic_counts
+
+        s2, g = self.cfg.stage2, self.gauss
+        n = g.num_dynamic
+        cand = self.removal_candidates() if n else torch.zeros(0, dtype=torch.bool)
+        self.state_dynamic["last_removal"] = it
+        idx = torch.where(cand)[0]
+        counts = {"dynamic_removal_tested": int(idx.numel()), "dynamic_removal_removed": 0}
+        if idx.numel() == 0:
+            counts["dynamic_removal_kept"] = 0
+            return counts
         T = self.data.num_frames
         c2w = self.cameras().detach()
         pos = spline.evaluate(
-            g.dynamic["ctrl"], g.knots, torch.arange(T, dtype=torch.float32, device=self.device)
+            g.dynamic["ctrl"][idx],
+            g.knots,
+            torch.arange(T, dtype=torch.float32, device=self.device),
         )
         pv = torch.stack(
             [
@@ -331,20 +358,42 @@ class WorldStage(Stage):
             ],
             1,
         )
-        depth = torch.stack([self.render_at(float(t), c2w[t]).depth for t in range(T)])
-        dyn = classify_dynamic(
+        occlusion = self.cfg.ablation.occlusion_handling_removal
+        depth = (
+            torch.stack([self.render_at(float(t), c2w[t]).depth for t in range(T)])
+            if occlusion
+            else None
+        )
+        nd = dynamic_counts(
             pv,
             self.dynamic_masks,
-            depth if self.cfg.ablation.occlusion_handling else None,
+            depth,
             self.W,
             self.H,
-            ratio=self.cfg.v2w.dynamic_ratio,
-            occlusion_handling=self.cfg.ablation.occlusion_handling,
+            occlusion_handling=occlusion,
+            occlusion_tol=self.cfg.v2w.occlusion_tol,
         )
-        remove = ~dyn
-        if bool(remove.all()):  # never empty the dynamic set completely
-            return 0
-        return self.strat_dynamic.remove(g.dynamic, self.opt_dynamic, self.state_dynamic, remove)
+        static = nd.double() / float(max(T, 1)) <= float(self.cfg.v2w.dynamic_ratio)
+        n_static = int(static.sum())
+        cap = min(int(math.floor(s2.dynamic_removal_max_fraction * n)), n - 1)
+        sel = idx[static]
+        if n_static > cap:
+            order = torch.argsort(nd[static].float(), stable=True)
+            sel = sel[order[: max(cap, 0)]]
+            counts["dynamic_removal_capped"] = n_static
+            warnings.warn(
+                f"stage 2 step {it}: the removal of mistakenly densified dynamic Gaussians "
+                f"identified {n_static} of {n} as static; removing only {sel.numel()} "
+                f"(stage2.dynamic_removal_max_fraction = {s2.dynamic_removal_max_fraction})",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        remove = torch.zeros(n, dtype=torch.bool, device=self.device)
+        remove[sel] = True
+        removed = self.strat_dynamic.remove(g.dynamic, self.opt_dynamic, self.state_dynamic, remove)
+        counts["dynamic_removal_removed"] = removed
+        counts["dynamic_removal_kept"] = counts["dynamic_removal_tested"] - removed
+        return counts
 
     @torch.no_grad()
     def remove_near_camera_dynamic(self) -> int:

@@ -58,10 +58,8 @@ Tensor = torch.Tensor
 # The rasterizer (m4dgs.raster.projection) widens the field of view by 30 % inside the EWA Jacobian;
 # the V2W refit uses that same code, so its clamp is always this one (the authors' 1.3).
 RASTER_FOV_CLAMP = 1.3
-# Relative depth tolerance of the occlusion test: occluded iff z > (1 + tol) * rendered depth. The
-# rendered depth is an alpha-weighted mean over the Gaussians of the visible surface, so a Gaussian
-# *on* that surface sits within a few percent of it; 5 % keeps those "visible" while anything
-# clearly behind (an occluded background) is "occluded".
+# Default relative depth tolerance of the occlusion test: occluded iff z > (1 + tol) x rendered
+# depth (the config's V2WConfig.occlusion_tol, where the reason is given).
 OCCLUSION_TOL = 0.05
 
 
@@ -536,7 +534,7 @@ def transform(
     *,
     world_scale_kind: str = "exp",
     world_scale_max: float = 1.0,
-    occlusion_tol: float = OCCLUSION_TOL,
+    occlusion_tol: Optional[float] = None,
     frames_per_step: int = 1,
 ) -> Tuple[WorldGaussians, Dict[str, Any]]:
     """Video Gaussians -> world Gaussians (paper sec. 3.3.2).
@@ -551,7 +549,8 @@ def transform(
         None (no occlusion). cfg: V2W settings; ablation: `occlusion_handling` (b) and
         `cov_invariance` (c) switches. width, height: image size in pixels. world_scale_kind /
         world_scale_max: the world scale activation (ModelConfig.world_scale_activation / _max).
-        occlusion_tol: relative depth tolerance of the occlusion test (see OCCLUSION_TOL).
+        occlusion_tol: relative depth tolerance of the occlusion test; None = cfg.occlusion_tol
+        (V2WConfig, default OCCLUSION_TOL).
         frames_per_step: frames per Gaussian per refit step (`refit_scales`).
     Returns:
         (WorldGaussians (static first, then dynamic, each in video order), report) with report keys:
@@ -566,6 +565,8 @@ def transform(
     """
     cfg = cfg or V2WConfig()
     ablation = ablation or AblationConfig()
+    if occlusion_tol is None:
+        occlusion_tol = cfg.occlusion_tol
     if width <= 0 or height <= 0:
         raise ValueError("transform: width and height (pixels) are required")
     t0 = time.perf_counter()

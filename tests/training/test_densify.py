@@ -246,3 +246,36 @@ def test_remove_keeps_state_aligned():
     assert state["grad2d"].tolist() == [1.0, 3.0] and state["count"].tolist() == [1.0, 1.0]
     torch.testing.assert_close(opt.state[params["features"]]["exp_avg"], old_avg[[0, 2]])
     assert params["means"].shape == (2, 3)
+
+
+def test_born_records_the_creation_step_of_clones_and_split_samples():
+    # the stage-2 removal tests only densified Gaussians: "born" must follow every row edit
+    params = _params()
+    opt = _adam(params)
+    strat = Strategy(DensifyConfig(start_iter=0, every=1, reset_every=10_000, stop_iter=100))
+    state = strat.initialize_state()
+    grad_px = torch.tensor([[1e-5, 0.0], [0.0, 2e-5], [1e-7, 0.0], [1e-7, 0.0]])
+    info, loss = _render_info(params, grad_px)
+    strat.step_pre_backward(params, opt, state, 7, info)
+    loss.backward()
+    strat.step_post_backward(params, opt, state, 7, info)
+    # rows [0, 3, 0', 1a, 1b] (see test_clone_split_prune_and_optimizer_alignment)
+    assert state["born"].tolist() == [-1, -1, 7, 7, 7]
+    strat.remove(params, opt, state, torch.tensor([False, True, False, True, False]))
+    assert state["born"].tolist() == [-1, 7, 7]
+
+
+@pytest.mark.parametrize("extent, expect", [(1.0, (1, 1)), (0.1, (0, 2)), (20.0, (2, 0))])
+def test_clone_split_boundary_scales_with_the_extent(extent, expect):
+    # largest scales 0.005 (row 0) and 0.1 (row 1); boundary 0.01 x extent (3DGS percent_dense)
+    params = _params()
+    opt = _adam(params)
+    cfg = DensifyConfig(start_iter=0, every=1, reset_every=10_000, stop_iter=100)
+    strat = Strategy(cfg, GaussianLayout(), extent=extent)
+    state = strat.initialize_state()
+    grad_px = torch.tensor([[1e-5, 0.0], [0.0, 2e-5], [1e-7, 0.0], [1e-7, 0.0]])
+    info, loss = _render_info(params, grad_px)
+    strat.step_pre_backward(params, opt, state, 1, info)
+    loss.backward()
+    out = strat.step_post_backward(params, opt, state, 1, info)
+    assert (out["clone"], out["split"]) == expect
