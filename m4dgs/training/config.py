@@ -66,6 +66,7 @@ RasterBackend = Literal["auto", "gsplat", "cpu", "torch"]  # m4dgs.raster.BACKEN
 PrQuery = Literal["stage1", "render"]
 LdrReprojPairs = Literal["same-exposure", "consecutive"]
 DynamicRemovalScope = Literal["new", "densified", "all"]
+CloneSplitExtent = Literal["cameras", "absolute"]
 V2WResample = Literal["lstsq", "sample"]
 
 PRESETS: Tuple[str, ...] = typing.get_args(PresetName)
@@ -229,6 +230,12 @@ class Stage2Config:
     # "all" = the whole dynamic set, initial V2W Gaussians included (the previous behaviour: on
     # lamp-room-orbit it removed 11,778 of world-only's 11,796 dynamic Gaussians)
     dynamic_removal_scope: DynamicRemovalScope = "new"
+    # clone/split boundary of both stage-2 sets (appendix "Gaussian Densification": "the same
+    # densification strategy as 3DGS"): "cameras" = densify.clone_split_scale (percent_dense 0.01)
+    # x the 3DGS scene extent, 1.1 x the largest distance of a camera centre from their mean
+    # (the median world depth when the cameras do not move); "absolute" = clone_split_scale as is
+    # (the authors' code: 0.01 world units, whatever the depth prior's scale)
+    clone_split_extent: CloneSplitExtent = "cameras"
     # Guard (not in the paper): one pass never removes more than this fraction of the dynamic set;
     # above it the most static-looking candidates (fewest N_d) go, with a warning. 1.0 = no guard
     # (the last dynamic Gaussian is always kept)

@@ -131,6 +131,7 @@ class WorldStage(Stage):
         # position learning rates scale with the scene extent (3DGS); extent = median world depth
         d = data.depth.to(self.device) * self.depth_scale[:, None, None]
         self.extent = float(d[d > 0].median()) if bool((d > 0).any()) else 1.0
+        self.camera_extent = camera_extent(init.c2w, self.extent)
         self._setup(init.gauss.to(self.device), init.color, init.tonemap, init.background)
 
     def _setup(self, gauss: WorldGaussians, color, tm, bg):
@@ -149,9 +150,12 @@ class WorldStage(Stage):
                 eps=lr.adam_eps,
             ),
         }
-        self.strat_static = Strategy(s2.densify_static, gauss.static_layout(), seed=self.cfg.seed)
+        ext = self.camera_extent if s2.clone_split_extent == "cameras" else 1.0
+        self.strat_static = Strategy(
+            s2.densify_static, gauss.static_layout(), seed=self.cfg.seed, extent=ext
+        )
         self.strat_dynamic = Strategy(
-            s2.densify_dynamic, gauss.dynamic_layout(), seed=self.cfg.seed + 7
+            s2.densify_dynamic, gauss.dynamic_layout(), seed=self.cfg.seed + 7, extent=ext
         )
         self.state_static = self.strat_static.initialize_state()
         self.state_dynamic = self.strat_dynamic.initialize_state()
@@ -464,6 +468,14 @@ class WorldStage(Stage):
                 o.load_state_dict(sd[name][k])
         self.state_static, self.state_dynamic = sd["state_static"], sd["state_dynamic"]
         self.rng.bit_generator.state = sd["rng"]
+
+
+def camera_extent(c2w: torch.Tensor, fallback: float = 1.0) -> float:
+    """The 3DGS scene extent of cameras c2w [T, 4, 4] (getNerfppNorm's radius): 1.1 x the largest
+    distance of a camera centre from their mean; `fallback` when the cameras do not move."""
+    centres = c2w[:, :3, 3].double()
+    r = 1.1 * float((centres - centres.mean(0)).norm(dim=-1).max()) if len(centres) else 0.0
+    return r if r > 1e-6 else float(fallback)
 
 
 def ldr_reprojection_refs(

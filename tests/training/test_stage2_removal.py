@@ -125,3 +125,23 @@ def test_no_occlusion_ablation_keeps_the_removal_occlusion_test(tiny_clip_realis
     st.state_dynamic["born"] = torch.tensor([-1, 5, 5])
     st.remove_misplaced_dynamic(100)
     assert seen == [(True, True, 0.2), (False, False, 0.05)]
+
+
+def test_camera_extent_is_the_3dgs_radius():
+    from m4dgs.training.stage2 import camera_extent
+
+    c2w = torch.eye(4).expand(3, 4, 4).clone()
+    c2w[:, 0, 3] = torch.tensor([0.0, 1.0, 2.0])  # mean 1, largest distance 1
+    assert abs(camera_extent(c2w) - 1.1) < 1e-9
+    assert camera_extent(torch.eye(4).expand(3, 4, 4), fallback=3.0) == 3.0
+
+
+def test_stage2_clone_split_boundary_uses_the_camera_extent(tiny_clip_realistic):
+    st = _stage(tiny_clip_realistic, 2, False)
+    # the fixture's cameras do not move: the extent falls back to the median world depth (3)
+    assert (
+        abs(st.strat_static.extent - 3.0) < 1e-3
+        and st.strat_dynamic.extent == st.strat_static.extent
+    )
+    st = _stage(tiny_clip_realistic, 2, False, **{"stage2.clone_split_extent": "absolute"})
+    assert st.strat_static.extent == 1.0 and st.strat_dynamic.extent == 1.0
