@@ -94,15 +94,27 @@ class LRConfig:
     # rate is 0), so it has none
     camera_rotation: float = 3e-5
     camera_translation: float = 3e-5
+    # dynamic Gaussians of stage 2 (appendix "Implementation Details": "the learning rates of
+    # dynamic Gaussian attributes ... are following MoSca"): spline control points (same 3DGS
+    # decay shape, x scene extent) and rotation polynomial coefficients. The paper gives no
+    # numbers; these are the authors' code's, which equal the static ones
+    dynamic_position_init: float = 1.6e-4
+    dynamic_position_final: float = 1.6e-6
+    dynamic_rotation: float = 1e-3
 
-    def position_lr(self, step: int, max_steps: int) -> float:
+    def position_lr(self, step: int, max_steps: int, dynamic: bool = False) -> float:
         """3DGS exponential decay: log-linear from position_init (step 0) to position_final (step
         max_steps), with the optional warm-up multiplier position_delay_mult ramping up over the
-        first 1% of the steps."""
+        first 1% of the steps; `dynamic`: from dynamic_position_init to dynamic_position_final."""
+        init, final = (
+            (self.dynamic_position_init, self.dynamic_position_final)
+            if dynamic
+            else (self.position_init, self.position_final)
+        )
         if max_steps <= 0:
-            return self.position_init
+            return init
         u = min(max(step / max_steps, 0.0), 1.0)
-        lr = math.exp((1.0 - u) * math.log(self.position_init) + u * math.log(self.position_final))
+        lr = math.exp((1.0 - u) * math.log(init) + u * math.log(final))
         if self.position_delay_mult < 1.0:
             delay = max(int(0.01 * max_steps), 1)
             lr *= self.position_delay_mult + (1.0 - self.position_delay_mult) * math.sin(

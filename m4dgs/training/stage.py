@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional, Sequence
+from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
@@ -43,15 +43,17 @@ def gaussian_optimizers(
     keys: Sequence[str],
     lr: LRConfig,
     position_scale: float = 1.0,
+    dynamic: bool = False,
 ) -> Dict[str, torch.optim.Optimizer]:
     """One Adam per Gaussian attribute (so densification can edit rows): positions ("ctrl" /
     "means") at lr.position_init x position_scale (the scene extent in world space, 3DGS), the
-    others at their LRConfig rates (appendix "Implementation Details")."""
-    pos = lr.position_init * position_scale
+    others at their LRConfig rates (appendix "Implementation Details"); `dynamic` (the stage-2
+    dynamic set): positions and rotations at lr.dynamic_position_init / lr.dynamic_rotation."""
+    pos = (lr.dynamic_position_init if dynamic else lr.position_init) * position_scale
     lrs = {
         "ctrl": pos,
         "means": pos,
-        "rot": lr.rotation,
+        "rot": lr.dynamic_rotation if dynamic else lr.rotation,
         "quats": lr.rotation,
         "scales": lr.scale,
         "opacities": lr.opacity,
@@ -158,6 +160,14 @@ class Stage:
     def position_optimizers(self) -> List[torch.optim.Optimizer]:
         raise NotImplementedError
 
+    def position_lrs(self, it: int) -> List[Tuple[torch.optim.Optimizer, float]]:
+        """(optimizer, learning rate) of each position optimizer at step `it`: the stage's 3DGS
+        decay (LRConfig.position_lr) x the scene extent, for all of them unless a stage overrides
+        it (stage 2: the dynamic Gaussians' own rates)."""
+        sc = self.stage_cfg
+        lr = sc.lr.position_lr(it, sc.iterations) * self.extent
+        return [(o, lr) for o in self.position_optimizers()]
+
     def after_step(self, it: int) -> Dict[str, int]:
         """Stage-specific edits after densification (counts for the log)."""
         return {}
@@ -176,12 +186,10 @@ class Stage:
         return loss_weights(self.loss_cfg, self.cfg.tonemap, self.stage_weights())
 
     def step(self, it: int) -> Dict[str, float]:
-        sc = self.stage_cfg
         optimizers = self.all_optimizers()
         for o in optimizers:
             o.zero_grad(set_to_none=True)
-        lr = sc.lr.position_lr(it, sc.iterations) * self.extent
-        for o in self.position_optimizers():
+        for o, lr in self.position_lrs(it):
             for group in o.param_groups:
                 group["lr"] = lr
         L, meta = self.losses(it)

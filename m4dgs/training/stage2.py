@@ -139,7 +139,9 @@ class WorldStage(Stage):
         self.gauss, self.color, self.tm, self.bg = gauss, color, tm, bg
         lr = s2.lr
         self.opt_static = gaussian_optimizers(gauss.static, STATIC_KEYS, lr, self.extent)
-        self.opt_dynamic = gaussian_optimizers(gauss.dynamic, DYNAMIC_KEYS, lr, self.extent)
+        self.opt_dynamic = gaussian_optimizers(
+            gauss.dynamic, DYNAMIC_KEYS, lr, self.extent, dynamic=True
+        )
         self.opt_other = {
             **module_optimizers({"color": color, "tonemap": tm, "background": bg}, lr),
             "camera": torch.optim.Adam(
@@ -277,6 +279,15 @@ class WorldStage(Stage):
 
     def position_optimizers(self):
         return [self.opt_static["means"], self.opt_dynamic["ctrl"]]
+
+    def position_lrs(self, it: int):
+        """Static means: the 3DGS decay; dynamic control points: their own (LRConfig
+        dynamic_position_*; appendix "Implementation Details"); both x the scene extent."""
+        lr, n = self.cfg.stage2.lr, self.cfg.stage2.iterations
+        return [
+            (self.opt_static["means"], lr.position_lr(it, n) * self.extent),
+            (self.opt_dynamic["ctrl"], lr.position_lr(it, n, dynamic=True) * self.extent),
+        ]
 
     def record(self) -> Dict[str, Any]:
         return {"num_gaussians": self.gauss.num_gaussians, "num_dynamic": self.gauss.num_dynamic}

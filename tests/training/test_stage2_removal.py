@@ -145,3 +145,17 @@ def test_stage2_clone_split_boundary_uses_the_camera_extent(tiny_clip_realistic)
     )
     st = _stage(tiny_clip_realistic, 2, False, **{"stage2.clone_split_extent": "absolute"})
     assert st.strat_static.extent == 1.0 and st.strat_dynamic.extent == 1.0
+
+
+def test_dynamic_gaussians_have_their_own_learning_rates(tiny_clip_realistic):
+    ov = {
+        "stage2.lr.dynamic_position_init": 1e-2,
+        "stage2.lr.dynamic_position_final": 1e-3,
+        "stage2.lr.dynamic_rotation": 7e-3,
+    }
+    st = _stage(tiny_clip_realistic, 2, False, **ov)
+    assert st.opt_dynamic["rot"].param_groups[0]["lr"] == 7e-3
+    assert st.opt_static["quats"].param_groups[0]["lr"] == st.cfg.stage2.lr.rotation
+    lrs = dict((id(o), lr) for o, lr in st.position_lrs(st.cfg.stage2.iterations))
+    assert abs(lrs[id(st.opt_dynamic["ctrl"])] - 1e-3 * st.extent) < 1e-12
+    assert abs(lrs[id(st.opt_static["means"])] - 1.6e-6 * st.extent) < 1e-12
