@@ -159,3 +159,12 @@ def test_dynamic_gaussians_have_their_own_learning_rates(tiny_clip_realistic):
     lrs = dict((id(o), lr) for o, lr in st.position_lrs(st.cfg.stage2.iterations))
     assert abs(lrs[id(st.opt_dynamic["ctrl"])] - 1e-3 * st.extent) < 1e-12
     assert abs(lrs[id(st.opt_static["means"])] - 1.6e-6 * st.extent) < 1e-12
+
+
+def test_paper_preset_uses_the_paper_epipolar_threshold_in_normalised_coordinates():
+    from m4dgs.training.config import TrainConfig
+
+    for cfg in (preset("paper"), TrainConfig()):
+        assert (cfg.epipolar.units, cfg.epipolar.threshold) == ("ndc", 1e-5)
+    for name in ("tiny", "small"):
+        assert (preset(name).epipolar.units, preset(name).epipolar.threshold) == ("px", 1.0)
