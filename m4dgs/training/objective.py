@@ -301,7 +301,12 @@ def assemble(stage, it: int) -> LossOutput:
     """One iteration's loss terms for `stage` (m4dgs.training.stage.Stage): sample the frames,
     render the query frame with the destination maps the terms need, then add in this order rgb,
     ue, dep, track, arap, vel, acc, tlr, the stage's own terms, mono, opacity, scale_std (each only
-    when its weight is > 0 and its ablation switch is on; rgb and ue always)."""
+    when its weight is > 0 and its ablation switch is on; rgb and ue always).
+
+    The stage's generator draws, in this order: i, the flow-vs-track coin (when frame i has prior
+    flows), j, and, when the moving set holds more than arap_k Gaussians, the motion subset and
+    (ARAP on) the ARAP time t2. Without motion (static Gaussians only) there is no flow / track,
+    TLR or motion term."""
     cfg, lc, ab, d = stage.cfg, stage.loss_cfg, stage.cfg.ablation, stage.data
     T = d.num_frames
     camera = stage.camera_model()
