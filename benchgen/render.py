@@ -1,5 +1,4 @@
-"""Mitsuba 3 rendering of benchgen scenes and exact pixel-centre ray casts (project issue 3,
-"Rendering and exact ground truth"; docs/rendering.md).
+"""Mitsuba 3 rendering of benchgen scenes and exact pixel-centre ray casts (docs/rendering.md).
 
 - Variant: ``llvm_ad_rgb`` when it works (needs Debian ``libllvm19``; drjit is pointed at it through
   ``DRJIT_LIBLLVM_PATH``), else ``scalar_rgb``. :func:`pick_variant` chooses once per process (a

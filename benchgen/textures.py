@@ -1,5 +1,5 @@
-"""Procedural albedo textures in numpy (project issue 3: "texture is what priors and photometric
-losses need").
+"""Procedural albedo textures in numpy: texture is what the priors (flow, tracks) and the
+photometric losses need, so every surface carries some.
 
 Each pattern is a scalar mask m [h, w] in [0, 1] blended between two linear albedos; a
 multiplicative multi-octave value-noise overlay combines patterns (checker + noise, stripes +
