@@ -10,6 +10,7 @@ m4dgs.training.objective."""
 from __future__ import annotations
 
 import time
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 
@@ -85,7 +86,7 @@ class GaussianSet:
     active: bool = True  # False: never densified (the dynamic set of the static baseline)
 
 
-class Stage:
+class Stage(ABC):
     """Shared state and iteration of a training stage.
 
     Subclasses set `section` ("stage1" / "stage2": the config section with iterations, lr and loss)
@@ -121,9 +122,10 @@ class Stage:
     def tlr_start_step(self) -> int:
         return self.stage_cfg.tlr_start_step()
 
-    def camera_model(self) -> CameraModel:
-        raise NotImplementedError
+    @abstractmethod
+    def camera_model(self) -> CameraModel: ...
 
+    @abstractmethod
     def render_view(
         self,
         t: float,
@@ -133,10 +135,10 @@ class Stage:
         detach_camera: bool = False,
     ) -> RenderResult:
         """Render at time t from training view `view` of `camera`."""
-        raise NotImplementedError
+        ...
 
-    def trajectories(self) -> Trajectories:
-        raise NotImplementedError
+    @abstractmethod
+    def trajectories(self) -> Trajectories: ...
 
     def stage_terms(
         self, it: int, sample: FrameSample, r: RenderResult, camera: CameraModel
@@ -147,18 +149,18 @@ class Stage:
     def stage_weights(self) -> Dict[str, float]:
         return {}
 
-    def gaussian_sets(self) -> List[GaussianSet]:
-        raise NotImplementedError
+    @abstractmethod
+    def gaussian_sets(self) -> List[GaussianSet]: ...
 
     def split_render_info(self, info: Dict[str, Any]) -> List[Dict[str, Any]]:
         """The render info of each Gaussian set (after backward)."""
         return [info]
 
-    def all_optimizers(self) -> List[torch.optim.Optimizer]:
-        raise NotImplementedError
+    @abstractmethod
+    def all_optimizers(self) -> List[torch.optim.Optimizer]: ...
 
-    def position_optimizers(self) -> List[torch.optim.Optimizer]:
-        raise NotImplementedError
+    @abstractmethod
+    def position_optimizers(self) -> List[torch.optim.Optimizer]: ...
 
     def position_lrs(self, it: int) -> List[Tuple[torch.optim.Optimizer, float]]:
         """(optimizer, learning rate) of each position optimizer at step `it`: the stage's 3DGS

@@ -1,4 +1,4 @@
-"""Clean ground truth (project issue 14): band-limited textures, their screen footprint, and the
+"""Clean ground truth: band-limited textures, their screen footprint, and the
 adaptive sampler, each against an independent answer (numpy FFT spectra, the analytic Jacobian of a
 fronto-parallel plane, a brute-force greedy allocation, a plain Mitsuba render)."""
 

@@ -244,7 +244,7 @@ def test_atomic_write_leaves_no_temp_files(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.png", "c.npz", "d.exr"]
 
 
-# -- content that makes training meaningless is refused before any compute (issue 20)
+# -- content that makes training meaningless is refused before any compute
 @pytest.mark.parametrize(
     "depth, needle",
     [(np.zeros((H, W)), "have a depth > 0"), (-np.ones((H, W)), "negative depths")],
