@@ -123,7 +123,8 @@ RENDER_PRESETS: Dict[str, RenderSettings] = {
         denoise=True,
         adaptive_spp=ADAPTIVE_SPP,
     ),
-    # 64 spp meets the 15-minute target for the small suite on 2 cores (256 took ~37 min); the
+    # 64 spp alone met the 15-minute target for the small suite on 2 cores (256 took ~37 min); with
+    # the adaptive samples a small frame costs ~30 % more (~18 min estimated, over the target). The
     # per-clip light selection lowers its noise by up to 2x and the denoiser by a further ~3x, the
     # adaptive samples (+25 % of the samples, where the relative variance is highest) by a further
     # 5-20 % (docs/rendering.md). ldsampler rounds spp to a power of 4: the next step up is 256
