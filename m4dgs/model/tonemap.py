@@ -42,7 +42,7 @@ class ToneMapper(nn.Module):
         n_channels: int = 3,
         eps: float = LOG_EPS,
         generator: torch.Generator | None = None,
-        lut_size: int = 2048,
+        lut_size: int = 512,
     ):
         super().__init__()
         self.lut_size = int(lut_size)

@@ -307,7 +307,7 @@ class ToneMapConfig:
     # clip's).
     pretrain_crf: str = "log-logistic"
     # tone mapper evaluated through a piecewise-linear table of this many nodes (0 = exact MLP)
-    lut_size: int = 2048
+    lut_size: int = 512
     # learnable constant HDR background behind the Gaussians (paper silent)
     learn_background: bool = True
 

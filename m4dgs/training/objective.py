@@ -30,7 +30,7 @@ from m4dgs.core import rotation as rot
 from m4dgs.core import spline
 from m4dgs.core.knn import knn
 from m4dgs.losses.geometry import depth_loss, flow_from_destination_map, flow_loss, track_loss
-from m4dgs.losses.motion import acceleration_loss, velocity_loss
+from m4dgs.losses.motion import smoothness_terms as motion_smoothness
 from m4dgs.losses.photometric import rgb_loss, unit_exposure_loss
 from m4dgs.losses.temporal import tlr_loss, tlr_valid_mask
 from m4dgs.model.tonemap import monotonicity_penalty
@@ -230,10 +230,12 @@ def arap_term(pos_t: Tensor, pos_t2: Tensor, nbr: Tensor, sub: Tensor, extent: f
 
 
 def smoothness_terms(positions: Tensor, quats: Tensor) -> List[Term]:
-    """Velocity and acceleration losses on a window: positions [W, n, 3], quats [W, n, 4]."""
+    """Velocity and acceleration losses on a window: positions [W, n, 3], quats [W, n, 4] (the
+    four parts computed once: m4dgs.losses.motion.smoothness_terms)."""
+    parts = motion_smoothness(positions, quats)
     return [
-        ("vel", velocity_loss(positions, quats)),
-        ("acc", acceleration_loss(positions, quats)),
+        ("vel", parts["pos_vel"] + parts["rot_vel"]),
+        ("acc", parts["pos_acc"] + parts["rot_acc"]),
     ]
 
 

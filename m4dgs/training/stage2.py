@@ -39,6 +39,7 @@ from m4dgs.training.stage import (
     STATIC_KEYS,
     GaussianSet,
     Stage,
+    adam,
     gaussian_optimizers,
     module_optimizers,
     train_loop,
@@ -144,12 +145,13 @@ class WorldStage(Stage):
         )
         self.opt_other = {
             **module_optimizers({"color": color, "tonemap": tm, "background": bg}, lr),
-            "camera": torch.optim.Adam(
+            "camera": adam(
                 [
                     {"params": [self.rig.dw], "lr": lr.camera_rotation},
                     {"params": [self.rig.dt], "lr": lr.camera_translation * self.extent},
                 ],
-                eps=lr.adam_eps,
+                lr.camera_rotation,
+                lr.adam_eps,
             ),
         }
         ext = self.camera_extent if s2.clone_split_extent == "cameras" else 1.0

@@ -95,6 +95,32 @@ def test_basis_matrix_matches_evaluate_and_gradients():
     assert torch.autograd.gradcheck(lambda c: spline.evaluate(c, knots, ts), (ctrl,))
 
 
+@pytest.mark.parametrize("num_frames", [1, 2, 7, 50])
+def test_fast_evaluate_matches_reference_values_and_gradients(num_frames):
+    """`evaluate` (one contraction with the basis matrix) against the term-by-term Hermite formula
+    of `evaluate_reference`, values and gradients, for scalar and vector times inside, on and
+    outside the knots."""
+    knots = spline.make_knots(num_frames, 4)
+    g = torch.Generator().manual_seed(num_frames)
+    ctrl = torch.randn(37, knots.numel(), 3, generator=g, dtype=torch.float64)
+    times = [0.0, 0.5 * (num_frames - 1), float(num_frames - 1), -3.0, num_frames + 2.0]
+    times.append(torch.linspace(-1.0, num_frames, 11, dtype=torch.float64))
+    w = torch.randn(37, 3, generator=g, dtype=torch.float64)
+    for t in times:
+        outs, grads = [], []
+        for fn in (spline.evaluate, spline.evaluate_reference):
+            c = ctrl.clone().requires_grad_(True)
+            out = fn(c, knots, t)
+            (out * (w if out.dim() == 2 else w[:, None])).sum().backward()
+            outs.append(out.detach())
+            grads.append(c.grad)
+        torch.testing.assert_close(outs[0], outs[1], rtol=0, atol=1e-12)
+        torch.testing.assert_close(grads[0], grads[1], rtol=0, atol=1e-12)
+    # no Gaussians (an empty dynamic set): empty outputs of the right shape
+    assert spline.evaluate(ctrl[:0], knots, times[-1]).shape == (0, 11, 3)
+    assert spline.evaluate(ctrl[:0], knots, 1.0).shape == (0, 3)
+
+
 def test_fit_recovers_known_spline_exactly():
     g = torch.Generator().manual_seed(3)
     t_count = 17
