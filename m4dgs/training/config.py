@@ -28,8 +28,9 @@ String options with a fixed set of values are typed `Literal[...]`: a value outs
 rejected with the key and the allowed values when a config is built, loaded or overridden
 (`validate`). Keys of older configs (the loss weights directly under stage1 / stage2, e.g.
 `stage1.lambda_dep`) are mapped to their new place (`stage1.loss.lambda_dep`) with a one-line
-FutureWarning; keys that were removed because nothing read them are ignored with a warning
-(`LEGACY_KEYS`, `REMOVED_KEYS`, `upgrade_dict`)."""
+FutureWarning; keys that were removed because nothing read them are ignored with a warning; a
+key renamed because its value's meaning changed gets the converted value (`LEGACY_KEYS`,
+`REMOVED_KEYS`, `RENAMED_VALUE_KEYS`, `upgrade_dict`)."""
 
 from __future__ import annotations
 
@@ -145,7 +146,15 @@ class LossConfig:
     arap_k: int = 5  # k nearest neighbours of the ARAP loss (appendix "Rigidity Constraint")
     # per-iteration probability of flow (vs track) supervision (appendix "Flow/Track Loss")
     flow_prob: float = 0.5
-    smooth_window: int = 1  # velocity/acceleration over +-1 frame (paper); authors' code: 2
+    # velocity / acceleration window (appendix "Gaussian Motion Regularization"): frames i - w ..
+    # i + w (w = smooth_half_width) around query frame i, cut at the clip's ends; -1 = every frame
+    # of the clip (the paper's sum over t). Default +-2 (5 frames), the authors' code; a window
+    # costs 5 spline evaluations of the subset per iteration instead of T
+    smooth_half_width: int = 2
+    # the motion regularisers (ARAP, velocity, acceleration) look at a random subset of this many
+    # moving Gaussians per iteration (0 = all; not in the paper, which averages over every
+    # Gaussian; the subset is an unbiased estimate of that mean at a fixed cost per iteration)
+    motion_subset: int = 4096
     # first step of the TLR loss; None = after densification (sec. 3.3.3; the stage config's
     # tlr_start_step says which densification)
     tlr_start: Optional[int] = None
@@ -603,9 +612,20 @@ def _unflatten(flat: Mapping[str, Any]) -> Dict[str, Any]:
 # --------------------------------------------------------------------------------------------------
 # the loss weights and details moved from stage1 / stage2 into their `loss` section (LossConfig)
 LEGACY_KEYS: Dict[str, str] = {
-    f"{stage}.{f.name}": f"{stage}.loss.{f.name}"
+    f"{stage}.{name}": f"{stage}.loss.{name}"
     for stage in ("stage1", "stage2")
-    for f in dataclasses.fields(LossConfig)
+    for name in [f.name for f in dataclasses.fields(LossConfig)] + ["smooth_window"]
+}
+# keys renamed with a new meaning of their value: old path -> (new path, value map, why). The old
+# `smooth_window` w selected frames i - w - 1 .. i + w + 1 (its comment said i - w .. i + w); the
+# new `smooth_half_width` says what the code does, so w becomes w + 1 (same frames)
+RENAMED_VALUE_KEYS: Dict[str, Tuple[str, Any, str]] = {
+    f"{stage}.loss.smooth_window": (
+        f"{stage}.loss.smooth_half_width",
+        lambda w: int(w) + 1,
+        "the same frames as before (half width = old value + 1)",
+    )
+    for stage in ("stage1", "stage2")
 }
 # keys that nothing ever read, removed; an old config or command naming them still loads
 REMOVED_KEYS: Dict[str, str] = {
@@ -623,10 +643,23 @@ def _warn_key(message: str) -> None:
     warnings.warn_explicit(message, FutureWarning, "m4dgs config", 0, module=__name__)
 
 
+def _upgrade_item(path: str, value: Any, warn: bool) -> Optional[Tuple[str, Any]]:
+    """(current dotted key, value) of an older config's item, or None for a removed key."""
+    new = _upgrade_key(path, warn)
+    if new in RENAMED_VALUE_KEYS:
+        newer, fn, why = RENAMED_VALUE_KEYS[new]
+        if warn:
+            _warn_key(f"config key '{path}' is now '{newer}' = {fn(value)} ({why})")
+        return newer, fn(value)
+    return None if new is None else (new, value)
+
+
 def _upgrade_key(path: str, warn: bool) -> Optional[str]:
     """The current dotted key of `path` (itself when current), or None for a removed key."""
     if path in LEGACY_KEYS:
         new = LEGACY_KEYS[path]
+        if new in RENAMED_VALUE_KEYS:  # reported with its value by _upgrade_item
+            return new
         if warn:
             _warn_key(f"config key '{path}' is deprecated, use '{new}'")
         return new
@@ -642,9 +675,9 @@ def upgrade_overrides(overrides: Mapping[str, Any], warn: bool = True) -> Dict[s
     removed keys dropped, warning once per such key when `warn` (see `apply_overrides`)."""
     out = {}
     for path, v in _flatten(overrides).items():
-        new = _upgrade_key(path, warn)
-        if new is not None:
-            out[new] = v
+        item = _upgrade_item(path, v, warn)
+        if item is not None:
+            out[item[0]] = item[1]
     return out
 
 
@@ -655,9 +688,9 @@ def upgrade_dict(data: Mapping[str, Any], warn: bool = True) -> Dict[str, Any]:
     flat = _flatten(data)
     out = {}
     for path, v in flat.items():
-        new = _upgrade_key(path, warn)
-        if new is not None:
-            out[new] = v
+        item = _upgrade_item(path, v, warn)
+        if item is not None:
+            out[item[0]] = item[1]
     # a mapping value for a section that held only removed keys disappears; keep empty sections
     return _unflatten(out) if out != flat else dict(data)
 
@@ -675,9 +708,10 @@ def apply_overrides(cfg: Any, overrides: Mapping[str, Any]) -> Any:
     root = isinstance(cfg, TrainConfig)
     for path, value in overrides.items():
         if root:
-            path = _upgrade_key(path, warn=True)
-            if path is None:
+            item = _upgrade_item(path, value, warn=True)
+            if item is None:
                 continue
+            path, value = item
         parts = path.split(".")
         obj = out
         for i, part in enumerate(parts[:-1]):

@@ -40,8 +40,6 @@ from m4dgs.training.data import TrainingData
 Tensor = torch.Tensor
 Term = Tuple[str, Tensor]
 
-# the motion regularisers look at a random subset of this many Gaussians per iteration
-MOTION_SUBSET = 4096
 # the ARAP neighbour sets are recomputed every this many iterations (and when the set changes)
 KNN_REFRESH_EVERY = 100
 
@@ -229,6 +227,14 @@ def arap_term(pos_t: Tensor, pos_t2: Tensor, nbr: Tensor, sub: Tensor, extent: f
     return "arap", ((d_t - d_t2) ** 2).mean() / extent**2
 
 
+def smooth_window(i: int, num_frames: int, half_width: int) -> Tuple[int, int]:
+    """Frames [lo, hi) of the velocity / acceleration window around query frame i: i - half_width
+    .. i + half_width cut at the clip's ends; half_width < 0: every frame (the paper's sum)."""
+    if half_width < 0:
+        return 0, num_frames
+    return max(0, i - half_width), min(num_frames, i + half_width + 1)
+
+
 def smoothness_terms(positions: Tensor, quats: Tensor) -> List[Term]:
     """Velocity and acceleration losses on a window: positions [W, n, 3], quats [W, n, 4] (the
     four parts computed once: m4dgs.losses.motion.smoothness_terms)."""
@@ -338,19 +344,16 @@ def assemble(stage, it: int) -> LossOutput:
     traj = stage.trajectories()
     n = traj.count
     if motion and n > lc.arap_k:
-        sub = torch.from_numpy(stage.rng.choice(n, size=min(n, MOTION_SUBSET), replace=False)).to(
-            stage.device
-        )
+        size = n if lc.motion_subset <= 0 else min(n, lc.motion_subset)
+        sub = torch.from_numpy(stage.rng.choice(n, size=size, replace=False)).to(stage.device)
         if lc.lambda_arap > 0:
             pos_t = traj.positions(float(i))
             pos_t2 = traj.positions(float(stage.rng.integers(T)))
             nbr = stage.knn.neighbours(pos_t, lc.arap_k, it)
             add(arap_term(pos_t, pos_t2, nbr, sub, camera.extent))
         if (lc.lambda_vel > 0 or lc.lambda_acc > 0) and T > 2:
-            w = lc.smooth_window
-            times = torch.arange(
-                max(0, i - w - 1), min(T, i + w + 2), dtype=torch.float32, device=stage.device
-            )
+            lo, hi = smooth_window(i, T, lc.smooth_half_width)
+            times = torch.arange(lo, hi, dtype=torch.float32, device=stage.device)
             if times.numel() >= 3:
                 # [W, n, 3] / [W, n, 4]
                 pos = spline.evaluate(traj.ctrl[sub], traj.knots, times).transpose(0, 1)

@@ -189,10 +189,27 @@ def test_old_loss_keys_map_to_the_loss_section_with_a_warning():
             assert apply_overrides(base, {key: 1}) == base
 
 
+def test_renamed_smooth_window_keeps_the_same_frames():
+    base = preset("tiny")
+    assert base.stage1.loss.smooth_half_width == 2  # i - 2 .. i + 2 (authors' code)
+    with pytest.warns(FutureWarning, match=r"'stage1\.loss\.smooth_window' is now .*= 2"):
+        v = apply_overrides(base, {"stage1.loss.smooth_window": 1})
+    assert v.stage1.loss.smooth_half_width == 2 and v == base
+    with pytest.warns(FutureWarning, match=r"smooth_half_width' = 4"):
+        v = apply_overrides(base, {"stage2.smooth_window": 3})
+    assert v.stage2.loss.smooth_half_width == 4
+    assert (
+        apply_overrides(base, {"stage2.loss.smooth_half_width": -1}).stage2.loss.smooth_half_width
+        == -1
+    )
+
+
 def test_an_old_config_dict_upgrades_to_the_same_config():
     old = to_dict(preset("small"))
     for stage in ("stage1", "stage2"):
         loss = old[stage].pop("loss")
+        # the former smooth_window w meant the frames i - w - 1 .. i + w + 1
+        loss["smooth_window"] = loss.pop("smooth_half_width") - 1
         old[stage].update(loss)
         old[stage]["track_clamp_px"] = 100.0
         old[stage]["lr"]["camera_focal"] = 0.0

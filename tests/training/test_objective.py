@@ -421,3 +421,26 @@ def test_stage2_step_uses_both_strategies(data):
     assert {"rgb", "total", "num_gaussians", "num_dynamic"} <= set(rec)
     for state, n in ((st.state_static, 24), (st.state_dynamic, 12)):
         assert state["count"] is not None and state["count"].shape == (n,)
+
+
+def test_smooth_window_frames():
+    """Half width w: frames i - w .. i + w cut at the clip's ends; -1: every frame (paper)."""
+    assert objective.smooth_window(3, 10, 2) == (1, 6)
+    assert objective.smooth_window(0, 10, 2) == (0, 3)
+    assert objective.smooth_window(9, 10, 1) == (8, 10)
+    assert objective.smooth_window(4, 10, -1) == (0, 10)
+
+
+def test_paper_form_of_the_smoothness_terms(data):
+    """smooth_half_width = -1 and motion_subset = 0: velocity / acceleration summed over every frame
+    and averaged over every moving Gaussian (the paper's form), recomputed independently."""
+    st = video_stage(data, **{"stage1.loss.smooth_half_width": -1, "stage1.loss.motion_subset": 0})
+    L = st.losses(10_000).terms
+    ctrl, coeff, knots = st.gauss.params["ctrl"], st.gauss.params["rot"], st.gauss.knots
+    times = torch.arange(T, dtype=torch.float32)
+    with torch.no_grad():
+        pos = spline.evaluate_reference(ctrl, knots, times).transpose(0, 1)  # [T, N, 3]
+        q = rot.poly_evaluate(coeff, rot.normalize_time(times, T), normalize=True).transpose(0, 1)
+        # the Gaussians' order does not matter for a mean over all of them
+        torch.testing.assert_close(L["vel"], velocity_loss(pos, q), rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(L["acc"], acceleration_loss(pos, q), rtol=1e-5, atol=1e-6)
