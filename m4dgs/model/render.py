@@ -15,7 +15,7 @@ import torch
 
 from m4dgs.core import camera as cam
 from m4dgs.model.background import Background
-from m4dgs.model.color import ColorMLP
+from m4dgs.model.color import ColorMLP, view_directions
 from m4dgs.raster import render
 
 
@@ -45,17 +45,25 @@ def render_gaussians(
     """Render `gauss` at time t with intrinsics K [3, 3]: camera_model "ortho" (`view` is the
     world-to-camera matrix [4, 4]) or "pinhole" (`view` is the camera-to-world pose c2w [4, 4]).
 
-    Features: HDR colour (3, background 2^b) + the Gaussians' positions at each destination time (3
-    each, background 0), alpha-blended."""
+    Features: HDR colour (3, background 2^b; with a view-dependent colour MLP and a pinhole camera,
+    of the feature and the direction from the camera centre c2w[:3, 3] to each Gaussian) + the
+    Gaussians' positions at each destination time (3 each, background 0), alpha-blended."""
     if dest_times:
         # one spline evaluation for the render time and every destination time: [N, 1 + D, 3]
         times = torch.tensor([float(t)] + [float(d) for d in dest_times], device=K.device)
         pos = gauss.positions(times)
         means, dest_pos = pos[:, 0], pos[:, 1:].reshape(pos.shape[0], -1)
-        feats = torch.cat([color(gauss.features()), dest_pos], -1)
     else:
-        means = gauss.positions(t)
-        feats = color(gauss.features())
+        means, dest_pos = gauss.positions(t), None
+    # view directions for a view-dependent colour MLP: pinhole renders only (the orthographic
+    # video camera has none; the MLP then sees zeros)
+    dirs = (
+        view_directions(means, view[:3, 3])
+        if color.view_dependent and camera_model == "pinhole"
+        else None
+    )
+    hdr = color(gauss.features(), dirs)
+    feats = hdr if dest_pos is None else torch.cat([hdr, dest_pos], -1)
     background = torch.cat([bg(), means.new_zeros(feats.shape[1] - 3)])
     out = render(
         means,

@@ -48,7 +48,7 @@ class TrainedModel:
         self.color = ColorMLP(
             feature_dim=sd.get("feature_dim", 36),
             hidden=cfg["tonemap"]["color_hidden"],
-            view_dependent=False,
+            view_dependent=cfg["tonemap"].get("color_view_dependent", False),
         ).to(self.device)
         self.color.load_state_dict(sd["color"])
         self.tm = ToneMapper(

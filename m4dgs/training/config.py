@@ -301,6 +301,12 @@ class ToneMapConfig:
 
     tonemap_hidden: int = 128
     color_hidden: int = 36
+    # the colour MLP's second input, the unit view direction (camera centre -> Gaussian) of the
+    # pinhole renders (stage 2 and the trained model): the authors' code feeds it (39 -> 36 -> 3);
+    # the paper only says "a color MLP instead of spherical harmonics". Off by default: every
+    # measured result so far was without it. Stage 1's orthographic video camera has no direction
+    # (zeros), so stage-2 Gaussians inherit the same weights either way
+    color_view_dependent: bool = False
     pretrain_steps: int = 1_000
     pretrain_monotonic_weight: float = 10.0  # ReLU of the negative slope over ln x in [-10, 10]
     lambda_monotonic: float = (

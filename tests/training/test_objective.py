@@ -444,3 +444,18 @@ def test_paper_form_of_the_smoothness_terms(data):
         # the Gaussians' order does not matter for a mean over all of them
         torch.testing.assert_close(L["vel"], velocity_loss(pos, q), rtol=1e-5, atol=1e-6)
         torch.testing.assert_close(L["acc"], acceleration_loss(pos, q), rtol=1e-5, atol=1e-6)
+
+
+def test_view_dependent_colour_option_reaches_the_stages(data):
+    assert not video_stage(data).color.view_dependent
+    st = video_stage(data, **{"tonemap.color_view_dependent": True})
+    assert st.color.view_dependent
+    # stage 1 renders through the orthographic camera: the direction weights get no gradient
+    L = st.losses(10_000)
+    g = torch.autograd.grad(L.terms["rgb"], st.color.fc1.weight)[0]
+    assert g[:, -3:].abs().max() == 0 and g[:, :-3].abs().max() > 0
+    # stage 2 renders through pinhole cameras: they do
+    ws = world_stage(data, **{"tonemap.color_view_dependent": True})
+    assert ws.color.view_dependent
+    g = torch.autograd.grad(ws.losses(10).terms["rgb"], ws.color.fc1.weight)[0]
+    assert g[:, -3:].abs().max() > 0
