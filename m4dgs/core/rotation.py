@@ -25,6 +25,7 @@ from typing import Optional, Union
 import torch
 
 from m4dgs.core.camera import quat_multiply, quat_normalize
+from m4dgs.core.spline import apply_basis
 
 Tensor = torch.Tensor
 
@@ -180,7 +181,7 @@ def poly_evaluate(coeffs: Tensor, t: Union[Tensor, float, int], normalize: bool 
     scalar = not torch.is_tensor(t) or t.dim() == 0
     tt = torch.as_tensor(t, dtype=coeffs.dtype, device=coeffs.device).reshape(-1)
     v = vandermonde(tt, coeffs.shape[1] - 1)  # [T, J]
-    out = torch.einsum("tj,njc->ntc", v, coeffs)
+    out = apply_basis(coeffs, v)  # one matrix product (m4dgs.core.spline.apply_basis)
     if normalize:
         out = quat_normalize(out)
     return out[:, 0] if scalar else out

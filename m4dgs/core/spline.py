@@ -103,13 +103,26 @@ def evaluate(ctrl: Tensor, knots: Tensor, t: Union[Tensor, float, int]) -> Tenso
     Returns:
         [N, T, D] positions, or [N, D] for a scalar t.
     """
-    n, k, d = ctrl.shape
     tt, scalar = _as_times(t, ctrl)
-    basis = basis_matrix(knots.to(device=ctrl.device, dtype=ctrl.dtype), tt)  # [T, K]
-    eye = torch.eye(d, dtype=ctrl.dtype, device=ctrl.device)
-    m = (basis.t()[:, None, :, None] * eye[None, :, None, :]).reshape(k * d, -1)  # [K D, T D]
-    out = (ctrl.reshape(n, k * d) @ m).reshape(n, tt.numel(), d)
+    out = apply_basis(ctrl, basis_matrix(knots.to(device=ctrl.device, dtype=ctrl.dtype), tt))
     return out[:, 0] if scalar else out
+
+
+def apply_basis(coeffs: Tensor, basis: Tensor) -> Tensor:
+    """out[n, t] = sum_k basis[t, k] coeffs[n, k] as ONE matrix product of coeffs viewed as [N, K D]
+    with the [K D, T D] matrix basis^T (x) I_D (forward and backward stay contiguous; an einsum
+    permutes and copies the coefficients first).
+
+    Args:
+        coeffs: [N, K, D] per-Gaussian coefficients (spline control points, polynomial terms).
+        basis: [T, K] weights of each coefficient at each time.
+    Returns:
+        [N, T, D].
+    """
+    n, k, d = coeffs.shape
+    eye = torch.eye(d, dtype=coeffs.dtype, device=coeffs.device)
+    m = (basis.to(coeffs.dtype).t()[:, None, :, None] * eye[None, :, None, :]).reshape(k * d, -1)
+    return (coeffs.reshape(n, k * d) @ m).reshape(n, basis.shape[0], d)
 
 
 def evaluate_reference(ctrl: Tensor, knots: Tensor, t: Union[Tensor, float, int]) -> Tensor:

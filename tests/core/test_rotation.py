@@ -41,6 +41,15 @@ def test_poly_evaluate_hand_computation():
     np.testing.assert_allclose(rn[0, 1].numpy(), want, rtol=1e-6)
 
 
+def test_poly_evaluate_matches_an_einsum_and_its_gradient():
+    g = torch.Generator().manual_seed(3)
+    a = torch.randn(7, 4, 4, generator=g, dtype=torch.float64, requires_grad=True)
+    t = torch.linspace(-0.2, 1.0, 5, dtype=torch.float64)
+    v = t[:, None] ** torch.arange(4, dtype=torch.float64)  # [T, J] powers t^j
+    torch.testing.assert_close(rotation.poly_evaluate(a, t), torch.einsum("tj,njc->ntc", v, a))
+    assert torch.autograd.gradcheck(lambda c: rotation.poly_evaluate(c, t, normalize=True), (a,))
+
+
 def test_least_squares_refit_recovers_coefficients():
     g = torch.Generator().manual_seed(0)
     n, t_count = 20, 15
