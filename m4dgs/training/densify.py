@@ -231,6 +231,15 @@ class Strategy:
             self._generators[dev] = g
         return self._generators[dev]
 
+    def state_dict(self) -> Dict[str, Any]:
+        """The random generators' states (split samples), for checkpoints: a resumed run draws the
+        same splits as an uninterrupted one."""
+        return {"generators": {str(d): g.get_state() for d, g in self._generators.items()}}
+
+    def load_state_dict(self, sd: Dict[str, Any]) -> None:
+        for dev, state in sd.get("generators", {}).items():
+            self._generator(torch.device(dev)).set_state(state)
+
     @staticmethod
     def initialize_state() -> Dict[str, Any]:
         return {

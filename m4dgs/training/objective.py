@@ -168,6 +168,14 @@ class KnnCache:
     def invalidate(self) -> None:
         self._entry = None
 
+    def state_dict(self) -> Dict[str, object]:
+        """The cached neighbour sets (for checkpoints: a resumed run reuses the same neighbours as
+        an uninterrupted one until the next refresh)."""
+        return {"entry": self._entry}
+
+    def load_state_dict(self, sd: Dict[str, object]) -> None:
+        self._entry = sd.get("entry")
+
 
 class LossOutput(NamedTuple):
     """The terms of one iteration (insertion order = addition order) and the render metadata of the

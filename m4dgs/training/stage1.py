@@ -186,6 +186,8 @@ class VideoStage(Stage):
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "densify_state": self.dstate,
             "rng": self.rng.bit_generator.state,
+            "strategy": self.strategy.state_dict(),
+            "knn": self.knn.state_dict(),
             "log2_dt": self.log2_dt.cpu(),
         }
 
@@ -200,6 +202,9 @@ class VideoStage(Stage):
             o.load_state_dict(sd["optimizers"][k])
         self.dstate = sd["densify_state"]
         self.rng.bit_generator.state = sd["rng"]
+        # checkpoints of older versions have neither: the run then resumes, but not bit for bit
+        self.strategy.load_state_dict(sd.get("strategy", {}))
+        self.knn.load_state_dict(sd.get("knn", {}))
         self.log2_dt = sd["log2_dt"].to(self.device)
 
     # -- outputs

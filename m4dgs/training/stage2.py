@@ -462,6 +462,9 @@ class WorldStage(Stage):
             "state_static": self.state_static,
             "state_dynamic": self.state_dynamic,
             "rng": self.rng.bit_generator.state,
+            "strategy_static": self.strat_static.state_dict(),
+            "strategy_dynamic": self.strat_dynamic.state_dict(),
+            "knn": self.knn.state_dict(),
         }
 
     def load_state_dict(self, sd: Dict[str, Any]) -> None:
@@ -481,6 +484,10 @@ class WorldStage(Stage):
                 o.load_state_dict(sd[name][k])
         self.state_static, self.state_dynamic = sd["state_static"], sd["state_dynamic"]
         self.rng.bit_generator.state = sd["rng"]
+        # checkpoints of older versions have none of these: the run then resumes, not bit for bit
+        self.strat_static.load_state_dict(sd.get("strategy_static", {}))
+        self.strat_dynamic.load_state_dict(sd.get("strategy_dynamic", {}))
+        self.knn.load_state_dict(sd.get("knn", {}))
 
 
 def camera_extent(c2w: torch.Tensor, fallback: float = 1.0) -> float:
