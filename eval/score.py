@@ -84,6 +84,7 @@ from m4dgs.clip import Cameras, Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.core.crf import get_crf
 from m4dgs.core.device import resolve_device
+from m4dgs.core.errors import NonFiniteError
 from m4dgs.run import load_torch
 
 PSNR_CAP_DB = 100.0
@@ -135,6 +136,19 @@ def _clean(v):
     if math.isinf(v):
         return PSNR_CAP_DB if v > 0 else -PSNR_CAP_DB
     return v
+
+
+def read_render_exr(path) -> np.ndarray:
+    """A rendered EXR (HDR or depth) of the run, refused when it holds NaN or infinite values: a
+    mean over the finite frames would score a broken model as if it were fine."""
+    a = mio.read_exr(path)
+    bad = int(a.size - np.isfinite(a).sum())
+    if bad:
+        raise NonFiniteError(
+            f"{path}: {bad} of {a.size} values are NaN or infinite; the run's model is broken "
+            "(retrain it) or the render is damaged (delete renders/ and score again)"
+        )
+    return a
 
 
 def _capped_mean(vals: Iterable[float]) -> Optional[float]:
@@ -259,7 +273,7 @@ def _score_hdr_set(
     """mu-law PSNR/SSIM/LPIPS (GT-max), own-max PSNR, PU21, FLIP over HDR frames, chunked."""
     ps, po, ss, ls, pu, fl = [], [], [], [], [], []
     for idx in _chunks(list(range(len(preds)))):
-        p = np.stack([mio.read_exr(preds[i]) for i in idx])
+        p = np.stack([read_render_exr(preds[i]) for i in idx])
         g = np.stack([gt_fn(frames[i]) for i in idx])
         tp, tg = hdr_tonemap_pair(p, g, norm="gt")
         ps += psnr_per_image(tp, tg)
@@ -618,7 +632,7 @@ class _Job:
         return self.renders / sub / frame_name(g, ext)
 
     def load_train_hdr(self, g: int) -> np.ndarray:
-        return mio.read_exr(self.render("train/hdr", g, "exr"))
+        return read_render_exr(self.render("train/hdr", g, "exr"))
 
 
 def _score_ldr_levels(job: _Job, m: dict) -> dict:
@@ -736,7 +750,7 @@ def _score_temporal(job: _Job, m: dict, tae_train_test: bool) -> List[str]:
 
         def load_any(g):
             sub = "train" if g in set(train) else "test"
-            return mio.read_exr(job.render(f"{sub}/hdr", g, "exr"))
+            return read_render_exr(job.render(f"{sub}/hdr", g, "exr"))
 
         allf = sorted(set(train) | set(test))
         m["hdr_tae_train_test"] = _tae_pairwise(allf, load_any, _dis_flows)
@@ -773,7 +787,7 @@ def _score_depth_and_dynamic(job: _Job, m: dict) -> List[str]:
     dpaths = [job.render("test/depth", g, "exr") for g in test]
     if all(p.exists() for p in dpaths):
         m["depth_absrel"] = depth_absrel(
-            np.stack([mio.read_exr(p) for p in dpaths]),
+            np.stack([read_render_exr(p) for p in dpaths]),
             np.stack([clip.load_gt_depth(g) for g in test]),
         )
         keys.append("depth_absrel_clip")
@@ -792,7 +806,7 @@ def _score_depth_and_dynamic(job: _Job, m: dict) -> List[str]:
     dh = []
     for g in moving:
         tp, tg = hdr_tonemap_pair(
-            mio.read_exr(job.render("test/hdr", g, "exr")), clip.load_gt_hdr(g)
+            read_render_exr(job.render("test/hdr", g, "exr")), clip.load_gt_hdr(g)
         )
         dh.append(masked_psnr(tp, tg, masks[g]))
     m["dyn_hdr_psnr"] = _capped_mean(dh)

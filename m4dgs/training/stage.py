@@ -9,6 +9,7 @@ m4dgs.training.objective."""
 
 from __future__ import annotations
 
+import math
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -17,6 +18,7 @@ from typing import Any, Callable, Dict, Iterable, List, Mapping, Optional, Seque
 import numpy as np
 import torch
 
+from m4dgs.core.errors import NonFiniteError
 from m4dgs.model.render import RenderResult
 from m4dgs.training.config import LossConfig, LRConfig, TrainConfig
 from m4dgs.training.data import TrainingData
@@ -34,6 +36,8 @@ from m4dgs.training.objective import (
     total_loss,
 )
 
+# parameters are checked for NaN / inf this often (and before every checkpoint)
+PARAMETER_CHECK_EVERY = 25
 # per-Gaussian attributes with their own optimiser: video / dynamic sets, static set
 SPLINE_KEYS = ("ctrl", "rot", "scales", "opacities", "features")
 STATIC_KEYS = ("means", "quats", "scales", "opacities", "features")
@@ -200,6 +204,9 @@ class Stage(ABC):
                 group["lr"] = lr
         L, meta = self.losses(it)
         total = total_loss(L, self.weights())
+        total_value = float(total.detach())
+        if not math.isfinite(total_value):
+            self.raise_non_finite(it, L)
         info = {"means2d": meta.means2d, "radii": meta.radii, "width": self.W, "height": self.H}
         sets = self.gaussian_sets()
         for s in sets:
@@ -211,11 +218,49 @@ class Stage(ABC):
         if counts:
             self.knn.invalidate()
         counts.update(self.after_step(it))
+        if (it + 1) % PARAMETER_CHECK_EVERY == 0 or (it + 1) % self.cfg.checkpoint_every == 0:
+            self.check_parameters(it)
         rec = {k: float(v.detach()) for k, v in L.items()}
-        rec["total"] = float(total.detach())
+        rec["total"] = total_value
         rec.update(self.record())
         rec.update(counts)
         return rec
+
+    def raise_non_finite(self, it: int, terms: Mapping[str, torch.Tensor]) -> None:
+        """Stop at a non-finite loss, naming the stage, the step and the terms that are not finite
+        (the run's last checkpoint is from before this step and stays as it is)."""
+        bad = [f"{k}={float(v.detach())}" for k, v in terms.items() if not torch.isfinite(v).all()]
+        what = ", ".join(bad) if bad else "the weighted sum (a weight is not finite)"
+        raise NonFiniteError(
+            f"{self.section}: step {it}: non-finite loss ({what}); training stopped, the last "
+            "checkpoint is kept. Check the clip's inputs and the loss settings (--set)"
+        )
+
+    def check_parameters(self, it: int) -> None:
+        """Stop when a parameter (Gaussians, MLPs, cameras) holds NaN or infinite values; runs
+        before a checkpoint could store them and every PARAMETER_CHECK_EVERY steps."""
+        for o in self.all_optimizers():
+            for group in o.param_groups:
+                for p in group["params"]:
+                    if not bool(torch.isfinite(p.detach()).all()):
+                        name = next(
+                            (k for k, q in self.named_parameters() if q is p), f"{tuple(p.shape)}"
+                        )
+                        raise NonFiniteError(
+                            f"{self.section}: step {it}: parameter {name} holds NaN or infinite "
+                            "values; training stopped, the last checkpoint is kept"
+                        )
+
+    def named_parameters(self) -> Iterable[Tuple[str, torch.Tensor]]:
+        """(name, tensor) of the Gaussian sets' and the modules' parameters, for error messages."""
+        for s in self.gaussian_sets():
+            for k, v in s.params.items():
+                yield f"{s.prefix}{k}", v
+        for name in ("color", "tm", "bg", "rig"):  # colour MLP, tone mapper, background, cameras
+            module = getattr(self, name, None)
+            if isinstance(module, torch.nn.Module):
+                for k, v in module.named_parameters():
+                    yield f"{name}.{k}", v
 
     def densify(self, it: int, info: Dict[str, Any], sets: List[GaussianSet]) -> Dict[str, int]:
         """Each active set's strategy after backward (statistics; clone / split / prune / reset on

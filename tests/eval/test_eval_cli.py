@@ -394,6 +394,25 @@ def test_score_renders_missing_and_identical(tmp_path, fake_trainer):
     )
 
 
+def test_score_refuses_non_finite_renders(tmp_path, fake_trainer):
+    """A NaN in one test render stops scoring with the file named, instead of a mean over the
+    finite frames."""
+    from eval.score import score_run
+    from m4dgs.core.errors import NonFiniteError
+
+    clip = make_fake_clip(tmp_path / "clip")
+    run = tmp_path / "run"
+    make_fake_run(run, clip)
+    g = clip.test_frames[0]
+    bad = clip.load_gt_hdr(g).copy()
+    bad[3, 4, 1] = np.nan
+    path = run / "renders/test/hdr" / frame_name(g, "exr")
+    mio.write_exr(path, bad)
+    with pytest.raises(NonFiniteError, match=rf"{frame_name(g, 'exr')}: 1 of \d+ values are NaN"):
+        score_run(run, fps=False, model=False)
+    assert not (run / "metrics.json").exists()
+
+
 def test_cli_score(tmp_path, fake_trainer):
     clip = make_fake_clip(tmp_path / "clip")
     run = tmp_path / "run"

@@ -459,3 +459,30 @@ def test_view_dependent_colour_option_reaches_the_stages(data):
     assert ws.color.view_dependent
     g = torch.autograd.grad(ws.losses(10).terms["rgb"], ws.color.fc1.weight)[0]
     assert g[:, -3:].abs().max() > 0
+
+
+def test_a_non_finite_loss_stops_training_naming_stage_step_and_term(data):
+    from m4dgs.core.errors import NonFiniteError
+
+    st = video_stage(data)
+    st.step(0)
+    with torch.no_grad():
+        st.gauss.params["features"].fill_(float("nan"))  # every colour NaN -> rgb loss NaN
+    with pytest.raises(NonFiniteError, match=r"stage1: step 1: non-finite loss \(rgb=nan"):
+        st.step(1)
+
+
+def test_a_non_finite_parameter_stops_training_naming_it(data):
+    from m4dgs.core.errors import NonFiniteError
+
+    st = video_stage(data)
+    st.check_parameters(0)  # finite: nothing
+    with torch.no_grad():
+        st.gauss.params["ctrl"][3, 0, 0] = float("inf")
+    with pytest.raises(NonFiniteError, match=r"stage1: step 7: parameter n_ctrl holds NaN"):
+        st.check_parameters(7)
+    ws = world_stage(data)
+    with torch.no_grad():
+        ws.rig.dt[2, 1] = float("nan")
+    with pytest.raises(NonFiniteError, match=r"stage2: step 0: parameter rig\.dt holds NaN"):
+        ws.check_parameters(0)
