@@ -761,9 +761,48 @@ def _check_choice(value: Any, tp: Any, key: str) -> Any:
     return value
 
 
+def _range_error(key: str, v: Any, want: str) -> ConfigError:
+    return ConfigError(f"config key '{key}' must be {want}; got {v!r}")
+
+
+def _check_range(section: Any, name: str, v: Any, key: str) -> None:
+    """Numeric ranges that hold for every config field of their kind: every float finite, loss
+    weights (lambda_*) >= 0, learning rates (LRConfig) > 0, iteration / step counts >= 0,
+    probabilities (*_prob) in [0, 1]."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return
+    if isinstance(v, float) and not math.isfinite(v):
+        raise _range_error(key, v, "a finite number")
+    if name.startswith("lambda_") and v < 0:
+        raise _range_error(key, v, ">= 0 (a loss weight; 0 turns the term off)")
+    if isinstance(section, LRConfig) and not v > 0:
+        raise _range_error(key, v, "> 0 (a learning rate)")
+    if (name.endswith("iterations") or name.endswith("_steps")) and v < 0:
+        raise _range_error(key, v, ">= 0 (a number of iterations)")
+    if name.endswith("_prob") and not 0 <= v <= 1:
+        raise _range_error(key, v, "a probability in [0, 1]")
+
+
+def _check_budget(cfg: "TrainConfig") -> None:
+    """Whole-config ranges: an image size, a stage 2, a stage 1 when the variant trains one, a
+    checkpoint interval."""
+    for key, v in (("width", cfg.width), ("height", cfg.height)):
+        if v < 1:
+            raise _range_error(key, v, ">= 1 (pixels)")
+    if cfg.stage2.iterations < 1:
+        raise _range_error("stage2.iterations", cfg.stage2.iterations, ">= 1")
+    if cfg.ablation.use_video_init and cfg.stage1.iterations < 1:
+        raise _range_error(
+            "stage1.iterations", cfg.stage1.iterations, ">= 1 (0 only without stage 1)"
+        )
+    if cfg.checkpoint_every < 1:
+        raise _range_error("checkpoint_every", cfg.checkpoint_every, ">= 1")
+
+
 def validate(cfg: Any, prefix: str = "") -> None:
     """Raise ConfigError (naming the dotted key and the allowed values) for a typed-choice field
-    outside its values, anywhere in the config tree; nested configs with their own `validate()`
+    outside its values or a number outside its range (`_check_range`, `_check_budget`), anywhere in
+    the config tree; nested configs with their own `validate()`
     (e.g. masks: m4dgs.priors.rigidity.DynamicMaskConfig) are asked too, and the tone mapper's
     pre-training curve must be a known one."""
     hints = typing.get_type_hints(type(cfg))
@@ -774,6 +813,10 @@ def validate(cfg: Any, prefix: str = "") -> None:
             _check_choice(v, base, prefix + f.name)
         elif dataclasses.is_dataclass(v):
             validate(v, f"{prefix}{f.name}.")
+        else:
+            _check_range(cfg, f.name, v, prefix + f.name)
+    if isinstance(cfg, TrainConfig):
+        _check_budget(cfg)
     if callable(getattr(cfg, "validate", None)):
         try:
             cfg.validate()

@@ -266,3 +266,34 @@ def test_validate_catches_values_set_directly():
     # every allowed value passes
     for m in ("mono4dgs", "static-hdr", "world-only", "ldr-reproj"):
         config.validate(apply_overrides(preset("tiny"), {"method": m}))
+
+
+@pytest.mark.parametrize(
+    "key, value, message",
+    [
+        ("stage1.iterations", -5, r">= 0 \(a number of iterations\)"),
+        ("stage1.iterations", 0, r">= 1 \(0 only without stage 1\)"),
+        ("stage2.iterations", 0, ">= 1"),
+        ("stage1.loss.lambda_dep", float("nan"), "a finite number"),
+        ("stage2.loss.lambda_tlr", -0.1, r">= 0 \(a loss weight; 0 turns the term off\)"),
+        ("stage1.lr.position_init", 0.0, r"> 0 \(a learning rate\)"),
+        ("stage2.lr.camera_rotation", float("inf"), "a finite number"),
+        ("stage1.loss.flow_prob", 1.5, r"a probability in \[0, 1\]"),
+        ("tonemap.pretrain_steps", -1, r">= 0 \(a number of iterations\)"),
+        ("width", 0, r">= 1 \(pixels\)"),
+        ("checkpoint_every", 0, ">= 1"),
+    ],
+)
+def test_numbers_out_of_range_are_rejected_naming_the_key(key, value, message):
+    with pytest.raises(ValueError, match=rf"config key '{key}' must be {message}; got"):
+        apply_overrides(preset("tiny"), {key: value})
+
+
+def test_every_preset_and_variant_is_in_range():
+    from m4dgs.training.variants import VARIANTS, variant_config
+
+    for p in ("tiny", "small", "paper"):
+        for v in VARIANTS:
+            config.validate(variant_config(p, v))  # no error
+    # a variant without stage 1 has stage1.iterations = 0, which is allowed there
+    assert variant_config("small", "world-only").stage1.iterations == 0
