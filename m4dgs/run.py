@@ -5,7 +5,8 @@ layout is below; docs/method.md lists the trainer phases that fill it, docs/outp
   config.yaml            fully resolved configuration (written once; a resumed run must match it)
   status.json            {"stage": "stage1" | "v2w" | "stage2" | "done", "step": int, ...}
   log.jsonl              one JSON object per logged step (losses, Gaussian counts, timings)
-  model/ckpt.pt          the latest resumable checkpoint (overwritten atomically)
+  model/ckpt.pt          the latest resumable checkpoint (written atomically; the one before it
+                         is kept as model/ckpt.prev.pt, the fallback when ckpt.pt is unreadable)
   model/stage1.pt        final stage-1 model;  model/final.pt  final model
   cameras.json           estimated cameras (BA, then refined)
   renders/...            written by m4dgs.outputs.render
@@ -17,6 +18,7 @@ import io as _io
 import json
 import os
 import time
+import warnings
 from pathlib import Path
 from typing import Any, Dict, List, Optional
 
@@ -53,6 +55,36 @@ class RunDir:
     @property
     def ckpt_path(self) -> Path:
         return self.root / "model" / "ckpt.pt"
+
+    @property
+    def prev_ckpt_path(self) -> Path:
+        return self.root / "model" / "ckpt.prev.pt"
+
+    # -- checkpoints
+    # ----------------------------------------------------------------------------------------------
+    def write_checkpoint(self, obj: Any) -> None:
+        """Write model/ckpt.pt atomically; the checkpoint it replaces is kept as ckpt.prev.pt (the
+        fallback of `read_checkpoint`)."""
+        p = self.ckpt_path
+        if p.exists():
+            os.replace(p, self.prev_ckpt_path)
+        save_torch(p, obj)
+
+    def read_checkpoint(self, map_location="cpu") -> Optional[Any]:
+        """The newest readable checkpoint: ckpt.pt, else ckpt.prev.pt (with a warning naming the
+        unreadable file and why); None when neither exists or can be read."""
+        for p in (self.ckpt_path, self.prev_ckpt_path):
+            if not p.exists():
+                continue
+            try:
+                return load_torch(p, map_location=map_location)
+            except Exception as e:  # truncated / damaged file: any unpickling or zip error
+                warnings.warn(
+                    f"{p}: unreadable checkpoint ({type(e).__name__}: {e}); trying an older one",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+        return None
 
     # -- config
     # ----------------------------------------------------------------------------------------------
