@@ -7,13 +7,15 @@ between training frames i and i + 1 sits at t = i + 0.5."""
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
-from typing import List, Optional, Tuple
+from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
 
 from m4dgs.clip import Clip
+from m4dgs.core.errors import InputError
 
 
 @dataclass
@@ -51,6 +53,42 @@ class TrainingData:
         return [b for (a, b) in self.flow_pairs if a == i]
 
 
+# a frame is blank (black) / saturated (white) when more than this fraction of its pixels is
+BLANK_FRACTION = 0.98
+BLACK_MAX, WHITE_MIN = 2, 253  # 8-bit values, every channel
+
+
+def blank_frames(ldr: np.ndarray, fraction: float = BLANK_FRACTION) -> Tuple[List[int], List[int]]:
+    """Indices of the frames of ldr [T, H, W, 3] uint8 that are almost all black (every channel <=
+    BLACK_MAX) and of those almost all white (every channel >= WHITE_MIN), more than `fraction` of
+    their pixels."""
+    black = (ldr <= BLACK_MAX).all(-1).mean(axis=(1, 2)) > fraction
+    white = (ldr >= WHITE_MIN).all(-1).mean(axis=(1, 2)) > fraction
+    return np.flatnonzero(black).tolist(), np.flatnonzero(white).tolist()
+
+
+def check_frame_content(ldr: np.ndarray, frames: Sequence[int], folder) -> None:
+    """Warn about blank or saturated training frames (they carry no signal at their exposure); raise
+    InputError when every frame is, before any compute."""
+    black, white = blank_frames(ldr)
+    if len(black) + len(white) == 0:
+        return
+    what = []
+    if black:
+        what.append(f"black: {[frames[i] for i in black]}")
+    if white:
+        what.append(f"saturated: {[frames[i] for i in white]}")
+    msg = (
+        f"{folder}: {len(black) + len(white)} of {len(frames)} training frames are blank "
+        f"(> {BLANK_FRACTION:.0%} of their pixels; {'; '.join(what)})"
+    )
+    if len(black) + len(white) == len(frames):
+        raise InputError(
+            msg + "; nothing to train on (wrong files, or a 16-bit PNG read as 8-bit?)"
+        )
+    warnings.warn(msg + "; they constrain the reconstruction little", RuntimeWarning, stacklevel=3)
+
+
 def load_training_data(
     clip: Clip, device="cpu", max_tracks: Optional[int] = None, seed: int = 0
 ) -> TrainingData:
@@ -61,7 +99,9 @@ def load_training_data(
         max_tracks: keep at most this many prior tracks (uniform random subset, seeded).
     """
     frames = clip.train_frames
-    ldr = np.stack([clip.load_ldr(g) for g in frames]).astype(np.float32) / 255.0
+    ldr8 = np.stack([clip.load_ldr(g) for g in frames])
+    check_frame_content(ldr8, frames, clip.root / "input" / "ldr")
+    ldr = ldr8.astype(np.float32) / 255.0
     depth = np.stack([clip.load_depth_prior(g) for g in frames]).astype(np.float32)
     ts = clip.load_tracks_prior()
     tracks, vis = ts.tracks, ts.visible

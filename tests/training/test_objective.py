@@ -486,3 +486,21 @@ def test_a_non_finite_parameter_stops_training_naming_it(data):
         ws.rig.dt[2, 1] = float("nan")
     with pytest.raises(NonFiniteError, match=r"stage2: step 0: parameter rig\.dt holds NaN"):
         ws.check_parameters(0)
+
+
+def test_blank_and_saturated_frames_are_found():
+    from m4dgs.core.errors import InputError
+    from m4dgs.training.data import blank_frames, check_frame_content
+
+    rng = np.random.default_rng(0)
+    ldr = rng.integers(0, 256, size=(4, 20, 30, 3), dtype=np.uint8)
+    ldr[1] = 0
+    ldr[1, 0, :5] = 200  # 5 of 600 pixels lit: still blank (> 98 % black)
+    ldr[3] = 255
+    assert blank_frames(ldr) == ([1], [3])
+    with pytest.warns(
+        RuntimeWarning, match=r"2 of 4 training frames are blank .*black: \[12\]; saturated: \[16\]"
+    ):
+        check_frame_content(ldr, [10, 12, 14, 16], "clip/input/ldr")
+    with pytest.raises(InputError, match="4 of 4 training frames .* nothing to train on"):
+        check_frame_content(np.zeros_like(ldr), [10, 12, 14, 16], "clip/input/ldr")
