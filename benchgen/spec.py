@@ -267,7 +267,13 @@ class Union(Node):
 # Scene schema
 # --------------------------------------------------------------------------------------------------
 RGB01 = Vec(3, 0.0, 1.0)
-RGB_POS = Vec(3, 0.0, None)
+# physically plausible magnitudes: the scenes are rooms, courtyards and streets (the built-in ones
+# stay within 25 m of the origin and their lamps below 1e4 in linear radiance); a value far outside
+# is a typo (1e30 for 1.3) that would render black frames or overflow the HDR range
+MAX_LENGTH_M = 1_000.0
+MAX_RADIANCE = 1e6
+RGB_POS = Vec(3, 0.0, MAX_RADIANCE)
+COORD = Vec(3, -MAX_LENGTH_M, MAX_LENGTH_M)  # a position in metres
 
 TEXTURE = Dict(
     {
@@ -338,7 +344,7 @@ MESH = Union(
         "plane": Dict(
             {
                 "size": F(
-                    Vec(2, 0, None, lo_open=True),
+                    Vec(2, 0, MAX_LENGTH_M, lo_open=True),
                     _REQUIRED,
                     "extent along local x and y (centred, normal +z)",
                 ),
@@ -349,14 +355,16 @@ MESH = Union(
         "box": Dict(
             {
                 "size": F(
-                    Vec(3, 0, None, lo_open=True), _REQUIRED, "extent along local x, y, z (centred)"
+                    Vec(3, 0, MAX_LENGTH_M, lo_open=True),
+                    _REQUIRED,
+                    "extent along local x, y, z (centred)",
                 )
             },
             doc="Axis-aligned box.",
         ),
         "uv_sphere": Dict(
             {
-                "radius": F(Num(0, None, lo_open=True), _REQUIRED, "radius"),
+                "radius": F(Num(0, MAX_LENGTH_M, lo_open=True), _REQUIRED, "radius"),
                 "segments": F(Num(3, 512, integer=True), 32, "longitudinal segments"),
                 "rings": F(Num(2, 256, integer=True), 16, "latitudinal rings"),
             },
@@ -364,8 +372,8 @@ MESH = Union(
         ),
         "cylinder": Dict(
             {
-                "radius": F(Num(0, None, lo_open=True), _REQUIRED, "radius"),
-                "height": F(Num(0, None, lo_open=True), _REQUIRED, "extent along local z"),
+                "radius": F(Num(0, MAX_LENGTH_M, lo_open=True), _REQUIRED, "radius"),
+                "height": F(Num(0, MAX_LENGTH_M, lo_open=True), _REQUIRED, "extent along local z"),
                 "segments": F(Num(3, 512, integer=True), 24, "segments around the axis"),
                 "caps": F(Bool(), True, "close both ends"),
                 "origin": F(
@@ -379,7 +387,7 @@ MESH = Union(
         "grid": Dict(
             {
                 "size": F(
-                    Vec(2, 0, None, lo_open=True),
+                    Vec(2, 0, MAX_LENGTH_M, lo_open=True),
                     _REQUIRED,
                     "extent along local x (away from the pole) and y",
                 ),
@@ -391,11 +399,13 @@ MESH = Union(
         "wall": Dict(
             {
                 "size": F(
-                    Vec(2, 0, None, lo_open=True),
+                    Vec(2, 0, MAX_LENGTH_M, lo_open=True),
                     _REQUIRED,
                     "width (local x, centred) and height (local z, from 0)",
                 ),
-                "thickness": F(Num(0, None, lo_open=True), 0.1, "extent along local y (centred)"),
+                "thickness": F(
+                    Num(0, MAX_LENGTH_M, lo_open=True), 0.1, "extent along local y (centred)"
+                ),
                 "opening": F(
                     Optional_(Vec(4)),
                     None,
@@ -413,16 +423,18 @@ MESH = Union(
                             {
                                 "shape": F(Str(["box", "cylinder"]), "box", "link geometry"),
                                 "length": F(
-                                    Num(0, None, lo_open=True),
+                                    Num(0, MAX_LENGTH_M, lo_open=True),
                                     _REQUIRED,
                                     "extent along the link's local z",
                                 ),
                                 "width": F(
-                                    Num(0, None, lo_open=True),
+                                    Num(0, MAX_LENGTH_M, lo_open=True),
                                     0.1,
                                     "box: side of the square cross-section",
                                 ),
-                                "radius": F(Num(0, None, lo_open=True), 0.05, "cylinder: radius"),
+                                "radius": F(
+                                    Num(0, MAX_LENGTH_M, lo_open=True), 0.05, "cylinder: radius"
+                                ),
                             }
                         ),
                         1,
@@ -455,7 +467,7 @@ MOTION = Union(
                         Dict(
                             {
                                 "time": F(Num(0, None), _REQUIRED, "seconds"),
-                                "position": F(Vec(3), _REQUIRED, "translation at that time"),
+                                "position": F(COORD, _REQUIRED, "translation at that time"),
                                 "rotate_deg": F(
                                     Vec(3),
                                     [0.0, 0.0, 0.0],
@@ -480,7 +492,7 @@ MOTION = Union(
         ),
         "translate": Dict(
             {
-                "velocity": F(Vec(3), _REQUIRED, "metres per second"),
+                "velocity": F(Vec(3, -MAX_LENGTH_M, MAX_LENGTH_M), _REQUIRED, "metres per second"),
                 "start_time": F(Num(0, None), 0.0, "seconds before which the object rests"),
                 "end_time": F(
                     Optional_(Num(0, None)),
@@ -553,7 +565,7 @@ MOTION = Union(
                     0.1,
                     "wave amplitude at the free edge (metres, along the sheet normal)",
                 ),
-                "wavelength": F(Num(0, None, lo_open=True), 1.0, "metres along the sheet"),
+                "wavelength": F(Num(0, MAX_LENGTH_M, lo_open=True), 1.0, "metres along the sheet"),
                 "frequency_hz": F(Num(0, None), 1.0, "wave frequency (travels away from the pole)"),
                 "growth": F(
                     Num(0, None, lo_open=True),
@@ -575,7 +587,7 @@ MOTION = Union(
 
 TRANSFORM = Dict(
     {
-        "translate": F(Vec(3), [0.0, 0.0, 0.0], "world position of the local origin"),
+        "translate": F(COORD, [0.0, 0.0, 0.0], "world position of the local origin"),
         "rotate_deg": F(Vec(3), [0.0, 0.0, 0.0], "XYZ Euler angles, R = Rz Ry Rx"),
         "scale": F(
             Vec(3, 0, None, lo_open=True, broadcast=True),
@@ -615,19 +627,23 @@ TRAJECTORY = Union(
     {
         "static": Dict(
             {
-                "position": F(Vec(3), _REQUIRED, "camera centre"),
-                "target": F(Vec(3), _REQUIRED, "look-at point"),
+                "position": F(COORD, _REQUIRED, "camera centre"),
+                "target": F(COORD, _REQUIRED, "look-at point"),
                 "roll_deg": F(Num(), 0.0, "roll about the optical axis"),
             },
             doc="Fixed camera.",
         ),
         "orbit": Dict(
             {
-                "target": F(Vec(3), _REQUIRED, "orbit centre and look-at point"),
+                "target": F(COORD, _REQUIRED, "orbit centre and look-at point"),
                 "radius": F(
-                    Num(0, None, lo_open=True), _REQUIRED, "horizontal distance to the target"
+                    Num(0, MAX_LENGTH_M, lo_open=True),
+                    _REQUIRED,
+                    "horizontal distance to the target",
                 ),
-                "height": F(Num(), 1.0, "camera height above the target"),
+                "height": F(
+                    Num(-MAX_LENGTH_M, MAX_LENGTH_M), 1.0, "camera height above the target"
+                ),
                 "start_deg": F(
                     Num(), 0.0, "azimuth at t = 0 (0 = +x, counter-clockwise seen from above)"
                 ),
@@ -641,9 +657,9 @@ TRAJECTORY = Union(
         ),
         "dolly": Dict(
             {
-                "start": F(Vec(3), _REQUIRED, "camera centre at t = 0"),
-                "end": F(Vec(3), _REQUIRED, "camera centre at the last frame"),
-                "target": F(Vec(3), _REQUIRED, "look-at point"),
+                "start": F(COORD, _REQUIRED, "camera centre at t = 0"),
+                "end": F(COORD, _REQUIRED, "camera centre at the last frame"),
+                "target": F(COORD, _REQUIRED, "look-at point"),
                 "track_target": F(
                     Bool(),
                     False,
@@ -659,12 +675,12 @@ TRAJECTORY = Union(
         "handheld": Dict(
             {
                 "waypoints": F(
-                    ListOf(Vec(3), 2),
+                    ListOf(COORD, 2),
                     _REQUIRED,
                     "camera centres, passed through at evenly spaced times (Catmull-Rom)",
                 ),
                 "targets": F(
-                    ListOf(Vec(3), 1),
+                    ListOf(COORD, 1),
                     _REQUIRED,
                     "look-at points, evenly spaced in time (one = fixed target)",
                 ),

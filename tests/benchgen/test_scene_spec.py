@@ -108,6 +108,22 @@ def test_minimal_spec_gets_defaults():
             "<= 1",
         ),
         ({"objects__1__name": "floor"}, "objects[1].name", "unique name"),
+        # implausible magnitudes (typos): a kilometre-sized mesh, a far position, a blinding lamp
+        (
+            {"objects__1__mesh": {"type": "uv_sphere", "radius": 1e30}},
+            "objects[1].mesh.radius",
+            "<= 1000",
+        ),
+        (
+            {"objects__0__transform": {"translate": [0, 5e3, 0]}},
+            "objects[0].transform.translate[1]",
+            "<= 1000",
+        ),
+        (
+            {"objects__2__material": {"kind": "emitter", "radiance": [1e9, 1, 1]}},
+            "objects[2].material.radiance[0]",
+            "<= 1e+06",
+        ),
         ({"objects": []}, "objects", "at least 1"),
     ],
 )
