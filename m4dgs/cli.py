@@ -135,12 +135,19 @@ def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quie
     show_default=True,
     help="Also write induced 2D/3D tracks.",
 )
-@click.option("--device", default="cpu", show_default=True)
+@click.option(
+    "--device",
+    default="cpu",
+    show_default=True,
+    help="Device to render on: cpu, cuda, cuda:1 ... (auto = CUDA when available).",
+)
 def render(run_dir, overwrite, videos, tracks, device):
     """Render the train/test frames of a run (HDR EXR, LDR PNG at every level, depth) and optional
     videos."""
+    from m4dgs.core.device import resolve_device
     from m4dgs.outputs.render import render_run
 
+    device = str(resolve_device(device))
     n = render_run(run_dir, overwrite=overwrite, device=device)
     click.echo(f"rendered {n['train']} train and {n['test']} test frames")
     if videos or tracks:

@@ -36,7 +36,7 @@ def debug_enabled() -> bool:
 
 class ReportingGroup(click.Group):
     """A click group whose commands report `M4DGSError` in one line (exit 1) instead of a
-    traceback, and which adds `--debug` (traceback for every error)."""
+    traceback, and which adds `--debug` (traceback for every error) and `--version`."""
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
@@ -50,6 +50,16 @@ class ReportingGroup(click.Group):
                 help="Show the full traceback of errors in your input too (or M4DGS_DEBUG=1).",
             )
         )
+        self.params.append(
+            click.Option(
+                ["--version"],
+                is_flag=True,
+                expose_value=False,
+                is_eager=True,
+                callback=_print_version,
+                help="Print the package version and exit.",
+            )
+        )
 
     def invoke(self, ctx):
         try:
@@ -58,6 +68,23 @@ class ReportingGroup(click.Group):
             if debug_enabled() or ctx.meta.get("m4dgs.debug"):
                 raise
             raise click.ClickException(str(e).strip() or type(e).__name__) from None
+
+
+def package_version() -> str:
+    """The installed version of the mono4dgs-hdr package ("unknown" when run from a bare
+    checkout that was never installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("mono4dgs-hdr")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _print_version(ctx, param, value):
+    if value and not ctx.resilient_parsing:
+        click.echo(f"{ctx.info_name} (mono4dgs-hdr) {package_version()}")
+        ctx.exit()
 
 
 def _set_debug(ctx, param, value):

@@ -1,0 +1,49 @@
+"""A walk over every command of the three tools (m4dgs, benchgen, m4dgs-eval): `--help` works and
+explains every option, an unknown option is a usage error (exit 2, one line), `--version` prints
+the package version."""
+
+from __future__ import annotations
+
+import click
+import pytest
+from click.testing import CliRunner
+
+from benchgen.cli import main as benchgen_main
+from eval.cli import main as eval_main
+from m4dgs.cli import main as m4dgs_main
+from m4dgs.core.errors import package_version
+
+TOOLS = {"m4dgs": m4dgs_main, "benchgen": benchgen_main, "m4dgs-eval": eval_main}
+
+
+def _commands(group: click.Group, path=()):
+    """(path, command) of every command and sub-command of a group."""
+    for name, cmd in group.commands.items():
+        yield (*path, name), cmd
+        if isinstance(cmd, click.Group):
+            yield from _commands(cmd, (*path, name))
+
+
+CASES = [(tool, path, cmd) for tool, g in TOOLS.items() for path, cmd in _commands(g)]
+
+
+@pytest.mark.parametrize("tool", TOOLS)
+def test_version(tool):
+    r = CliRunner().invoke(TOOLS[tool], ["--version"], prog_name=tool)
+    assert r.exit_code == 0 and r.output.strip() == f"{tool} (mono4dgs-hdr) {package_version()}"
+
+
+@pytest.mark.parametrize("tool, path, cmd", CASES, ids=[" ".join((t, *p)) for t, p, _ in CASES])
+def test_help_explains_every_option_and_unknown_options_are_usage_errors(tool, path, cmd):
+    runner = CliRunner()
+    r = runner.invoke(TOOLS[tool], [*path, "--help"], prog_name=tool)
+    assert r.exit_code == 0 and "Usage:" in r.output, r.output
+    assert (cmd.help or "").strip(), f"{tool} {' '.join(path)} has no description"
+    undocumented = [
+        p.opts[0]
+        for p in cmd.params
+        if isinstance(p, click.Option) and not p.hidden and not (p.help or "").strip()
+    ]
+    assert not undocumented, f"{tool} {' '.join(path)}: options without help {undocumented}"
+    r = runner.invoke(TOOLS[tool], [*path, "--no-such-option"], prog_name=tool)
+    assert r.exit_code == 2 and "No such option" in r.output and "Traceback" not in r.output
