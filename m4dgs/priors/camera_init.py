@@ -400,9 +400,11 @@ def _robust(r: torch.Tensor, kind: str, c: float) -> torch.Tensor:
     raise ValueError(f"robust must be 'cauchy' or 'huber', got {kind!r}")
 
 
-def bundle_adjust(uv, depth, vis, c2w0, sig0, focal0, width, height, cfg: CameraInitConfig):
+def bundle_adjust(
+    uv, depth, vis, c2w0, sig0, focal0, width, height, cfg: CameraInitConfig, progress: str = ""
+):
     """MoSca-style BA (see module docstring). uv [N, T, 2], depth [N, T] (normalised units), vis [N,
-    T] bool.
+    T] bool. `progress`: the label of a progress bar over the BA steps ("" = none).
 
     Returns (c2w [T, 4, 4], log depth scale [T], focal, history list of dicts).
     """
@@ -509,7 +511,12 @@ def bundle_adjust(uv, depth, vis, c2w0, sig0, focal0, width, height, cfg: Camera
             }
         return loss, stats
 
-    for step in range(cfg.ba_steps):
+    steps = range(cfg.ba_steps)
+    if progress:
+        from tqdm import tqdm
+
+        steps = tqdm(steps, desc=progress, unit="step", dynamic_ncols=True, leave=False)
+    for step in steps:
         opt.zero_grad(set_to_none=True)
         log = bool(cfg.log_every) and (step % cfg.log_every == 0 or step == cfg.ba_steps - 1)
         loss, stats = forward(step, log)
@@ -538,6 +545,7 @@ def initialize_cameras(
     width: int,
     height: int,
     cfg: Optional[CameraInitConfig] = None,
+    progress: str = "",
 ) -> CameraInitResult:
     """Initial cameras from the priors (see module docstring).
 
@@ -545,7 +553,8 @@ def initialize_cameras(
         tracks: TrackSet over the T training frames (tracks [N, T, 2] pixels, visible [N, T]).
         depth_priors: [T, H, W] depth prior per training frame (any positive scale; <= 0 or
         non-finite = invalid). dynamic_masks: [T, H, W] bool (True = dynamic) or None (every track
-        treated as static). width, height: image size in pixels. cfg: CameraInitConfig.
+        treated as static). width, height: image size in pixels. cfg: CameraInitConfig. progress:
+        label of a progress bar over the bundle-adjustment steps ("" = none).
     Returns:
         CameraInitResult(K [3, 3], c2w [T, 4, 4] with c2w[0] = I, depth_scale [T], static_track_mask
         [N], diagnostics {fov curve, chosen fov, chaining, BA history, counts, timings}).
@@ -643,6 +652,7 @@ def initialize_cameras(
             width,
             height,
             cfg,
+            progress=progress,
         )
     else:
         c2w, logs, focal, hist = c2w0, torch.log(sig0), float(K0[0, 0]), []

@@ -188,7 +188,10 @@ class Trainer:
         masks_epi = dynamic_masks(emaps, cfg.epipolar.threshold)
         ts = TrackSet(d.tracks.cpu().numpy(), d.track_vis.cpu().numpy(), np.asarray(d.frames))
         depth = d.depth.cpu()
-        res = initialize_cameras(ts, depth, masks_epi, d.width, d.height, cfg.camera_init)
+        bar = "camera init: bundle adjustment" if self.progress else ""
+        res = initialize_cameras(
+            ts, depth, masks_epi, d.width, d.height, cfg.camera_init, progress=bar
+        )
         masks, mask_diag = (
             masks_epi,
             {"method": "epipolar", "fraction_epipolar": float(masks_epi.float().mean())},
@@ -239,7 +242,10 @@ class Trainer:
             "fraction_first_pass": float(masks.float().mean()),
         }
         if mc.refine_cameras:
-            r2 = initialize_cameras(ts, depth, masks, d.width, d.height, self.cfg.camera_init)
+            bar = "camera init: bundle adjustment on the refined masks" if self.progress else ""
+            r2 = initialize_cameras(
+                ts, depth, masks, d.width, d.height, self.cfg.camera_init, progress=bar
+            )
             if "warning" not in r2.diagnostics:
                 r2.diagnostics["first_pass"] = {
                     k: res.diagnostics[k] for k in ("num_static", "fov_final_deg")

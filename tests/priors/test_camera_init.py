@@ -390,6 +390,19 @@ def test_fov_fallback_on_flat_and_monotonic_curves():
     assert np.argmin(diag["fov_scores"]) == len(diag["fov_scores"]) - 1
 
 
+def test_bundle_adjustment_progress_bar_changes_nothing(capsys):
+    """progress= shows a bar over the BA steps (stderr) and gives the same cameras."""
+    sc = make_scene(T=8, n_static=120, seed=3)
+    cfg = CameraInitConfig(ba_steps=20, depth_correction_start=5, log_every=0)
+    args = (sc["tracks"], sc["depth_prior"], None, sc["W"], sc["H"], cfg)
+    quiet = initialize_cameras(*args)
+    assert "bundle adjustment" not in capsys.readouterr().err
+    shown = initialize_cameras(*args, progress="camera init: bundle adjustment")
+    err = capsys.readouterr().err
+    assert "camera init: bundle adjustment" in err and "/20 " in err
+    assert torch.equal(quiet.c2w, shown.c2w) and torch.equal(quiet.K, shown.K)
+
+
 @pytest.mark.parametrize("noisy", [False, True])
 def test_initialize_cameras_synthetic(noisy):
     if noisy:
