@@ -105,6 +105,9 @@ class CameraInitConfig:
     robust_scale_px: float = 2.0
     log_every: int = 100
     seed: int = 0
+    # too few static tracks for the bundle adjustment: the trainer stops with an error (False) or
+    # goes on with identity cameras and the fallback field of view (True; recorded in diagnostics)
+    allow_fallback: bool = False
     # device of the bundle adjustment (the lifting, fov search and chaining are small and run on the
     # CPU); None: the device of depth_priors when it is a torch tensor, else the CPU
     device: Optional[str] = None

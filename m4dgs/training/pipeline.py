@@ -31,6 +31,7 @@ from m4dgs.clip import Cameras, Clip, TrackSet, frame_name, frame_time
 from m4dgs.core import camera as cam
 from m4dgs.core import spline
 from m4dgs.core.device import peak_memory_mib, resolve_device
+from m4dgs.core.errors import InputError
 from m4dgs.core.io import read_exr, write_exr, write_json, write_png
 from m4dgs.core.lock import FolderLock
 from m4dgs.model.gaussians import VideoGaussians, WorldGaussians, init_video_gaussians
@@ -192,6 +193,15 @@ class Trainer:
         res = initialize_cameras(
             ts, depth, masks_epi, d.width, d.height, cfg.camera_init, progress=bar
         )
+        if "warning" in res.diagnostics and not cfg.camera_init.allow_fallback:
+            n = res.diagnostics
+            raise InputError(
+                f"{self.clip.root}: camera initialisation failed: {n['warning']} "
+                f"({n.get('num_used', 0)} static tracks usable, "
+                f"{cfg.camera_init.min_common_points} needed; {n.get('num_tracks', 0)} tracks in "
+                "all). Check the tracks and depth priors and the dynamic masks, or pass --set "
+                "camera_init.allow_fallback=true to train with identity cameras anyway"
+            )
         masks, mask_diag = (
             masks_epi,
             {"method": "epipolar", "fraction_epipolar": float(masks_epi.float().mean())},

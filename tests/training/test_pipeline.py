@@ -154,3 +154,36 @@ def test_a_run_of_the_older_config_layout_is_accepted(tiny_clip_realistic, tmp_p
     assert RunDir(run).read_config() == to_dict(tr.cfg)
     with pytest.raises(ValueError, match="different configuration"):
         Trainer(tiny_clip_realistic, run, preset="tiny", variant="no-tlr", progress=False)
+
+
+def test_failed_camera_initialisation_stops_unless_allowed(
+    tiny_clip_realistic, tmp_path, monkeypatch
+):
+    """Too few static tracks: the trainer stops naming the clip and the way on; with
+    camera_init.allow_fallback it goes on with the identity cameras, recorded in diagnostics."""
+    from m4dgs.core.errors import InputError
+    from m4dgs.priors.camera_init import CameraInitResult
+    from m4dgs.training import pipeline as P
+
+    def failing(tracks, depth, masks, width, height, cfg, progress=""):
+        T = depth.shape[0]
+        eye = torch.eye(4, dtype=torch.float64).expand(T, 4, 4).clone()
+        K = torch.tensor([[50.0, 0, width / 2], [0, 50.0, height / 2], [0, 0, 1]])
+        diag = {"warning": "too few static tracks; identity cameras", "num_used": 3}
+        n = tracks.tracks.shape[0]
+        return CameraInitResult(K, eye, torch.ones(T), torch.zeros(n, dtype=torch.bool), diag)
+
+    monkeypatch.setattr(P, "initialize_cameras", failing)
+    tr = P.Trainer(tiny_clip_realistic, tmp_path / "a", preset="tiny", progress=False)
+    with pytest.raises(
+        InputError, match=r"camera initialisation failed: too few static .*allow_fallback"
+    ):
+        tr.camera_init()
+    assert not (tmp_path / "a" / "model" / "camera_init.pt").exists()
+    over = {"camera_init.allow_fallback": True, "masks.method": "epipolar"}
+    tr = P.Trainer(
+        tiny_clip_realistic, tmp_path / "b", preset="tiny", overrides=over, progress=False
+    )
+    tr.camera_init()
+    ci = torch.load(tmp_path / "b" / "model" / "camera_init.pt", weights_only=False)
+    assert "too few static tracks" in ci["diagnostics"]["warning"]
