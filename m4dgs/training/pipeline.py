@@ -150,9 +150,8 @@ class Trainer:
             rec = {"stage": stage, "step": it, **rec}
             self.run.log(rec)
             if (it + 1) % every == 0 and it + 1 < n_total:
-                save_torch(
-                    self.run.ckpt_path,
-                    {"stage": stage, "step": it + 1, "state": stage_obj.state_dict()},
+                self.run.write_checkpoint(
+                    {"stage": stage, "step": it + 1, "state": stage_obj.state_dict()}
                 )
                 self._progress_seconds(stage, time.perf_counter() - start_time[0])
                 start_time[0] = time.perf_counter()
@@ -160,9 +159,9 @@ class Trainer:
         return on_step
 
     def _checkpoint(self, stage: str) -> Optional[Dict[str, Any]]:
-        """The mid-stage checkpoint (model/ckpt.pt) if it belongs to `stage`, else None."""
-        p = self.run.ckpt_path
-        ck = load_torch(p, map_location=self.device) if p.exists() else None
+        """The newest readable mid-stage checkpoint (model/ckpt.pt, else model/ckpt.prev.pt:
+        RunDir.read_checkpoint) if it belongs to `stage`, else None."""
+        ck = self.run.read_checkpoint(map_location=self.device)
         return ck if ck is not None and ck.get("stage") == stage else None
 
     def _resume(self, stage: str, stage_obj, ck: Optional[Dict[str, Any]] = None) -> int:
@@ -435,8 +434,9 @@ class Trainer:
                 self._finish("stage1", 0.0)
                 continue
             steps[phase]()
-        if self.run.ckpt_path.exists():
-            self.run.ckpt_path.unlink()
+        for p in (self.run.ckpt_path, self.run.prev_ckpt_path):  # a finished run needs neither
+            if p.exists():
+                p.unlink()
         train_seconds = sum(v for k, v in self.seconds.items() if k != "render")
         self._write_run_info(
             train_seconds=train_seconds,

@@ -125,10 +125,18 @@ def test_kill_in_stage1_resumes_from_checkpoint(tiny_clip_realistic, tmp_path, m
     with pytest.raises(RuntimeError, match="simulated kill"):
         train(tiny_clip_realistic, run, preset="tiny", overrides=over, progress=False)
     monkeypatch.setattr(s1mod.VideoStage, "step", real_step)
-    train(tiny_clip_realistic, run, preset="tiny", overrides=over, progress=False)
+    # the newest checkpoint (step 20) damaged: the run falls back to the previous one (step 10)
+    assert (run / "model" / "ckpt.prev.pt").exists()
+    ck = run / "model" / "ckpt.pt"
+    ck.write_bytes(ck.read_bytes()[:1000])
+    with pytest.warns(RuntimeWarning, match="unreadable checkpoint"):
+        train(tiny_clip_realistic, run, preset="tiny", overrides=over, progress=False)
     log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log if r["stage"] == "stage1"] == list(range(30))
     assert json.loads((run / "status.json").read_text())["stage"] == "done"
+    assert (
+        not (run / "model" / "ckpt.pt").exists() and not (run / "model" / "ckpt.prev.pt").exists()
+    )
 
 
 def test_a_run_of_the_older_config_layout_is_accepted(tiny_clip_realistic, tmp_path):
