@@ -22,6 +22,7 @@ camera initialisation: x right, y down, z forward; arbitrary scale); the header 
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -29,6 +30,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 import numpy as np
 import torch
 
+from m4dgs.core.errors import InputError
 from m4dgs.core.io import atomic_target
 from m4dgs.model.trained import load_model
 
@@ -334,8 +336,16 @@ def export_run_ply(
     Returns:
         the written path.
     """
+    if exposure is not None and not (math.isfinite(exposure) and exposure > 0):
+        raise InputError(f"--exposure must be a finite exposure time > 0; got {exposure}")
     if model is None:
         model = load_model(run_dir, device=device)
+    frames = model.clip.meta.frames
+    if int(g) not in set(frames):
+        raise InputError(
+            f"{run_dir}: frame {g} is not a frame of the clip {model.clip.root} "
+            f"(frames {min(frames)}..{max(frames)})"
+        )
     t = model.time_of(g)
     dt = 1.0 if exposure is None else float(exposure)
     gs = model_gaussians_at(model, t, dt)

@@ -103,7 +103,7 @@ class Trainer:
             have = want
         if have is not None and have != want:
             diff = sorted(k for k in set(have) | set(want) if have.get(k) != want.get(k))
-            raise ValueError(
+            raise InputError(
                 f"{self.run.config_path}: an existing run with a different configuration "
                 f"(sections {diff}); "
                 "use another --out or --force"

@@ -259,6 +259,18 @@ def test_read_ascii_ply(tmp_path):
     np.testing.assert_array_equal(a["red"], [7, 255])
 
 
+def test_export_run_ply_refuses_a_frame_outside_the_clip_and_a_bad_exposure(run, tmp_path):
+    from m4dgs.core.errors import InputError
+
+    run_dir, model = run
+    with pytest.raises(InputError, match=r"frame 99 is not a frame of the clip"):
+        export_run_ply(run_dir, 99, tmp_path / "x.ply", model=model)
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(InputError, match="--exposure must be a finite exposure time > 0"):
+            export_run_ply(run_dir, 0, tmp_path / "x.ply", exposure=bad, model=model)
+    assert not (tmp_path / "x.ply").exists()
+
+
 @pytest.mark.parametrize("g,exposure", [(0, None), (8, 0.25), (3, 2.0)])
 def test_export_run_ply(run, tmp_path, g, exposure):
     run_dir, model = run
