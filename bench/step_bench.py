@@ -1,0 +1,131 @@
+"""Time training iterations of one stage, resumed from a finished run's models: the per-iteration
+figure of a code change without the minutes of camera initialisation and the stages before.
+
+    python bench/step_bench.py CLIP RUN --stage stage1 --start 1500 --steps 60 [--threads 2]
+                               [--cprofile]
+
+RUN is a finished run folder of CLIP (its model/stage1.pt, model/v2w.pt, model/camera_init.pt and
+renders/stage1 are copied to a temporary folder; RUN is not touched). Stage 1 starts from the final
+stage-1 model at step --start (so the step's schedule, e.g. TLR after the densification, applies);
+stage 2 starts from the V2W output at --start, or from RUN's mid-stage checkpoint when it holds one
+of stage 2 (then its step). Five warm-up steps, then --steps timed steps; prints milliseconds per
+step and, with --cprofile, the functions that take the time.
+
+Compare commits side by side: check out each commit in its own worktree and run the same command
+with PYTHONPATH set to it, one after the other, on an otherwise idle machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import os
+import pstats
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import torch  # noqa: E402
+
+from m4dgs.core.io import read_exr  # noqa: E402
+from m4dgs.model.gaussians import WorldGaussians  # noqa: E402
+from m4dgs.run import load_torch  # noqa: E402
+from m4dgs.training.exposure import training_exposures  # noqa: E402
+from m4dgs.training.pipeline import Trainer  # noqa: E402
+from m4dgs.training.stage1 import VideoStage, build_appearance  # noqa: E402
+from m4dgs.training.stage2 import WorldInit, WorldStage  # noqa: E402
+
+
+def make_stage(tr: Trainer, src: Path, stage: str, start: int):
+    """The stage object of `tr` loaded from the copied models; returns (stage, first step)."""
+    cfg, d = tr.cfg, tr.data
+    if stage == "stage1":
+        st = VideoStage(d, cfg, "cpu", cfg.raster_backend, init=False)
+        st.load_state_dict(load_torch(tr.run.path("model", "stage1.pt")))
+        return st, start
+    ci = load_torch(tr.run.path("model", "camera_init.pt"))
+    v = load_torch(tr.run.path("model", "v2w.pt"))
+    c0, _ = training_exposures(cfg.exposure, d, "cpu")
+    color, tm, bg = build_appearance(cfg, c0, "cpu", pretrain=False)
+    color.load_state_dict(v["appearance"]["color"])
+    tm.load_state_dict(v["appearance"]["tonemap"])
+    bg.load_state_dict(v["appearance"]["background"])
+    hdr = torch.stack(
+        [
+            torch.from_numpy(read_exr(p))
+            for p in sorted(tr.run.path("renders", "stage1", "hdr").glob("*.exr"))
+        ]
+    )
+    init = WorldInit(
+        WorldGaussians.from_state(v["gaussians"]),
+        color,
+        tm,
+        bg,
+        ci["K"],
+        ci["c2w"],
+        ci["depth_scale"],
+        dynamic_masks=ci["masks"],
+        stage1_hdr=hdr,
+    )
+    st = WorldStage(d, cfg, init, "cpu", cfg.raster_backend)
+    ck = src / "model" / "ckpt.pt"
+    if ck.exists():
+        sd = load_torch(ck)
+        if sd.get("stage") == "stage2":
+            st.load_state_dict(sd["state"])
+            return st, int(sd["step"])
+    return st, start
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("clip", help="clip folder")
+    ap.add_argument("run", help="a finished run folder of the clip (read only)")
+    ap.add_argument("--stage", choices=["stage1", "stage2"], default="stage1")
+    ap.add_argument("--start", type=int, default=0, help="first step (schedule position)")
+    ap.add_argument("--steps", type=int, default=60, help="timed steps (after 5 warm-up steps)")
+    ap.add_argument("--preset", default="small", choices=["tiny", "small", "paper"])
+    ap.add_argument("--variant", default="full")
+    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    ap.add_argument("--cprofile", action="store_true", help="print the top functions (cProfile)")
+    a = ap.parse_args()
+    if a.threads:
+        torch.set_num_threads(a.threads)
+    src = Path(a.run)
+    tmp = Path(tempfile.mkdtemp(prefix="step_bench_"))
+    try:
+        shutil.copytree(src / "model", tmp / "model")
+        shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
+        (tmp / "model" / "ckpt.pt").unlink(missing_ok=True)
+        tr = Trainer(a.clip, tmp, a.preset, a.variant, {}, "cpu", progress=False)
+        st, start = make_stage(tr, src, a.stage, a.start)
+        for it in range(start, start + 5):
+            st.step(it)
+        prof = cProfile.Profile() if a.cprofile else None
+        t0 = time.perf_counter()
+        if prof:
+            prof.enable()
+        for it in range(start + 5, start + 5 + a.steps):
+            st.step(it)
+        if prof:
+            prof.disable()
+        dt = time.perf_counter() - t0
+        print(
+            f"{a.stage} steps {start + 5}..{start + 4 + a.steps}: "
+            f"{1000 * dt / a.steps:.1f} ms/step "
+            f"({st.gauss.num_gaussians} Gaussians, {torch.get_num_threads()} threads, "
+            f"load average {os.getloadavg()[0]:.2f})"
+        )
+        if prof:
+            pstats.Stats(prof).sort_stats("cumulative").print_stats(30)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
