@@ -7,8 +7,9 @@ figure of a code change without the minutes of camera initialisation and the sta
 RUN is a finished run folder of CLIP (its model/stage1.pt, model/v2w.pt, model/camera_init.pt and
 renders/stage1 are copied to a temporary folder; RUN is not touched). Stage 1 starts from the final
 stage-1 model at step --start (so the step's schedule, e.g. TLR after the densification, applies);
-stage 2 starts from the V2W output at --start, or from RUN's mid-stage checkpoint when it holds one
-of stage 2 (then its step). Five warm-up steps, then --steps timed steps; prints milliseconds per
+stage 2 starts from the V2W output at --start, or with --checkpoint from RUN's mid-stage
+checkpoint of stage 2 (then at its step; its optimiser settings come with it, so do not use it to
+compare commits that set up the optimisers differently). Five warm-up steps, then --steps timed steps; prints milliseconds per
 step and, with --cprofile, the functions that take the time.
 
 Compare commits side by side: check out each commit in its own worktree and run the same command
@@ -39,7 +40,7 @@ from m4dgs.training.stage1 import VideoStage, build_appearance  # noqa: E402
 from m4dgs.training.stage2 import WorldInit, WorldStage  # noqa: E402
 
 
-def make_stage(tr: Trainer, src: Path, stage: str, start: int):
+def make_stage(tr: Trainer, src: Path, stage: str, start: int, checkpoint: bool = False):
     """The stage object of `tr` loaded from the copied models; returns (stage, first step)."""
     cfg, d = tr.cfg, tr.data
     if stage == "stage1":
@@ -72,7 +73,7 @@ def make_stage(tr: Trainer, src: Path, stage: str, start: int):
     )
     st = WorldStage(d, cfg, init, "cpu", cfg.raster_backend)
     ck = src / "model" / "ckpt.pt"
-    if ck.exists():
+    if checkpoint and ck.exists():
         sd = load_torch(ck)
         if sd.get("stage") == "stage2":
             st.load_state_dict(sd["state"])
@@ -93,6 +94,11 @@ def main() -> None:
     ap.add_argument("--variant", default="full")
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--cprofile", action="store_true", help="print the top functions (cProfile)")
+    ap.add_argument(
+        "--checkpoint",
+        action="store_true",
+        help="stage 2: start from RUN's mid-stage checkpoint instead of the V2W output",
+    )
     a = ap.parse_args()
     if a.threads:
         torch.set_num_threads(a.threads)
@@ -103,7 +109,7 @@ def main() -> None:
         shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
         (tmp / "model" / "ckpt.pt").unlink(missing_ok=True)
         tr = Trainer(a.clip, tmp, a.preset, a.variant, {}, "cpu", progress=False)
-        st, start = make_stage(tr, src, a.stage, a.start)
+        st, start = make_stage(tr, src, a.stage, a.start, a.checkpoint)
         for it in range(start, start + 5):
             st.step(it)
         prof = cProfile.Profile() if a.cprofile else None
