@@ -9,8 +9,8 @@ renders/stage1 are copied to a temporary folder; RUN is not touched). Stage 1 st
 stage-1 model at step --start (so the step's schedule, e.g. TLR after the densification, applies);
 stage 2 starts from the V2W output at --start, or with --checkpoint from RUN's mid-stage
 checkpoint of stage 2 (then at its step; its optimiser settings come with it, so do not use it to
-compare commits that set up the optimisers differently). Five warm-up steps, then --steps timed steps; prints milliseconds per
-step and, with --cprofile, the functions that take the time.
+compare commits that set up the optimisers differently). Five warm-up steps, then --steps timed
+steps; prints milliseconds per step and, with --cprofile, the functions that take the time.
 
 Compare commits side by side: check out each commit in its own worktree and run the same command
 with PYTHONPATH set to it, one after the other, on an otherwise idle machine.
