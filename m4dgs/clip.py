@@ -29,6 +29,7 @@ raised by the reader name the file and the field (`ClipError`)."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -568,6 +569,23 @@ class Clip:
 
     def has_flow_prior(self) -> bool:
         return (self.root / "priors/flow.npz").exists()
+
+    def input_fingerprint(self) -> str:
+        """SHA-256 (hex) of everything a trainer may read: clip.json and every file under input/
+        and priors/ (names and contents; ground truth excluded). A run stores it and refuses to
+        resume from outputs computed on other inputs."""
+        h = hashlib.sha256()
+        files = [self.root / "clip.json"]
+        for sub in ("input", "priors"):
+            if (self.root / sub).is_dir():
+                files += sorted(p for p in (self.root / sub).rglob("*") if p.is_file())
+        for p in files:
+            h.update(p.relative_to(self.root).as_posix().encode() + b"\0")
+            with open(p, "rb") as f:
+                for block in iter(lambda: f.read(1 << 20), b""):
+                    h.update(block)
+            h.update(b"\0")
+        return h.hexdigest()
 
     # -- ground truth
     # --------------------------------------------------------------------------------------------

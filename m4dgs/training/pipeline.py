@@ -113,9 +113,28 @@ class Trainer:
         if have is None:
             self.run.write_config(want)
         torch.manual_seed(cfg.seed)
+        self._check_inputs_unchanged()
         self.data: TrainingData = load_training_data(self.clip, self.device)
         self.seconds: Dict[str, float] = dict(self.run.status().get("stage_seconds", {}))
         self._write_run_info()
+
+    def _check_inputs_unchanged(self) -> None:
+        """Record the clip's input fingerprint (m4dgs.clip.Clip.input_fingerprint) in status.json
+        when the run starts; refuse to resume a run whose clip inputs changed since (its camera
+        initialisation, stage-1 and V2W outputs would be stale)."""
+        status = self.run.status()
+        now = self.clip.input_fingerprint()
+        before = status.get("clip_fingerprint")
+        if before is None:
+            if status.get("stage", "new") == "new":
+                self.run.set_status(clip_fingerprint=now)
+            return  # a run of an older version: nothing to compare with
+        if before != now:
+            raise InputError(
+                f"{self.run.root}: the clip {self.clip.root} changed since this run started "
+                "(clip.json, input/ or priors/); its finished phases were computed on the old "
+                "inputs. Use --force to start over, or another --out"
+            )
 
     def _write_run_info(self, **extra) -> None:
         info = {

@@ -195,3 +195,28 @@ def test_failed_camera_initialisation_stops_unless_allowed(
     tr.camera_init()
     ci = torch.load(tmp_path / "b" / "model" / "camera_init.pt", weights_only=False)
     assert "too few static tracks" in ci["diagnostics"]["warning"]
+
+
+def test_a_run_refuses_to_resume_on_changed_clip_inputs(tiny_clip_realistic, tmp_path):
+    """The clip's input fingerprint (clip.json, input/, priors/) is stored when a run starts; a
+    changed prior afterwards stops the next start instead of resuming stale phase outputs."""
+    import shutil
+
+    from m4dgs.core.errors import InputError
+    from m4dgs.training.pipeline import Trainer
+
+    clip = tmp_path / "clip"
+    shutil.copytree(tiny_clip_realistic, clip)
+    run = tmp_path / "run"
+    Trainer(clip, run, preset="tiny", progress=False)
+    fp = json.loads((run / "status.json").read_text())["clip_fingerprint"]
+    assert fp == Clip.open(clip).input_fingerprint() and len(fp) == 64
+    Trainer(clip, run, preset="tiny", progress=False)  # unchanged: fine
+    # the ground truth is not an input: changing it changes nothing
+    gt = next(p for p in (clip / "gt").rglob("*") if p.is_file())
+    gt.write_bytes(gt.read_bytes() + b"x")
+    assert Clip.open(clip).input_fingerprint() == fp
+    depth = sorted((clip / "priors" / "depth").iterdir())[0]
+    depth.write_bytes(depth.read_bytes()[:-1] + bytes([depth.read_bytes()[-1] ^ 1]))
+    with pytest.raises(InputError, match=r"changed since this run started .*--force"):
+        Trainer(clip, run, preset="tiny", progress=False)
