@@ -4,7 +4,7 @@ layout is below; docs/method.md lists the trainer phases that fill it, docs/outp
 <run>/
   config.yaml            fully resolved configuration (written once; a resumed run must match it)
   status.json            {"stage": "stage1" | "v2w" | "stage2" | "done", "step": int,
-                          "clip_fingerprint": SHA-256 of the clip's inputs when the run started, ...}
+                          "clip_fingerprint": SHA-256 of the clip's inputs at the start, ...}
   log.jsonl              one JSON object per logged step (losses, Gaussian counts, timings)
   model/ckpt.pt          the latest resumable checkpoint (written atomically; the one before it
                          is kept as model/ckpt.prev.pt, the fallback when ckpt.pt is unreadable)
