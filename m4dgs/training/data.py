@@ -89,6 +89,34 @@ def check_frame_content(ldr: np.ndarray, frames: Sequence[int], folder) -> None:
     warnings.warn(msg + "; they constrain the reconstruction little", RuntimeWarning, stacklevel=3)
 
 
+# fewest training frames a run accepts: the velocity / acceleration terms and the temporal luminance
+# regularisation need a frame and its two neighbours
+MIN_TRAINING_FRAMES = 3
+
+
+def check_enough_frames(
+    train_dt: Sequence[float], observed: Sequence[float], where, schedule: str = "alternating"
+) -> None:
+    """InputError (before any compute) unless there are MIN_TRAINING_FRAMES training frames and,
+    for a schedule of levels (alternating, random-order; not random-values, whose exposures lie
+    between the levels, nor real footage), every observed exposure level has at least one training
+    frame (the tone mapper learns each level from its frames)."""
+    n = len(train_dt)
+    if n < MIN_TRAINING_FRAMES:
+        raise InputError(
+            f"{where}: split.train has {n} training frames; training needs at least "
+            f"{MIN_TRAINING_FRAMES} (a frame and its two neighbours)"
+        )
+    if schedule not in ("alternating", "random-order"):  # random-values, real footage
+        return
+    missing = [o for o in observed if not any(abs(dt - o) <= 1e-6 * max(dt, o) for dt in train_dt)]
+    if missing:
+        raise InputError(
+            f"{where}: exposures.observed lists {missing}, which no training frame has "
+            f"(train_dt {sorted(set(float(d) for d in train_dt))})"
+        )
+
+
 def load_training_data(
     clip: Clip, device="cpu", max_tracks: Optional[int] = None, seed: int = 0
 ) -> TrainingData:
@@ -99,6 +127,10 @@ def load_training_data(
         max_tracks: keep at most this many prior tracks (uniform random subset, seeded).
     """
     frames = clip.train_frames
+    ex = clip.meta.exposures
+    check_enough_frames(
+        [float(d) for d in clip.train_dt], ex.observed, clip.root / "clip.json", ex.schedule
+    )
     ldr8 = np.stack([clip.load_ldr(g) for g in frames])
     check_frame_content(ldr8, frames, clip.root / "input" / "ldr")
     ldr = ldr8.astype(np.float32) / 255.0

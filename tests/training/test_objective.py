@@ -504,3 +504,16 @@ def test_blank_and_saturated_frames_are_found():
         check_frame_content(ldr, [10, 12, 14, 16], "clip/input/ldr")
     with pytest.raises(InputError, match="4 of 4 training frames .* nothing to train on"):
         check_frame_content(np.zeros_like(ldr), [10, 12, 14, 16], "clip/input/ldr")
+
+
+def test_too_few_training_frames_or_an_unseen_level_is_refused():
+    from m4dgs.core.errors import InputError
+    from m4dgs.training.data import check_enough_frames
+
+    check_enough_frames([0.125, 2.0, 32.0], [0.125, 2.0, 32.0], "clip.json")  # fine
+    with pytest.raises(InputError, match=r"clip.json: split.train has 2 training frames; .* 3"):
+        check_enough_frames([0.125, 2.0], [0.125, 2.0], "clip.json")
+    with pytest.raises(InputError, match=r"exposures.observed lists \[32.0\], which no training"):
+        check_enough_frames([0.125, 2.0, 0.125, 2.0], [0.125, 2.0, 32.0], "clip.json")
+    # random-values: the exposures lie between the levels by design
+    check_enough_frames([0.2, 1.7, 9.0, 0.4], [0.125, 2.0, 32.0], "clip.json", "random-values")
