@@ -48,6 +48,7 @@ with the authors' numbers)."""
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -84,7 +85,7 @@ from m4dgs.clip import Cameras, Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.core.crf import get_crf
 from m4dgs.core.device import resolve_device
-from m4dgs.core.errors import NonFiniteError
+from m4dgs.core.errors import InputError, NonFiniteError
 from m4dgs.run import load_torch
 
 PSNR_CAP_DB = 100.0
@@ -557,6 +558,9 @@ def score_run(
         roundtrip = None
     if roundtrip not in (None, "png", "jpeg"):
         raise ValueError(f"roundtrip must be None, 'png' or 'jpeg', got {roundtrip!r}")
+    if write and run_dir.is_dir() and not os.access(run_dir, os.W_OK):
+        # found now, not after minutes of metrics
+        raise InputError(f"{run_dir}: the run folder is read-only; metrics.json cannot be written")
     clip_obj = clip if isinstance(clip, Clip) else Clip.open(resolve_clip_dir(run_dir, clip))
     dev = str(resolve_device(device))
     rendered = ensure_renders(run_dir, clip_obj, progress=progress, device=dev)

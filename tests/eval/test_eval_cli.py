@@ -413,6 +413,25 @@ def test_score_refuses_non_finite_renders(tmp_path, fake_trainer):
     assert not (run / "metrics.json").exists()
 
 
+def test_score_refuses_a_read_only_run_folder_up_front(tmp_path, fake_trainer, monkeypatch):
+    """A run folder that cannot take metrics.json is refused before any metric is computed (the
+    permission test is replaced: CI runs as root, who may write anywhere)."""
+    import eval.score as score_mod
+    from m4dgs.core.errors import InputError
+
+    clip = make_fake_clip(tmp_path / "clip")
+    run = tmp_path / "run"
+    make_fake_run(run, clip)
+    monkeypatch.setattr(score_mod.os, "access", lambda p, mode: False)
+    real_ensure = score_mod.ensure_renders
+    monkeypatch.setattr(score_mod, "ensure_renders", lambda *a, **k: pytest.fail("scored on"))
+    with pytest.raises(InputError, match="read-only; metrics.json cannot be written"):
+        score_mod.score_run(run, fps=False, model=False)
+    # only when writing
+    monkeypatch.setattr(score_mod, "ensure_renders", real_ensure)
+    assert score_mod.score_run(run, fps=False, model=False, write=False)["ldr_oe_psnr"] is not None
+
+
 def test_cli_score(tmp_path, fake_trainer):
     clip = make_fake_clip(tmp_path / "clip")
     run = tmp_path / "run"
