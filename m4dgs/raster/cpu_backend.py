@@ -2,14 +2,15 @@
 
 The extension is built on first use with ``torch.utils.cpp_extension.load`` from
 ``csrc/rasterize_cpu.cpp`` into ``$M4DGS_EXT_DIR`` (default ``~/.cache/m4dgs/torch_extensions``),
-one sub-folder per torch/Python version; torch rebuilds it when the source changes. Flags are ``-O3
--fopenmp`` (never ``-march=native``); on CPUs that torch reports as AVX2-capable (which implies FMA)
-a variant named ``..._avx2`` is built with ``-mavx2 -mfma`` instead, so a shared cache never hands
-an AVX2 build to a CPU without it."""
+one sub-folder per torch/Python version and per checkout (`build_folder_name`); torch rebuilds it
+when the source changes. Flags are ``-O3 -fopenmp`` (never ``-march=native``); on CPUs that torch
+reports as AVX2-capable (which implies FMA) a variant named ``..._avx2`` is built with ``-mavx2
+-mfma`` instead, so a shared cache never hands an AVX2 build to a CPU without it."""
 
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 import shutil
 import sys
@@ -57,6 +58,15 @@ def extension_dir() -> Path:
     return Path(base) / tag
 
 
+def build_folder_name(suffix: str = "") -> str:
+    """The build folder of this checkout's extension: the module name plus a short hash of the
+    source file's path. torch rebuilds an extension whose sources (paths included) differ from the
+    last build in its folder, so two checkouts sharing one folder would rebuild it in turn (about a
+    minute each time, on every first render of a process); one folder per checkout builds once."""
+    tag = hashlib.sha1(str(SOURCE).encode()).hexdigest()[:8]
+    return f"{EXT_NAME}{suffix}-{tag}"
+
+
 @functools.lru_cache(maxsize=None)
 def _load() -> tuple[object | None, str]:
     """(module, "") on success, (None, reason) on failure; cached so a failed build is not
@@ -74,7 +84,7 @@ def _load() -> tuple[object | None, str]:
         from torch.utils import cpp_extension
 
         suffix, isa = _isa_flags()
-        build_dir = extension_dir() / (EXT_NAME + suffix)
+        build_dir = extension_dir() / build_folder_name(suffix)
         build_dir.mkdir(parents=True, exist_ok=True)
         # the first use compiles the kernel (about a minute): say so instead of sitting silent
         first_build = not any(build_dir.glob("*.so"))

@@ -389,6 +389,13 @@ def test_backend_selection_and_errors(monkeypatch, tmp_path):
         render(means, quats, scales, op, feats, viewmat, K, W, H, background=torch.zeros(2))
     monkeypatch.setenv("M4DGS_EXT_DIR", str(tmp_path))
     assert str(extension_dir()).startswith(str(tmp_path))
+    # one build folder per checkout (source path), so two checkouts never rebuild in turn
+    import m4dgs.raster.cpu_backend as cb
+
+    here = cb.build_folder_name("_avx2")
+    monkeypatch.setattr(cb, "SOURCE", cb.SOURCE.parent.parent / "elsewhere" / cb.SOURCE.name)
+    other = cb.build_folder_name("_avx2")
+    assert here != other and here.startswith("m4dgs_rasterize_cpu_avx2-")
 
 
 def test_auto_falls_back_to_torch_when_the_op_cannot_build(monkeypatch):
