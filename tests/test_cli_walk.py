@@ -47,3 +47,29 @@ def test_help_explains_every_option_and_unknown_options_are_usage_errors(tool, p
     assert not undocumented, f"{tool} {' '.join(path)}: options without help {undocumented}"
     r = runner.invoke(TOOLS[tool], [*path, "--no-such-option"], prog_name=tool)
     assert r.exit_code == 2 and "No such option" in r.output and "Traceback" not in r.output
+
+
+# bad arguments: (tool, arguments, a fragment of the one-line message); every one is a click usage
+# error (exit 2) raised before any work
+BAD_ARGUMENTS = [
+    ("m4dgs", ["train", "--clip", "/nonexistent/clip", "--out", "x"], "does not exist"),
+    ("m4dgs", ["train", "--clip", ".", "--preset", "huge"], "'huge' is not one of"),
+    ("m4dgs", ["train", "--clip", ".", "--set", "no-equals-sign"], "expected KEY=VALUE"),
+    ("m4dgs", ["export-ply", ".", "--frame", "ten", "--out", "a.ply"], "'ten' is not a valid"),
+    ("m4dgs", ["variants", "--preset", "medium"], "'medium' is not one of"),
+    ("benchgen", ["make", "--exposures", "5"], "'5' is not one of"),
+    ("benchgen", ["make", "--schedule", "sometimes"], "'sometimes' is not one of"),
+    ("benchgen", ["make", "--spp", "0"], "0 is not in the range"),
+    ("m4dgs-eval", ["table", "tiny", "--format", "pdf"], "'pdf' is not one of"),
+    ("m4dgs-eval", ["table", "tiny", "--seeds", "0"], "0 is not in the range"),
+]
+
+
+@pytest.mark.parametrize(
+    "tool, args, needle", BAD_ARGUMENTS, ids=[" ".join((t, *a[:2])) for t, a, _ in BAD_ARGUMENTS]
+)
+def test_bad_arguments_are_one_line_usage_errors(tool, args, needle, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(TOOLS[tool], args, prog_name=tool)
+    assert r.exit_code == 2, r.output
+    assert needle in r.output and "Traceback" not in r.output
