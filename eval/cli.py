@@ -170,6 +170,15 @@ _device_opt = click.option(
     help="Training / scoring device: auto, cpu or cuda.",
 )
 
+_no_share_opt = click.option(
+    "--no-share",
+    is_flag=True,
+    help="Compute every trainer phase in every run. By default the runs of one clip share camera "
+    "initialisation, stage 1 and the V2W transform through OUT/.shared wherever their "
+    "configurations agree on what that phase reads (never across trainer seeds; "
+    "docs/eval.md).",
+)
+
 
 @main.command()
 @click.argument("suite")
@@ -197,8 +206,20 @@ _device_opt = click.option(
 @click.option("--clips-only", is_flag=True, help="Only make the missing clips.")
 @_lpips_opt
 @_device_opt
+@_no_share_opt
 def run(
-    suite, out, preset, jobs, scenes, seeds, force, list_jobs, clips_only, lpips_weights, device
+    suite,
+    out,
+    preset,
+    jobs,
+    scenes,
+    seeds,
+    force,
+    list_jobs,
+    clips_only,
+    lpips_weights,
+    device,
+    no_share,
 ):
     """Make missing clips, train missing runs and score missing metrics of SUITE (name or YAML
     path); resumable."""
@@ -214,6 +235,7 @@ def run(
                 lpips_weights=lpips_weights,
                 device=None if device == "auto" else device,
                 seeds=seeds,
+                share=not no_share,
             ),
             nl=False,
         )
@@ -230,6 +252,7 @@ def run(
         clips_only=clips_only,
         log=lambda s: click.echo(s, err=True),
         seeds=seeds,
+        share=not no_share,
     )
     for r in res:
         click.echo(json.dumps(r))
@@ -256,7 +279,8 @@ def run(
 @click.option("--force", is_flag=True, help="Recompute metrics.json even if it exists.")
 @_lpips_opt
 @_device_opt
-def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, device):
+@_no_share_opt
+def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, device, no_share):
     """Run ONE job of SUITE: make its clip if missing, train (resumes), score. Prints a JSON result
     line."""
     from .runner import find_job, run_job
@@ -264,7 +288,14 @@ def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, d
     j = find_job(suite, out, preset, scene, row, seed)
     click.echo(
         json.dumps(
-            run_job(j, force=force, lpips_weights=lpips_weights, device=device, clip_only=clip_only)
+            run_job(
+                j,
+                force=force,
+                lpips_weights=lpips_weights,
+                device=device,
+                clip_only=clip_only,
+                share=not no_share,
+            )
         )
     )
 

@@ -13,12 +13,14 @@ docs/cluster.md).
 Concurrency: making a clip and training a run each hold an exclusive `fcntl.flock` on a lock file
 beside the folder (`<folder>.lock`), so two workers given the same clip or run wait for each other
 instead of writing the same files (the second one then finds the work done). Locks need a file
-system with working flock (local disks, most NFS v4 set-ups)."""
+system with working flock (local disks, most NFS v4 set-ups).
+
+Shared phases: the runs of one clip share camera initialisation, stage 1 and the V2W transform
+wherever their configurations agree on everything that phase reads (m4dgs.training.phases), through
+OUT/.shared (`share=False` / `--no-share` turns it off). Trainer seeds are never shared."""
 
 from __future__ import annotations
 
-import contextlib
-import fcntl
 import json
 import os
 import re
@@ -33,10 +35,12 @@ from typing import Dict, List, Optional, Sequence
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
 from m4dgs.core import io as mio
+from m4dgs.core.lock import file_lock
 
 from .suite import EvalSuite, load_eval_suite, scene_suite_names, suites_dir
 
 PRESETS = ("tiny", "small", "paper")
+SHARE_DIR = ".shared"  # under OUT: trainer phases shared between runs (m4dgs.training.phases)
 
 
 SEED_SUFFIX = "-seed-"
@@ -78,8 +82,12 @@ class Job:
     def clip_key(self) -> str:
         return f"{self.setting_id}/{self.scene}"
 
+    @property
+    def share_dir(self) -> str:
+        return str(Path(self.out) / SHARE_DIR)
+
     def command(
-        self, lpips_weights: Optional[str] = None, device: Optional[str] = None
+        self, lpips_weights: Optional[str] = None, device: Optional[str] = None, share: bool = True
     ) -> List[str]:
         cmd = [
             "python",
@@ -102,6 +110,8 @@ class Job:
             cmd += ["--lpips-weights", str(lpips_weights)]
         if device:
             cmd += ["--device", device]
+        if not share:
+            cmd += ["--no-share"]
         return cmd
 
     def to_json(self, **cmd_kw) -> dict:
@@ -168,17 +178,10 @@ def job_list(
     return jobs
 
 
-@contextlib.contextmanager
 def folder_lock(folder: Path):
-    """Exclusive flock on <folder>.lock for the duration of the block."""
+    """Exclusive flock on <folder>.lock (beside the folder) for the duration of the block."""
     folder = Path(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    with open(folder.parent / f".{folder.name}.lock", "a+") as f:
-        fcntl.flock(f.fileno(), fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+    return file_lock(folder.parent / f".{folder.name}.lock")
 
 
 def make_job_clip(job: Job, progress: bool = False) -> Path:
@@ -215,9 +218,9 @@ def make_job_clip(job: Job, progress: bool = False) -> Path:
     return clip_dir
 
 
-def train_job(job: Job, device: str = "auto", progress: bool = False) -> Path:
+def train_job(job: Job, device: str = "auto", progress: bool = False, share: bool = True) -> Path:
     """Train the job's run (m4dgs.training.pipeline.train resumes an interrupted run and returns at
-    once when done)."""
+    once when done); share: phases shared through OUT/.shared."""
     # the trainer's entry point, imported when called (tests replace it in sys.modules)
     from m4dgs.training.pipeline import train
 
@@ -232,6 +235,7 @@ def train_job(job: Job, device: str = "auto", progress: bool = False) -> Path:
                 overrides=dict(job.overrides) or None,
                 device=device,
                 progress=progress,
+                **({"share_dir": job.share_dir} if share else {}),
             )
         )
 
@@ -245,11 +249,12 @@ def run_job(
     clip_only: bool = False,
     progress: bool = False,
     score_kw: Optional[dict] = None,
+    share: bool = True,
 ) -> dict:
     """Make the clip, train and score ONE job; each step is skipped when its output exists.
 
     force: recompute metrics.json even if it exists (never retrains: delete the run folder for
-    that). Returns {"id", "clip", "run", "metrics" (path or None), "seconds", "steps": [what was
+    that). share: share trainer phases with the clip's other runs through OUT/.shared. Returns {"id", "clip", "run", "metrics" (path or None), "seconds", "steps": [what was
     done]}."""
     t0 = time.perf_counter()
     steps = []
@@ -263,7 +268,7 @@ def run_job(
     run_dir = Path(job.run_dir)
     status = run_dir / "status.json"
     if not (status.exists() and mio.read_json(status).get("stage") == "done"):
-        train_job(job, device=device, progress=progress)
+        train_job(job, device=device, progress=progress, share=share)
         steps.append("train")
     mpath = run_dir / "metrics.json"
     if force or not mpath.exists():
@@ -310,6 +315,7 @@ def run_suite(
     score_kw: Optional[dict] = None,
     log=None,
     seeds: int = 1,
+    share: bool = True,
 ) -> List[dict]:
     """Make every missing clip, then train and score every (scene, row, seed) of a suite; resumable.
 
@@ -327,7 +333,9 @@ def run_suite(
         f"jobs {jobs}, "
         f"seeds {seeds}"
     )
-    kw = dict(force=force, lpips_weights=lpips_weights, device=device, score_kw=score_kw)
+    kw = dict(
+        force=force, lpips_weights=lpips_weights, device=device, score_kw=score_kw, share=share
+    )
     if jobs <= 1:
         for j in todo:
             say(f"[eval run] clip {j.clip_key}")
@@ -358,11 +366,18 @@ def run_suite(
 
 
 def list_jobs_jsonl(
-    suite, out, preset: str = "small", scenes=None, lpips_weights=None, device=None, seeds: int = 1
+    suite,
+    out,
+    preset: str = "small",
+    scenes=None,
+    lpips_weights=None,
+    device=None,
+    seeds: int = 1,
+    share: bool = True,
 ) -> str:
     """The job list as JSON lines (one job per line, with its `python -m eval job ...` command)."""
     return "".join(
-        json.dumps(j.to_json(lpips_weights=lpips_weights, device=device)) + "\n"
+        json.dumps(j.to_json(lpips_weights=lpips_weights, device=device, share=share)) + "\n"
         for j in job_list(suite, out, preset, scenes, seeds)
     )
 

@@ -123,6 +123,16 @@ class RunDir:
             f.flush()
             os.fsync(f.fileno())
 
+    def log_records(self, records: List[Dict[str, Any]]) -> None:
+        """Append several JSON lines in one write (then one fsync)."""
+        if not records:
+            return
+        self.root.mkdir(parents=True, exist_ok=True)
+        with open(self.root / "log.jsonl", "a") as f:
+            f.write("".join(json.dumps(r) + "\n" for r in records))
+            f.flush()
+            os.fsync(f.fileno())
+
     def read_log(self) -> List[Dict[str, Any]]:
         """Records of log.jsonl in order ([] without a log); blank lines and an unparsable line (the
         torn last line of a killed run) are skipped."""

@@ -13,6 +13,8 @@ calls the renderer, which locks the same folder), and only the outermost holder 
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import socket
@@ -25,6 +27,22 @@ from typing import Optional
 from m4dgs.core.errors import RunInUseError
 
 LOCK_NAME = ".lock"
+
+
+@contextlib.contextmanager
+def file_lock(path):
+    """Exclusive `fcntl.flock` on the file `path` (created with its folder) for the duration of the
+    block: a second process taking the same lock WAITS for the first (unlike FolderLock, which
+    refuses). The kernel drops the lock when its holder dies. Needs a file system with working
+    flock (local disks, most NFS v4 set-ups)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+") as f:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
 
 
 def _process_start(pid: int) -> Optional[str]:

@@ -15,7 +15,12 @@ starts):
 5. render       renders/{train,test}/... (m4dgs.outputs.render.render_run)  -> status "done"
 
 A killed run restarts from the last checkpoint of the phase it was in. Only the clip's training
-frames, exposure times and priors are read (never gt/)."""
+frames, exposure times and priors are read (never gt/). Every phase starts from the global torch
+generator seeded with the trainer seed, so its result does not depend on which phases ran before it
+in the same process.
+
+With `share_dir`, phases 1-3 are shared between runs of the same clip whose configurations agree on
+everything those phases read (m4dgs.training.phases)."""
 
 from __future__ import annotations
 
@@ -43,6 +48,7 @@ from m4dgs.run import RunDir, load_torch, save_torch
 from m4dgs.training.config import TrainConfig, to_dict, upgrade_dict, validate
 from m4dgs.training.data import TrainingData, load_training_data
 from m4dgs.training.exposure import training_exposures
+from m4dgs.training.phases import SHARED_PHASES, PhaseCache, code_fingerprint, phase_keys
 from m4dgs.training.stage1 import VideoStage, build_appearance, train_stage1
 from m4dgs.training.stage2 import WorldInit, WorldStage, train_stage2
 from m4dgs.training.v2w import transform
@@ -84,8 +90,10 @@ class Trainer:
         device: str = "auto",
         progress: bool = True,
         backend: Optional[str] = None,
+        share_dir=None,
     ):
         self.clip = Clip.open(clip_dir)
+        self.share = PhaseCache(share_dir) if share_dir is not None else None
         self.run = RunDir(run_dir)
         self.device = resolve_device(device)
         self.progress = progress
@@ -112,7 +120,7 @@ class Trainer:
         self.run.root.mkdir(parents=True, exist_ok=True)
         if have is None:
             self.run.write_config(want)
-        torch.manual_seed(cfg.seed)
+        self.fingerprint = self.clip.input_fingerprint()
         self._check_inputs_unchanged()
         self.data: TrainingData = load_training_data(self.clip, self.device)
         self.seconds: Dict[str, float] = dict(self.run.status().get("stage_seconds", {}))
@@ -123,7 +131,7 @@ class Trainer:
         when the run starts; refuse to resume a run whose clip inputs changed since (its camera
         initialisation, stage-1 and V2W outputs would be stale)."""
         status = self.run.status()
-        now = self.clip.input_fingerprint()
+        now = self.fingerprint
         before = status.get("clip_fingerprint")
         if before is None:
             if status.get("stage", "new") == "new":
@@ -434,6 +442,47 @@ class Trainer:
         render_run(self.run.root, device=str(self.device), progress=self.progress)
         self._finish("render", time.perf_counter() - t0)
 
+    # -- sharing
+    # ----------------------------------------------------------------------------------------------
+    def phase_keys(self) -> Dict[str, str]:
+        """{phase: share key} of this run (m4dgs.training.phases.phase_keys)."""
+        from m4dgs.raster import resolve_backend
+
+        context = {
+            "clip": self.fingerprint,
+            "code": code_fingerprint(),
+            "torch": torch.__version__,
+            "device": self.device.type,
+            "backend": resolve_backend(self.cfg.raster_backend, self.device),
+        }
+        return phase_keys(to_dict(self.cfg), context)
+
+    def _shared(self, phase: str, compute) -> None:
+        """Run `phase` through the share folder: copy it when an entry with this run's key exists,
+        else compute it (holding the entry's lock, so that a concurrent run with the same key waits)
+        and publish it."""
+        key = self.phase_keys()[phase]
+        with self.share.lock(phase, key):
+            entry = self.share.get(phase, key)
+            if entry is None:
+                compute()
+                log = [r for r in self.run.read_log() if r.get("stage") == phase]
+                self.share.put(phase, key, self.run.root, self.seconds.get(phase, 0.0), log)
+                return
+            self.share.copy_into(entry, phase, self.run.root)
+        self.run.truncate_log(phase, -1)  # lines of an interrupted attempt at this phase
+        self.run.log_records(entry.log)
+        ck = self.run.read_checkpoint()
+        if ck is not None and ck.get("stage") == phase:
+            for p in (self.run.ckpt_path, self.run.prev_ckpt_path):
+                p.unlink(missing_ok=True)
+        shared = dict(self.run.status().get("shared_phases", {}))
+        shared[phase] = {"key": key, "from": entry.producer}
+        self.run.set_status(shared_phases=shared)
+        # the producer's compute time: the run reports what the method costs
+        self.seconds[phase] = 0.0
+        self._finish(phase, entry.seconds)
+
     # -- all
     # ----------------------------------------------------------------------------------------------
     def train(self) -> Path:
@@ -452,7 +501,12 @@ class Trainer:
             if phase == "stage1" and not self.cfg.ablation.use_video_init:
                 self._finish("stage1", 0.0)
                 continue
-            steps[phase]()
+            # each phase starts from the same generator state, whatever ran before it here
+            torch.manual_seed(self.cfg.seed)
+            if self.share is not None and phase in SHARED_PHASES:
+                self._shared(phase, steps[phase])
+            else:
+                steps[phase]()
         for p in (self.run.ckpt_path, self.run.prev_ckpt_path):  # a finished run needs neither
             if p.exists():
                 p.unlink()
@@ -532,10 +586,14 @@ def train(
     device: str = "auto",
     progress: bool = True,
     backend: Optional[str] = None,
+    share_dir=None,
 ) -> Path:
     """Train one variant on one clip into run_dir (resumes; returns at once when the run is
     done). The run folder is locked meanwhile: a second process writing it is refused
-    (RunInUseError naming the first one's PID)."""
+    (RunInUseError naming the first one's PID). share_dir: a folder where camera initialisation,
+    stage 1 and V2W are shared with other runs of the same clip (m4dgs.training.phases)."""
     with FolderLock(run_dir):
-        trainer = Trainer(clip_dir, run_dir, preset, variant, overrides, device, progress, backend)
+        trainer = Trainer(
+            clip_dir, run_dir, preset, variant, overrides, device, progress, backend, share_dir
+        )
         return trainer.train()

@@ -261,8 +261,10 @@ def fake_trainer(monkeypatch):
         overrides=None,
         device="auto",
         progress=True,
+        share_dir=None,
     ):
         calls["train"].append((str(run_dir), variant, overrides))
+        calls.setdefault("share_dir", []).append(share_dir)
         run_dir = Path(run_dir)
         make_fake_run(run_dir, Clip.open(clip_dir), seed=len(calls["train"]), variant=variant)
         return run_dir

@@ -1,0 +1,174 @@
+"""Phase sharing between runs of one clip (m4dgs.training.phases): which configuration changes force
+which phases to be recomputed, and that a shared phase gives the run bit for bit what it would have
+computed itself."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+
+from m4dgs.run import RunDir, load_torch
+from m4dgs.training import phases
+from m4dgs.training.config import PRESETS, apply_overrides, preset, to_dict
+from m4dgs.training.pipeline import train
+from m4dgs.training.variants import VARIANTS, variant_config
+
+CONTEXT = {"clip": "c" * 64, "code": "d" * 64, "torch": "x", "device": "cpu", "backend": "cpu"}
+
+
+def _keys(cfg, **context):
+    return phases.phase_keys(to_dict(cfg), {**CONTEXT, **context})
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_every_config_field_belongs_to_a_phase(name):
+    d = to_dict(preset(name))
+    by = phases.fields_by_phase(d)  # raises KeyError on an unassigned field
+    assert sum(len(v) for v in by.values()) == len(list(phases.leaves(d)))
+    # no stale entry: every PHASE_OF name covers at least one field
+    names = [n for n, _ in phases.leaves(d)]
+    for p in phases.PHASE_OF:
+        assert any(n == p or n.startswith(p + ".") for n in names), p
+    with pytest.raises(KeyError, match="PHASE_OF"):
+        phases.phase_of("no_such_section.field")
+
+
+@pytest.mark.parametrize(
+    "field, value, changed",
+    [
+        ("seed", 1, {"camera_init", "stage1", "v2w"}),
+        ("camera_init.ba_steps", 17, {"camera_init", "stage1", "v2w"}),
+        ("masks.method", "epipolar", {"camera_init", "stage1", "v2w"}),
+        ("stage1.loss.lambda_dep", 0.5, {"stage1", "v2w"}),
+        ("ablation.tlr", False, {"stage1", "v2w"}),
+        ("model.control_every", 2, {"stage1", "v2w"}),
+        ("tonemap.pretrain_crf", "hdrnerf", {"stage1", "v2w"}),
+        ("ablation.cov_invariance", False, {"v2w"}),
+        ("ablation.occlusion_handling", False, {"v2w"}),
+        ("v2w.occlusion_tol", 0.1, {"v2w"}),
+        ("ablation.reproj_loss", False, set()),
+        ("stage2.lambda_pr", 0.5, set()),
+        ("ablation.occlusion_handling_removal", False, set()),
+    ],
+)
+def test_a_field_changes_the_keys_of_its_phase_and_the_later_ones(field, value, changed):
+    base = preset("small")
+    a, b = _keys(base), _keys(apply_overrides(copy.deepcopy(base), {field: value}))
+    assert {p for p in phases.SHARED_PHASES if a[p] != b[p]} == changed
+
+
+def test_the_context_changes_every_key():
+    base = preset("small")
+    a = _keys(base)
+    for k in CONTEXT:
+        b = _keys(base, **{k: "other"})
+        assert all(a[p] != b[p] for p in phases.SHARED_PHASES), k
+
+
+def test_what_the_paper_ablation_rows_share_with_full():
+    full = _keys(variant_config("small", "full"))
+
+    def shared(v):
+        k = _keys(variant_config("small", v))
+        return [p for p in phases.SHARED_PHASES if k[p] == full[p]]
+
+    assert shared("no-reproj") == ["camera_init", "stage1", "v2w"]
+    assert shared("no-occlusion") == ["camera_init", "stage1"]
+    assert shared("no-cov-invariance") == ["camera_init", "stage1"]
+    assert shared("no-tlr") == ["camera_init"]
+    assert shared("no-video-init") == ["camera_init"]
+    assert set(VARIANTS) >= {"no-reproj", "no-tlr"}
+    # trainer seeds never share
+    s1 = _keys(variant_config("small", "full", {"seed": 1}))
+    assert all(s1[p] != full[p] for p in phases.SHARED_PHASES)
+
+
+# --------------------------------------------------------------------------------------------------
+# end to end on tiny runs
+# --------------------------------------------------------------------------------------------------
+SHORT = {
+    "stage1.iterations": 24,
+    "stage2.iterations": 24,
+    "stage1.densify.start_iter": 8,
+    "stage1.densify.every": 6,
+    "stage1.densify.stop_iter": 20,
+    "stage1.densify.grad_threshold": 1e-7,
+    "stage2.densify_static.start_iter": 8,
+    "stage2.densify_static.every": 6,
+    "stage2.densify_static.stop_iter": 20,
+    "stage2.densify_dynamic.start_iter": 8,
+    "stage2.densify_dynamic.every": 6,
+    "stage2.densify_dynamic.stop_iter": 20,
+    "stage1.loss.tlr_start": 12,
+    "stage2.loss.tlr_start": 12,
+    "camera_init.ba_steps": 30,
+    "tonemap.pretrain_steps": 20,
+    "v2w.scale_refit_steps": 10,
+}
+
+
+def _tensors(obj, prefix=""):
+    if torch.is_tensor(obj):
+        yield prefix, obj
+    elif isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _tensors(v, f"{prefix}.{k}" if prefix else str(k))
+
+
+@pytest.fixture
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def test_shared_phases_give_the_run_what_it_would_compute(
+    tiny_clip_realistic, tmp_path, one_thread
+):
+    share = tmp_path / "shared"
+
+    def run(name, variant, extra=None, share_dir=share):
+        ov = {**SHORT, **(extra or {})}
+        out = train(
+            tiny_clip_realistic,
+            tmp_path / name,
+            preset="tiny",
+            variant=variant,
+            overrides=ov,
+            progress=False,
+            share_dir=share_dir,
+        )
+        return RunDir(out)
+
+    full = run("full", "full")
+    assert "shared_phases" not in full.status()
+    assert sorted(p.name for p in share.iterdir() if p.is_dir()) == sorted(phases.SHARED_PHASES)
+
+    # a row that differs only in stage 2 takes all three phases from the share folder ...
+    shared = run("no-reproj", "no-reproj")
+    st = shared.status()
+    assert sorted(st["shared_phases"]) == sorted(phases.SHARED_PHASES)
+    assert st["shared_phases"]["stage1"]["from"] == str(full.root.resolve())
+    # ... with the producer's phase times and its stage-1 log lines
+    for p in phases.SHARED_PHASES:
+        assert st["stage_seconds"][p] == pytest.approx(full.status()["stage_seconds"][p])
+    s1 = [r for r in shared.read_log() if r.get("stage") == "stage1"]
+    assert s1 == [r for r in full.read_log() if r.get("stage") == "stage1"] and len(s1) == 24
+
+    # ... and ends bit for bit where the same row computed alone ends
+    alone = run("no-reproj-alone", "no-reproj", share_dir=None)
+    a = dict(_tensors(load_torch(alone.path("model", "final.pt"))))
+    b = dict(_tensors(load_torch(shared.path("model", "final.pt"))))
+    assert a.keys() == b.keys() and len(a) > 10
+    different = [k for k in a if not torch.equal(a[k], b[k])]
+    assert not different, different
+
+    # a stage-1 field forces a fresh stage 1 (and V2W); camera initialisation is still shared
+    s1_changed = run("lambda-dep", "full", {"stage1.loss.lambda_dep": 0.5})
+    assert sorted(s1_changed.status()["shared_phases"]) == ["camera_init"]
+    # another trainer seed shares nothing
+    seed1 = run("seed-1", "full", {"seed": 1})
+    assert "shared_phases" not in seed1.status()
