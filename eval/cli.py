@@ -1,17 +1,22 @@
 """`eval` (also `m4dgs-eval`, `python -m eval`): score runs, run experiment suites, print
 paper-style tables.
 
-    eval score RUN                          write RUN/metrics.json (renders what is missing through
-    m4dgs) eval suites                             the shipped experiment suites and their rows eval
-    run tiny --preset tiny             make clips, train and score every (scene, row) of a suite
-    (resumable) eval run tiny --seeds 3                 ... with trainer seeds 0, 1, 2 (same clips;
-    runs <row>, <row>-seed-n) eval run paper-main --list-jobs         the job list as JSON lines
-    (one `python -m eval job ...` per line) eval job paper-main --scene S --row R   run ONE job (for
-    cluster fan-out: docs/cluster.md) eval table tiny                         the suite's tables
-    (Markdown; --format latex|csv) and figures:
-                                            mean +- 95 % CI over scenes x seeds, paired differences
-                                            to the reference row, the paper's values and direction
-                                            agreement
+    eval score RUN                           write RUN/metrics.json (renders what is missing
+                                             through m4dgs)
+    eval score-frames --clip C --pred D --name N
+                                             score another method's frames (no m4dgs model)
+    eval suites                              the shipped experiment suites and their rows
+    eval run tiny --preset tiny              make clips, train and score every (scene, row) of a
+                                             suite (resumable)
+    eval run tiny --seeds 3                  ... with trainer seeds 0, 1, 2 (same clips; runs
+                                             <row>, <row>-seed-n)
+    eval run paper-main --list-jobs          the job list as JSON lines (one `python -m eval job
+                                             ...` per line)
+    eval job paper-main --scene S --row R    run ONE job (cluster fan-out: docs/cluster.md)
+    eval table tiny                          the suite's tables (Markdown; --format latex|csv)
+                                             and figures: mean +- 95 % CI over scenes x seeds,
+                                             paired differences to the reference row, the paper's
+                                             values and direction agreement
 
 Details: docs/eval.md.
 """
@@ -119,6 +124,75 @@ def score(
         )
     }
     click.echo(json.dumps(head))
+
+
+# --------------------------------------------------------------------------------------------------
+@main.command("score-frames")
+@click.option(
+    "--clip",
+    "clip_dir",
+    required=True,
+    type=click.Path(exists=True, file_okay=False),
+    help="Clip folder the frames are scored against (it must have ground truth).",
+)
+@click.option(
+    "--pred",
+    required=True,
+    type=click.Path(exists=True, file_okay=False),
+    help="Prediction folder: test/hdr/<g>.exr and test/ldr/<level>/<g>.png|exr|tif for every test "
+    "frame and level; optional train/hdr, train/ldr, test/depth, cameras.json (docs/eval.md).",
+)
+@click.option(
+    "--name",
+    required=True,
+    help="Method name: the row label in `eval table` and the folder name under runs/<clip>/.",
+)
+@click.option(
+    "--out",
+    default=None,
+    type=click.Path(file_okay=False),
+    help="Score folder (default: runs/<clip name>/<NAME>; `eval table runs/<clip name>` shows it "
+    "beside the m4dgs runs there).",
+)
+@click.option(
+    "--lpips-weights",
+    default=None,
+    type=click.Path(exists=True, dir_okay=False),
+    help="LPIPS weights file (AlexNet + linear heads, docs/metrics.md); without it LPIPS is n/a.",
+)
+@click.option(
+    "--roundtrip",
+    type=click.Choice(["none", "png", "jpeg"]),
+    default="none",
+    show_default=True,
+    help="8-bit round trip of the LDR frames before scoring (jpeg: as the authors scored).",
+)
+@click.option("--flip", is_flag=True, help="Also compute HDR-FLIP on the test frames (slow).")
+@click.option(
+    "--tae-train-test", is_flag=True, help="Also HDR-TAE over all frames (needs train/hdr)."
+)
+@click.option("--force", is_flag=True, help="Replace an earlier score folder of the same name.")
+def score_frames_cmd(
+    clip_dir, pred, name, out, lpips_weights, roundtrip, flip, tae_train_test, force
+):
+    """Score another method's rendered frames against a clip with every frame-based metric of an
+    m4dgs run (no m4dgs model needed); writes OUT/metrics.json and prints the headline metrics."""
+    from .frames import score_frames
+
+    run_dir, m = score_frames(
+        clip_dir,
+        pred,
+        name,
+        out,
+        force=force,
+        lpips_weights=lpips_weights,
+        roundtrip=None if roundtrip == "none" else roundtrip,
+        flip=flip,
+        tae_train_test=tae_train_test,
+    )
+    click.echo(f"scored {name}: {run_dir / 'metrics.json'}", err=True)
+    keys = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_ssim", "hdr_tae", "ate", "depth_absrel")
+    click.echo(json.dumps({k: m.get(k) for k in keys}))
 
 
 # --------------------------------------------------------------------------------------------------

@@ -254,8 +254,8 @@ def run_job(
     """Make the clip, train and score ONE job; each step is skipped when its output exists.
 
     force: recompute metrics.json even if it exists (never retrains: delete the run folder for
-    that). share: share trainer phases with the clip's other runs through OUT/.shared. Returns {"id", "clip", "run", "metrics" (path or None), "seconds", "steps": [what was
-    done]}."""
+    that). share: share trainer phases with the clip's other runs through OUT/.shared. Returns
+    {"id", "clip", "run", "metrics" (path or None), "seconds", "steps": [what was done]}."""
     t0 = time.perf_counter()
     steps = []
     if not (Path(job.clip_dir) / "clip.json").exists():

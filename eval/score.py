@@ -529,6 +529,7 @@ def score_run(
     model: bool = True,
     write: bool = True,
     progress: bool = False,
+    render_missing: bool = True,
 ) -> dict:
     """Score a run folder against its clip and write <run>/metrics.json (atomic). Returns the
     metrics dict.
@@ -546,6 +547,9 @@ def score_run(
         device: "auto" | "cpu" | "cuda" for loading the model (tracks, CRF, FPS).
         model: load the trained model at all (tracks, CRF curve, FPS); False skips those metrics.
         write: write metrics.json.
+        render_missing: render what renders/ lacks from the run's model (m4dgs runs). False (frames
+            of another method, eval.frames): score what is there; the training-frame metrics
+            (ldr_train_*, hdr_train_*, hdr_tae, hdr_t_std) are None without training renders.
 
     The steps, in order (each adds metrics and the keys of the conventions it used): LDR test frames
     per level, LDR training frames, HDR, temporal, cameras and dynamic masks, depth and dynamic
@@ -563,7 +567,11 @@ def score_run(
         raise InputError(f"{run_dir}: the run folder is read-only; metrics.json cannot be written")
     clip_obj = clip if isinstance(clip, Clip) else Clip.open(resolve_clip_dir(run_dir, clip))
     dev = str(resolve_device(device))
-    rendered = ensure_renders(run_dir, clip_obj, progress=progress, device=dev)
+    rendered = (
+        ensure_renders(run_dir, clip_obj, progress=progress, device=dev)
+        if render_missing
+        else False
+    )
     job = _Job(
         run_dir,
         clip_obj,
@@ -635,6 +643,9 @@ class _Job:
         """renders/<sub>/<g>.<ext> (sub e.g. "train/hdr", "test/ldr/<level>")."""
         return self.renders / sub / frame_name(g, ext)
 
+    def has_all(self, sub: str, frames: List[int], ext: str) -> bool:
+        return all(self.render(sub, g, ext).exists() for g in frames)
+
     def load_train_hdr(self, g: int) -> np.ndarray:
         return read_render_exr(self.render("train/hdr", g, "exr"))
 
@@ -664,8 +675,10 @@ def _score_ldr_levels(job: _Job, m: dict) -> dict:
 
 
 def _score_ldr_train(job: _Job, m: dict) -> None:
-    """LDR training frames against the input video (ldr_train_*)."""
+    """LDR training frames against the input video (ldr_train_*; None without those renders)."""
     train = job.clip.train_frames
+    if not job.has_all("train/ldr", train, "png"):
+        return
     tr = _score_ldr_set(
         [job.render("train/ldr", g, "png") for g in train],
         [(lambda g=g: job.clip.load_ldr(g)) for g in train],
@@ -705,6 +718,8 @@ def _score_hdr(job: _Job, m: dict, flip: bool) -> List[str]:
         )
         if flip:
             keys.append("hdr_flip")
+    if not job.has_all("train/hdr", train, "exr"):
+        return keys
     h = _score_hdr_set(
         [job.render("train/hdr", g, "exr") for g in train],
         clip.load_gt_hdr,
@@ -722,6 +737,8 @@ def _score_temporal(job: _Job, m: dict, tae_train_test: bool) -> List[str]:
     interior variant (gt depth), optionally over all frames, and HDR_T_std."""
     clip, train, test = job.clip, job.clip.train_frames, job.clip.test_frames
     keys: List[str] = []
+    if not job.has_all("train/hdr", train, "exr"):
+        return keys
     gt_flow = clip.has_gt and (clip.root / "gt/flow.npz").exists()
     if gt_flow:
         fs = clip.load_gt_flow()

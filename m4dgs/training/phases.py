@@ -89,7 +89,8 @@ ENTRY_FILE = "entry.json"
 
 
 def leaves(d: Mapping[str, Any], prefix: str = "") -> Iterable[Tuple[str, Any]]:
-    """(dotted name, value) of every leaf of a nested config dict (m4dgs.training.config.to_dict)."""
+    """(dotted name, value) of every leaf of a nested config dict
+    (m4dgs.training.config.to_dict)."""
     for k, v in d.items():
         name = f"{prefix}{k}"
         if isinstance(v, Mapping):
@@ -130,8 +131,9 @@ def code_fingerprint() -> str:
 def phase_keys(cfg: Mapping[str, Any], context: Mapping[str, Any]) -> Dict[str, str]:
     """{phase: key} for the shared phases.
 
-    cfg: the resolved config as a dict (to_dict); context: everything outside the config that decides
-    a result (clip fingerprint, code fingerprint, torch version, device type, backend), JSON-able.
+    cfg: the resolved config as a dict (to_dict); context: everything outside the config that
+    decides a result (clip fingerprint, code fingerprint, torch version, device type, backend),
+    JSON-able.
     The key of phase P hashes the fields of P and of every phase before it, and the context."""
     fields: Dict[str, List[Tuple[str, Any]]] = {p: [] for p in ORDER}
     for name, value in leaves(cfg):
@@ -216,7 +218,7 @@ class PhaseCache:
                 "producer": str(Path(run_root).resolve()),
             },
         )
-        if final.exists():  # an incomplete entry left by a crash between rename and entry.json
+        if final.exists():  # a folder without entry.json is not an entry (made by hand?)
             shutil.rmtree(final)
         os.replace(tmp, final)
         return final
