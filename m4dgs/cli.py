@@ -4,6 +4,7 @@ m4dgs train --clip bench/syn-exp-3/<scene> --preset small --variant full --out r
 m4dgs render runs/<scene>/full --videos
 m4dgs export-ply runs/<scene>/full --frame 10 --out scene.ply
 m4dgs variants --preset paper
+m4dgs import-clip --frames my-video/ --exposures times.txt --depth depth/ --out clips/mine
 """
 
 from __future__ import annotations
@@ -207,6 +208,136 @@ def variants(preset):
     for name in VARIANTS:
         s1, s2, tot = budget(preset, name)
         click.echo(f"{name:24s} {s1:7d} {s2:7d} {tot:7d}  {describe(name)}")
+
+
+@main.command("import-clip")
+@click.option(
+    "--frames",
+    default=None,
+    type=click.Path(exists=True, file_okay=False, path_type=Path),
+    help="Folder of frames (PNG, JPEG, TIFF, EXR; sorted by name with numbers in order; more than "
+    "8 bits are rounded to 8). Give this or --video.",
+)
+@click.option(
+    "--video",
+    default=None,
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="Video file (read with ffmpeg). Give this or --frames.",
+)
+@click.option(
+    "--exposures",
+    default=None,
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="Exposure times: one number per frame (e.g. 0.004 or 1/250), or 'name value' lines, or "
+    "a JSON list / {name: value}. Default: the EXIF ExposureTime of every frame.",
+)
+@click.option(
+    "--depth",
+    default=None,
+    type=click.Path(exists=True, path_type=Path),
+    help="Depth prior (required): one [T, H, W] .npy/.npz, or a folder with one .npy/.npz/.exr/"
+    "16-bit .png/.tif per frame, from a monocular depth model; any scale.",
+)
+@click.option(
+    "--depth-kind",
+    type=click.Choice(["depth", "disparity"]),
+    default="depth",
+    show_default=True,
+    help="What --depth holds: depth, or disparity (inverse depth, as many models write).",
+)
+@click.option(
+    "--tracks",
+    default=None,
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="Point tracks [T, N, 2] in pixels: an .npz with 'tracks' and 'visibility' (or "
+    "'visible'), or an .npy (visibility: --visibility). Default: long tracks chained through "
+    "DIS optical flow with a forward-backward check.",
+)
+@click.option(
+    "--visibility",
+    default=None,
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="[T, N] visibility .npy for a --tracks .npy (default: all visible).",
+)
+@click.option(
+    "--track-pixel-centre",
+    default="0",
+    show_default=True,
+    type=click.Choice(["0", "0.5"]),
+    help="Coordinate of the first pixel's centre in the given tracks (0: integer pixel centres).",
+)
+@click.option(
+    "--flow",
+    default=None,
+    type=click.Path(exists=True, file_okay=False, path_type=Path),
+    help="Optional flow prior: a folder of <a>_<b>.flo or <a>_<b>.npy files between frame "
+    "positions a and b (default: the trainer computes DIS flow).",
+)
+@click.option(
+    "--every",
+    default=1,
+    show_default=True,
+    type=click.IntRange(min=1),
+    help="Keep every n-th frame.",
+)
+@click.option(
+    "--max-frames", default=None, type=click.IntRange(min=3), help="Keep at most this many frames."
+)
+@click.option(
+    "--fps",
+    default=30.0,
+    show_default=True,
+    type=click.FloatRange(min=0, min_open=True),
+    help="Frame rate written to clip.json (videos of the run play at it).",
+)
+@click.option("--name", default=None, help="Clip name (default: the --out folder name).")
+@click.option(
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Clip folder to write (written elsewhere first and moved into place when complete).",
+)
+@click.option("--force", is_flag=True, help="Replace a clip already at --out.")
+def import_clip_cmd(
+    frames,
+    video,
+    exposures,
+    depth,
+    depth_kind,
+    tracks,
+    visibility,
+    track_pixel_centre,
+    flow,
+    every,
+    max_frames,
+    fps,
+    name,
+    out_dir,
+    force,
+):
+    """Make a clip from your own footage: frames or a video, exposure times, a depth prior and
+    optionally tracks and flow (docs/clip-format.md, "Your own footage"). Then: m4dgs train --clip
+    OUT."""
+    from m4dgs.footage import ImportOptions, import_clip
+
+    opt = ImportOptions(
+        frames=frames,
+        video=video,
+        every=every,
+        max_frames=max_frames,
+        exposures=exposures,
+        depth=depth,
+        depth_kind=depth_kind,
+        tracks=tracks,
+        visibility=visibility,
+        track_pixel_centre=float(track_pixel_centre),
+        flow=flow,
+        fps=fps,
+        name=name,
+    )
+    p = import_clip(out_dir, opt, force=force)
+    click.echo(str(p))
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ LAYERS = {
     "m4dgs.clip": "formats",
     "m4dgs.run": "formats",
     "m4dgs.priors": "priors",
+    "m4dgs.footage": "priors",  # own footage -> clip: frames, exposures and priors
     "m4dgs.raster": "raster",
     "m4dgs.losses": "losses",
     "m4dgs.model": "model",
@@ -35,6 +36,7 @@ LAYERS = {
     "eval.suite": "eval-driver",
     "eval.cli": "eval-driver",
     "eval.results": "eval-driver",
+    "eval.frames": "eval-driver",
     "eval.__main__": "eval-driver",
 }
 

@@ -13,7 +13,7 @@ import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Optional
+from typing import Any, Iterator, Optional, Tuple
 
 import numpy as np
 import OpenEXR
@@ -174,3 +174,66 @@ def read_png(path) -> np.ndarray:
             return np.asarray(im).copy()
     except Exception as e:
         raise FileFormatError(f"{path}: not a readable PNG ({e})") from e
+
+
+# --------------------------------------------------------------------------------------------------
+# any image through OpenImageIO
+# --------------------------------------------------------------------------------------------------
+def read_image(path) -> Tuple[np.ndarray, str]:
+    """(pixels [H, W, 3], kind) of an image file through OpenImageIO.
+
+    Integer files come back as their integer type (uint8, uint16), float files as float32; kind is
+    "uint8", "uint16" or "float". Channels: R, G, B by name when present, else the first three; a
+    one-channel image is repeated to grey RGB. Raises InputError naming the file."""
+    import OpenImageIO as oiio  # deferred: only external images need it (~0.1 s)
+
+    path = Path(path)
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InputError(f"{path}: not a readable image ({oiio.geterror()})")
+    try:
+        spec = inp.spec()
+        base = spec.format.basetype
+        if base == oiio.UINT8:
+            kind, fmt = "uint8", oiio.UINT8
+        elif base == oiio.UINT16:
+            kind, fmt = "uint16", oiio.UINT16
+        elif base in (oiio.HALF, oiio.FLOAT, oiio.DOUBLE):
+            kind, fmt = "float", oiio.FLOAT
+        else:
+            raise InputError(
+                f"{path}: pixel type {spec.format} is not supported (8 or 16 bit, half or float)"
+            )
+        px = inp.read_image(fmt)
+        if px is None:
+            raise InputError(f"{path}: could not read the pixels ({inp.geterror()})")
+        names = list(spec.channelnames)
+    finally:
+        inp.close()
+    px = np.asarray(px)
+    if px.ndim == 2:
+        px = px[..., None]
+    if px.shape[-1] == 1:
+        return np.repeat(px, 3, axis=-1), kind
+    if all(c in names for c in ("R", "G", "B")):
+        idx = [names.index(c) for c in ("R", "G", "B")]
+    elif px.shape[-1] >= 3:
+        idx = [0, 1, 2]
+    else:
+        raise InputError(f"{path}: {px.shape[-1]} channels {names}; need RGB, RGBA or grey")
+    return np.ascontiguousarray(px[..., idx]), kind
+
+
+def ldr_to_8bit(px: np.ndarray, kind: str, path) -> np.ndarray:
+    """An LDR image of any kind as uint8: 8 bit as is, 16 bit and float (clipped to [0, 1]) as
+    round(255 x)."""
+    if kind == "uint8":
+        return px.astype(np.uint8)
+    if kind == "uint16":
+        x = px.astype(np.float64) / 65535.0
+    else:
+        x = px.astype(np.float64)
+        if not np.isfinite(x).all():
+            raise InputError(f"{path}: NaN or infinite values in an LDR image")
+        x = np.clip(x, 0.0, 1.0)
+    return np.round(x * 255.0).astype(np.uint8)

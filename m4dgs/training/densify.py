@@ -302,8 +302,8 @@ class Strategy:
         """
         cfg = self.cfg
         out = {"clone": 0, "split": 0, "prune": 0, "reset": 0}
-        if step >= cfg.stop_iter:
-            return out
+        if step >= cfg.stop_iter or next(iter(params.values())).shape[0] == 0:
+            return out  # an empty set (e.g. no dynamic Gaussian after V2W): nothing to densify
         self._update_state(params, state, info)
         if (
             step > cfg.start_iter

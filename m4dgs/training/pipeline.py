@@ -25,6 +25,7 @@ everything those phases read (m4dgs.training.phases)."""
 from __future__ import annotations
 
 import os
+import shutil
 import time
 from pathlib import Path
 from typing import Any, Dict, Optional
@@ -592,8 +593,16 @@ def train(
     done). The run folder is locked meanwhile: a second process writing it is refused
     (RunInUseError naming the first one's PID). share_dir: a folder where camera initialisation,
     stage 1 and V2W are shared with other runs of the same clip (m4dgs.training.phases)."""
-    with FolderLock(run_dir):
-        trainer = Trainer(
-            clip_dir, run_dir, preset, variant, overrides, device, progress, backend, share_dir
-        )
-        return trainer.train()
+    fresh = not Path(run_dir).exists()
+    try:
+        with FolderLock(run_dir):
+            trainer = Trainer(
+                clip_dir, run_dir, preset, variant, overrides, device, progress, backend, share_dir
+            )
+            return trainer.train()
+    except InputError:
+        # refused input (clip, config, priors) before any phase finished: leave no half-made
+        # run folder behind (a folder that existed before, or holds a finished phase, is kept)
+        if fresh and RunDir(run_dir).status().get("finished") is None:
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise

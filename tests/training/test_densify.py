@@ -279,3 +279,17 @@ def test_clone_split_boundary_scales_with_the_extent(extent, expect):
     loss.backward()
     out = strat.step_post_backward(params, opt, state, 1, info)
     assert (out["clone"], out["split"]) == expect
+
+
+def test_an_empty_set_is_left_alone():
+    """A set with no Gaussian (e.g. no dynamic Gaussian after V2W on a static scene) is skipped at
+    every scheduled step instead of failing on a [-1, 0, 2] reshape."""
+    params = {k: nn.Parameter(v.detach()[:0].clone()) for k, v in _params().items()}
+    opt = torch.optim.Adam([{"params": [p], "name": k} for k, p in params.items()], lr=1e-3)
+    strat = Strategy(DensifyConfig(start_iter=0, every=1, reset_every=2, stop_iter=10))
+    state = strat.initialize_state()
+    info = {"means2d_grad": torch.zeros(0, 2), "radii": torch.zeros(0), "width": W, "height": H}
+    for it in range(1, 5):
+        out = strat.step_post_backward(params, opt, state, it, info)
+        assert out == {"clone": 0, "split": 0, "prune": 0, "reset": 0}
+    assert all(p.shape[0] == 0 for p in params.values())

@@ -1,0 +1,179 @@
+"""`m4dgs import-clip`: a benchgen clip stripped to its frames, exposure times and depth goes
+through the import (tracks chained from DIS flow) and trains; given tracks, EXIF exposure times,
+video input and .flo flow files are read as their formats define them."""
+
+from __future__ import annotations
+
+import shutil
+
+import imageio.v2 as iio
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from PIL import Image, TiffImagePlugin
+
+from m4dgs.cli import main
+from m4dgs.clip import Clip, frame_name
+from m4dgs.core.errors import InputError
+from m4dgs.footage import ImportOptions, exposure_levels, import_clip, read_flo
+from m4dgs.run import RunDir
+from m4dgs.training.pipeline import train
+
+SHORT = {
+    "stage1.iterations": 12,
+    "stage2.iterations": 12,
+    "camera_init.ba_steps": 20,
+    "tonemap.pretrain_steps": 10,
+    "v2w.scale_refit_steps": 5,
+}
+
+
+def strip(clip_dir, root):
+    """The clip's input frames (renamed to a camera's file names), an exposure-time file in
+    seconds ('name value' lines) and the depth prior as one .npy per frame."""
+    clip = Clip.open(clip_dir)
+    frames, depth = root / "frames", root / "depth"
+    frames.mkdir(parents=True)
+    depth.mkdir()
+    lines = []
+    for i, g in enumerate(clip.train_frames):
+        name = f"IMG_{i + 8}.png"  # 8, 9, 10, ...: natural order, not string order
+        shutil.copyfile(clip.path("input/ldr", frame_name(g, "png")), frames / name)
+        lines.append(f"{name} {clip.meta.train_dt_of(g) / 500.0}")
+        np.save(depth / f"d{i + 8:03d}.npy", clip.load_depth_prior(g))
+    (root / "times.txt").write_text("\n".join(lines) + "\n")
+    return clip, frames, root / "times.txt", depth
+
+
+def test_stripped_benchgen_clip_imports_and_trains(tiny_clip_realistic, tmp_path):
+    clip, frames, times, depth = strip(tiny_clip_realistic, tmp_path)
+    out = tmp_path / "mine"
+    r = CliRunner().invoke(
+        main,
+        ["import-clip", "--frames", str(frames), "--exposures", str(times), "--depth", str(depth)]
+        + ["--out", str(out)],
+    )
+    assert r.exit_code == 0, r.output
+    new = Clip.open(out)
+    new.validate()
+    T = len(clip.train_frames)
+    assert new.train_frames == list(range(T)) and new.test_frames == [] and not new.has_gt
+    # exposure ratios kept, unit = geometric mean of the levels
+    old_dt = np.array(clip.train_dt)
+    assert np.allclose(np.array(new.train_dt) / new.train_dt[0], old_dt / old_dt[0])
+    assert np.isclose(np.exp(np.mean(np.log(new.meta.exposures.observed))), 1.0)
+    assert new.meta.generator["exposure_seconds"][0] == pytest.approx(old_dt[0] / 500.0)
+    assert new.meta.crf is None and new.meta.unit_exposure_value == 0.5
+    for i, g in enumerate(clip.train_frames):
+        assert np.array_equal(new.load_ldr(i), clip.load_ldr(g))
+        assert np.allclose(new.load_depth_prior(i), clip.load_depth_prior(g), rtol=1e-6)
+    # tracks chained through the flow span more than a frame pair
+    ts = new.load_tracks_prior()
+    assert ts.tracks.shape[0] > 50 and ts.visible.sum(1).max() >= 4
+    assert new.meta.priors["tracks"]["max_length"] >= 4
+    # ... and the clip trains
+    run = train(out, tmp_path / "run", preset="tiny", overrides=SHORT, progress=False)
+    assert RunDir(run).done
+
+
+def test_given_tracks_keep_their_positions(tiny_clip_realistic, tmp_path):
+    clip, frames, times, depth = strip(tiny_clip_realistic, tmp_path)
+    src = clip.load_tracks_prior()  # [N, T, 2], first pixel centre at 0.5
+    tr = np.transpose(src.tracks, (1, 0, 2)) - 0.5  # [T, N, 2], integer pixel centres
+    np.savez(tmp_path / "tracks.npz", tracks=tr, visibility=src.visible.T)
+    opt = ImportOptions(frames=frames, exposures=times, depth=depth, tracks=tmp_path / "tracks.npz")
+    new = Clip.open(import_clip(tmp_path / "mine", opt))
+    got = new.load_tracks_prior()
+    # positions outside the frame become invisible; tracks seen in fewer than 2 frames are dropped
+    x, y = src.tracks[..., 0], src.tracks[..., 1]
+    vis = src.visible & (x >= 0) & (x < clip.width) & (y >= 0) & (y < clip.height)
+    keep = vis.sum(1) >= 2
+    assert (src.visible & ~vis).any()  # the degraded prior has some: the rule is exercised
+    assert np.array_equal(got.visible, vis[keep])
+    v = got.visible
+    assert np.allclose(got.tracks[v], src.tracks[keep][v], atol=1e-5)
+
+
+def test_errors_name_what_is_missing_and_leave_nothing(tiny_clip_realistic, tmp_path):
+    clip, frames, times, depth = strip(tiny_clip_realistic, tmp_path)
+    out = tmp_path / "mine"
+    with pytest.raises(InputError, match="depth prior is required"):
+        import_clip(out, ImportOptions(frames=frames, exposures=times))
+    short = tmp_path / "short.txt"
+    short.write_text("0.01\n0.02\n")
+    with pytest.raises(InputError, match=f"{short}: 2 exposure times for 5 frames"):
+        import_clip(out, ImportOptions(frames=frames, exposures=short, depth=depth))
+    with pytest.raises(InputError, match="no EXIF ExposureTime"):
+        import_clip(out, ImportOptions(frames=frames, depth=depth))
+    (depth / "d008.npy").unlink()
+    with pytest.raises(InputError, match="4 depth files for 5 frames"):
+        import_clip(out, ImportOptions(frames=frames, exposures=times, depth=depth))
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "depth",
+        "frames",
+        "short.txt",
+        "times.txt",
+    ]
+
+
+def test_exif_exposure_times_and_video_input(tiny_clip_realistic, tmp_path):
+    clip = Clip.open(tiny_clip_realistic)
+    jpgs = tmp_path / "jpg"
+    jpgs.mkdir()
+    imgs = [clip.load_ldr(g) for g in clip.train_frames]
+    secs = [clip.meta.train_dt_of(g) / 1000.0 for g in clip.train_frames]
+    for i, (img, s) in enumerate(zip(imgs, secs)):
+        im = Image.fromarray(img)
+        exif = im.getexif()
+        exif.get_ifd(0x8769)[33434] = TiffImagePlugin.IFDRational(s)
+        im.save(jpgs / f"{i}.jpg", exif=exif, quality=95)
+    depth = np.stack([clip.load_depth_prior(g) for g in clip.train_frames])
+    np.save(tmp_path / "depth.npy", 1.0 / depth)  # as disparity
+    opt = ImportOptions(
+        frames=jpgs, depth=tmp_path / "depth.npy", depth_kind="disparity", max_frames=4
+    )
+    new = Clip.open(import_clip(tmp_path / "a", opt))
+    assert np.allclose(new.meta.generator["exposure_seconds"], secs[:4], rtol=1e-3)
+    assert np.allclose(new.load_depth_prior(1), depth[1], rtol=1e-5)
+
+    video = tmp_path / "v.mp4"
+    with iio.get_writer(video, fps=10, macro_block_size=1) as w:
+        for img in imgs:
+            w.append_data(img)
+    (tmp_path / "t.json").write_text("[1, 4, 16, 1, 4]")
+    opt = ImportOptions(
+        video=video, exposures=tmp_path / "t.json", depth=tmp_path / "depth.npy", every=1
+    )
+    new = Clip.open(import_clip(tmp_path / "b", opt))
+    assert new.meta.num_frames == 5 and (new.width, new.height) == (clip.width, clip.height)
+    assert np.allclose(new.train_dt, [0.25, 1, 4, 0.25, 1])
+
+
+def test_flo_files_and_exposure_levels(tmp_path):
+    f = np.random.default_rng(0).normal(size=(6, 9, 2)).astype(np.float32)
+    with open(tmp_path / "0_1.flo", "wb") as fh:
+        np.array([202021.25], np.float32).tofile(fh)
+        np.array([9, 6], np.int32).tofile(fh)
+        f.tofile(fh)
+    assert np.array_equal(read_flo(tmp_path / "0_1.flo"), f)
+    (tmp_path / "bad.flo").write_bytes(b"abcd" + bytes(8))
+    with pytest.raises(InputError, match="magic"):
+        read_flo(tmp_path / "bad.flo")
+    # metered times within 2 % are one level
+    assert exposure_levels([0.01, 0.0101, 0.04, 0.0399, 0.16]) == pytest.approx(
+        [0.01005, 0.03995, 0.16]
+    )
+
+
+def test_a_refused_clip_leaves_no_run_folder(tiny_clip_realistic, tmp_path):
+    clip_dir = tmp_path / "clip"
+    shutil.copytree(tiny_clip_realistic, clip_dir)
+    (clip_dir / "priors/tracks.npz").unlink()
+    with pytest.raises(InputError, match="tracks"):
+        train(clip_dir, tmp_path / "run", preset="tiny", overrides=SHORT, progress=False)
+    assert not (tmp_path / "run").exists()
+    # a folder that was there before is kept
+    (tmp_path / "mine").mkdir()
+    with pytest.raises(InputError):
+        train(clip_dir, tmp_path / "mine", preset="tiny", overrides=SHORT, progress=False)
+    assert (tmp_path / "mine").is_dir()
