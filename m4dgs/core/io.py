@@ -1,9 +1,10 @@
 """Atomic file I/O for images, arrays and metadata.
 
 Every writer writes to a temporary name in the destination folder and renames it into place
-(`os.replace`), so a crash never leaves a half-written file under the final name. EXR goes through
-the OpenEXR bindings as float32 (`np.ascontiguousarray` first: the bindings silently write garbage
-from strided arrays); PNG through Pillow."""
+(`os.replace`), so a crash never leaves a half-written file under the final name. Images (EXR as
+float32 with zip compression, 8-bit PNG, and any other format for external files: `read_image`) go
+through OpenImageIO, which reads channels by name and reports the bit depth, so nothing is
+quantised silently."""
 
 from __future__ import annotations
 
@@ -16,8 +17,6 @@ from pathlib import Path
 from typing import Any, Iterator, Optional, Tuple
 
 import numpy as np
-import OpenEXR
-from PIL import Image
 
 from m4dgs.core.errors import InputError
 
@@ -108,47 +107,123 @@ def read_npz(path) -> dict:
         raise FileFormatError(f"{path}: not a readable .npz archive ({e})") from e
 
 
+_FORK_HOOK_INSTALLED = False
+
+
+def _oiio():
+    import OpenImageIO as oiio  # deferred (~0.1 s): `--help` and the listing commands stay light
+
+    global _FORK_HOOK_INSTALLED
+    if not _FORK_HOOK_INSTALLED and hasattr(os, "register_at_fork"):
+        _FORK_HOOK_INSTALLED = True
+        _install_fork_hook(oiio)
+    return oiio
+
+
+def _install_fork_hook(oiio) -> None:
+    """Make OpenImageIO safe across `fork` (process pools, data loader workers).
+
+    OpenImageIO and its OpenEXR reader/writer keep thread pools; a forked child inherits the pools
+    but not their threads, so its first EXR write waits forever, and resizing the pools in the
+    child crashes (both seen). Before a fork the pools are shrunk to the calling thread, so the
+    child starts without one (its I/O runs single-threaded); the parent gets its sizes back at
+    its next EXR read or write."""
+    saved: dict = {}
+
+    def before() -> None:
+        saved["threads"] = oiio.get_int_attribute("threads")
+        saved["exr_threads"] = oiio.get_int_attribute("exr_threads")
+        oiio.attribute("exr_threads", -1)  # -1: no OpenEXR pool, the calling thread does the work
+        oiio.attribute("threads", 1)
+        # OpenImageIO resizes OpenEXR's pool lazily, when it next creates an EXR reader or
+        # writer; do it now, in the parent, so the child does not join threads it never had
+        oiio.ImageOutput.create("fork.exr")
+
+    def after_in_parent() -> None:
+        if saved:
+            oiio.attribute("threads", saved["threads"])
+            oiio.attribute("exr_threads", saved["exr_threads"])
+
+    os.register_at_fork(before=before, after_in_parent=after_in_parent)
+
+
+def _write_oiio(path, img: np.ndarray, names, pixel_type: str, attrs: dict) -> None:
+    """Write one image through OpenImageIO, atomically (the temporary name keeps the extension,
+    which selects the format)."""
+    oiio = _oiio()
+    h, w = img.shape[:2]
+    c = 1 if img.ndim == 2 else img.shape[2]
+    fmt = {"float": oiio.FLOAT, "uint8": oiio.UINT8}[pixel_type]
+    spec = oiio.ImageSpec(w, h, c, fmt)
+    spec.channelnames = tuple(names)
+    for k, v in attrs.items():
+        spec.attribute(k, v)
+    with atomic_target(path, Path(path).suffix) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None or not out.open(str(tmp), spec):
+            raise OSError(f"{path}: cannot write ({oiio.geterror() or (out and out.geterror())})")
+        try:
+            # always [H, W, C]: a 2-D array is not laid out as one channel by the bindings
+            ok = out.write_image(np.ascontiguousarray(img.reshape(h, w, c)))
+        finally:
+            out.close()
+        if not ok:
+            raise OSError(f"{path}: cannot write ({out.geterror()})")
+
+
 def write_exr(path, image: np.ndarray) -> None:
-    """Write a float32 EXR: [H, W] as channel 'Z', [H, W, 3] as 'RGB', [H, W, C] as channels
-    C0..C{C-1}."""
+    """Write a float32 EXR (zip compression): [H, W] as channel 'Z', [H, W, 3] as 'R', 'G', 'B',
+    [H, W, C] as channels C0..C{C-1}."""
     path = Path(path)
     img = np.asarray(image, dtype=np.float32)
     if img.ndim == 2:
-        channels = {"Z": np.ascontiguousarray(img)}
+        names = ["Z"]
     elif img.ndim == 3 and img.shape[2] == 3:
-        channels = {"RGB": np.ascontiguousarray(img)}
+        names = ["R", "G", "B"]
     elif img.ndim == 3:
-        channels = {f"C{i}": np.ascontiguousarray(img[..., i]) for i in range(img.shape[2])}
+        names = [f"C{i}" for i in range(img.shape[2])]
     else:
         raise ValueError(f"write_exr({path}): expected [H, W] or [H, W, C], got shape {img.shape}")
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with atomic_target(path, ".exr") as tmp:
-        OpenEXR.File(header, channels).write(str(tmp))
+    # no DateTime attribute: the same image gives the same bytes (clips are byte-reproducible)
+    _write_oiio(path, img, names, "float", {"compression": "zip", "DateTime": ""})
 
 
-def read_exr(path) -> np.ndarray:
-    """Read an EXR written by `write_exr` (or any RGB / single-channel EXR) as float32 [H, W] or [H,
-    W, C]."""
+def _read_oiio(path, what: str):
+    """(pixels [H, W, C] in the file's own type, channel names, base type) of an image file."""
+    oiio = _oiio()
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: file missing")
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise FileFormatError(f"{path}: not a readable {what} ({oiio.geterror()})")
     try:
-        ch = OpenEXR.File(str(path)).channels()
-    except Exception as e:
-        raise FileFormatError(f"{path}: not a readable EXR ({e})") from e
-    if "RGB" in ch:
-        arr = ch["RGB"].pixels
-    elif "RGBA" in ch:
-        arr = ch["RGBA"].pixels[..., :3]
-    elif "Z" in ch:
-        arr = ch["Z"].pixels
-    elif len(ch) == 1:
-        arr = next(iter(ch.values())).pixels
-    elif all(f"C{i}" in ch for i in range(len(ch))):
-        arr = np.stack([ch[f"C{i}"].pixels for i in range(len(ch))], axis=-1)
-    else:
-        raise FileFormatError(f"{path}: unexpected EXR channels {sorted(ch)}")
-    return np.asarray(arr, dtype=np.float32)
+        spec = inp.spec()
+        px = inp.read_image(spec.format)
+        if px is None:
+            raise FileFormatError(f"{path}: not a readable {what} ({inp.geterror()})")
+        names = list(spec.channelnames)
+        base = spec.format.basetype
+    finally:
+        inp.close()
+    px = np.asarray(px)
+    return (px[..., None] if px.ndim == 2 else px), names, base
+
+
+def read_exr(path) -> np.ndarray:
+    """Read an EXR written by `write_exr` (or any RGB / RGBA / single-channel EXR) as float32 [H, W]
+    or [H, W, C]."""
+    px, names, _ = _read_oiio(path, "EXR")
+    px = px.astype(np.float32, copy=False)
+    if all(c in names for c in ("R", "G", "B")):
+        return np.ascontiguousarray(px[..., [names.index(c) for c in ("R", "G", "B")]])
+    if "Z" in names:
+        return np.ascontiguousarray(px[..., names.index("Z")])
+    if len(names) == 1:
+        return np.ascontiguousarray(px[..., 0])
+    if all(f"C{i}" in names for i in range(len(names))):
+        return np.ascontiguousarray(px[..., [names.index(f"C{i}") for i in range(len(names))]])
+    raise FileFormatError(f"{path}: unexpected EXR channels {sorted(names)}")
 
 
 def write_png(path, image: np.ndarray) -> None:
@@ -157,23 +232,24 @@ def write_png(path, image: np.ndarray) -> None:
     img = np.asarray(image)
     if img.dtype != np.uint8:
         img = np.clip(np.round(img.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
-    buf = _io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(img)).save(buf, format="PNG")
-    write_bytes_atomic(path, buf.getvalue())
+    names = ["Y"] if img.ndim == 2 else ["R", "G", "B", "A"][: img.shape[2]]
+    _write_oiio(path, img, names, "uint8", {"DateTime": ""})
 
 
 def read_png(path) -> np.ndarray:
-    """Read an 8-bit PNG as uint8 [H, W] or [H, W, 3]."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: file missing")
-    try:
-        with Image.open(path) as im:
-            if im.mode not in ("L", "RGB"):
-                im = im.convert("RGB")
-            return np.asarray(im).copy()
-    except Exception as e:
-        raise FileFormatError(f"{path}: not a readable PNG ({e})") from e
+    """Read an 8-bit PNG as uint8 [H, W] (grey) or [H, W, 3] (RGB; alpha dropped, palettes
+    expanded). A 16-bit PNG is refused, not quantised (m4dgs.core.io.read_image reads it)."""
+    oiio = _oiio()
+    px, names, base = _read_oiio(path, "PNG")
+    if base != oiio.UINT8:
+        raise FileFormatError(
+            f"{path}: a {16 if base == oiio.UINT16 else 'non-8'}-bit PNG where 8-bit is expected "
+            "(clip frames and renders are 8-bit; `m4dgs import-clip` and `m4dgs-eval score-frames` "
+            "convert other bit depths)"
+        )
+    if px.shape[-1] <= 2:  # grey, grey + alpha
+        return np.ascontiguousarray(px[..., 0])
+    return np.ascontiguousarray(px[..., :3])
 
 
 # --------------------------------------------------------------------------------------------------
@@ -185,8 +261,7 @@ def read_image(path) -> Tuple[np.ndarray, str]:
     Integer files come back as their integer type (uint8, uint16), float files as float32; kind is
     "uint8", "uint16" or "float". Channels: R, G, B by name when present, else the first three; a
     one-channel image is repeated to grey RGB. Raises InputError naming the file."""
-    import OpenImageIO as oiio  # deferred: only external images need it (~0.1 s)
-
+    oiio = _oiio()
     path = Path(path)
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
