@@ -13,7 +13,7 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	$(VENV)/m4dgs-eval run tiny --preset tiny --out $(OUT)
+	$(VENV)/m4dgs-eval run tiny --preset tiny --root $(OUT)
 	$(VENV)/m4dgs-eval table tiny --root $(OUT)
 
 test: setup

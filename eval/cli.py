@@ -215,14 +215,15 @@ def suites():
 
 # --------------------------------------------------------------------------------------------------
 _out_opt = click.option(
-    "--out",
     "--root",
+    "--out",
     "out",
     default=DEFAULT_OUT,
     show_default=True,
     type=click.Path(file_okay=False),
-    help="Experiment root: clips in OUT/clips/<setting>/<scene>, runs in "
-    "OUT/runs/<suite>/<scene>/<row>, figures in OUT/figures/<suite>. One OUT per preset.",
+    help="Experiment root (the same as --root of `table` and `export`; --out is its older name): "
+    "clips in ROOT/clips/<setting>/<scene>, runs in ROOT/runs/<suite>/<scene>/<row>, figures in "
+    "ROOT/figures/<suite>. One ROOT per preset.",
 )
 _preset_opt = click.option(
     "--preset",

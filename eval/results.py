@@ -1000,7 +1000,7 @@ def render_results(
                 if not csv_path.exists()
                 else f"`{csv_path.as_posix()}` has no scored run yet."
             )
-            + " Fill it with `m4dgs-eval run SUITE --preset small --seeds 2 --out "
+            + " Fill it with `m4dgs-eval run SUITE --preset small --seeds 2 --root "
             "experiments-small` and `m4dgs-eval export SUITE --root experiments-small --csv "
             f"{csv_path.as_posix()}`, then run `{cmd}` again.",
             "",

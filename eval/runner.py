@@ -95,7 +95,7 @@ class Job:
             "eval",
             "job",
             self.suite,
-            "--out",
+            "--root",
             self.out,
             "--preset",
             self.preset,

@@ -123,7 +123,8 @@ def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quie
 
 @main.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
-@click.option("--overwrite", is_flag=True, help="Re-render files that exist.")
+@click.option("--force", is_flag=True, help="Re-render files that exist (otherwise they are kept).")
+@click.option("--overwrite", is_flag=True, hidden=True, help="Old name of --force.")
 @click.option(
     "--videos/--no-videos",
     default=False,
@@ -138,18 +139,20 @@ def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quie
 )
 @click.option(
     "--device",
-    default="cpu",
+    default="auto",
     show_default=True,
-    help="Device to render on: cpu, cuda, cuda:1 ... (auto = CUDA when available).",
+    help="Device to render on: auto (CUDA when available), cpu, cuda, cuda:1 ...",
 )
-def render(run_dir, overwrite, videos, tracks, device):
+def render(run_dir, force, overwrite, videos, tracks, device):
     """Render the train/test frames of a run (HDR EXR, LDR PNG at every level, depth) and optional
     videos."""
     from m4dgs.core.device import resolve_device
     from m4dgs.outputs.render import render_run
 
+    if overwrite:
+        click.echo("warning: --overwrite is now --force", err=True)
     device = str(resolve_device(device))
-    n = render_run(run_dir, overwrite=overwrite, device=device)
+    n = render_run(run_dir, overwrite=force or overwrite, device=device)
     click.echo(f"rendered {n['train']} train and {n['test']} test frames")
     if videos or tracks:
         from m4dgs.outputs.videos import render_tracks, render_videos
