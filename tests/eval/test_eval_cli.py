@@ -841,3 +841,25 @@ def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
     r2 = CliRunner().invoke(main, ["table", str(out / "runs" / "t2"), "--no-figures"])
     assert r2.exit_code == 0, r2.output
     assert "| world-only | 4 |" in r2.output and "| full | 4 |" in r2.output
+
+
+def test_departures_suite_switches_one_departure_per_row():
+    """Each row of the departures suite changes the config fields it names (valid keys, values
+    different from the defaults) and keeps full's iteration budget."""
+    from eval.suite import load_eval_suite
+    from m4dgs.training.config import to_dict
+    from m4dgs.training.variants import budget, variant_config
+
+    suite = load_eval_suite("departures")
+    assert suite.reference == "full"
+    base = {r.variant: to_dict(variant_config("small", r.variant)) for r in suite.rows}
+    for r in suite.rows:
+        if not r.overrides:
+            continue
+        cfg = to_dict(variant_config("small", r.variant, r.overrides))
+        for key, value in r.overrides.items():
+            node_new, node_old = cfg, base[r.variant]
+            for part in key.split("."):
+                node_new, node_old = node_new[part], node_old[part]
+            assert node_new == value and node_old != value, (r.name, key)
+        assert budget("small", r.variant) == budget("small", "full")

@@ -9,6 +9,8 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -458,3 +460,29 @@ def test_number_format(v, text):
     assert fmt_number(v) == text
     if text:
         assert parse_number(text) == pytest.approx(v, rel=1e-5)
+
+
+def test_committed_results_page_is_regenerated_from_the_committed_csv(tmp_path, monkeypatch):
+    """docs/results.md, its figures and the README's results block are what `m4dgs-eval results`
+    makes from the committed results/runs.csv (a stale page, or a CSV edited without regenerating
+    the page, fails here). The numbers themselves are the CSV's; their rendering is tested above."""
+    repo = Path(__file__).resolve().parents[2]
+    if not (repo / "results" / "runs.csv").exists():
+        pytest.skip("no committed results/runs.csv")
+    for rel in ("results/runs.csv", "results/runs-crf.csv", "docs/results-notes.md", "README.md"):
+        if (repo / rel).exists():
+            (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(repo / rel, tmp_path / rel)
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(main, ["results"])
+    assert r.exit_code == 0, r.output
+    # the suite definitions are linked where the package is: here, outside tmp_path
+    made = (tmp_path / "docs" / "results.md").read_text()
+    made = made.replace(os.path.relpath(repo / "eval", tmp_path / "docs") + "/", "../eval/")
+    assert made == (repo / "docs" / "results.md").read_text(), (
+        "docs/results.md is stale: run `m4dgs-eval results` and commit the result"
+    )
+    assert (tmp_path / "README.md").read_text() == (repo / "README.md").read_text()
+    figs = sorted(p.name for p in (tmp_path / "docs" / "figures" / "results").glob("*.png"))
+    committed = sorted(p.name for p in (repo / "docs" / "figures" / "results").glob("*.png"))
+    assert figs == committed
