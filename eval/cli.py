@@ -1,22 +1,24 @@
-"""`eval` (also `m4dgs-eval`, `python -m eval`): score runs, run experiment suites, print
-paper-style tables.
+"""`m4dgs-eval` (also `python -m eval`; a plain `eval` typed in a shell runs the shell's builtin):
+score runs, run experiment suites, print paper-style tables.
 
-    eval score RUN                           write RUN/metrics.json (renders what is missing
-                                             through m4dgs)
-    eval score-frames --clip C --pred D --name N
-                                             score another method's frames (no m4dgs model)
-    eval suites                              the shipped experiment suites and their rows
-    eval run tiny --preset tiny              make clips, train and score every (scene, row) of a
-                                             suite (resumable)
-    eval run tiny --seeds 3                  ... with trainer seeds 0, 1, 2 (same clips; runs
-                                             <row>, <row>-seed-n)
-    eval run paper-main --list-jobs          the job list as JSON lines (one `python -m eval job
-                                             ...` per line)
-    eval job paper-main --scene S --row R    run ONE job (cluster fan-out: docs/cluster.md)
-    eval table tiny                          the suite's tables (Markdown; --format latex|csv)
-                                             and figures: mean +- 95 % CI over scenes x seeds,
-                                             paired differences to the reference row, the paper's
-                                             values and direction agreement
+    m4dgs-eval score RUN
+        write RUN/metrics.json (renders what is missing through m4dgs)
+    m4dgs-eval score-frames --clip C --pred D --name N
+        score another method's frames (no m4dgs model)
+    m4dgs-eval suites
+        the shipped experiment suites and their rows
+    m4dgs-eval run tiny --preset tiny
+        make clips, train and score every (scene, row) of a suite (resumable)
+    m4dgs-eval run tiny --seeds 3
+        ... with trainer seeds 0, 1, 2 (same clips; runs <row>, <row>-seed-n)
+    m4dgs-eval run paper-main --list-jobs
+        the job list as JSON lines (one `python -m eval job ...` per line)
+    m4dgs-eval job paper-main --scene S --row R
+        run ONE job (cluster fan-out: docs/cluster.md)
+    m4dgs-eval table tiny
+        the suite's tables (Markdown; --format latex|csv) and figures: mean +- 95 % CI over
+        scenes x seeds, paired differences to the reference row, the paper's values and
+        direction agreement
 
 Details: docs/eval.md.
 """
@@ -145,14 +147,14 @@ def score(
 @click.option(
     "--name",
     required=True,
-    help="Method name: the row label in `eval table` and the folder name under runs/<clip>/.",
+    help="Method name: the row label in `m4dgs-eval table` and the folder name under runs/<clip>/.",
 )
 @click.option(
     "--out",
     default=None,
     type=click.Path(file_okay=False),
-    help="Score folder (default: runs/<clip name>/<NAME>; `eval table runs/<clip name>` shows it "
-    "beside the m4dgs runs there).",
+    help="Score folder (default: runs/<clip name>/<NAME>; `m4dgs-eval table runs/<clip name>` "
+    "shows it beside the m4dgs runs there).",
 )
 @click.option(
     "--lpips-weights",
@@ -336,7 +338,7 @@ def run(
 @main.command()
 @click.argument("suite")
 @click.option("--scene", required=True, help="Scene name of the job.")
-@click.option("--row", required=True, help="Row name of the job (see `eval suites`).")
+@click.option("--row", required=True, help="Row name of the job (see `m4dgs-eval suites`).")
 @click.option(
     "--seed",
     default=0,
@@ -404,7 +406,7 @@ def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) ->
 def collect_runs_dir(runs_dir) -> list:
     """Entries of every run under RUNS_DIR with a metrics.json; rows = the variant names (run.json /
     metrics.json), or the run folder names where two runs of one scene and seed share a variant. A
-    folder named <row>-seed-<n> is trainer seed n of <row> (eval run --seeds)."""
+    folder named <row>-seed-<n> is trainer seed n of <row> (m4dgs-eval run --seeds)."""
     from .runner import SEED_SUFFIX
     from .score import read_run_info
 
@@ -580,7 +582,7 @@ def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
         fig_dir = Path(figures_dir) if figures_dir else Path(out) / "figures" / s.name
     if not any(e["metrics"] for e in entries):
         raise click.ClickException(
-            f"no metrics.json found for {target} (run `eval run` / `eval score` first)"
+            f"no metrics.json found for {target} (run `m4dgs-eval run` / `m4dgs-eval score` first)"
         )
     text = build_tables(entries, defs, fmt, reference)
     if out_file:

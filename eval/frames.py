@@ -27,8 +27,8 @@ finite; negative values are set to 0 and counted.
 
 The frames are copied into the m4dgs render layout of a score folder (default runs/<clip>/<NAME>)
 with a run.json naming NAME as the variant, and scored by eval.score.score_run without a model:
-model-only metrics (tracks, learned CRF, render FPS, #Gaussians) are None. `eval table RUNS_DIR`
-then shows NAME as a row beside the m4dgs runs under RUNS_DIR."""
+model-only metrics (tracks, learned CRF, render FPS, #Gaussians) are None.
+`m4dgs-eval table RUNS_DIR` then shows NAME as a row beside the m4dgs runs under RUNS_DIR."""
 
 from __future__ import annotations
 

@@ -984,7 +984,7 @@ def render_results(
         "Tables: mean ± the half-width of the Student-t 95 % interval over a row's (scene, seed) "
         "runs, Δ the paired difference to the suite's reference row († where its interval "
         "excludes 0), the paper's value and the direction agreement where the paper has the "
-        'table (docs/eval.md, "eval table").',
+        'table (docs/eval.md, "m4dgs-eval table").',
     ]
     if notes_link:
         lines.append(

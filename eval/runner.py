@@ -6,7 +6,7 @@ The job list of a suite is (clip setting, scene, row) (eval.suite), times the tr
 OUT/runs/<suite>/<scene>/<row> with the row's config as it is, seed n > 0 into
 OUT/runs/<suite>/<scene>/<row>-seed-<n> with the override `seed` = the row's seed + n. `run_suite`
 works through it locally, with a process pool for `jobs > 1`; `job_list` / `run_job` are the same
-work one job at a time, which is how the list is fanned out to a cluster (`eval run SUITE
+work one job at a time, which is how the list is fanned out to a cluster (`m4dgs-eval run SUITE
 --list-jobs` prints one JSON line per job with its `python -m eval job ...` command line;
 docs/cluster.md).
 
