@@ -843,23 +843,26 @@ def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
     assert "| world-only | 4 |" in r2.output and "| full | 4 |" in r2.output
 
 
-def test_departures_suite_switches_one_departure_per_row():
-    """Each row of the departures suite changes the config fields it names (valid keys, values
-    different from the defaults) and keeps full's iteration budget."""
+@pytest.mark.parametrize("name", ["departures", "control-video-init", "exposure-noise"])
+def test_suite_overrides_change_what_they_name(name):
+    """Each override of a row names a config field and changes it (a misspelt key fails in
+    apply_overrides; a value equal to the variant's default would make the row a copy), and every
+    row keeps full's iteration budget."""
     from eval.suite import load_eval_suite
     from m4dgs.training.config import to_dict
-    from m4dgs.training.variants import budget, variant_config
+    from m4dgs.training.variants import variant_config
 
-    suite = load_eval_suite("departures")
-    assert suite.reference == "full"
-    base = {r.variant: to_dict(variant_config("small", r.variant)) for r in suite.rows}
+    suite = load_eval_suite(name)
+    assert suite.reference in {r.name for r in suite.rows}
+    full = variant_config("small", "full")
+    full_total = full.stage1.iterations + full.stage2.iterations
     for r in suite.rows:
-        if not r.overrides:
-            continue
-        cfg = to_dict(variant_config("small", r.variant, r.overrides))
+        base = to_dict(variant_config("small", r.variant))
+        resolved = variant_config("small", r.variant, r.overrides)
+        assert resolved.stage1.iterations + resolved.stage2.iterations == full_total, r.name
+        cfg = to_dict(resolved)
         for key, value in r.overrides.items():
-            node_new, node_old = cfg, base[r.variant]
+            node_new, node_old = cfg, base
             for part in key.split("."):
                 node_new, node_old = node_new[part], node_old[part]
             assert node_new == value and node_old != value, (r.name, key)
-        assert budget("small", r.variant) == budget("small", "full")
