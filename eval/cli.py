@@ -56,6 +56,25 @@ def main():
 
 
 # --------------------------------------------------------------------------------------------------
+# options of both scorers (`score` and `score-frames`)
+_lpips_opt = click.option(
+    "--lpips-weights",
+    default=None,
+    type=click.Path(exists=True, dir_okay=False),
+    help="LPIPS weights file (AlexNet + linear heads, docs/metrics.md); without it LPIPS is n/a.",
+)
+_roundtrip_opt = click.option(
+    "--roundtrip",
+    type=click.Choice(["none", "png", "jpeg"]),
+    default="none",
+    show_default=True,
+    help="8-bit round trip of the LDR frames before scoring (jpeg: as the authors scored).",
+)
+_flip_opt = click.option(
+    "--flip", is_flag=True, help="Also compute HDR-FLIP on the test frames (slow)."
+)
+
+
 @main.command()
 @click.argument("run", type=click.Path(exists=True, file_okay=False))
 @click.option(
@@ -65,20 +84,9 @@ def main():
     type=click.Path(exists=True, file_okay=False),
     help="Clip folder to score against (default: the 'clip' entry of RUN/run.json).",
 )
-@click.option(
-    "--lpips-weights",
-    default=None,
-    type=click.Path(exists=True, dir_okay=False),
-    help="LPIPS weights file (AlexNet + linear heads, docs/metrics.md); without it LPIPS is n/a.",
-)
-@click.option(
-    "--roundtrip",
-    type=click.Choice(["none", "png", "jpeg"]),
-    default="none",
-    show_default=True,
-    help="8-bit round trip of the LDR renders before scoring (jpeg: as the authors scored).",
-)
-@click.option("--flip", is_flag=True, help="Also compute HDR-FLIP on the test frames (slow).")
+@_lpips_opt
+@_roundtrip_opt
+@_flip_opt
 @click.option(
     "--tae-train-test", is_flag=True, help="Also HDR-TAE over all frames (train + test, DIS flow)."
 )
@@ -156,20 +164,9 @@ def score(
     help="Score folder (default: runs/<clip name>/<NAME>; `m4dgs-eval table runs/<clip name>` "
     "shows it beside the m4dgs runs there).",
 )
-@click.option(
-    "--lpips-weights",
-    default=None,
-    type=click.Path(exists=True, dir_okay=False),
-    help="LPIPS weights file (AlexNet + linear heads, docs/metrics.md); without it LPIPS is n/a.",
-)
-@click.option(
-    "--roundtrip",
-    type=click.Choice(["none", "png", "jpeg"]),
-    default="none",
-    show_default=True,
-    help="8-bit round trip of the LDR frames before scoring (jpeg: as the authors scored).",
-)
-@click.option("--flip", is_flag=True, help="Also compute HDR-FLIP on the test frames (slow).")
+@_lpips_opt
+@_roundtrip_opt
+@_flip_opt
 @click.option(
     "--tae-train-test", is_flag=True, help="Also HDR-TAE over all frames (needs train/hdr)."
 )
