@@ -156,6 +156,7 @@ def main(argv=None) -> int:
         help="tiny | small | full: BA steps 300 / 800 / 2000, static tracks 1024 / 2048 / 4096",
     )
     ap.add_argument("--ba-steps", type=int, default=None)
+    ap.add_argument("--ba-dtype", choices=["float64", "float32"], default=None)
     ap.add_argument(
         "--threshold", type=float, default=None, help="epipolar threshold (units of --units)"
     )
@@ -171,6 +172,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     args = ap.parse_args(argv)
     cam_cfg = CameraInitConfig.for_preset(args.preset)
+    if args.ba_dtype is not None:
+        cam_cfg.ba_dtype = args.ba_dtype
     if args.ba_steps is not None:
         cam_cfg.ba_steps = args.ba_steps
         cam_cfg.depth_correction_start = min(cam_cfg.depth_correction_start, args.ba_steps // 4)

@@ -20,8 +20,8 @@ Pipeline (`initialize_cameras`):
 4. Poses: chained from consecutive-frame Sim(3) solutions (the nearest earlier frame with enough
    common static points); the Sim(3) scale is absorbed into a per-frame depth scale. World = the
    first camera (identity).
-5. Bundle adjustment (Adam, float64): per-frame camera rotation (quaternion) and centre, a shared
-   focal length (log), per-frame log depth scale and, after `depth_correction_start` steps, a
+5. Bundle adjustment (Adam, float32 by default): per-frame camera rotation (quaternion) and centre, a
+   shared focal length (log), per-frame log depth scale and, after `depth_correction_start` steps, a
    per-observation log-depth correction. Each static track's world point is the mean of its lifted
    world points (over its visible frames); losses: robust (Cauchy or Huber) reprojection error of
    that point in every visible frame (pixels), symmetric depth-ratio consistency max(z/d, d/z) - 1
@@ -104,6 +104,10 @@ class CameraInitConfig:
     reproj_focal_invariant: bool = False  # residuals x f0 / f instead of pixels (see bundle_adjust)
     robust_scale_px: float = 2.0
     log_every: int = 100
+    # floating-point type of the bundle adjustment's parameters and residuals. float32: the same
+    # cameras as float64 to the printed digits (focal, ATE, RPE on three small clips) and camera
+    # initialisation 1.5-1.8x faster (bench/camera_init_bench.py, docs/performance.md)
+    ba_dtype: Literal["float64", "float32"] = "float32"
     seed: int = 0
     # too few static tracks for the bundle adjustment: the trainer stops with an error (False) or
     # goes on with identity cameras and the fallback field of view (True; recorded in diagnostics)
@@ -412,9 +416,10 @@ def bundle_adjust(
     Returns (c2w [T, 4, 4], log depth scale [T], focal, history list of dicts).
     """
     N, T = vis.shape
-    dt = torch.float64
+    dt = {"float64": torch.float64, "float32": torch.float32}[cfg.ba_dtype]
     dev = uv.device
-    c2w0, sig0 = c2w0.to(dev), sig0.to(dev)
+    uv, depth = uv.to(dt), depth.to(dt)
+    c2w0, sig0 = c2w0.to(dev, dt), sig0.to(dev, dt)
     cx, cy = width / 2.0, height / 2.0
     q_all = rotmat_to_quat(c2w0[:, :3, :3])
     q = torch.nn.Parameter(q_all[1:].clone())
@@ -535,7 +540,12 @@ def bundle_adjust(
         C = torch.cat([z3, c], 0)
         c2w = make_c2w(quat_to_rotmat(Q), C)
         L = torch.cat([z1, ls], 0)
-    return c2w.detach().cpu(), L.detach().cpu(), float(logf.detach().exp()), hist
+    return (
+        c2w.detach().cpu().double(),
+        L.detach().cpu().double(),
+        float(logf.detach().exp()),
+        hist,
+    )
 
 
 # --------------------------------------------------------------------------------------------------
