@@ -47,7 +47,7 @@ ORDER: Tuple[str, ...] = ("camera_init", "stage1", "v2w", "stage2")
 # longest matching prefix wins). When unsure, a field goes to the EARLIER phase: that can only cost
 # sharing, never correctness.
 PHASE_OF: Dict[str, str] = {
-    # the trainer seed: every phase (the rule: seeds are never shared)
+    # the trainer seed: every phase (runs of different seeds are independent draws: nothing shared)
     "seed": "camera_init",
     "preset": "camera_init",
     "width": "camera_init",
