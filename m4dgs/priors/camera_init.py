@@ -20,9 +20,9 @@ Pipeline (`initialize_cameras`):
 4. Poses: chained from consecutive-frame Sim(3) solutions (the nearest earlier frame with enough
    common static points); the Sim(3) scale is absorbed into a per-frame depth scale. World = the
    first camera (identity).
-5. Bundle adjustment (Adam, float32 by default): per-frame camera rotation (quaternion) and centre, a
-   shared focal length (log), per-frame log depth scale and, after `depth_correction_start` steps, a
-   per-observation log-depth correction. Each static track's world point is the mean of its lifted
+5. Bundle adjustment (Adam, float32 by default): per-frame camera rotation (quaternion) and centre,
+   a shared focal length (log), per-frame log depth scale and, after `depth_correction_start` steps,
+   a per-observation log-depth correction. Each static track's world point is the mean of its lifted
    world points (over its visible frames); losses: robust (Cauchy or Huber) reprojection error of
    that point in every visible frame (pixels), symmetric depth-ratio consistency max(z/d, d/z) - 1
    between its depth in each frame and the lifted depth there, camera smoothness (second differences

@@ -14,7 +14,8 @@ The key of a phase is a SHA-256 of exactly what decides its result:
   camera-initialisation field: runs of different seeds never share anything;
 - the clip's input fingerprint (m4dgs.clip.Clip.input_fingerprint);
 - the code: a hash of the m4dgs package's sources (a changed trainer never reuses an old result),
-  the torch version, the device type and the resolved rasterizer backend.
+  the torch version, the number of torch threads (sums add up in another order with another
+  count), the device type and the resolved rasterizer backend.
 
 A shared phase is bit-for-bit what the run would have computed (every phase reseeds the global torch
 generator from the trainer seed when it starts; tests/training/test_phase_sharing.py trains a row
@@ -132,7 +133,7 @@ def phase_keys(cfg: Mapping[str, Any], context: Mapping[str, Any]) -> Dict[str, 
     """{phase: key} for the shared phases.
 
     cfg: the resolved config as a dict (to_dict); context: everything outside the config that
-    decides a result (clip fingerprint, code fingerprint, torch version, device type, backend),
+    decides a result (clip and code fingerprints, torch version and threads, device, backend),
     JSON-able.
     The key of phase P hashes the fields of P and of every phase before it, and the context."""
     fields: Dict[str, List[Tuple[str, Any]]] = {p: [] for p in ORDER}

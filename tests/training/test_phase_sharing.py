@@ -15,7 +15,14 @@ from m4dgs.training.config import PRESETS, apply_overrides, preset, to_dict
 from m4dgs.training.pipeline import train
 from m4dgs.training.variants import VARIANTS, variant_config
 
-CONTEXT = {"clip": "c" * 64, "code": "d" * 64, "torch": "x", "device": "cpu", "backend": "cpu"}
+CONTEXT = {
+    "clip": "c" * 64,
+    "code": "d" * 64,
+    "torch": "x",
+    "threads": 1,
+    "device": "cpu",
+    "backend": "cpu",
+}
 
 
 def _keys(cfg, **context):
@@ -172,3 +179,7 @@ def test_shared_phases_give_the_run_what_it_would_compute(
     # another trainer seed shares nothing
     seed1 = run("seed-1", "full", {"seed": 1})
     assert "shared_phases" not in seed1.status()
+    # another torch thread count shares nothing (its reductions add up in another order)
+    torch.set_num_threads(2)
+    threads2 = run("threads-2", "full")
+    assert "shared_phases" not in threads2.status()
