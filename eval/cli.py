@@ -281,6 +281,12 @@ _no_share_opt = click.option(
 @_lpips_opt
 @_device_opt
 @_no_share_opt
+@click.option(
+    "--fail-fast",
+    is_flag=True,
+    help="Stop at the first failed job. By default a failed job is reported and the others go "
+    "on; the command then exits with status 1 naming the failed jobs.",
+)
 def run(
     suite,
     out,
@@ -294,10 +300,13 @@ def run(
     lpips_weights,
     device,
     no_share,
+    fail_fast,
 ):
     """Make missing clips, train missing runs and score missing metrics of SUITE (name or YAML
     path); resumable."""
-    from .runner import list_jobs_jsonl, run_suite
+    from m4dgs.core.errors import M4DGSError
+
+    from .runner import failed_jobs, list_jobs_jsonl, run_suite
 
     if list_jobs:
         click.echo(
@@ -327,9 +336,18 @@ def run(
         log=lambda s: click.echo(s, err=True),
         seeds=seeds,
         share=not no_share,
+        fail_fast=fail_fast,
     )
     for r in res:
         click.echo(json.dumps(r))
+    bad = failed_jobs(res)
+    if bad:
+        raise M4DGSError(
+            f"{len(bad)} of {len(res)} jobs failed: "
+            + "; ".join(f"{r['id']} ({r['error']})" for r in bad[:5])
+            + (f"; ... and {len(bad) - 5} more" if len(bad) > 5 else "")
+            + ". Finished runs are kept: run the same command again to retry the failed ones."
+        )
 
 
 @main.command()

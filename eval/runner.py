@@ -17,7 +17,13 @@ system with working flock (local disks, most NFS v4 set-ups).
 
 Shared phases: the runs of one clip share camera initialisation, stage 1 and the V2W transform
 wherever their configurations agree on everything that phase reads (m4dgs.training.phases), through
-OUT/.shared (`share=False` / `--no-share` turns it off). Trainer seeds are never shared."""
+OUT/.shared (`share=False` / `--no-share` turns it off). Trainer seeds are never shared.
+
+Failures: by default a job that fails (bad input, a diverged run, a bug) is reported and the suite
+goes on with the other jobs; the jobs of a clip that could not be made are skipped. `run_suite`
+returns every job's result, the failed ones with an "error" entry, and `m4dgs-eval run` exits with
+status 1 naming them after the last job. `fail_fast=True` (`--fail-fast`) stops at the first
+failure instead."""
 
 from __future__ import annotations
 
@@ -27,6 +33,7 @@ import re
 import shlex
 import sys
 import time
+import traceback
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -35,6 +42,7 @@ from typing import Dict, List, Optional, Sequence
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
 from m4dgs.core import io as mio
+from m4dgs.core.errors import M4DGSError
 from m4dgs.core.lock import file_lock
 
 from .suite import EvalSuite, load_eval_suite, scene_suite_names, suites_dir
@@ -300,6 +308,26 @@ def _run_job_kw(job: Job, kw: dict) -> dict:
     return run_job(job, **kw)
 
 
+def _failure(job: "Job", exc: BaseException, what: str) -> dict:
+    """The result entry of a failed job: its id, folders and a one-line error (with the type of an
+    unexpected exception, whose traceback the caller logs)."""
+    one = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    msg = one if isinstance(exc, M4DGSError) else f"{type(exc).__name__}: {one}"
+    return {
+        "id": job.id,
+        "clip": job.clip_dir,
+        "run": job.run_dir,
+        "metrics": None,
+        "steps": [],
+        "error": f"{what}: {msg}",
+    }
+
+
+def failed_jobs(results: Sequence[dict]) -> List[dict]:
+    """The results of `run_suite` that failed (those with an "error" entry)."""
+    return [r for r in results if r.get("error")]
+
+
 def run_suite(
     suite,
     out,
@@ -316,12 +344,15 @@ def run_suite(
     log=None,
     seeds: int = 1,
     share: bool = True,
+    fail_fast: bool = False,
 ) -> List[dict]:
     """Make every missing clip, then train and score every (scene, row, seed) of a suite; resumable.
 
     jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool
     of `jobs` workers, each with cpu_count / jobs torch threads. Returns the per-job results
-    (run_job) in job order."""
+    (run_job) in job order; a job that failed has an "error" entry instead of metrics (and the
+    jobs of a clip that failed to be made are not started), unless fail_fast, which raises the
+    first failure."""
     jl = job_list(suite, out, preset, scenes, seeds)
     say = log or (lambda msg: print(msg, file=sys.stderr))
     firsts: Dict[str, Job] = {}
@@ -336,33 +367,77 @@ def run_suite(
     kw = dict(
         force=force, lpips_weights=lpips_weights, device=device, score_kw=score_kw, share=share
     )
+    clip_errors: Dict[str, dict] = {}  # clip_key -> failure of making that clip
+
+    def failed(job: Job, exc: BaseException, what: str) -> dict:
+        if fail_fast:
+            raise exc
+        r = _failure(job, exc, what)
+        name = f"clip {job.clip_key}" if what == "making the clip" else job.id
+        say(f"[eval run] FAILED {name}: {r['error']}")
+        if not isinstance(exc, M4DGSError):
+            say("".join(traceback.format_exception(type(exc), exc, exc.__traceback__)).rstrip())
+        return r
+
+    def skipped(job: Job) -> dict:
+        r = dict(clip_errors[job.clip_key], id=job.id, run=job.run_dir)
+        say(f"[eval run] skipped {job.id}: its clip {job.clip_key} could not be made")
+        return r
+
     if jobs <= 1:
         for j in todo:
             say(f"[eval run] clip {j.clip_key}")
-            make_job_clip(j, progress=progress)
+            try:
+                make_job_clip(j, progress=progress)
+            except Exception as exc:
+                clip_errors[j.clip_key] = failed(j, exc, "making the clip")
         if clips_only:
             return [{"id": j.id, "clip": j.clip_dir} for j in jl]
         results = []
         for i, j in enumerate(jl):
+            if j.clip_key in clip_errors:
+                results.append(skipped(j))
+                continue
             say(f"[eval run] {i + 1}/{len(jl)} {j.id}")
-            results.append(run_job(j, progress=progress, **kw))
+            try:
+                results.append(run_job(j, progress=progress, **kw))
+            except Exception as exc:
+                results.append(failed(j, exc, "the job"))
         return results
     threads = max(1, (os.cpu_count() or 1) // jobs)
     with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init, initargs=(threads,)) as ex:
-        for f in [ex.submit(make_job_clip, j, False) for j in todo]:
-            f.result()
-        if clips_only:
-            return [{"id": j.id, "clip": j.clip_dir} for j in jl]
-        futs = [ex.submit(_run_job_kw, j, dict(kw, progress=False)) for j in jl]
-        results = []
-        for j, f in zip(jl, futs):
-            r = f.result()
-            say(
-                f"[eval run] done {j.id} ({', '.join(r['steps']) or 'nothing to do'}, "
-                f"{r['seconds']} s)"
-            )
-            results.append(r)
-        return results
+        try:
+            for j, f in [(j, ex.submit(make_job_clip, j, False)) for j in todo]:
+                try:
+                    f.result()
+                except Exception as exc:
+                    clip_errors[j.clip_key] = failed(j, exc, "making the clip")
+            if clips_only:
+                return [{"id": j.id, "clip": j.clip_dir} for j in jl]
+            futs = {
+                j.id: ex.submit(_run_job_kw, j, dict(kw, progress=False))
+                for j in jl
+                if j.clip_key not in clip_errors
+            }
+            results = []
+            for j in jl:
+                if j.id not in futs:
+                    results.append(skipped(j))
+                    continue
+                try:
+                    r = futs[j.id].result()
+                except Exception as exc:
+                    results.append(failed(j, exc, "the job"))
+                    continue
+                say(
+                    f"[eval run] done {j.id} ({', '.join(r['steps']) or 'nothing to do'}, "
+                    f"{r['seconds']} s)"
+                )
+                results.append(r)
+            return results
+        except BaseException:
+            ex.shutdown(wait=True, cancel_futures=True)  # fail fast / Ctrl-C: start nothing more
+            raise
 
 
 def list_jobs_jsonl(

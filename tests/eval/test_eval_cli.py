@@ -690,6 +690,89 @@ def test_figures_direct(tmp_path):
     assert crf_figure([("a", None)], tmp_path / "d.png") is None
 
 
+def _crashing_clip(job, progress=False):
+    """A clip maker that fails like a bug would (module level: the process pool pickles it)."""
+    raise RuntimeError("the renderer crashed")
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_run_suite_goes_on_after_a_failed_job_and_retries_it(tmp_path, fake_trainer, jobs):
+    """A job that fails (an input error, a bug) and the jobs of a clip that cannot be made are
+    reported; the other jobs finish; `m4dgs-eval run` exits 1 naming the failures; a second run
+    retries only what failed; --fail-fast stops at the first failure."""
+    import multiprocessing as mp
+
+    import eval.runner as runner
+    from m4dgs.core.errors import InputError
+
+    if jobs > 1 and (
+        mp.get_start_method(allow_none=True) not in (None, "fork") or sys.platform != "linux"
+    ):
+        pytest.skip("needs the fork start method to pass the fake trainer to the workers")
+    suite = tmp_path / "t2.yaml"
+    suite.write_text(SUITE_YAML)
+    out = tmp_path / "exp"
+    jl = runner.job_list(suite, out, "tiny")
+    lamp = {j.clip_dir for j in jl if j.scene == "tiny-lamp-box"}
+    for c in lamp:  # tiny-flag-arm's clip is missing and fails to be made (below)
+        make_fake_clip(Path(c), seed=3)
+    pipeline = sys.modules["m4dgs.training.pipeline"]
+    good_train = pipeline.train
+    logs = []
+
+    def bad_train(clip_dir, run_dir, *a, **k):
+        if Path(run_dir).name == "base":
+            raise InputError(f"{clip_dir}/clip.json: field 'exposures' is broken")
+        return good_train(clip_dir, run_dir, *a, **k)
+
+    mpatch = pytest.MonkeyPatch()
+    mpatch.setattr(pipeline, "train", bad_train)
+    mpatch.setattr(runner, "make_job_clip", _crashing_clip)
+    try:
+        kw = dict(jobs=jobs, score_kw={"fps": False, "model": False}, progress=False)
+        res = runner.run_suite(suite, out, "tiny", log=logs.append, **kw)
+        assert [r["id"] for r in res] == [j.id for j in jl]
+        by = {(j.scene, j.row): r for j, r in zip(jl, res)}
+        assert by[("tiny-lamp-box", "full")]["steps"] == ["train", "score"]
+        assert by[("tiny-lamp-box", "base")]["error"] == (
+            "the job: " + f"{Path(next(iter(lamp)))}/clip.json: field 'exposures' is broken"
+        )
+        for row in ("base", "full"):
+            err = by[("tiny-flag-arm", row)]["error"]
+            assert err == "making the clip: RuntimeError: the renderer crashed"
+        assert len(runner.failed_jobs(res)) == 3
+        text = "\n".join(logs)
+        flag_key = next(j.clip_key for j in jl if j.scene == "tiny-flag-arm")
+        assert f"FAILED clip {flag_key}: making the clip: RuntimeError" in text
+        assert "Traceback" in text  # the unexpected error's traceback is logged
+        assert not (Path(by[("tiny-lamp-box", "base")]["run"]) / "metrics.json").exists()
+
+        # fail fast: the first failure propagates
+        with pytest.raises((InputError, RuntimeError)):
+            runner.run_suite(suite, out, "tiny", log=logs.append, fail_fast=True, **kw)
+
+        # the command: exit 1, one line naming the failed jobs
+        if jobs == 1:
+            r = CliRunner().invoke(
+                main, ["run", str(suite), "--root", str(out), "--preset", "tiny"]
+            )
+            assert r.exit_code == 1, r.output
+            assert (
+                "3 of 4 jobs failed" in r.output and "Traceback" not in r.output.split("Error:")[-1]
+            )
+    finally:
+        mpatch.undo()
+    # fixed: a second run does only what failed (the clip is made here by hand)
+    for c in {j.clip_dir for j in jl} - lamp:
+        make_fake_clip(Path(c), seed=4)
+    res = runner.run_suite(suite, out, "tiny", log=logs.append, **kw)
+    assert not runner.failed_jobs(res)
+    by = {(j.scene, j.row): r for j, r in zip(jl, res)}
+    assert by[("tiny-lamp-box", "full")]["steps"] == []
+    assert by[("tiny-lamp-box", "base")]["steps"] == ["train", "score"]
+    assert by[("tiny-flag-arm", "full")]["steps"] == ["train", "score"]
+
+
 def test_run_suite_process_pool(tmp_path, fake_trainer):
     """jobs=2: the fake trainer modules reach the workers through fork (Linux default start
     method)."""
