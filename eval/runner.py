@@ -369,11 +369,10 @@ def run_suite(
     )
     clip_errors: Dict[str, dict] = {}  # clip_key -> failure of making that clip
 
-    def failed(job: Job, exc: BaseException, what: str) -> dict:
+    def failed(job: Job, exc: BaseException, what: str, name: str) -> dict:
         if fail_fast:
             raise exc
         r = _failure(job, exc, what)
-        name = f"clip {job.clip_key}" if what == "making the clip" else job.id
         say(f"[eval run] FAILED {name}: {r['error']}")
         if not isinstance(exc, M4DGSError):
             say("".join(traceback.format_exception(type(exc), exc, exc.__traceback__)).rstrip())
@@ -390,7 +389,7 @@ def run_suite(
             try:
                 make_job_clip(j, progress=progress)
             except Exception as exc:
-                clip_errors[j.clip_key] = failed(j, exc, "making the clip")
+                clip_errors[j.clip_key] = failed(j, exc, "making the clip", f"clip {j.clip_key}")
         if clips_only:
             return [{"id": j.id, "clip": j.clip_dir} for j in jl]
         results = []
@@ -402,7 +401,7 @@ def run_suite(
             try:
                 results.append(run_job(j, progress=progress, **kw))
             except Exception as exc:
-                results.append(failed(j, exc, "the job"))
+                results.append(failed(j, exc, "the job", j.id))
         return results
     threads = max(1, (os.cpu_count() or 1) // jobs)
     with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init, initargs=(threads,)) as ex:
@@ -411,7 +410,9 @@ def run_suite(
                 try:
                     f.result()
                 except Exception as exc:
-                    clip_errors[j.clip_key] = failed(j, exc, "making the clip")
+                    clip_errors[j.clip_key] = failed(
+                        j, exc, "making the clip", f"clip {j.clip_key}"
+                    )
             if clips_only:
                 return [{"id": j.id, "clip": j.clip_dir} for j in jl]
             futs = {
@@ -427,7 +428,7 @@ def run_suite(
                 try:
                     r = futs[j.id].result()
                 except Exception as exc:
-                    results.append(failed(j, exc, "the job"))
+                    results.append(failed(j, exc, "the job", j.id))
                     continue
                 say(
                     f"[eval run] done {j.id} ({', '.join(r['steps']) or 'nothing to do'}, "

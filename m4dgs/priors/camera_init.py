@@ -416,7 +416,7 @@ def bundle_adjust(
     Returns (c2w [T, 4, 4], log depth scale [T], focal, history list of dicts).
     """
     N, T = vis.shape
-    dt = {"float64": torch.float64, "float32": torch.float32}[cfg.ba_dtype]
+    dt = getattr(torch, cfg.ba_dtype)  # torch.float32 / torch.float64
     dev = uv.device
     uv, depth = uv.to(dt), depth.to(dt)
     c2w0, sig0 = c2w0.to(dev, dt), sig0.to(dev, dt)
