@@ -39,14 +39,21 @@ from m4dgs.core import io as mio
 # CSV schema
 # --------------------------------------------------------------------------------------------------
 KEY = ("suite", "scene", "row", "seed")
-META = KEY + (
-    "label",  # the row's label in the tables
-    "variant",  # m4dgs.training.variants name
-    "clip_setting",  # clip setting id (OUT/clips/<id>: syn-exp-3, syn-exp-3-crf-aces-filmic)
-    "crf",  # the clip's true camera response
-    "preset",  # training preset of the run (run.json / metrics.json)
-    "status",  # scored | missing (a job of the suite without metrics.json)
-    "ldr_convention",  # ldr_png | ldr_jpeg (metrics.json)
+META = (
+    KEY
+    + (
+        "label",  # the row's label in the tables
+        "variant",  # m4dgs.training.variants name
+        "clip_setting",  # clip setting id (OUT/clips/<id>: syn-exp-3, syn-exp-3-crf-aces-filmic)
+        "crf",  # the clip's true camera response
+        "preset",  # training preset of the run (run.json / metrics.json)
+        "status",  # scored | missing (a job of the suite without metrics.json)
+        "ldr_convention",  # ldr_png | ldr_jpeg (metrics.json)
+        # provenance: runs of one comparison should come from the same code, clips and thread count
+        "code",  # first 12 hex digits of the m4dgs source fingerprint the run was trained with (run.json)
+        "generator",  # benchgen generator version of the run's clip (clip.json generator.version)
+        "torch_threads",  # torch threads of the training process (run.json; another count = another draw)
+    )
 )
 SCORED, MISSING = "scored", "missing"
 CRF_GRID = [i / 2 for i in range(-20, 21)]  # log2 exposure -10 .. 10 in half stops
@@ -112,6 +119,25 @@ def _crf_values(curve: dict) -> Optional[List[float]]:
     return [float(v) for v in np.interp(CRF_GRID, z, y)]
 
 
+def _provenance(run_dir, clip_dir) -> Dict[str, str]:
+    """The provenance cells of a run: code fingerprint (12 hex digits), the clip's generator version
+    and the torch thread count; "" where a run (or an older run.json / clip.json) does not say."""
+    info = {}
+    p = Path(run_dir) / "run.json"
+    if p.exists():
+        info = mio.read_json(p)
+    gen = ""
+    c = Path(clip_dir) / "clip.json" if clip_dir else None
+    if c is not None and c.exists():
+        gen = (mio.read_json(c).get("generator") or {}).get("version", "")
+    threads = info.get("torch_threads", "")
+    return {
+        "code": str(info.get("code") or "")[:12],
+        "generator": str(gen),
+        "torch_threads": str(threads),
+    }
+
+
 def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List[dict]]:
     """(runs rows, CRF rows) of one suite's jobs under ROOT (eval.cli.collect_suite): every job, a
     scored one with its metrics, a job without metrics.json with status "missing". Without
@@ -144,6 +170,7 @@ def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List
             "preset": (m.get("run") or {}).get("preset") or "",
             "status": SCORED if e["metrics"] else MISSING,
             "ldr_convention": m.get("ldr_convention", "") if e["metrics"] else "",
+            **_provenance(e["run_dir"], e["clip_dir"]),
         }
         for k in keys:
             v = m.get(k)
@@ -317,6 +344,16 @@ class SuiteData:
         for r in self.rows:
             if r.get("status") == SCORED:
                 out[r.get("preset") or "?"] = out.get(r.get("preset") or "?", 0) + 1
+        return dict(sorted(out.items()))
+
+    def provenance(self, column: str) -> Dict[str, int]:
+        """{value: number of scored runs} of a provenance column ("code", "generator",
+        "torch_threads"); runs whose CSV row does not say count under "not recorded"."""
+        out: Dict[str, int] = {}
+        for r in self.rows:
+            if r.get("status") == SCORED:
+                v = str(r.get(column) or "") or "not recorded"
+                out[v] = out.get(v, 0) + 1
         return dict(sorted(out.items()))
 
 
@@ -854,7 +891,17 @@ def _suite_summary(data: SuiteData) -> dict:
         "missing": len(data.missing),
         "expected": expected,
         "presets": data.presets,
+        "code": data.provenance("code"),
+        "generator": data.provenance("generator"),
+        "torch_threads": data.provenance("torch_threads"),
     }
+
+
+def _counts_text(p: Dict[str, int]) -> str:
+    """{value: runs} -> "v" when one value, else "v1 (n1 runs), v2 (n2 runs)"."""
+    if len(p) == 1:
+        return next(iter(p))
+    return ", ".join(f"{k} ({v} runs)" for k, v in p.items())
 
 
 def _presets_text(p: Dict[str, int]) -> str:
@@ -894,6 +941,8 @@ def suite_section(data: SuiteData, fig_paths: List[Path], out_dir: Path) -> str:
         + f"); reference row: `{data.suite.reference if data.suite is not None else 'n/a'}`",
         f"- Trainer seeds: {sm['seeds']} (" + ", ".join(str(s) for s in data.seeds) + ")",
         f"- Preset: {_presets_text(sm['presets'])}",
+        f"- Provenance: m4dgs code {_counts_text(sm['code'])}; clip generator version "
+        f"{_counts_text(sm['generator'])}; torch threads {_counts_text(sm['torch_threads'])}",
         f"- Runs: {sm['scored']} scored of {sm['expected']} "
         f"(= {sm['scenes']} scenes x {sm['rows']} rows x {sm['seeds']} seeds); missing: "
         + miss_txt,

@@ -154,6 +154,9 @@ class Trainer:
             "method": self.cfg.method,
             "device": str(self.device),
             "torch_threads": torch.get_num_threads(),
+            # the m4dgs sources the run was trained with (m4dgs.training.phases.code_fingerprint):
+            # exported beside the metrics, so a table can tell runs of different code apart
+            "code": code_fingerprint(),
             **extra,
         }
         write_json(self.run.path("run.json"), info)

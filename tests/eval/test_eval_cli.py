@@ -926,7 +926,9 @@ def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
     assert "| world-only | 4 |" in r2.output and "| full | 4 |" in r2.output
 
 
-@pytest.mark.parametrize("name", ["departures", "control-video-init", "exposure-noise"])
+@pytest.mark.parametrize(
+    "name", ["departures", "departures-smooth", "control-video-init", "exposure-noise"]
+)
 def test_suite_overrides_change_what_they_name(name):
     """Each override of a row names a config field and changes it (a misspelt key fails in
     apply_overrides; a value equal to the variant's default would make the row a copy), and every

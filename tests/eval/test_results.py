@@ -7,6 +7,7 @@ nothing here checks the numbers of a real run."""
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import os
@@ -50,7 +51,13 @@ def _value(rng, scene_base, row, k):
 def _write_run(root, suite, scene, row, seed, vals, curve_gain=None):
     d = Path(root) / "runs" / suite / scene / (row if seed == 0 else f"{row}-seed-{seed}")
     d.mkdir(parents=True, exist_ok=True)
-    (d / "run.json").write_text(json.dumps({"variant": row, "preset": "small"}))
+    code = hashlib.sha256(f"{suite}/{row}".encode()).hexdigest()  # a code version per row
+    info = {"variant": row, "preset": "small", "code": code, "torch_threads": 1 + seed}
+    (d / "run.json").write_text(json.dumps(info))
+    if scene == "lamp-room-orbit":  # only this scene's clip says its generator version
+        c = Path(root) / "clips" / "syn-exp-3" / scene
+        c.mkdir(parents=True, exist_ok=True)
+        (c / "clip.json").write_text(json.dumps({"generator": {"tool": "benchgen", "version": 7}}))
     if (suite, scene, row, seed) == MISSING:
         return None
     m = dict(vals)
@@ -248,6 +255,11 @@ def test_export_merge_results_readme(tmp_path):
         one["label"] == "(e) w/o temporal luminance regularization" and one["variant"] == "no-tlr"
     )
     assert one["hdr_lpips"] == "" and one["clip_setting"] == "syn-exp-3"
+    # provenance from run.json and clip.json; "" where a file does not say
+    code = hashlib.sha256(b"paper-ablation/no-tlr").hexdigest()[:12]
+    assert (one["code"], one["generator"], one["torch_threads"]) == (code, "7", "1")
+    other = next(r for r in rows if r["scene"] != "lamp-room-orbit" and r["seed"] == "1")
+    assert other["generator"] == "" and other["torch_threads"] == "2"
     # the CRF curves: seed-0 runs only (the others have none), mean of RGB at 3 decimals
     crf = read_csv(tmp_path / "results" / "runs-crf.csv")
     assert len(crf) == 3 * 6 + 2 * 5

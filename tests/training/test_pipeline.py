@@ -12,6 +12,7 @@ import torch
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core.crf import get_crf
 from m4dgs.training.data import load_training_data
+from m4dgs.training.phases import code_fingerprint
 from m4dgs.training.pipeline import resolve_config, train
 from m4dgs.training.stage1 import VideoStage, train_stage1
 
@@ -89,6 +90,8 @@ def test_pipeline_runs_resumes_and_renders(tiny_clip_realistic, tmp_path, monkey
             assert (run / "renders/test/ldr" / level_name(lv) / frame_name(g, "png")).exists()
     info = json.loads((run / "run.json").read_text())
     assert info["train_seconds"] > 0 and info["num_gaussians"] > 0
+    # the fingerprint of the sources it was trained with (the one the phase-sharing keys use)
+    assert info["code"] == code_fingerprint() and len(info["code"]) == 64
     cams = json.loads((run / "cameras.json").read_text())
     assert len(cams["c2w"]) == clip.meta.num_frames
     # tiny preset: union of the epipolar and rigidity masks, cameras re-adjusted once on them
