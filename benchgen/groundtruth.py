@@ -377,3 +377,34 @@ def render_noise(img_a: np.ndarray, img_b: np.ndarray, mask: Optional[np.ndarray
         "tae_two_seeds": float(tae),
         "mu_psnr": float(-10.0 * math.log10(mse)) if mse > 0 else float("inf"),
     }
+
+
+#: brightness bands of :func:`render_bias`: quantiles of the reference's mean channel
+BIAS_BANDS = ((0.0, 0.1), (0.1, 0.5), (0.5, 0.9), (0.9, 1.0))
+
+
+def render_bias(img: np.ndarray, ref: np.ndarray, mask: Optional[np.ndarray] = None) -> dict:
+    """How far a (denoised) render is from a high-sample reference of the same frame, per
+    brightness band: what the ground truth gets wrong, as opposed to how much it varies
+    (:func:`render_noise`).
+
+    img, ref [H, W, 3] linear; mask [H, W] bool (optional): the pixels to use. Per pixel the
+    relative error |img - ref| / ref of the mean channel's absolute difference (pixels with ref >
+    1e-12); returns {"median_rel_error": [4 floats, darkest tenth, 10-50 %, 50-90 %, brightest
+    tenth of the reference's brightness], "mean_rel_error": over all used pixels}."""
+    a = np.asarray(img, np.float64)
+    r = np.asarray(ref, np.float64)
+    lum = r.mean(axis=-1)
+    ok = lum > 1e-12
+    if mask is not None:
+        ok &= np.asarray(mask, bool)
+    if not ok.any():
+        return {"median_rel_error": [None] * len(BIAS_BANDS), "mean_rel_error": None}
+    e = np.abs(a - r).mean(axis=-1)[ok] / lum[ok]
+    lv = lum[ok]
+    qs = np.quantile(lv, [b for b, _ in BIAS_BANDS] + [1.0])
+    bands = []
+    for k in range(len(BIAS_BANDS)):
+        sel = (lv >= qs[k]) & ((lv < qs[k + 1]) if k < len(BIAS_BANDS) - 1 else (lv <= qs[k + 1]))
+        bands.append(float(np.median(e[sel])) if sel.any() else None)
+    return {"median_rel_error": bands, "mean_rel_error": float(e.mean())}

@@ -68,8 +68,9 @@ from .scene import load_scene
 # queries scale with the preset (small: ~15k tracks, was ~1.3k) 4: denoised renders; HDR scale from
 # the clip's own converged frames with placement targets, measured in clip.json 5: textures
 # band-limited for the preset's pixel grid (and coarser patterns in the scene specs), adaptive extra
-# samples where the relative variance is high
-GENERATOR_VERSION = 5
+# samples where the relative variance is high 6: the denoiser runs as an exposure ladder (the
+# darkest tenth of a frame was 11-19 % off a 1024-spp render with one pass; docs/rendering.md)
+GENERATOR_VERSION = 6
 
 #: where the unit-scale HDR frames wait for the clip's scale (removed when the clip is finished)
 UNIT_HDR_DIR = (".benchgen", "hdr_unit")

@@ -37,7 +37,7 @@ import numpy as np
 from m4dgs.clip import TrackSet, frame_name
 
 from .denoise import denoise_hdr
-from .groundtruth import DEFAULT_DEPTH_RTOL, RayCast, pixel_rays, render_noise
+from .groundtruth import DEFAULT_DEPTH_RTOL, RayCast, pixel_rays, render_bias, render_noise
 
 DEFAULT_LIBLLVM = "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"
 LLVM_VARIANT = "llvm_ad_rgb"
@@ -67,7 +67,9 @@ class RenderSettings:
     Denoise (:mod:`benchgen.denoise`); adaptive_spp: average number of extra samples per pixel that
     :meth:`Renderer.render_hdr` spends, in blocks of ADAPTIVE_BLOCK_SPP, on the pixels whose
     relative Monte Carlo variance is highest (0 = every pixel gets spp samples;
-    :func:`adaptive_allocation`)."""
+    :func:`adaptive_allocation`); denoise_ladder: denoise as an exposure ladder of OIDN passes
+    (:func:`benchgen.denoise.denoise_hdr`, generator version 6) instead of one pass at OIDN's
+    automatic exposure."""
 
     spp: int = 256
     max_depth: int = 2
@@ -77,6 +79,7 @@ class RenderSettings:
     emitter_sampling: str = "uniform"
     denoise: bool = False
     adaptive_spp: int = 0
+    denoise_ladder: bool = True
 
     @staticmethod
     def resolve(preset: Union[str, "RenderSettings", Dict[str, Any], None]) -> "RenderSettings":
@@ -123,11 +126,11 @@ RENDER_PRESETS: Dict[str, RenderSettings] = {
         denoise=True,
         adaptive_spp=ADAPTIVE_SPP,
     ),
-    # 64 spp alone met the 15-minute target for the small suite on 2 cores (256 took ~37 min); with
-    # the adaptive samples a small frame costs ~30 % more (~18 min estimated, over the target). The
+    # 64 spp with the adaptive samples keeps the small suite within the 15-minute target on 2 cores
+    # (256 took ~37 min; the whole suite measured on an idle machine: docs/rendering.md). The
     # per-clip light selection lowers its noise by up to 2x and the denoiser by a further ~3x, the
     # adaptive samples (+25 % of the samples, where the relative variance is highest) by a further
-    # 5-20 % (docs/rendering.md). ldsampler rounds spp to a power of 4: the next step up is 256
+    # 5-20 %. ldsampler rounds spp to a power of 4: the next step up is 256
     # (`benchgen make --spp 256`).
     "small": RenderSettings(
         spp=64,
@@ -684,7 +687,13 @@ class Renderer:
             mi.render(self.scene, integrator=self._guides, seed=int(seed), spp=GUIDE_SPP),
             np.float32,
         )
-        return denoise_hdr(color, aux[..., 0:3], aux[..., 3:6], self.emitter_pixels())
+        return denoise_hdr(
+            color,
+            aux[..., 0:3],
+            aux[..., 3:6],
+            self.emitter_pixels(),
+            ladder=self.settings.denoise_ladder,
+        )
 
     def pixel_sums(self, pixels: np.ndarray, spp: int, seed: int):
         """Sum and sum of squares [n, 3] float64 of `spp` path-traced samples of each pixel.
@@ -877,6 +886,8 @@ def _exact_hits(
 # --------------------------------------------------------------------------------------------------
 # seed of the second, independent render of the first frame (noise measurement)
 NOISE_SEED_OFFSET = 1_000_003
+#: samples per pixel of the reference render that gt.render_bias compares the first frame with
+BIAS_REFERENCE_SPP = 1024
 
 
 def render_clip_gt(
@@ -976,7 +987,7 @@ class _GroundTruthPass:
         self.pairs, self.flows, self.valids = [], [], []
         self.tae_pairs, self.tae_inner = [], []
         self.prev = None  # (g, state, cast, hdr) of the previous training frame
-        self.noise = self.noise_interior = self.surface_fraction = None
+        self.noise = self.noise_interior = self.surface_fraction = self.bias = None
         self.t_render, self.t_cast, self.n_render = 0.0, 0.0, 0
         self.extra_spp: List[float] = []
 
@@ -1029,6 +1040,13 @@ class _GroundTruthPass:
         other = r.render_hdr(seed=r.settings.seed + g + NOISE_SEED_OFFSET)
         self.noise = render_noise(hdr, other, cast.hit)
         self.noise_interior = render_noise(hdr, other, cast.hit & ~depth_edges(cast.depth))
+        # what the denoised frame gets wrong: against a raw render of BIAS_REFERENCE_SPP samples
+        # (its own relative noise ~0.01-0.02 at the median pixel), over the surface pixels that are
+        # not emitters (those bypass the denoiser)
+        ref = r.render_hdr(
+            seed=r.settings.seed + g + 2 * NOISE_SEED_OFFSET, spp=BIAS_REFERENCE_SPP, denoise=False
+        )
+        self.bias = render_bias(hdr, ref, cast.hit & ~r.emitter_pixels())
         self.surface_fraction = float(cast.hit.mean())
 
     def _add_pair(self, a, b) -> None:
@@ -1108,6 +1126,12 @@ class _GroundTruthPass:
             },
             "render_noise_pixels": "surface pixels of the first frame (no-surface pixels "
             "excluded, as in HDR-TAE)",
+            "render_bias": {
+                **self.bias,
+                "reference_spp": BIAS_REFERENCE_SPP,
+                "bands": "darkest tenth, 10-50 %, 50-90 %, brightest tenth of the reference's "
+                "brightness (surface pixels of the first frame that are not emitters)",
+            },
             "surface_fraction_first_frame": self.surface_fraction,
             "hdr_tae_floor": floor,
             "hdr_tae_floor_convention": "HDR-TAE (channel sum) of the gt training sequence with "

@@ -46,8 +46,13 @@ def test_clip_contract_and_ground_truth_notes(tiny_clip_realistic):
         "dynamic_range_stops",
     ):
         assert key in m.gt, key
-    # generator version 5: textures band-limited for the preset's grid, adaptive samples spent
-    assert m.generator["version"] == 5
+    # generator version 6: textures band-limited for the preset's grid, adaptive samples spent,
+    # the exposure-ladder denoiser, and its error against a 1024-spp render recorded per band
+    assert m.generator["version"] == 6
+    assert m.gt["render"]["denoise_ladder"] is True
+    bias = m.gt["render_bias"]
+    assert bias["reference_spp"] == 1024 and len(bias["median_rel_error"]) == 4
+    assert all(0 <= e < 0.5 for e in bias["median_rel_error"]), bias
     assert m.gt["textures"]["band_limit_grid"] == [m.width, m.height]
     lo, hi = m.gt["textures"]["cutoff_cycles_per_side"]["flag"]
     assert 0 < lo <= hi
