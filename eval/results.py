@@ -39,21 +39,18 @@ from m4dgs.core import io as mio
 # CSV schema
 # --------------------------------------------------------------------------------------------------
 KEY = ("suite", "scene", "row", "seed")
-META = (
-    KEY
-    + (
-        "label",  # the row's label in the tables
-        "variant",  # m4dgs.training.variants name
-        "clip_setting",  # clip setting id (OUT/clips/<id>: syn-exp-3, syn-exp-3-crf-aces-filmic)
-        "crf",  # the clip's true camera response
-        "preset",  # training preset of the run (run.json / metrics.json)
-        "status",  # scored | missing (a job of the suite without metrics.json)
-        "ldr_convention",  # ldr_png | ldr_jpeg (metrics.json)
-        # provenance: runs of one comparison should come from the same code, clips and thread count
-        "code",  # first 12 hex digits of the m4dgs source fingerprint the run was trained with (run.json)
-        "generator",  # benchgen generator version of the run's clip (clip.json generator.version)
-        "torch_threads",  # torch threads of the training process (run.json; another count = another draw)
-    )
+META = KEY + (
+    "label",  # the row's label in the tables
+    "variant",  # m4dgs.training.variants name
+    "clip_setting",  # clip setting id (OUT/clips/<id>: syn-exp-3, syn-exp-3-crf-aces-filmic)
+    "crf",  # the clip's true camera response
+    "preset",  # training preset of the run (run.json / metrics.json)
+    "status",  # scored | missing (a job of the suite without metrics.json)
+    "ldr_convention",  # ldr_png | ldr_jpeg (metrics.json)
+    # provenance: runs of one comparison should come from the same code, clips and thread count
+    "code",  # 12 hex digits of the fingerprint of the m4dgs sources it ran (run.json)
+    "generator",  # benchgen generator version of the run's clip (clip.json generator.version)
+    "torch_threads",  # torch threads of the training (run.json; another count = another draw)
 )
 SCORED, MISSING = "scored", "missing"
 CRF_GRID = [i / 2 for i in range(-20, 21)]  # log2 exposure -10 .. 10 in half stops
