@@ -155,3 +155,39 @@ def test_render_bias_reports_each_brightness_band():
     np.testing.assert_allclose(only["median_rel_error"], [0.005] * 4, rtol=1e-9)
     none = render_bias(img, np.zeros_like(ref))
     assert none["mean_rel_error"] is None
+
+
+def test_ladder_is_closer_to_a_converged_render_in_the_shadows():
+    """A real frame: tiny-lamp-box frame 0 at 72x40 rendered as benchgen renders it (64 spp + the
+    adaptive samples, 16-spp guides), denoised both ways, against a raw 1,024-spp render. Measured:
+    median relative error of the darkest tenth 0.052 with one pass, 0.020 with the ladder; the
+    brighter bands move by < 0.003."""
+    import dataclasses
+
+    from benchgen.render import GUIDE_SPP, Renderer, RenderSettings
+    from benchgen.scene import load_scene
+    from benchgen.suite import builtin_scenes_dir
+
+    W, H = 72, 40
+    scene = load_scene(builtin_scenes_dir() / "tiny-lamp-box.yaml", band_limit=(W, H))
+    st = scene.frame(0, W, H)
+    settings = dataclasses.replace(
+        RenderSettings.resolve("tiny"), denoise=False, emitter_sampling="power"
+    )
+    r = Renderer(st, W, H, settings)
+    r.update(st)
+    cast = r.cast_rays()
+    emitter = r.emitter_pixels()
+    guides = r._mi.load_dict({"type": "aov", "aovs": "albedo:albedo,nn:sh_normal"})
+    aux = np.array(r._mi.render(r.scene, integrator=guides, seed=0, spp=GUIDE_SPP), np.float32)
+    color = r.render_hdr(seed=0)
+    ref = r.render_hdr(seed=5, spp=1024)
+    use = cast.hit & ~emitter
+    single = render_bias(
+        denoise_hdr(color, aux[..., :3], aux[..., 3:], emitter, ladder=False), ref, use
+    )["median_rel_error"]
+    lad = render_bias(denoise_hdr(color, aux[..., :3], aux[..., 3:], emitter), ref, use)[
+        "median_rel_error"
+    ]
+    assert lad[0] < 0.6 * single[0], (lad, single)
+    assert all(abs(a - b) < 0.01 for a, b in zip(lad[1:], single[1:])), (lad, single)
