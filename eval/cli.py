@@ -248,9 +248,9 @@ _no_share_opt = click.option(
     "--no-share",
     is_flag=True,
     help="Compute every trainer phase in every run. By default the runs of one clip share camera "
-    "initialisation, stage 1 and the V2W transform through OUT/.shared wherever their "
-    "configurations agree on what that phase reads (never across trainer seeds; "
-    "docs/eval.md).",
+    "initialisation, stage 1, the V2W transform and stage 2 through OUT/.shared wherever their "
+    "configurations agree on what that phase reads (stage 2: the whole configuration and the "
+    "variant, e.g. the full row of two suites; never across trainer seeds; docs/eval.md).",
 )
 
 

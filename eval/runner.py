@@ -15,9 +15,11 @@ beside the folder (`<folder>.lock`), so two workers given the same clip or run w
 instead of writing the same files (the second one then finds the work done). Locks need a file
 system with working flock (local disks, most NFS v4 set-ups).
 
-Shared phases: the runs of one clip share camera initialisation, stage 1 and the V2W transform
-wherever their configurations agree on everything that phase reads (m4dgs.training.phases), through
-OUT/.shared (`share=False` / `--no-share` turns it off). Trainer seeds are never shared.
+Shared phases: the runs of one clip share camera initialisation, stage 1, the V2W transform and
+stage 2 wherever their configurations agree on everything that phase reads (stage 2: the whole
+configuration and the variant, so a row that two suites both have is trained once;
+m4dgs.training.phases), through OUT/.shared (`share=False` / `--no-share` turns it off). Trainer
+seeds are never shared.
 
 Failures: by default a job that fails (bad input, a diverged run, a bug) is reported and the suite
 goes on with the other jobs; the jobs of a clip that could not be made are skipped. `run_suite`

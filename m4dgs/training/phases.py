@@ -2,7 +2,10 @@
 
 The runs of a suite on one clip repeat a lot of work: every row computes the same camera
 initialisation, and rows that differ only downstream (ablations (b)-(d), removal controls) the same
-stage 1 and V2W transform. With a share folder (`m4dgs.training.pipeline.train(share_dir=...)`;
+stage 1 and V2W transform. Suites repeat whole runs: the full method with its defaults is a row of
+paper-main, paper-ablation, the crf suite's HDR-NeRF row and every control suite, so stage 2 is
+shared too, between runs whose whole configuration and variant agree (only the final renders, a few
+seconds, are made again). With a share folder (`m4dgs.training.pipeline.train(share_dir=...)`;
 `m4dgs-eval run` uses OUT/.shared), a phase whose result is already there is copied into the run
 instead of being computed, and a computed phase is published there for the next run.
 
@@ -40,8 +43,9 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Tuple
 from m4dgs.core import io as mio
 from m4dgs.core.lock import file_lock
 
-# phases that can be shared, in order (the render phase depends on the whole run: never shared)
-SHARED_PHASES: Tuple[str, ...] = ("camera_init", "stage1", "v2w")
+# phases that can be shared, in order (the render phase is cheap and writes the run's own files:
+# never shared)
+SHARED_PHASES: Tuple[str, ...] = ("camera_init", "stage1", "v2w", "stage2")
 ORDER: Tuple[str, ...] = ("camera_init", "stage1", "v2w", "stage2")
 
 # The first phase that reads each configuration field: a dotted field name or section prefix (the
@@ -84,6 +88,7 @@ PHASE_OUTPUTS: Dict[str, Tuple[str, ...]] = {
     "camera_init": ("model/camera_init.pt", "cameras_ba.json"),
     "stage1": ("model/stage1.pt", "renders/stage1"),
     "v2w": ("model/v2w.pt",),
+    "stage2": ("model/final.pt", "cameras.json"),
 }
 
 ENTRY_FILE = "entry.json"
@@ -129,12 +134,15 @@ def code_fingerprint() -> str:
     return h.hexdigest()
 
 
-def phase_keys(cfg: Mapping[str, Any], context: Mapping[str, Any]) -> Dict[str, str]:
+def phase_keys(
+    cfg: Mapping[str, Any], context: Mapping[str, Any], variant: Optional[str] = None
+) -> Dict[str, str]:
     """{phase: key} for the shared phases.
 
     cfg: the resolved config as a dict (to_dict); context: everything outside the config that
     decides a result (clip and code fingerprints, torch version and threads, device, backend),
-    JSON-able.
+    JSON-able; variant: the run's variant name, which its final model records (so it is part of
+    the stage-2 key only: rows of different variants still share the earlier phases).
     The key of phase P hashes the fields of P and of every phase before it, and the context."""
     fields: Dict[str, List[Tuple[str, Any]]] = {p: [] for p in ORDER}
     for name, value in leaves(cfg):
@@ -142,9 +150,10 @@ def phase_keys(cfg: Mapping[str, Any], context: Mapping[str, Any]) -> Dict[str, 
     keys, seen = {}, []
     for p in SHARED_PHASES:
         seen = seen + sorted(fields[p], key=lambda kv: kv[0])
-        blob = json.dumps(
-            {"phase": p, "fields": seen, "context": dict(context)}, sort_keys=True, default=str
-        )
+        what = {"phase": p, "fields": seen, "context": dict(context)}
+        if p == "stage2":
+            what["variant"] = variant
+        blob = json.dumps(what, sort_keys=True, default=str)
         keys[p] = hashlib.sha256(blob.encode()).hexdigest()
     return keys
 

@@ -19,8 +19,9 @@ frames, exposure times and priors are read (never gt/). Every phase starts from 
 generator seeded with the trainer seed, so its result does not depend on which phases ran before it
 in the same process.
 
-With `share_dir`, phases 1-3 are shared between runs of the same clip whose configurations agree on
-everything those phases read (m4dgs.training.phases)."""
+With `share_dir`, phases 1-4 are shared between runs of the same clip whose configurations agree on
+everything those phases read (stage 2: the whole configuration and the variant;
+m4dgs.training.phases)."""
 
 from __future__ import annotations
 
@@ -462,7 +463,7 @@ class Trainer:
             "device": self.device.type,
             "backend": resolve_backend(self.cfg.raster_backend, self.device),
         }
-        return phase_keys(to_dict(self.cfg), context)
+        return phase_keys(to_dict(self.cfg), context, self.variant)
 
     def _shared(self, phase: str, compute) -> None:
         """Run `phase` through the share folder: copy it when an entry with this run's key exists,
@@ -598,7 +599,8 @@ def train(
     """Train one variant on one clip into run_dir (resumes; returns at once when the run is
     done). The run folder is locked meanwhile: a second process writing it is refused
     (RunInUseError naming the first one's PID). share_dir: a folder where camera initialisation,
-    stage 1 and V2W are shared with other runs of the same clip (m4dgs.training.phases)."""
+    stage 1, V2W and stage 2 are shared with other runs of the same clip
+    (m4dgs.training.phases)."""
     fresh = not Path(run_dir).exists()
     try:
         with FolderLock(run_dir):

@@ -45,19 +45,19 @@ def test_every_config_field_belongs_to_a_phase(name):
 @pytest.mark.parametrize(
     "field, value, changed",
     [
-        ("seed", 1, {"camera_init", "stage1", "v2w"}),
-        ("camera_init.ba_steps", 17, {"camera_init", "stage1", "v2w"}),
-        ("masks.method", "epipolar", {"camera_init", "stage1", "v2w"}),
-        ("stage1.loss.lambda_dep", 0.5, {"stage1", "v2w"}),
-        ("ablation.tlr", False, {"stage1", "v2w"}),
-        ("model.control_every", 2, {"stage1", "v2w"}),
-        ("tonemap.pretrain_crf", "hdrnerf", {"stage1", "v2w"}),
-        ("ablation.cov_invariance", False, {"v2w"}),
-        ("ablation.occlusion_handling", False, {"v2w"}),
-        ("v2w.occlusion_tol", 0.1, {"v2w"}),
-        ("ablation.reproj_loss", False, set()),
-        ("stage2.lambda_pr", 0.5, set()),
-        ("ablation.occlusion_handling_removal", False, set()),
+        ("seed", 1, {"camera_init", "stage1", "v2w", "stage2"}),
+        ("camera_init.ba_steps", 17, {"camera_init", "stage1", "v2w", "stage2"}),
+        ("masks.method", "epipolar", {"camera_init", "stage1", "v2w", "stage2"}),
+        ("stage1.loss.lambda_dep", 0.5, {"stage1", "v2w", "stage2"}),
+        ("ablation.tlr", False, {"stage1", "v2w", "stage2"}),
+        ("model.control_every", 2, {"stage1", "v2w", "stage2"}),
+        ("tonemap.pretrain_crf", "hdrnerf", {"stage1", "v2w", "stage2"}),
+        ("ablation.cov_invariance", False, {"v2w", "stage2"}),
+        ("ablation.occlusion_handling", False, {"v2w", "stage2"}),
+        ("v2w.occlusion_tol", 0.1, {"v2w", "stage2"}),
+        ("ablation.reproj_loss", False, {"stage2"}),
+        ("stage2.lambda_pr", 0.5, {"stage2"}),
+        ("ablation.occlusion_handling_removal", False, {"stage2"}),
     ],
 )
 def test_a_field_changes_the_keys_of_its_phase_and_the_later_ones(field, value, changed):
@@ -74,6 +74,16 @@ def test_the_context_changes_every_key():
         assert all(a[p] != b[p] for p in phases.SHARED_PHASES), k
 
 
+def test_the_variant_name_changes_only_the_stage2_key():
+    """The final model records its variant: runs of one configuration under two variant names
+    share everything but stage 2."""
+    cfg = to_dict(preset("small"))
+    a = phases.phase_keys(cfg, CONTEXT, "full")
+    b = phases.phase_keys(cfg, CONTEXT, "renamed")
+    assert [p for p in phases.SHARED_PHASES if a[p] != b[p]] == ["stage2"]
+    assert phases.phase_keys(cfg, CONTEXT, "full") == a
+
+
 def test_what_the_paper_ablation_rows_share_with_full():
     full = _keys(variant_config("small", "full"))
 
@@ -81,6 +91,7 @@ def test_what_the_paper_ablation_rows_share_with_full():
         k = _keys(variant_config("small", v))
         return [p for p in phases.SHARED_PHASES if k[p] == full[p]]
 
+    assert shared("full") == list(phases.SHARED_PHASES)
     assert shared("no-reproj") == ["camera_init", "stage1", "v2w"]
     assert shared("no-occlusion") == ["camera_init", "stage1"]
     assert shared("no-cov-invariance") == ["camera_init", "stage1"]
@@ -154,13 +165,13 @@ def test_shared_phases_give_the_run_what_it_would_compute(
     assert "shared_phases" not in full.status()
     assert sorted(p.name for p in share.iterdir() if p.is_dir()) == sorted(phases.SHARED_PHASES)
 
-    # a row that differs only in stage 2 takes all three phases from the share folder ...
+    # a row that differs only in stage 2 takes the three phases before it from the share folder
     shared = run("no-reproj", "no-reproj")
     st = shared.status()
-    assert sorted(st["shared_phases"]) == sorted(phases.SHARED_PHASES)
+    assert sorted(st["shared_phases"]) == ["camera_init", "stage1", "v2w"]
     assert st["shared_phases"]["stage1"]["from"] == str(full.root.resolve())
     # ... with the producer's phase times and its stage-1 log lines
-    for p in phases.SHARED_PHASES:
+    for p in ("camera_init", "stage1", "v2w"):
         assert st["stage_seconds"][p] == pytest.approx(full.status()["stage_seconds"][p])
     s1 = [r for r in shared.read_log() if r.get("stage") == "stage1"]
     assert s1 == [r for r in full.read_log() if r.get("stage") == "stage1"] and len(s1) == 24
@@ -173,6 +184,21 @@ def test_shared_phases_give_the_run_what_it_would_compute(
     different = [k for k in a if not torch.equal(a[k], b[k])]
     assert not different, different
 
+    # the same row again (another suite's copy of it) takes all four phases, renders its own
+    # frames, and holds the producer's final model, cameras, stage-2 log and timings
+    again = run("full-again", "full")
+    st = again.status()
+    assert sorted(st["shared_phases"]) == sorted(phases.SHARED_PHASES) and st["stage"] == "done"
+    assert st["shared_phases"]["stage2"]["from"] == str(full.root.resolve())
+    a = dict(_tensors(load_torch(full.path("model", "final.pt"))))
+    b = dict(_tensors(load_torch(again.path("model", "final.pt"))))
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert again.path("cameras.json").read_bytes() == full.path("cameras.json").read_bytes()
+    s2 = [r for r in again.read_log() if r.get("stage") == "stage2"]
+    assert s2 == [r for r in full.read_log() if r.get("stage") == "stage2"] and len(s2) == 24
+    assert st["stage_seconds"]["stage2"] == pytest.approx(full.status()["stage_seconds"]["stage2"])
+    test_frames = sorted(p.name for p in full.path("renders", "test", "hdr").iterdir())
+    assert sorted(p.name for p in again.path("renders", "test", "hdr").iterdir()) == test_frames
     # a stage-1 field forces a fresh stage 1 (and V2W); camera initialisation is still shared
     s1_changed = run("lambda-dep", "full", {"stage1.loss.lambda_dep": 0.5})
     assert sorted(s1_changed.status()["shared_phases"]) == ["camera_init"]
