@@ -304,6 +304,18 @@ def export(suites: Sequence[str], root, csv_path, scenes=None, seeds=None, log=N
         new_rows += rows
         summary[name] = {"scored": len(scored), "missing": len(rows) - len(scored)}
     merged = merge_rows(old, new_rows)
+    for name in summary:
+        for column, what in (("code", "m4dgs code"), ("generator", "clip generator")):
+            seen: Dict[str, int] = {}
+            for r in merged:
+                if r["suite"] == name and r.get("status") == SCORED and r.get(column):
+                    seen[str(r[column])] = seen.get(str(r[column]), 0) + 1
+            if len(seen) > 1:
+                counts = ", ".join(f"{k} ({v} runs)" for k, v in sorted(seen.items()))
+                say(
+                    f"warning: suite {name} mixes {what} versions in {csv_path}: {counts}; paired "
+                    "differences across them compare other code or clips, not only the rows"
+                )
     Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
     write_runs_csv(csv_path, merged, extra)
     write_crf_csv(crf_csv_path(csv_path), curves)

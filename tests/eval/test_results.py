@@ -51,7 +51,7 @@ def _value(rng, scene_base, row, k):
 def _write_run(root, suite, scene, row, seed, vals, curve_gain=None):
     d = Path(root) / "runs" / suite / scene / (row if seed == 0 else f"{row}-seed-{seed}")
     d.mkdir(parents=True, exist_ok=True)
-    code = hashlib.sha256(f"{suite}/{row}".encode()).hexdigest()  # a code version per row
+    code = hashlib.sha256(suite.encode()).hexdigest()  # one code version per suite
     info = {"variant": row, "preset": "small", "code": code, "torch_threads": 1 + seed}
     (d / "run.json").write_text(json.dumps(info))
     if scene == "lamp-room-orbit":  # only this scene's clip says its generator version
@@ -256,10 +256,20 @@ def test_export_merge_results_readme(tmp_path):
     )
     assert one["hdr_lpips"] == "" and one["clip_setting"] == "syn-exp-3"
     # provenance from run.json and clip.json; "" where a file does not say
-    code = hashlib.sha256(b"paper-ablation/no-tlr").hexdigest()[:12]
+    code = hashlib.sha256(b"paper-ablation").hexdigest()[:12]
     assert (one["code"], one["generator"], one["torch_threads"]) == (code, "7", "1")
     other = next(r for r in rows if r["scene"] != "lamp-room-orbit" and r["seed"] == "1")
     assert other["generator"] == "" and other["torch_threads"] == "2"
+    assert "mixes" not in r.output
+    # a run of another code version in a suite is exported, with a warning naming both versions
+    info = root / "runs/paper-main" / MAIN_SCENES[0] / "full" / "run.json"
+    d = json.loads(info.read_text())
+    d["code"] = "f" * 64
+    info.write_text(json.dumps(d))
+    r = cli.invoke(main, ["export", "paper-main", "--root", str(root), "--csv", str(csvp)])
+    assert r.exit_code == 0, r.output
+    assert "warning: suite paper-main mixes m4dgs code versions" in r.output
+    assert "ffffffffffff (1 runs)" in r.output and "(9 runs)" in r.output
     # the CRF curves: seed-0 runs only (the others have none), mean of RGB at 3 decimals
     crf = read_csv(tmp_path / "results" / "runs-crf.csv")
     assert len(crf) == 3 * 6 + 2 * 5
