@@ -120,6 +120,16 @@ def main():
     "pixels "
     "at the shortest; docs/exposure.md) with a warning instead of failing.",
 )
+@click.option(
+    "--reuse-renders",
+    "reuse_root",
+    default=None,
+    type=click.Path(file_okay=False, exists=True),
+    help="Output root of earlier `benchgen make` runs: a scene whose finished clip there "
+    "(ROOT/<any suite>/<scene>) has the same render (scene spec, preset, samples, generator "
+    "version) takes its ground truth and HDR frames instead of rendering again, e.g. the clips "
+    "of another --crf, --schedule or --priors. Without it, clips under --out are reused.",
+)
 def make(
     suite,
     scenes,
@@ -136,6 +146,7 @@ def make(
     crf,
     spp,
     allow_misplaced,
+    reuse_root,
 ):
     """Generate the clips of a suite (resumable: finished clips and frames are skipped)."""
     from m4dgs.core.crf import CLIP_CRFS
@@ -167,6 +178,7 @@ def make(
             spp=spp,
             crf=crf,
             allow_misplaced=allow_misplaced,
+            reuse_root=reuse_root,
         )
     except PlacementError as e:
         raise click.ClickException(str(e)) from None

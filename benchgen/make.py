@@ -9,7 +9,11 @@ unless `force`):
 2. Ground truth (`benchgen.render.render_clip_gt`) at the scene's own emitter scale: denoised HDR of
    every frame (kept in .benchgen/hdr_unit until the clip is done), z-depth, dynamic masks, cameras,
    exact flow between consecutive training frames, point tracks over all frames; measured render
-   noise and HDR-TAE floor.
+   noise and HDR-TAE floor. A clip that differs from a finished one only in what comes after this
+   step (camera response, exposure schedule, priors, seed) takes that clip's render instead
+   (`render_from`, same `render_key`), which is most of a clip's time; its gt/hdr then equals a
+   fresh render's to float32 rounding (the unit frames are the finished clip's gt/hdr divided by its
+   scale) and every other ground-truth file is the same bytes.
 3. HDR scale (benchgen.placement.choose_hdr_scale): one global scale chosen from those converged
    training frames so that the exposure levels sit where a bracketing camera puts them; gt/hdr =
    scale * the unit frame (light transport is linear in the emitters, so this equals rendering with
@@ -28,6 +32,9 @@ unless `force`):
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
+import os
 import shutil
 import time
 from dataclasses import dataclass
@@ -74,6 +81,15 @@ GENERATOR_VERSION = 6
 
 #: where the unit-scale HDR frames wait for the clip's scale (removed when the clip is finished)
 UNIT_HDR_DIR = (".benchgen", "hdr_unit")
+#: what step 2 writes besides the unit-scale HDR frames (copied when a finished clip's render is
+#: reused)
+RENDER_OUTPUTS = (
+    ("gt", "depth"),
+    ("gt", "masks", "dynamic"),
+    ("gt", "cameras.json"),
+    ("gt", "flow.npz"),
+    ("gt", "tracks.npz"),
+)
 
 
 @dataclass(frozen=True)
@@ -194,9 +210,15 @@ def make_clip(
     spp: Optional[int] = None,
     targets: Optional[PlacementTargets] = None,
     allow_misplaced: bool = False,
+    render_from: Sequence = (),
 ) -> Path:
     """Generate one clip folder from a scene spec; returns the clip folder. Resumes an unfinished
     clip.
+
+    render_from: finished clip folders whose render (step 2) may be reused: the first one whose
+    render key (render_key; in its resume state .benchgen/state.json and clip.json gt.render_key)
+    equals this clip's gives its ground truth and HDR frames instead of a new render (clip.json
+    gt.render_source names it); the others are ignored.
 
     targets: exposure-placement targets (default: the benchmark's,
     benchgen.placement.PlacementTargets); a clip that misses one raises PlacementError after it is
@@ -209,6 +231,7 @@ def make_clip(
     if _finished_clip(job, force, allow_misplaced):
         return job.out
     _open_state(job, force)
+    _reuse_render(job, render_from)
     _choose_light_selection(job)  # 1
     train_dt = schedule_train_dt(len(job.train), job.settings, job.seed)
     meta = _clip_meta(job, train_dt)
@@ -298,6 +321,69 @@ def _open_state(job: _Job, force: bool) -> None:
     job.state = state
 
 
+def render_key(job: _Job) -> str:
+    """Fingerprint (16 hex digits) of everything steps 1 and 2 read: the generator version, the
+    scene spec's bytes, the preset (resolution, frame cap, track queries), the frame count and the
+    render settings as requested (light selection "auto" included: its choice is deterministic).
+    Clips that differ only in the camera response, the exposures, the priors or the seed share
+    it."""
+    payload = {
+        "version": GENERATOR_VERSION,
+        "preset": dataclasses.asdict(job.preset),
+        "frames": len(job.frames),
+        "render": dataclasses.asdict(job.render),
+    }
+    h = hashlib.sha256(json.dumps(payload, sort_keys=True).encode())
+    h.update(job.scene_path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _reuse_render(job: _Job, candidates: Sequence) -> None:
+    """Steps 1-2 from a finished clip with the same render_key, when one of `candidates` is one:
+    its light selection and ground-truth notes (resume state), the files of RENDER_OUTPUTS
+    (copied) and the unit-scale HDR frames (its gt/hdr divided by its hdr_scale). Nothing happens
+    when step 2 is already done, no candidate matches, or the candidate is this clip."""
+    state = job.state
+    key = render_key(job)
+    state["render_key"] = key
+    if "gt_notes" in state:
+        return
+    for c in candidates:
+        src = Path(c)
+        if not (src / "clip.json").exists() or src.resolve() == job.out.resolve():
+            continue
+        src_state_path = src / ".benchgen" / "state.json"
+        if not src_state_path.exists():
+            continue
+        # the key is read from the resume state (clip.json gt.render_key holds the same), which
+        # is outside the clip's input fingerprint
+        src_state = mio.read_json(src_state_path)
+        if src_state.get("render_key") != key or "gt_notes" not in src_state:
+            continue
+        src_meta = Clip.open(src).meta
+        for rel in RENDER_OUTPUTS:
+            a, b = src.joinpath(*rel), job.out.joinpath(*rel)
+            if a.is_dir():
+                shutil.rmtree(b, ignore_errors=True)
+                shutil.copytree(a, b)
+            elif a.exists():
+                b.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(a, b)
+        unit_dir = job.out.joinpath(*UNIT_HDR_DIR)
+        unit_dir.mkdir(parents=True, exist_ok=True)
+        inv = 1.0 / float(src_meta.hdr_scale)
+        for g in job.frames:
+            h = mio.read_exr(src / "gt" / "hdr" / frame_name(g, "exr")).astype(np.float64)
+            mio.write_exr(unit_dir / frame_name(g, "exr"), (h * inv).astype(np.float32))
+        for k in ("emitter_sampling", "emitter_sampling_noise", "gt_notes"):
+            if k in src_state:
+                state[k] = src_state[k]
+        # relative to this clip, so that a moved experiment root stays readable
+        state["render_source"] = os.path.relpath(src.resolve(), job.out.resolve())
+        job.save_state()
+        return
+
+
 def _choose_light_selection(job: _Job) -> None:
     """Step 1: light selection for next-event estimation (benchgen.render.choose_emitter_sampling)
     when the preset asks for "auto"; the choice is kept in the resume state."""
@@ -380,6 +466,9 @@ def _apply_hdr_scale(job: _Job, writer: ClipWriter, meta: ClipMeta, train_dt, ta
             unit = mio.read_exr(out.joinpath(*UNIT_HDR_DIR, frame_name(g, "exr")))
             writer.write_gt_hdr(g, (unit * np.float32(scale)).astype(np.float32))
     meta.gt.update(state["gt_notes"])
+    meta.gt["render_key"] = state.get("render_key")
+    if "render_source" in state:
+        meta.gt["render_source"] = state["render_source"]
     meta.gt["hdr_scale_report"] = state.get("hdr_scale_report")
     # formula, source, parameters and f(1) per channel of the response
     meta.gt["crf"] = job.crf.metadata()
@@ -583,6 +672,12 @@ def _dynamic_range_stops(hdr_frames: Dict[int, np.ndarray]) -> float:
     return float(np.log2(hi / max(lo, 1e-12)))
 
 
+def sibling_clips(root, scene: str) -> List[Path]:
+    """Finished clips of `scene` under an output root (root/<setting or suite>/<scene>/clip.json),
+    sorted: the candidates make_clip may take a render from."""
+    return sorted(c.parent for c in Path(root).glob(f"*/{scene}/clip.json"))
+
+
 def make_suite(
     suite,
     out_root,
@@ -600,9 +695,13 @@ def make_suite(
     spp: Optional[int] = None,
     crf: str = "hdrnerf",
     allow_misplaced: bool = False,
+    reuse_root=None,
 ) -> List[Path]:
     """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in
     parallel processes.
+
+    reuse_root: a root of earlier clips (default out_root); a scene's finished clips there
+    (reuse_root/<any suite>/<scene>) are offered to make_clip as render_from.
 
     Clips that miss their exposure-placement targets are all finished first, then one PlacementError
     lists them (allow_misplaced: only warnings).
@@ -633,6 +732,7 @@ def make_suite(
             raise ValueError(f"suite {s.name!r} has no scene(s) {missing} (it has {s.scene_names})")
     root = Path(out_root) / s.name
     jobs_list = [(p, root / p.stem) for p in paths]
+    reuse = Path(reuse_root if reuse_root is not None else out_root)
     kw = dict(
         crf=crf, force=force, spp=spp, allow_misplaced=allow_misplaced or s.placement == "warn"
     )
@@ -643,7 +743,17 @@ def make_suite(
         for p, o in jobs_list:
             try:
                 results.append(
-                    make_clip(p, o, preset, settings, priors, seed, progress=progress, **kw)
+                    make_clip(
+                        p,
+                        o,
+                        preset,
+                        settings,
+                        priors,
+                        seed,
+                        progress=progress,
+                        render_from=sibling_clips(reuse, p.stem),
+                        **kw,
+                    )
                 )
             except PlacementError as e:
                 misplaced.append(str(e))
@@ -652,7 +762,18 @@ def make_suite(
 
         with ProcessPoolExecutor(max_workers=jobs) as ex:
             futs = [
-                ex.submit(make_clip, p, o, preset, settings, priors, seed, progress=False, **kw)
+                ex.submit(
+                    make_clip,
+                    p,
+                    o,
+                    preset,
+                    settings,
+                    priors,
+                    seed,
+                    progress=False,
+                    render_from=sibling_clips(reuse, p.stem),
+                    **kw,
+                )
                 for p, o in jobs_list
             ]
             for f in futs:

@@ -194,6 +194,17 @@ def folder_lock(folder: Path):
     return file_lock(folder.parent / f".{folder.name}.lock")
 
 
+def clip_waves(todo: Sequence[Job]) -> List[List[Job]]:
+    """The clips to make in two waves for a process pool: the first missing clip of each scene,
+    then the scene's other clips, which can take the first one's render (benchgen.make.make_clip,
+    render_from) instead of rendering the same frames in parallel."""
+    seen, first, rest = set(), [], []
+    for j in todo:
+        (rest if j.scene in seen else first).append(j)
+        seen.add(j.scene)
+    return [w for w in (first, rest) if w]
+
+
 def make_job_clip(job: Job, progress: bool = False) -> Path:
     """Make the job's clip when clip.json is missing (benchgen.make.make_clip; resumes an unfinished
     one)."""
@@ -201,7 +212,7 @@ def make_job_clip(job: Job, progress: bool = False) -> Path:
     if (clip_dir / "clip.json").exists():
         return clip_dir
     # deferred: benchgen.make loads the renderer stack (~2 s), needed only when a clip is missing
-    from benchgen.make import make_clip
+    from benchgen.make import make_clip, sibling_clips
 
     s = load_eval_suite(job.suite)
     setting = s.clips[job.setting]
@@ -224,6 +235,9 @@ def make_job_clip(job: Job, progress: bool = False) -> Path:
                 crf=setting.crf or "hdrnerf",
                 progress=progress,
                 allow_misplaced=bs.placement == "warn",
+                # the other settings' clips of this scene (ROOT/clips/<setting>/<scene>): a clip
+                # that differs only after the render (response, exposures, priors) takes theirs
+                render_from=sibling_clips(clip_dir.parent.parent, job.scene),
             )
     return clip_dir
 
@@ -408,13 +422,14 @@ def run_suite(
     threads = max(1, (os.cpu_count() or 1) // jobs)
     with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init, initargs=(threads,)) as ex:
         try:
-            for j, f in [(j, ex.submit(make_job_clip, j, False)) for j in todo]:
-                try:
-                    f.result()
-                except Exception as exc:
-                    clip_errors[j.clip_key] = failed(
-                        j, exc, "making the clip", f"clip {j.clip_key}"
-                    )
+            for wave in clip_waves(todo):
+                for j, f in [(j, ex.submit(make_job_clip, j, False)) for j in wave]:
+                    try:
+                        f.result()
+                    except Exception as exc:
+                        clip_errors[j.clip_key] = failed(
+                            j, exc, "making the clip", f"clip {j.clip_key}"
+                        )
             if clips_only:
                 return [{"id": j.id, "clip": j.clip_dir} for j in jl]
             futs = {

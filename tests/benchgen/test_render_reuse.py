@@ -1,0 +1,161 @@
+"""Clips that differ only after the render (camera response, exposures, priors) take a finished
+clip's render: the result equals a fresh clip's (ground truth byte for byte, HDR to float32
+rounding), and a clip with another render is never taken."""
+
+from __future__ import annotations
+
+from functools import partial
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import benchgen.render as brender
+from benchgen.make import RENDER_OUTPUTS, make_clip, sibling_clips
+from benchgen.suite import builtin_scenes_dir
+from m4dgs.clip import Clip, frame_name
+from m4dgs.core import io as mio
+
+# a smoke-test scene (placement targets: test_placement.py); 3 frames at 4 spp: seconds
+SCENE = builtin_scenes_dir() / "tiny-lamp-box.yaml"
+make = partial(
+    make_clip,
+    SCENE,
+    preset="tiny",
+    priors="oracle",
+    seed=0,
+    progress=False,
+    max_frames=3,
+    allow_misplaced=True,
+)
+
+
+def _files(root, rel):
+    p = root.joinpath(*rel)
+    return (
+        sorted(q.relative_to(root) for q in p.rglob("*") if q.is_file())
+        if p.is_dir()
+        else [p.relative_to(root)]
+    )
+
+
+@pytest.fixture(scope="module")
+def clips(tmp_path_factory):
+    """base: hdrnerf; fresh: srgb-shoulder rendered anew; reused: srgb-shoulder from base's render
+    (the renderer is not called)."""
+    root = tmp_path_factory.mktemp("reuse")
+    base = make(root / "syn-exp-3" / "tiny-lamp-box", spp=4, crf="hdrnerf")
+    fresh = make(root / "fresh" / "tiny-lamp-box", spp=4, crf="srgb-shoulder")
+    mp = pytest.MonkeyPatch()
+
+    def no_render(*a, **kw):
+        raise AssertionError("the render was not reused")
+
+    mp.setattr(brender, "render_clip_gt", no_render)
+    mp.setattr(brender, "choose_emitter_sampling", no_render)
+    try:
+        reused = make(
+            root / "syn-exp-3-crf-srgb-shoulder" / "tiny-lamp-box",
+            spp=4,
+            crf="srgb-shoulder",
+            # an unfinished clip and this clip's own folder are passed over
+            render_from=[
+                root / "unfinished",
+                root / "syn-exp-3-crf-srgb-shoulder" / "tiny-lamp-box",
+                base,
+            ],
+        )
+    finally:
+        mp.undo()
+    return SimpleNamespace(root=root, base=base, fresh=fresh, reused=reused)
+
+
+def test_reused_render_equals_a_fresh_one(clips):
+    fresh, reused = (
+        Clip.open(clips.fresh, validate="full"),
+        Clip.open(clips.reused, validate="full"),
+    )
+    mf, mr = fresh.meta, reused.meta
+    assert mr.gt["render_key"] == mf.gt["render_key"] == Clip.open(clips.base).meta.gt["render_key"]
+    assert mr.gt["render_source"] == "../../syn-exp-3/tiny-lamp-box"
+    assert "render_source" not in mf.gt
+    # every ground-truth file of the render, byte for byte
+    for rel in RENDER_OUTPUTS:
+        names = _files(clips.fresh, rel)
+        assert names == _files(clips.reused, rel) and names, rel
+        for n in names:
+            assert (clips.fresh / n).read_bytes() == (clips.reused / n).read_bytes(), n
+    # the render's notes (noise, floors, bias) are the base clip's, which are the fresh clip's
+    for k in ("render_noise", "hdr_tae_floor", "render_bias", "tracks"):
+        assert mr.gt[k] == mf.gt[k], k
+    # HDR: the base clip's gt/hdr / its scale * this clip's scale, to float32 rounding
+    assert mr.hdr_scale == pytest.approx(mf.hdr_scale, rel=1e-5)
+    for g in mf.frames:
+        a = mio.read_exr(clips.fresh / "gt/hdr" / frame_name(g, "exr"))
+        b = mio.read_exr(clips.reused / "gt/hdr" / frame_name(g, "exr"))
+        np.testing.assert_allclose(b, a, rtol=3e-6, atol=0)
+    # the 8-bit inputs: the same codes (a code may flip only where the HDR sits on a rounding edge)
+    for g in fresh.train_frames:
+        a, b = fresh.load_ldr(g), reused.load_ldr(g)
+        assert np.abs(a - b).max() <= 1.0 / 255 + 1e-6
+        assert (a != b).mean() <= 1e-3
+    # the unit-scale frames are gone once the clip is finished, as for a rendered clip
+    assert not (clips.reused / ".benchgen" / "hdr_unit").exists()
+
+
+def test_another_render_is_not_taken(clips, tmp_path):
+    calls = []
+    real = brender.render_clip_gt
+
+    def counting(*a, **kw):
+        calls.append(1)
+        return real(*a, **kw)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(brender, "render_clip_gt", counting)
+    try:
+        # another sample count is another render: the base clip is offered but not taken
+        out = make(
+            tmp_path / "x" / "tiny-lamp-box", spp=16, crf="aces-filmic", render_from=[clips.base]
+        )
+    finally:
+        mp.undo()
+    assert calls == [1]
+    m = Clip.open(out).meta
+    assert "render_source" not in m.gt
+    assert m.gt["render_key"] != Clip.open(clips.base).meta.gt["render_key"]
+
+
+def test_sibling_clips_and_clip_waves(clips, tmp_path):
+    from eval.runner import clip_waves
+
+    assert sibling_clips(clips.root, "tiny-lamp-box") == sorted(
+        [clips.base, clips.fresh, clips.reused]
+    )
+    # an unfinished clip (no clip.json) is no candidate
+    (tmp_path / "s" / "tiny-lamp-box").mkdir(parents=True)
+    assert sibling_clips(tmp_path, "tiny-lamp-box") == []
+    J = SimpleNamespace
+    todo = [J(scene="a", k=0), J(scene="a", k=1), J(scene="b", k=2), J(scene="a", k=3)]
+    waves = clip_waves(todo)
+    assert [[j.k for j in w] for w in waves] == [[0, 2], [1, 3]]
+    assert clip_waves([]) == []
+
+
+def test_cli_passes_the_reuse_root(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    import benchgen.make as bm
+    from benchgen.cli import main as benchgen_main
+
+    seen = []
+    monkeypatch.setattr(bm, "make_suite", lambda *a, **kw: seen.append(kw["reuse_root"]) or [])
+    r = CliRunner().invoke(
+        benchgen_main, ["make", "--suite", "tiny", "--reuse-renders", str(tmp_path)]
+    )
+    assert r.exit_code == 0, r.output
+    assert seen == [str(tmp_path)]
+    r = CliRunner().invoke(
+        benchgen_main, ["make", "--suite", "tiny", "--reuse-renders", str(tmp_path / "nope")]
+    )
+    assert r.exit_code != 0 and "does not exist" in r.output
