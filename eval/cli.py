@@ -615,6 +615,61 @@ def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
 
 # --------------------------------------------------------------------------------------------------
 @main.command()
+@click.argument("campaign")
+@click.option(
+    "--root",
+    "out",
+    default=DEFAULT_OUT,
+    show_default=True,
+    type=click.Path(file_okay=False),
+    help="Experiment root (one per preset and clip generator version; the campaign file names the "
+    "preset).",
+)
+@click.option("--jobs", default=1, show_default=True, type=int, help="Local worker processes.")
+@click.option(
+    "--csv",
+    "csv_path",
+    default="results/runs.csv",
+    show_default=True,
+    type=click.Path(dir_okay=False),
+    help="Runs CSV each finished step is exported into (as `m4dgs-eval export` does).",
+)
+@click.option(
+    "--dry-run", is_flag=True, help="Print each step with its scored / total runs and exit."
+)
+@click.option(
+    "--allow-mixed-code",
+    is_flag=True,
+    help="Finish a step whose finished runs were trained with other m4dgs code than this "
+    "checkout's (by default the campaign stops there: one table, one code version).",
+)
+@_lpips_opt
+@_device_opt
+@_no_share_opt
+def campaign(
+    campaign, out, jobs, csv_path, dry_run, allow_mixed_code, lpips_weights, device, no_share
+):
+    """Run the suites of CAMPAIGN (a name from eval/campaigns or a YAML path) one after another
+    into ROOT, exporting each into the runs CSV as soon as it is done; resumable (run the same
+    command again). See docs/eval.md."""
+    from .campaign import load_campaign, run_campaign
+
+    c = load_campaign(campaign)
+    res = run_campaign(
+        c,
+        out,
+        csv_path,
+        jobs=jobs,
+        dry_run=dry_run,
+        allow_mixed_code=allow_mixed_code,
+        log=lambda s: click.echo(s, err=True),
+        run_kw=dict(lpips_weights=lpips_weights, device=device, share=not no_share),
+    )
+    done = sum(r["scored"] == r["total"] for r in res)
+    click.echo(f"[campaign {c.name}] {done} of {len(res)} steps complete", err=True)
+
+
+@main.command()
 @click.argument("suites", nargs=-1, required=True)
 @click.option(
     "--root",

@@ -951,3 +951,113 @@ def test_suite_overrides_change_what_they_name(name):
             for part in key.split("."):
                 node_new, node_old = node_new[part], node_old[part]
             assert node_new == value and node_old != value, (r.name, key)
+
+
+# -------------------------------------------------------------------------------------- campaigns
+def _campaign_file(tmp_path, suite, steps):
+    import yaml
+
+    p = tmp_path / "camp.yaml"
+    p.write_text(
+        yaml.safe_dump(
+            {
+                "name": "camp",
+                "preset": "tiny",
+                "seeds": 1,
+                "scene_sets": {"ONE": ["tiny-lamp-box"]},
+                "steps": [dict(s, suite=str(suite)) for s in steps],
+            }
+        )
+    )
+    return p
+
+
+def test_campaign_file_errors_name_the_field(tmp_path):
+    from eval.campaign import CampaignError, load_campaign, parse_campaign
+
+    c = load_campaign("results-small")
+    assert c.preset == "small" and [s.suite for s in c.steps][:3] == [
+        "crf",
+        "control-video-init-priors",
+        "paper-main",
+    ]
+    assert c.steps[2].scenes is None and all(s.seeds == 2 for s in c.steps)
+    assert c.steps[3].scenes == [
+        "lamp-room-orbit",
+        "pendulum-lamp-handheld",
+        "conveyor-occlusion-orbit",
+        "robot-arm-dolly",
+    ]
+    good = {"preset": "tiny", "steps": [{"suite": "tiny"}]}
+    assert parse_campaign(good, "f.yaml").steps[0].seeds == 1
+    for bad, field in [
+        ({**good, "sedes": 2}, "'sedes'"),
+        ({**good, "preset": "huge"}, "'preset'"),
+        ({**good, "seeds": 0}, "'seeds'"),
+        ({**good, "steps": []}, "'steps'"),
+        ({**good, "steps": [{"suite": "nope"}]}, "'steps[0].suite'"),
+        ({**good, "steps": [{"suite": "tiny", "scenes": "X"}]}, "'steps[0].scenes'"),
+        (
+            {**good, "steps": [{"suite": "tiny", "scenes": ["lamp-room-orbit"]}]},
+            "'steps[0].scenes'",
+        ),
+        ({**good, "steps": [{"suite": "tiny", "seeds": -1}]}, "'steps[0]'"),
+        ({**good, "steps": [{"suite": "tiny", "rows": ["full"]}]}, "'steps[0].rows'"),
+    ]:
+        with pytest.raises(CampaignError, match=field.replace("[", r"\[").replace("]", r"\]")) as e:
+            parse_campaign(bad, "f.yaml")
+        assert str(e.value).startswith("f.yaml: "), e.value
+    r = CliRunner().invoke(main, ["campaign", "no-such-campaign"])
+    assert r.exit_code != 0 and "results-small" in r.output
+
+
+def test_campaign_runs_exports_resumes_and_guards_the_code(tmp_path, fake_trainer):
+    import csv
+
+    from eval.campaign import load_campaign, run_campaign
+    from eval.runner import job_list
+    from m4dgs.core.errors import InputError
+
+    suite = tmp_path / "t2.yaml"
+    suite.write_text(SUITE_YAML)
+    out, csv_path = tmp_path / "exp", tmp_path / "runs.csv"
+    for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
+        make_fake_clip(Path(j), seed=len(j))
+    camp = load_campaign(_campaign_file(tmp_path, suite, [{"scenes": "ONE"}, {"seeds": 2}]))
+    code = "c0ffee" + "0" * 58
+    kw = dict(code=code, log=lambda s: None, run_kw={"score_kw": {"fps": False}, "progress": False})
+    plan = run_campaign(camp, out, csv_path, dry_run=True, **kw)
+    assert [(p["scored"], p["total"]) for p in plan] == [(0, 2), (0, 8)] and not fake_trainer[
+        "train"
+    ]
+
+    # step 1 trains its 2 runs and exports them; step 2 then finds 2 of its 8 runs finished with
+    # other code (the fake runs record none) and stops before training anything
+    with pytest.raises(InputError, match="mix code versions"):
+        run_campaign(camp, out, csv_path, **kw)
+    assert len(fake_trainer["train"]) == 2
+    with open(csv_path) as f:
+        rows = list(csv.DictReader(f))
+    assert sorted((r["scene"], r["row"], r["seed"]) for r in rows) == [
+        ("tiny-lamp-box", "base", "0"),
+        ("tiny-lamp-box", "full", "0"),
+    ]
+    # the same code: the campaign goes on where it stopped and trains only what is missing
+    for j in job_list(suite, out, "tiny", seeds=2):
+        rj = Path(j.run_dir) / "run.json"
+        if rj.exists():
+            mio.write_json(rj, dict(mio.read_json(rj), code=code))
+    res = run_campaign(camp, out, csv_path, **kw)
+    assert [(r["scored"], r["total"], r["ran"]) for r in res] == [(2, 2, False), (8, 8, True)]
+    assert len(fake_trainer["train"]) == 8
+    with open(csv_path) as f:
+        assert len(list(csv.DictReader(f))) == 8
+    # done: nothing is trained again; --allow-mixed-code lets a step with other code finish
+    assert [r["ran"] for r in run_campaign(camp, out, csv_path, **kw)] == [False, False]
+    (Path(job_list(suite, out, "tiny", seeds=2)[-1].run_dir) / "metrics.json").unlink()
+    with pytest.raises(InputError, match="c0ffee"):
+        run_campaign(camp, out, csv_path, **dict(kw, code="beef" + "0" * 60))
+    res = run_campaign(
+        camp, out, csv_path, allow_mixed_code=True, **dict(kw, code="beef" + "0" * 60)
+    )
+    assert res[1]["ran"] and len(fake_trainer["train"]) == 8  # rescored, not retrained

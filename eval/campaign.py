@@ -1,0 +1,231 @@
+"""Campaigns: suites run one after another into one experiment root, each exported into the results
+CSV as soon as it is done, so that what a session finished survives it (docs/eval.md,
+"m4dgs-eval campaign").
+
+A campaign file (eval/campaigns/<name>.yaml) names the preset, the trainer seeds, named scene sets
+and the steps in order:
+
+    name: results-small
+    preset: small
+    seeds: 2
+    scene_sets: {TWO: [lamp-room-orbit, pendulum-lamp-handheld]}
+    steps:
+      - {suite: crf, scenes: TWO}
+      - {suite: paper-main}               # every scene of the suite
+      - {suite: priors, scenes: [a, b], seeds: 1}
+
+Each step is `m4dgs-eval run SUITE --scenes ... --seeds ...` followed by `m4dgs-eval export`; a step
+whose runs are all scored is only exported again. Before a step trains anything, the m4dgs code of
+its finished runs (run.json `code`) is compared with this checkout's: a step is never finished with
+other code than it was started with (its paired differences would compare code versions), unless
+allow_mixed_code."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Dict, List, Optional
+
+import yaml
+
+from m4dgs.core import io as mio
+from m4dgs.core.errors import InputError
+
+from .suite import load_eval_suite, scene_suite_names
+
+CAMPAIGNS_DIR = Path(__file__).resolve().parent / "campaigns"
+_TOP_KEYS = {"name", "description", "preset", "seeds", "scene_sets", "steps"}
+_STEP_KEYS = {"suite", "scenes", "seeds"}
+
+
+class CampaignError(InputError):
+    """A malformed campaign file; the message names the file and the field."""
+
+    def __init__(self, path, key: str, problem: str):
+        super().__init__(f"{path}: '{key}': {problem}")
+
+
+@dataclass(frozen=True)
+class Step:
+    suite: str
+    scenes: Optional[List[str]]  # None: every scene of the suite
+    seeds: int
+
+
+@dataclass(frozen=True)
+class Campaign:
+    name: str
+    description: str
+    preset: str
+    steps: List[Step]
+    path: Path
+
+
+def builtin_campaigns() -> List[str]:
+    return sorted(p.stem for p in CAMPAIGNS_DIR.glob("*.yaml"))
+
+
+def load_campaign(name_or_path) -> Campaign:
+    """Load a shipped campaign by name (eval/campaigns/<name>.yaml) or any campaign file by path;
+    raises CampaignError naming the file and the field of what is wrong."""
+    path = mio.find_file(name_or_path, CAMPAIGNS_DIR)
+    if path is None:
+        raise InputError(
+            f"no campaign {name_or_path!r}: not a file, and not one of the shipped campaigns "
+            f"({', '.join(builtin_campaigns()) or 'none'})"
+        )
+    with open(path, "r", encoding="utf-8") as f:
+        d = yaml.safe_load(f)
+    return parse_campaign(d, path)
+
+
+def parse_campaign(d, path="<campaign>") -> Campaign:
+    if not isinstance(d, dict):
+        raise CampaignError(path, "<top level>", "expected a mapping")
+    extra = set(d) - _TOP_KEYS
+    if extra:
+        raise CampaignError(path, sorted(extra)[0], f"unknown key (known: {sorted(_TOP_KEYS)})")
+    preset = d.get("preset", "small")
+    if preset not in ("tiny", "small", "paper"):
+        raise CampaignError(path, "preset", f"{preset!r} is not tiny, small or paper")
+    seeds = _seeds(d.get("seeds", 1), path, "seeds")
+    sets = d.get("scene_sets") or {}
+    if not isinstance(sets, dict) or not all(
+        isinstance(v, list) and all(isinstance(s, str) for s in v) for v in sets.values()
+    ):
+        raise CampaignError(path, "scene_sets", "expected {NAME: [scene, ...]}")
+    raw = d.get("steps")
+    if not isinstance(raw, list) or not raw:
+        raise CampaignError(path, "steps", "expected a non-empty list of {suite, scenes, seeds}")
+    steps = []
+    for i, st in enumerate(raw):
+        key = f"steps[{i}]"
+        if not isinstance(st, dict) or "suite" not in st:
+            raise CampaignError(path, key, "expected a mapping with 'suite'")
+        extra = set(st) - _STEP_KEYS
+        if extra:
+            raise CampaignError(path, f"{key}.{sorted(extra)[0]}", f"unknown key ({_STEP_KEYS})")
+        try:
+            suite = load_eval_suite(st["suite"])
+        except InputError as e:
+            raise CampaignError(path, f"{key}.suite", str(e)) from None
+        scenes = st.get("scenes")
+        if isinstance(scenes, str):
+            if scenes not in sets:
+                raise CampaignError(path, f"{key}.scenes", f"no scene set {scenes!r} in scene_sets")
+            scenes = list(sets[scenes])
+        if scenes is not None:
+            known = scene_suite_names(suite)
+            bad = [s for s in scenes if s not in known]
+            if bad:
+                raise CampaignError(
+                    path, f"{key}.scenes", f"{bad} not in suite {suite.name!r}'s scenes {known}"
+                )
+        steps.append(Step(st["suite"], scenes, _seeds(st.get("seeds", seeds), path, key)))
+    return Campaign(
+        str(d.get("name") or Path(str(path)).stem),
+        str(d.get("description") or ""),
+        preset,
+        steps,
+        Path(str(path)),
+    )
+
+
+def _seeds(v, path, key) -> int:
+    if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+        raise CampaignError(path, key, f"seeds must be an integer >= 1, got {v!r}")
+    return v
+
+
+def step_status(step: Step, root, preset: str) -> dict:
+    """{"total", "scored", "codes"}: the step's jobs, how many have metrics.json, and a Counter of
+    the m4dgs code (run.json `code`, 12 hex digits) of the scored ones."""
+    from .runner import job_list
+
+    jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
+    codes: Counter = Counter()
+    scored = 0
+    for j in jl:
+        run = Path(j.run_dir)
+        if (run / "metrics.json").exists():
+            scored += 1
+            info = mio.read_json(run / "run.json") if (run / "run.json").exists() else {}
+            codes[str(info.get("code") or "unknown")[:12]] += 1
+    return {"total": len(jl), "scored": scored, "codes": codes}
+
+
+def run_campaign(
+    campaign: Campaign,
+    root,
+    csv_path,
+    *,
+    jobs: int = 1,
+    dry_run: bool = False,
+    allow_mixed_code: bool = False,
+    code: Optional[str] = None,
+    log: Optional[Callable[[str], None]] = None,
+    run_kw: Optional[dict] = None,
+) -> List[Dict]:
+    """Run and export every step in order (see the module docstring); returns one summary per step
+    ({"suite", "scenes", "seeds", "total", "scored", "codes", "ran"}). dry_run: only the summaries.
+    code: the fingerprint of this checkout's m4dgs sources (default: computed). Raises InputError
+    before a step whose finished runs have other code (unless allow_mixed_code) and M4DGSError
+    after a step with failed jobs (its finished runs exported first)."""
+    from m4dgs.core.errors import M4DGSError
+
+    from .results import export
+    from .runner import failed_jobs, run_suite
+
+    say = log or print
+    if code is None:
+        from m4dgs.training.phases import code_fingerprint
+
+        code = code_fingerprint()
+    code = code[:12]
+    out = []
+    n = len(campaign.steps)
+    for i, st in enumerate(campaign.steps, 1):
+        s = step_status(st, root, campaign.preset)
+        summary = dict(suite=st.suite, scenes=st.scenes, seeds=st.seeds, ran=False, **s)
+        where = "all scenes" if st.scenes is None else ",".join(st.scenes)
+        say(
+            f"[campaign {campaign.name}] step {i}/{n}: {st.suite} ({where}, {st.seeds} seed(s)): "
+            f"{s['scored']} of {s['total']} runs scored"
+        )
+        if dry_run:
+            out.append(summary)
+            continue
+        other = {c: k for c, k in s["codes"].items() if c != code}
+        if other and s["scored"] < s["total"] and not allow_mixed_code:
+            raise InputError(
+                f"campaign {campaign.name}, step {i} ({st.suite}): "
+                + ", ".join(f"{k} finished run(s) with m4dgs code {c}" for c, k in other.items())
+                + f"; this checkout is {code}. Finishing the suite would mix code versions in "
+                "one table: use a new --root (or check out that code), or pass --allow-mixed-code."
+            )
+        res = []
+        if s["scored"] < s["total"]:
+            res = run_suite(
+                st.suite,
+                root,
+                campaign.preset,
+                jobs=jobs,
+                scenes=st.scenes,
+                seeds=st.seeds,
+                log=say,
+                **(run_kw or {}),
+            )
+            summary["ran"] = True
+        summary.update(step_status(st, root, campaign.preset))
+        if summary["scored"]:
+            export([st.suite], root, csv_path, st.scenes, st.seeds, log=say)
+        out.append(summary)
+        bad = failed_jobs(res)
+        if bad:
+            raise M4DGSError(
+                f"campaign {campaign.name}, step {i} ({st.suite}): {len(bad)} job(s) failed "
+                f"({'; '.join(r['id'] for r in bad[:3])}); the finished runs are exported. Run "
+                "the same command again to retry them."
+            )
+    return out
