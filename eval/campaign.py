@@ -179,7 +179,8 @@ def run_campaign(
 
     say = log or print
     if code is None:
-        from m4dgs.training.phases import code_fingerprint
+        # the fingerprint the trainer records in run.json (through its entry point)
+        from m4dgs.training.pipeline import code_fingerprint
 
         code = code_fingerprint()
     code = code[:12]
