@@ -731,8 +731,8 @@ def make_suite(
         if missing:
             raise ValueError(f"suite {s.name!r} has no scene(s) {missing} (it has {s.scene_names})")
     root = Path(out_root) / s.name
-    jobs_list = [(p, root / p.stem) for p in paths]
     reuse = Path(reuse_root if reuse_root is not None else out_root)
+    jobs_list = [(p, root / p.stem, sibling_clips(reuse, p.stem)) for p in paths]
     kw = dict(
         crf=crf, force=force, spp=spp, allow_misplaced=allow_misplaced or s.placement == "warn"
     )
@@ -740,7 +740,7 @@ def make_suite(
     # reported together
     results, misplaced = [], []
     if jobs <= 1:
-        for p, o in jobs_list:
+        for p, o, rf in jobs_list:
             try:
                 results.append(
                     make_clip(
@@ -751,7 +751,7 @@ def make_suite(
                         priors,
                         seed,
                         progress=progress,
-                        render_from=sibling_clips(reuse, p.stem),
+                        render_from=rf,
                         **kw,
                     )
                 )
@@ -771,10 +771,10 @@ def make_suite(
                     priors,
                     seed,
                     progress=False,
-                    render_from=sibling_clips(reuse, p.stem),
+                    render_from=rf,
                     **kw,
                 )
-                for p, o in jobs_list
+                for p, o, rf in jobs_list
             ]
             for f in futs:
                 try:

@@ -32,18 +32,15 @@ import yaml
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError
 
-from .suite import load_eval_suite, scene_suite_names
+from .suite import SuiteError, load_eval_suite, scene_suite_names
 
 CAMPAIGNS_DIR = Path(__file__).resolve().parent / "campaigns"
 _TOP_KEYS = {"name", "description", "preset", "seeds", "scene_sets", "steps"}
 _STEP_KEYS = {"suite", "scenes", "seeds"}
 
 
-class CampaignError(InputError):
-    """A malformed campaign file; the message names the file and the field."""
-
-    def __init__(self, path, key: str, problem: str):
-        super().__init__(f"{path}: '{key}': {problem}")
+class CampaignError(SuiteError):
+    """A malformed campaign file; the message names the file and the field (path, key, problem)."""
 
 
 @dataclass(frozen=True)

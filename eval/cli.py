@@ -614,26 +614,21 @@ def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
 
 
 # --------------------------------------------------------------------------------------------------
-@main.command()
-@click.argument("campaign")
-@click.option(
-    "--root",
-    "out",
-    default=DEFAULT_OUT,
-    show_default=True,
-    type=click.Path(file_okay=False),
-    help="Experiment root (one per preset and clip generator version; the campaign file names the "
-    "preset).",
-)
-@click.option("--jobs", default=1, show_default=True, type=int, help="Local worker processes.")
-@click.option(
+_runs_csv_opt = click.option(
     "--csv",
     "csv_path",
     default="results/runs.csv",
     show_default=True,
     type=click.Path(dir_okay=False),
-    help="Runs CSV each finished step is exported into (as `m4dgs-eval export` does).",
+    help="Runs CSV to create or merge into (learned CRF curves go to <stem>-crf.csv beside it).",
 )
+
+
+@main.command()
+@click.argument("campaign")
+@_out_opt
+@click.option("--jobs", default=1, show_default=True, type=int, help="Local worker processes.")
+@_runs_csv_opt
 @click.option(
     "--dry-run", is_flag=True, help="Print each step with its scored / total runs and exit."
 )
@@ -679,14 +674,7 @@ def campaign(
     type=click.Path(file_okay=False),
     help="Experiment root of the suites (runs in ROOT/runs/<suite>).",
 )
-@click.option(
-    "--csv",
-    "csv_path",
-    default="results/runs.csv",
-    show_default=True,
-    type=click.Path(dir_okay=False),
-    help="Runs CSV to create or merge into (learned CRF curves go to <stem>-crf.csv beside it).",
-)
+@_runs_csv_opt
 @click.option("--scenes", default=None, help="Comma-separated subset of the suites' scenes.")
 @click.option(
     "--seeds",

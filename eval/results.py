@@ -29,6 +29,7 @@ import hashlib
 import io
 import math
 import os
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -306,10 +307,11 @@ def export(suites: Sequence[str], root, csv_path, scenes=None, seeds=None, log=N
     merged = merge_rows(old, new_rows)
     for name in summary:
         for column, what in (("code", "m4dgs code"), ("generator", "clip generator")):
-            seen: Dict[str, int] = {}
-            for r in merged:
-                if r["suite"] == name and r.get("status") == SCORED and r.get(column):
-                    seen[str(r[column])] = seen.get(str(r[column]), 0) + 1
+            seen = Counter(
+                str(r[column])
+                for r in merged
+                if r["suite"] == name and r.get("status") == SCORED and r.get(column)
+            )
             if len(seen) > 1:
                 counts = ", ".join(f"{k} ({v} runs)" for k, v in sorted(seen.items()))
                 say(
