@@ -23,6 +23,13 @@
 #include <type_traits>
 #include <vector>
 
+#if defined(__AVX2__) && defined(__FMA__)
+#include <immintrin.h>
+#define M4DGS_SPAN8 1
+#else
+#define M4DGS_SPAN8 0
+#endif
+
 namespace {
 
 template <typename T>
@@ -35,6 +42,8 @@ struct Consts {
 // Channels are padded to a multiple of LANES in tile-local buffers so the per-channel loops vectorise without
 // remainders (the padding holds zeros and is never written out).
 constexpr int64_t LANES = 4;
+// Span buffers are padded by SPAN8 entries: the AVX2 span loops read and write whole 8-pixel chunks.
+constexpr int64_t SPAN8 = 8;
 inline int64_t padded(int64_t C) { return (C + LANES - 1) / LANES * LANES; }
 
 // Gathered, tile-local copy of the Gaussians of one tile (front to back).
@@ -136,6 +145,60 @@ inline float exp_neg<float>(float s) {
     return p * scale;
 }
 
+#if M4DGS_SPAN8
+// AVX2 versions of the span loops' per-pixel arithmetic for float, 8 pixels at a time. Spans are short (a few
+// pixels: the Gaussians of a trained scene are small), so the compiler's vector loop rarely ran and its scalar
+// remainder did the work; these take every span in whole chunks, masking the lanes past its end. The formulas
+// are exp_neg<float> and the scalar loops' (same constants, same order), and the forward and the backward both
+// use span_alpha8, so the backward retraces exactly the forward's decisions.
+inline __m256 exp_neg8(__m256 s) {
+    s = _mm256_min_ps(_mm256_max_ps(s, _mm256_setzero_ps()), _mm256_set1_ps(80.0f));
+    const __m256i n = _mm256_cvttps_epi32(_mm256_mul_ps(s, _mm256_set1_ps(1.44269504f)));
+    const __m256 nf = _mm256_cvtepi32_ps(n);
+    const __m256 r = _mm256_fnmadd_ps(nf, _mm256_set1_ps(1.42860682e-6f),
+                                      _mm256_fnmadd_ps(nf, _mm256_set1_ps(0.693145751953125f), s));
+    __m256 p = _mm256_set1_ps(9.863136092e-04f);
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(-7.973091924e-03f));
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(4.150174091e-02f));
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(-1.666274102e-01f));
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(4.999955219e-01f));
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(-9.999998077e-01f));
+    p = _mm256_fmadd_ps(p, r, _mm256_set1_ps(9.999999986e-01f));
+    const __m256i bits = _mm256_slli_epi32(_mm256_sub_epi32(_mm256_set1_epi32(127), n), 23);  // 2^-n
+    return _mm256_mul_ps(p, _mm256_castsi256_ps(bits));
+}
+
+// sigma, opacity * exp(-sigma) (raw) and alpha of the pixels dx = dxs, dxs - 1, ..., dxs - 7 of one row, and the
+// lanes that pass the span tests (inside the first `rem` pixels, 0 <= sigma <= thr, alpha >= 1/255).
+struct Span8 {
+    __m256 sigma, vis, raw, alpha, ok;
+};
+
+inline Span8 span_alpha8(float ca, float bdy, float cdy, float op, float thr, float dxs, int64_t rem) {
+    const __m256 iota = _mm256_setr_ps(0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 6.f, 7.f);
+    const __m256 dx = _mm256_sub_ps(_mm256_set1_ps(dxs), iota);
+    Span8 o;
+    // 0.5 a dx^2 + b dy dx + 0.5 c dy^2, as (0.5 a dx + b dy) dx + 0.5 c dy^2
+    o.sigma = _mm256_fmadd_ps(_mm256_fmadd_ps(_mm256_set1_ps(0.5f * ca), dx, _mm256_set1_ps(bdy)), dx,
+                              _mm256_set1_ps(cdy));
+    o.vis = exp_neg8(o.sigma);
+    o.raw = _mm256_mul_ps(_mm256_set1_ps(op), o.vis);
+    o.alpha = _mm256_min_ps(_mm256_set1_ps(Consts<float>::alpha_max), o.raw);
+    const __m256 in_span = _mm256_cmp_ps(iota, _mm256_set1_ps(float(rem)), _CMP_LT_OQ);
+    o.ok = _mm256_and_ps(
+        _mm256_and_ps(in_span, _mm256_cmp_ps(o.sigma, _mm256_setzero_ps(), _CMP_GE_OQ)),
+        _mm256_and_ps(_mm256_cmp_ps(o.sigma, _mm256_set1_ps(thr), _CMP_LE_OQ),
+                      _mm256_cmp_ps(o.alpha, _mm256_set1_ps(Consts<float>::alpha_min), _CMP_GE_OQ)));
+    return o;
+}
+
+inline __m256i loadi8(const int32_t *p) { return _mm256_loadu_si256(reinterpret_cast<const __m256i *>(p)); }
+inline void storei8(int32_t *p, __m256i v) { _mm256_storeu_si256(reinterpret_cast<__m256i *>(p), v); }
+inline __m256i blendi8(__m256i a, __m256i b, __m256 mask) {
+    return _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(a), _mm256_castsi256_ps(b), mask));
+}
+#endif
+
 template <typename T, int NB = 0>  // NB > 0: padded channel count NB * LANES known at compile time
 void forward_kernel(const T *means2d, const T *conics, const T *opac, const T *features, int64_t C,
                     const int32_t *offsets, const int32_t *ids, int64_t W, int64_t H, int64_t ts,
@@ -145,8 +208,8 @@ void forward_kernel(const T *means2d, const T *conics, const T *opac, const T *f
 #pragma omp parallel num_threads(n_threads)
     {
         TileData<T> td;
-        std::vector<T> acc_v(P * Cp), Tr_v(P), w_v(ts);
-        std::vector<int32_t> last_v(P), done_v(P);
+        std::vector<T> acc_v(P * Cp), Tr_v(P + SPAN8), w_v(ts + SPAN8);
+        std::vector<int32_t> last_v(P + SPAN8), done_v(P + SPAN8);
         T *acc = acc_v.data(), *Tr = Tr_v.data(), *wv = w_v.data();
         int32_t *last = last_v.data(), *done = done_v.data();
 #pragma omp for schedule(dynamic, 1)
@@ -180,6 +243,29 @@ void forward_kernel(const T *means2d, const T *conics, const T *opac, const T *f
                     T *Trp = Tr + p0;
                     int32_t *dp = done + p0, *lp = last + p0;
                     int32_t n_stop = 0;
+#if M4DGS_SPAN8
+                    if constexpr (std::is_same<T, float>::value) {
+                        const __m256 one = _mm256_set1_ps(1.0f), t_min = _mm256_set1_ps(Consts<float>::t_min);
+                        for (int64_t c0 = 0; c0 < len; c0 += SPAN8) {
+                            const Span8 a8 = span_alpha8(ca, bdy, cdy, op, thr, dx0 - float(c0), len - c0);
+                            const __m256i d = loadi8(dp + c0);
+                            const __m256 valid = _mm256_andnot_ps(
+                                _mm256_castsi256_ps(_mm256_cmpgt_epi32(d, _mm256_setzero_si256())), a8.ok);
+                            const __m256 Tc = _mm256_loadu_ps(Trp + c0);
+                            const __m256 next_T = _mm256_mul_ps(Tc, _mm256_sub_ps(one, a8.alpha));
+                            const __m256 stop = _mm256_and_ps(valid, _mm256_cmp_ps(next_T, t_min, _CMP_LE_OQ));
+                            const __m256 contrib = _mm256_andnot_ps(stop, valid);
+                            _mm256_storeu_ps(wv + c0, _mm256_and_ps(contrib, _mm256_mul_ps(a8.alpha, Tc)));
+                            const int cm = _mm256_movemask_ps(contrib), sm = _mm256_movemask_ps(stop);
+                            if ((cm | sm) == 0) continue;
+                            _mm256_storeu_ps(Trp + c0, _mm256_blendv_ps(Tc, next_T, contrib));
+                            storei8(lp + c0, blendi8(loadi8(lp + c0), _mm256_set1_epi32(k1), contrib));
+                            storei8(dp + c0, blendi8(d, _mm256_set1_epi32(1), stop));
+                            n_stop += __builtin_popcount(unsigned(sm));
+                        }
+                    } else
+#endif
+                    {
                     // per pixel of the span: alpha, the skip / stop tests and the transmittance update
 #pragma omp simd reduction(+ : n_stop)
                     for (int64_t i = 0; i < len; ++i) {
@@ -197,6 +283,7 @@ void forward_kernel(const T *means2d, const T *conics, const T *opac, const T *f
                         lp[i] = contrib ? k1 : lp[i];
                         dp[i] = stop ? 1 : dp[i];
                         n_stop += stop ? 1 : 0;
+                    }
                     }
                     n_active -= n_stop;
                     for (int64_t i = 0; i < len; ++i) {
@@ -233,9 +320,9 @@ void backward_kernel(const T *means2d, const T *conics, const T *opac, const T *
     {
         TileData<T> td;
         // vb[p] = sum_ch v_out[ch] * (features accumulated behind the current Gaussian)[ch], kept as a scalar
-        std::vector<T> vb_v(P), Tr_v(P), vo_v(P * Cp), va_v(P), vf_v(Cp);
-        std::vector<T> w_v(ts), ra_v(ts), Tp_v(ts), vis_v(ts), al_v(ts);
-        std::vector<int32_t> last_v(P), geo_v(ts);
+        std::vector<T> vb_v(P), Tr_v(P + SPAN8), vo_v(P * Cp), va_v(P), vf_v(Cp);
+        std::vector<T> w_v(ts + SPAN8), ra_v(ts + SPAN8), Tp_v(ts + SPAN8), vis_v(ts + SPAN8), al_v(ts + SPAN8);
+        std::vector<int32_t> last_v(P + SPAN8), geo_v(ts + SPAN8);
         T *vb = vb_v.data(), *Tr = Tr_v.data(), *vo = vo_v.data(), *va = va_v.data(), *vf = vf_v.data();
         T *wv = w_v.data(), *rav = ra_v.data(), *Tpv = Tp_v.data(), *visv = vis_v.data(), *alv = al_v.data();
         int32_t *last = last_v.data(), *geo = geo_v.data();
@@ -290,6 +377,31 @@ void backward_kernel(const T *means2d, const T *conics, const T *opac, const T *
                     T *Trp = Tr + p0;
                     const int32_t *lp = last + p0;
                     int32_t n_valid = 0;
+#if M4DGS_SPAN8
+                    if constexpr (std::is_same<T, float>::value) {
+                        const __m256 one = _mm256_set1_ps(1.0f);
+                        const __m256 amax = _mm256_set1_ps(Consts<float>::alpha_max);
+                        for (int64_t c0 = 0; c0 < len; c0 += SPAN8) {
+                            const Span8 a8 = span_alpha8(ca, bdy, cdy, op, thr, dx0 - float(c0), len - c0);
+                            const __m256 valid = _mm256_and_ps(
+                                a8.ok, _mm256_castsi256_ps(_mm256_cmpgt_epi32(loadi8(lp + c0),
+                                                                              _mm256_set1_epi32(k32))));
+                            const __m256 ra = _mm256_div_ps(one, _mm256_sub_ps(one, a8.alpha));
+                            const __m256 Tc = _mm256_loadu_ps(Trp + c0);
+                            const __m256 Tp = _mm256_mul_ps(Tc, ra);  // transmittance in front of this Gaussian
+                            _mm256_storeu_ps(Trp + c0, _mm256_blendv_ps(Tc, Tp, valid));
+                            _mm256_storeu_ps(wv + c0, _mm256_and_ps(valid, _mm256_mul_ps(a8.alpha, Tp)));
+                            _mm256_storeu_ps(rav + c0, ra);
+                            _mm256_storeu_ps(Tpv + c0, Tp);
+                            _mm256_storeu_ps(visv + c0, a8.vis);
+                            _mm256_storeu_ps(alv + c0, a8.alpha);
+                            const __m256 g = _mm256_and_ps(valid, _mm256_cmp_ps(a8.raw, amax, _CMP_LE_OQ));
+                            storei8(geo + c0, _mm256_and_si256(_mm256_castps_si256(g), _mm256_set1_epi32(1)));
+                            n_valid += __builtin_popcount(unsigned(_mm256_movemask_ps(valid)));
+                        }
+                    } else
+#endif
+                    {
                     // per pixel of the span: recompute alpha, step T back over this Gaussian
 #pragma omp simd reduction(+ : n_valid)
                     for (int64_t i = 0; i < len; ++i) {
@@ -310,6 +422,7 @@ void backward_kernel(const T *means2d, const T *conics, const T *opac, const T *
                         alv[i] = alpha;
                         geo[i] = (valid & (raw <= Consts<T>::alpha_max)) ? 1 : 0;
                         n_valid += valid ? 1 : 0;
+                    }
                     }
                     if (n_valid == 0) continue;
                     any = true;
