@@ -116,10 +116,18 @@ def apply_basis(coeffs: Tensor, basis: Tensor) -> Tensor:
     Args:
         coeffs: [N, K, D] per-Gaussian coefficients (spline control points, polynomial terms).
         basis: [T, K] weights of each coefficient at each time.
+    Only the coefficients of the basis's nonzero column range enter the product (a spline at a few
+    nearby times reads 4-6 of its K control points): a column slice of the [N, K D] view, which the
+    matrix product reads in place, so forward and backward touch a fraction of the coefficients.
+
     Returns:
         [N, T, D].
     """
     n, k, d = coeffs.shape
+    cols = torch.nonzero(basis.detach().abs().sum(0)).flatten()
+    if 0 < cols.numel() and (cols[-1] - cols[0] + 1) < k:
+        lo, hi = int(cols[0]), int(cols[-1]) + 1
+        coeffs, basis, k = coeffs[:, lo:hi], basis[:, lo:hi], hi - lo
     eye = torch.eye(d, dtype=coeffs.dtype, device=coeffs.device)
     m = (basis.to(coeffs.dtype).t()[:, None, :, None] * eye[None, :, None, :]).reshape(k * d, -1)
     return (coeffs.reshape(n, k * d) @ m).reshape(n, basis.shape[0], d)

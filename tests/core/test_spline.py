@@ -104,6 +104,8 @@ def test_fast_evaluate_matches_reference_values_and_gradients(num_frames):
     g = torch.Generator().manual_seed(num_frames)
     ctrl = torch.randn(37, knots.numel(), 3, generator=g, dtype=torch.float64)
     times = [0.0, 0.5 * (num_frames - 1), float(num_frames - 1), -3.0, num_frames + 2.0]
+    # two nearby times: a basis with a few nonzero columns (the narrowed product)
+    times.append(torch.tensor([0.4, 0.45], dtype=torch.float64) * (num_frames - 1))
     times.append(torch.linspace(-1.0, num_frames, 11, dtype=torch.float64))
     w = torch.randn(37, 3, generator=g, dtype=torch.float64)
     for t in times:
