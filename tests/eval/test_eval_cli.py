@@ -953,6 +953,40 @@ def test_suite_overrides_change_what_they_name(name):
             assert node_new == value and node_old != value, (r.name, key)
 
 
+def test_scale_control_rows_are_the_paper_schedule_at_the_small_resolution():
+    """control-video-init-scale: full gets the paper preset's iterations and densification
+    schedules (its own Gaussian cap and resolution stay the small preset's), and the (a) row is
+    exactly the budget transfer of that full row (stage2_only_budget), field by field."""
+    import dataclasses
+
+    from eval.suite import load_eval_suite
+    from m4dgs.training.config import preset
+    from m4dgs.training.variants import stage2_only_budget, variant_config
+
+    suite = load_eval_suite("control-video-init-scale")
+    rows = {r.variant: r for r in suite.rows}
+    full = variant_config("small", "full", rows["full"].overrides)
+    a = variant_config("small", "no-video-init", rows["no-video-init"].overrides)
+    paper, small = preset("paper"), preset("small")
+    assert (full.width, full.height) == (small.width, small.height)
+    assert (full.stage1.iterations, full.stage2.iterations) == (4_000, 11_000)
+
+    def schedule(d):
+        return {k: v for k, v in dataclasses.asdict(d).items() if k != "max_gaussians"}
+
+    for part in ("densify",):
+        assert schedule(getattr(full.stage1, part)) == schedule(getattr(paper.stage1, part))
+    for part in ("densify_static", "densify_dynamic"):
+        assert schedule(getattr(full.stage2, part)) == schedule(getattr(paper.stage2, part))
+        assert getattr(full.stage2, part).max_gaussians == getattr(small.stage2, part).max_gaussians
+    assert full.stage2.dynamic_removal_every == paper.stage2.dynamic_removal_every
+    assert full.stage2.pr_steps == 3_000  # the authors' window, as the small preset's proportion
+    ref = stage2_only_budget(full)
+    assert a.stage1.iterations == 0 and not a.ablation.use_video_init
+    assert dataclasses.asdict(a.stage2) == dataclasses.asdict(ref.stage2)
+    assert a.stage2.iterations == 15_000 and a.stage2.densify_static.stop_iter == 10_909
+
+
 # -------------------------------------------------------------------------------------- campaigns
 def _campaign_file(tmp_path, suite, steps):
     import yaml
@@ -976,13 +1010,14 @@ def test_campaign_file_errors_name_the_field(tmp_path):
     from eval.campaign import CampaignError, load_campaign, parse_campaign
 
     c = load_campaign("results-small")
-    assert c.preset == "small" and [s.suite for s in c.steps][:3] == [
+    assert c.preset == "small" and [s.suite for s in c.steps][:4] == [
         "crf",
         "control-video-init-priors",
+        "control-video-init-scale",
         "paper-main",
     ]
-    assert c.steps[2].scenes is None and all(s.seeds == 2 for s in c.steps)
-    assert c.steps[3].scenes == [
+    assert c.steps[3].scenes is None and all(s.seeds == 2 for s in c.steps)
+    assert c.steps[4].scenes == [
         "lamp-room-orbit",
         "pendulum-lamp-handheld",
         "conveyor-occlusion-orbit",
