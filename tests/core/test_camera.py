@@ -54,6 +54,23 @@ def test_c2w_w2c_round_trip():
     np.testing.assert_allclose(C.transform_points(c2w, C.transform_points(w2c, p)), p, atol=1e-12)
 
 
+def test_transform_points_broadcasts_like_homogeneous_coordinates():
+    """[..., 4, 4] transforms against [..., 3] points with broadcasting (one transform and an image
+    of points; a batch of transforms against shared points), checked against M @ [p, 1] per
+    element."""
+    c2w = random_c2w(3)
+    img = RNG.normal(size=(4, 5, 3))
+    out = C.transform_points(c2w[0], img)
+    hom = np.concatenate([img, np.ones((4, 5, 1))], -1)
+    np.testing.assert_allclose(out, np.einsum("ij,hwj->hwi", c2w[0], hom)[..., :3], atol=1e-12)
+    pts = RNG.normal(size=(7, 3))
+    out = C.transform_points(c2w[:, None], pts)  # [3, 1, 4, 4] x [7, 3] -> [3, 7, 3]
+    assert out.shape == (3, 7, 3)
+    for b in range(3):
+        for k in range(7):
+            np.testing.assert_allclose(out[b, k], (c2w[b] @ np.append(pts[k], 1.0))[:3], atol=1e-12)
+
+
 def test_camera_centre_is_translation():
     c2w = random_c2w(1)[0]
     np.testing.assert_allclose(C.transform_points(c2w, np.zeros(3)), c2w[:3, 3], atol=1e-12)
