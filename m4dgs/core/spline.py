@@ -113,13 +113,13 @@ def apply_basis(coeffs: Tensor, basis: Tensor) -> Tensor:
     with the [K D, T D] matrix basis^T (x) I_D (forward and backward stay contiguous; an einsum
     permutes and copies the coefficients first).
 
-    Args:
-        coeffs: [N, K, D] per-Gaussian coefficients (spline control points, polynomial terms).
-        basis: [T, K] weights of each coefficient at each time.
     Only the coefficients of the basis's nonzero column range enter the product (a spline at a few
     nearby times reads 4-6 of its K control points): a column slice of the [N, K D] view, which the
     matrix product reads in place, so forward and backward touch a fraction of the coefficients.
 
+    Args:
+        coeffs: [N, K, D] per-Gaussian coefficients (spline control points, polynomial terms).
+        basis: [T, K] weights of each coefficient at each time.
     Returns:
         [N, T, D].
     """
