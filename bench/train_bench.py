@@ -2,6 +2,7 @@
 
     python bench/train_bench.py CLIP [--preset small] [--variant full] [--iters1 N] [--iters2 N]
                                      [--profile-steps 20] [--threads 2] [--out DIR] [--no-score]
+                                     [--device cuda] [--seed N]
 
 Trains `variant` on `CLIP` into a fresh run folder (default: a temporary one), timing each phase of
 the pipeline (camera_init, stage1, v2w, stage2, render) and the scoring (`eval score`), then prints:
@@ -84,6 +85,7 @@ def main() -> None:
     )
     ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--seed", type=int, default=None, help="trainer seed (default: the preset's)")
     ap.add_argument("--out", default=None, help="run folder (default: a temporary one, deleted)")
     ap.add_argument("--no-score", action="store_true", help="skip timing `eval score`")
     a = ap.parse_args()
@@ -94,6 +96,8 @@ def main() -> None:
         overrides["stage1.iterations"] = a.iters1
     if a.iters2 is not None:
         overrides["stage2.iterations"] = a.iters2
+    if a.seed is not None:
+        overrides["seed"] = a.seed
     tmp = None
     out = Path(a.out) if a.out else Path(tmp := tempfile.mkdtemp(prefix="train_bench_")) / "run"
     if out.exists():

@@ -1,0 +1,243 @@
+"""The checks of the GPU path in one command, for a session that is lent a CUDA machine.
+
+    python bench/gpu_check.py CLIP --out DIR [--steps env,tests,train,fps,jobs] [--preset small]
+                              [--variant full] [--jobs 1,2,4] [--jobs-iters 300]
+
+CLIP needs only input/ and priors/ (no ground truth), so a small clip can travel with the working
+tree; `bench/gpu_kit.sh` packs one and the wheels the CUDA machine lacks. Steps, in order:
+
+- env:   torch / CUDA / device, the gsplat import and the seconds of its first rasterization (gsplat
+         compiles its CUDA code on first use; the later steps reuse that build).
+- tests: `pytest -m gpu` (the gsplat backend against the C++ cpu backend on values and gradients,
+         the device selection, FPS synchronisation) in a subprocess, its last lines kept.
+- train: one `bench/train_bench.py CLIP --device cuda --no-score` run (wall time per phase and
+         iterations/s), the run folder kept in DIR/run.
+- fps:   render FPS of that trained model at the clip's resolution and at 864x480
+         (eval.metrics.measure_fps, device synchronised), the Gaussian count and the peak GPU
+         memory of the renders.
+- jobs:  for each N of --jobs, N trainings of CLIP at once with --jobs-iters iterations per stage
+         (different seeds, separate run folders): the wall time and the runs per second relative
+         to the first N (what `m4dgs-eval run --jobs N` can expect from one GPU).
+
+Everything measured goes to DIR/gpu_check.json (rewritten after every step, so a command stopped at
+its time limit still leaves what it finished) and is printed. On a machine without CUDA the script
+says so and runs the steps on the CPU (a dry run of the script itself, not a GPU figure).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+import torch  # noqa: E402
+
+STEPS = ("env", "tests", "train", "fps", "jobs")
+FPS_SIZE = (864, 480)
+
+
+def _save(out: Path, res: dict) -> None:
+    tmp = out / "gpu_check.json.tmp"
+    tmp.write_text(json.dumps(res, indent=2, default=str))
+    os.replace(tmp, out / "gpu_check.json")
+
+
+def _env(device: str) -> dict:
+    """Versions and the seconds of the first gsplat rasterization (its CUDA build)."""
+    info = {
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "cuda": torch.version.cuda,
+        "device": device,
+        "device_name": torch.cuda.get_device_name(0) if device == "cuda" else platform.processor(),
+    }
+    try:
+        import gsplat
+
+        info["gsplat"] = gsplat.__version__
+    except Exception as exc:  # reported, not fatal: the cpu backend still runs
+        info["gsplat"] = f"import failed: {type(exc).__name__}: {exc}"
+        return info
+    if device == "cuda":
+        from m4dgs.raster import render
+
+        g = torch.Generator().manual_seed(0)
+        n = 1000
+        means = torch.randn(n, 3, generator=g) * 0.3 + torch.tensor([0.0, 0.0, 3.0])
+        quats = torch.randn(n, 4, generator=g)
+        scales = torch.full((n, 3), 0.02)
+        op = torch.full((n,), 0.8)
+        feats = torch.rand(n, 3, generator=g)
+        K = torch.tensor([[100.0, 0, 64], [0, 100.0, 48], [0, 0, 1]])
+        args = [t.cuda() for t in (means, quats, scales, op, feats, torch.eye(4), K)]
+        t0 = time.perf_counter()
+        render(*args[:5], args[5], args[6], 128, 96, backend="gsplat")
+        torch.cuda.synchronize()
+        info["gsplat_first_render_s"] = round(time.perf_counter() - t0, 1)
+    return info
+
+
+def _tests() -> dict:
+    cmd = [sys.executable, "-m", "pytest", "-q", "-rs", "-m", "gpu", "-p", "no:cacheprovider"]
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    tail = (p.stdout + p.stderr).strip().splitlines()[-15:]
+    return {
+        "cmd": " ".join(cmd),
+        "rc": p.returncode,
+        "seconds": round(time.perf_counter() - t0, 1),
+        "tail": tail,
+    }
+
+
+def _train_cmd(clip: str, out: Path, a, device: str, extra=()) -> list:
+    return [
+        sys.executable,
+        str(ROOT / "bench" / "train_bench.py"),
+        clip,
+        "--preset",
+        a.preset,
+        "--variant",
+        a.variant,
+        "--device",
+        device,
+        "--no-score",
+        "--profile-steps",
+        "0",
+        "--out",
+        str(out),
+        *extra,
+    ]
+
+
+def _train(clip: str, out: Path, a, device: str) -> dict:
+    t0 = time.perf_counter()
+    p = subprocess.run(
+        _train_cmd(clip, out / "run", a, device), cwd=ROOT, capture_output=True, text=True
+    )
+    lines = (p.stdout + p.stderr).strip().splitlines()
+    table = [
+        ln
+        for ln in lines
+        if ln.startswith(("#", "phase", "set-up", "camera_init", "stage", "v2w", "render", "total"))
+    ]
+    return {
+        "rc": p.returncode,
+        "wall_s": round(time.perf_counter() - t0, 1),
+        "table": table,
+        "tail": lines[-8:] if p.returncode else [],
+    }
+
+
+def _fps(out: Path, device: str) -> dict:
+    from eval.metrics.perf import measure_fps
+    from m4dgs.model.trained import load_model
+
+    model = load_model(out / "run", device=device)
+    frames = model.clip.meta.frames
+    g = frames[len(frames) // 2]
+    t = model.time_of(g)
+    K, c2w = model.camera(g)
+    res = {"num_gaussians": model.num_gaussians, "backend": getattr(model, "backend", None)}
+    if device == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+    for name, (w, h) in (("clip", (model.width, model.height)), ("864x480", FPS_SIZE)):
+        Ks = K.copy()
+        Ks[0] *= w / model.width
+        Ks[1] *= h / model.height
+        r = measure_fps(
+            lambda Ks=Ks, w=w, h=h: model.render(t, c2w, Ks, w, h),
+            warmup=3,
+            iters=20,
+            device=device,
+        )
+        res[f"fps_{name}"] = round(r["fps"], 1)
+        res[f"ms_per_frame_{name}"] = round(r["ms_per_frame"], 2)
+    if device == "cuda":
+        res["peak_render_memory_mib"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
+    return res
+
+
+def _jobs(clip: str, out: Path, a, device: str) -> dict:
+    res = {"iters_per_stage": a.jobs_iters, "runs": {}}
+    first = None  # runs per second of the first N (1 by default): the reference throughput
+    for n in [int(x) for x in a.jobs.split(",") if x]:
+        t0 = time.perf_counter()
+        procs = []
+        for k in range(n):
+            run = out / f"jobs{n}" / f"run{k}"
+            # separate seeds, as `m4dgs-eval run --seeds` gives separate runs (no shared work)
+            extra = ["--iters1", str(a.jobs_iters), "--iters2", str(a.jobs_iters), "--seed", str(k)]
+            cmd = _train_cmd(clip, run, a, device, extra)
+            procs.append(
+                subprocess.Popen(
+                    cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+                )
+            )
+        rcs = [p.wait() for p in procs]
+        wall = time.perf_counter() - t0
+        first = first or n / wall
+        res["runs"][str(n)] = {
+            "wall_s": round(wall, 1),
+            "rc": rcs,
+            "throughput_vs_first": round(n / wall / first, 2),
+        }
+    return res
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument("clip", help="clip folder (input/ and priors/ are enough)")
+    ap.add_argument("--out", required=True, help="folder for gpu_check.json and the run")
+    ap.add_argument("--steps", default=",".join(STEPS), help=f"comma-separated subset of {STEPS}")
+    ap.add_argument("--preset", default="small", choices=["tiny", "small", "paper"])
+    ap.add_argument("--variant", default="full")
+    ap.add_argument("--jobs", default="1,2,4", help="numbers of concurrent trainings to time")
+    ap.add_argument(
+        "--jobs-iters",
+        type=int,
+        default=300,
+        help="iterations per stage of each timed concurrent training",
+    )
+    a = ap.parse_args()
+    steps = [s for s in a.steps.split(",") if s]
+    bad = [s for s in steps if s not in STEPS]
+    if bad:
+        ap.error(f"--steps: unknown {bad}; choose from {STEPS}")
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cpu":
+        print("[gpu_check] no CUDA device: running the steps on the CPU (a dry run of this script)")
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    res = {"clip": a.clip, "preset": a.preset, "variant": a.variant, "steps": {}}
+    for s in steps:
+        t0 = time.perf_counter()
+        if s == "env":
+            r = _env(device)
+        elif s == "tests":
+            r = _tests()
+        elif s == "train":
+            r = _train(a.clip, out, a, device)
+        elif s == "fps":
+            r = _fps(out, device)
+        else:
+            r = _jobs(a.clip, out, a, device)
+        r["step_s"] = round(time.perf_counter() - t0, 1)
+        res["steps"][s] = r
+        _save(out, res)
+        print(f"[gpu_check] {s}: {json.dumps(r, default=str)}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

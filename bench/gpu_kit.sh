@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Pack what a CUDA machine without network needs for bench/gpu_check.py into .gpu/ (git-ignored through
+# .git/info/exclude, so it travels with a copy of the working tree but is never committed):
+#   .gpu/whl/   the wheels that machine's Python 3.12 image lacks (gsplat, OpenImageIO, flip-evaluator); gsplat's
+#               wheel holds CUDA sources that it compiles on first use (nvcc is there)
+#   .gpu/clip/  one clip without its ground truth (input/ and priors/: ~27 MB at the small preset)
+# and print the command to run there. Needs network to PyPI here.
+#
+#   bash bench/gpu_kit.sh CLIP_DIR [PYTHON_VERSION]     e.g. bash bench/gpu_kit.sh ROOT/clips/syn-exp-3/lamp-room-orbit
+set -euo pipefail
+cd "$(dirname "$0")/.."
+clip=${1:?usage: bash bench/gpu_kit.sh CLIP_DIR [PYTHON_VERSION]}
+pyver=${2:-3.12}
+[ -f "$clip/clip.json" ] || { echo "gpu_kit: $clip has no clip.json (not a clip folder)" >&2; exit 2; }
+exclude=$(git rev-parse --git-path info/exclude)
+mkdir -p "$(dirname "$exclude")"
+grep -qx '/.gpu/' "$exclude" 2>/dev/null || echo '/.gpu/' >> "$exclude"
+PY=${PYTHON:-.venv/bin/python}
+rm -rf .gpu && mkdir -p .gpu/whl .gpu/clip
+plat=(--platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64
+      --platform manylinux2014_x86_64 --platform any)
+for pkg in gsplat==1.5.3 "OpenImageIO>=2.5" "flip-evaluator>=1.2"; do
+  "$PY" -m pip download -q --no-deps --only-binary=:all: --python-version "$pyver" --implementation cp \
+    "${plat[@]}" -d .gpu/whl "$pkg"
+done
+name=$(basename "$clip")
+mkdir -p ".gpu/clip/$name"
+cp "$clip/clip.json" ".gpu/clip/$name/"
+cp -r "$clip/input" "$clip/priors" ".gpu/clip/$name/"
+du -sh .gpu/whl .gpu/clip
+cat <<EOF
+
+Packed. On the CUDA machine (device run, carry [".gpu"], timeout 600), one command:
+
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .gpu/whl/*.whl && export PYTHONPATH=/tmp/site:\$PWD TORCH_CUDA_ARCH_LIST=9.0 MAX_JOBS=16 PYTHONUNBUFFERED=1 && python3 bench/gpu_check.py .gpu/clip/$name --out /tmp/gpu --steps env,tests,train,fps 2>&1 | tee \$OUT/gpu_check.log; cp /tmp/gpu/gpu_check.json \$OUT/
+
+then, if time is left, the concurrency figure (same machine while it is warm, or a fresh one: gsplat compiles again):
+
+... && python3 bench/gpu_check.py .gpu/clip/$name --out /tmp/gpu --steps env,jobs --jobs 1,2,4,8 --jobs-iters 500 ...
+EOF
