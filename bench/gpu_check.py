@@ -1,7 +1,7 @@
 """The checks of the GPU path in one command, for a session that is lent a CUDA machine.
 
     python bench/gpu_check.py CLIP --out DIR [--steps env,tests,train,fps,jobs] [--preset small]
-                              [--variant full] [--jobs 1,2,4] [--jobs-iters 300]
+                              [--variant full] [--iters N] [--jobs 1,2,4] [--jobs-iters 300]
 
 CLIP needs only input/ and priors/ (no ground truth), so a small clip can travel with the working
 tree; `bench/gpu_kit.sh` packs one and the wheels the CUDA machine lacks. Steps, in order:
@@ -120,9 +120,10 @@ def _train_cmd(clip: str, out: Path, a, device: str, extra=()) -> list:
 
 
 def _train(clip: str, out: Path, a, device: str) -> dict:
+    extra = ["--iters1", str(a.iters), "--iters2", str(a.iters)] if a.iters else []
     t0 = time.perf_counter()
     p = subprocess.run(
-        _train_cmd(clip, out / "run", a, device), cwd=ROOT, capture_output=True, text=True
+        _train_cmd(clip, out / "run", a, device, extra), cwd=ROOT, capture_output=True, text=True
     )
     lines = (p.stdout + p.stderr).strip().splitlines()
     table = [
@@ -203,6 +204,9 @@ def main() -> None:
     ap.add_argument("--steps", default=",".join(STEPS), help=f"comma-separated subset of {STEPS}")
     ap.add_argument("--preset", default="small", choices=["tiny", "small", "paper"])
     ap.add_argument("--variant", default="full")
+    ap.add_argument(
+        "--iters", type=int, default=None, help="train step: iterations per stage (default: preset)"
+    )
     ap.add_argument("--jobs", default="1,2,4", help="numbers of concurrent trainings to time")
     ap.add_argument(
         "--jobs-iters",

@@ -1,0 +1,60 @@
+"""bench/gpu_check.py, the GPU session's one command, as a dry run on the CPU: a clip without its
+ground truth is enough, every step reports, and the JSON holds what was printed."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_gpu_check_dry_run_on_a_clip_without_ground_truth(tiny_clip_realistic, tmp_path):
+    clip = tmp_path / "clip"
+    shutil.copytree(tiny_clip_realistic, clip, ignore=shutil.ignore_patterns("gt"))
+    assert not (clip / "gt").exists()
+    out = tmp_path / "out"
+    cmd = [
+        sys.executable,
+        str(ROOT / "bench" / "gpu_check.py"),
+        str(clip),
+        "--out",
+        str(out),
+        "--steps",
+        "env,train,fps,jobs",
+        "--preset",
+        "tiny",
+        "--iters",
+        "10",
+        "--jobs",
+        "1,2",
+        "--jobs-iters",
+        "5",
+    ]
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stdout + p.stderr
+    res = json.loads((out / "gpu_check.json").read_text())
+    steps = res["steps"]
+    assert list(steps) == ["env", "train", "fps", "jobs"]
+    assert steps["env"]["device"] in ("cpu", "cuda")
+    assert steps["train"]["rc"] == 0
+    table = "\n".join(steps["train"]["table"])
+    for phase in ("camera_init", "stage1", "v2w", "stage2", "total"):
+        assert phase in table
+    assert "(10 it)" in table  # --iters reached the training
+    fps = steps["fps"]
+    assert fps["num_gaussians"] > 0 and fps["fps_clip"] > 0 and fps["fps_864x480"] > 0
+    runs = steps["jobs"]["runs"]
+    assert runs["1"]["rc"] == [0] and runs["2"]["rc"] == [0, 0]
+    assert runs["1"]["throughput_vs_first"] == 1.0
+    # the two concurrent trainings were separate seeds (the trainer seed of each run's config)
+    seeds = [
+        yaml.safe_load((out / "jobs2" / f"run{k}" / "config.yaml").read_text())["seed"]
+        for k in range(2)
+    ]
+    assert seeds == [0, 1]
