@@ -135,21 +135,51 @@ def _seeds(v, path, key) -> int:
     return v
 
 
+def job_iterations(job) -> int:
+    """Optimisation iterations of a job (stage 1, when trained, + stage 2) under its resolved
+    configuration: the unit of the campaign's time estimate."""
+    from m4dgs.training.variants import variant_config
+
+    cfg = variant_config(job.preset, job.variant, job.overrides)
+    s1 = cfg.stage1.iterations if cfg.ablation.use_video_init else 0
+    return int(s1 + cfg.stage2.iterations)
+
+
 def step_status(step: Step, root, preset: str) -> dict:
-    """{"total", "scored", "codes"}: the step's jobs, how many have metrics.json, and a Counter of
-    the m4dgs code (run.json `code`, 12 hex digits) of the scored ones."""
+    """{"total", "scored", "codes", "todo_iterations", "sec_per_iteration"}: the step's jobs, how
+    many have metrics.json, a Counter of the m4dgs code (run.json `code`, 12 hex digits) of the
+    scored ones, the iterations of the jobs still to train, and the recorded training seconds per
+    iteration of each scored run (run.json `train_seconds`: the method's cost, shared phases
+    counted at their producer's time)."""
     from .runner import job_list
 
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
     codes: Counter = Counter()
-    scored = 0
+    scored, todo, rates = 0, 0, []
     for j in jl:
         run = Path(j.run_dir)
         if (run / "metrics.json").exists():
             scored += 1
             info = mio.read_json(run / "run.json") if (run / "run.json").exists() else {}
             codes[str(info.get("code") or "unknown")[:12]] += 1
-    return {"total": len(jl), "scored": scored, "codes": codes}
+            sec = info.get("train_seconds")
+            if isinstance(sec, (int, float)) and sec > 0:
+                rates.append(float(sec) / max(job_iterations(j), 1))
+        else:
+            todo += job_iterations(j)
+    return {
+        "total": len(jl),
+        "scored": scored,
+        "codes": codes,
+        "todo_iterations": todo,
+        "sec_per_iteration": rates,
+    }
+
+
+def estimate_hours(todo_iterations: int, sec_per_iteration: float, jobs: int) -> float:
+    """Hours for `todo_iterations` at the recorded seconds per iteration of one run, `jobs` runs
+    at a time (an upper bound where phases are shared: the recorded seconds count them in full)."""
+    return todo_iterations * sec_per_iteration / max(jobs, 1) / 3600.0
 
 
 def run_campaign(
@@ -183,13 +213,25 @@ def run_campaign(
     code = code[:12]
     out = []
     n = len(campaign.steps)
+    # the time estimate: the median recorded seconds per iteration over every scored run of the
+    # campaign in this root (one machine, one --jobs setting make it meaningful)
+    statuses = [step_status(st, root, campaign.preset) for st in campaign.steps]
+    rates = sorted(r for s in statuses for r in s["sec_per_iteration"])
+    rate = rates[len(rates) // 2] if rates else None
+    left = 0.0
     for i, st in enumerate(campaign.steps, 1):
-        s = step_status(st, root, campaign.preset)
+        s = statuses[i - 1] if i == 1 or dry_run else step_status(st, root, campaign.preset)
         summary = dict(suite=st.suite, scenes=st.scenes, seeds=st.seeds, ran=False, **s)
         where = "all scenes" if st.scenes is None else ",".join(st.scenes)
+        eta = ""
+        if rate is not None and s["todo_iterations"]:
+            hours = estimate_hours(s["todo_iterations"], rate, jobs)
+            left += hours
+            summary["estimate_hours"] = hours
+            eta = f", ~{hours:.1f} h left at --jobs {jobs}"
         say(
             f"[campaign {campaign.name}] step {i}/{n}: {st.suite} ({where}, {st.seeds} seed(s)): "
-            f"{s['scored']} of {s['total']} runs scored"
+            f"{s['scored']} of {s['total']} runs scored{eta}"
         )
         if dry_run:
             out.append(summary)
@@ -226,4 +268,10 @@ def run_campaign(
                 f"({'; '.join(r['id'] for r in bad[:3])}); the finished runs are exported. Run "
                 "the same command again to retry them."
             )
+    if dry_run and left:
+        say(
+            f"[campaign {campaign.name}] estimate: ~{left:.1f} h of training left at --jobs {jobs} "
+            f"(median {rate:.3f} s per iteration over {len(rates)} scored run(s) in this root; "
+            "shared phases make it an upper bound)"
+        )
     return out

@@ -1045,6 +1045,41 @@ def test_campaign_file_errors_name_the_field(tmp_path):
     assert r.exit_code != 0 and "results-small" in r.output
 
 
+def test_campaign_time_estimate_from_recorded_seconds(tmp_path, fake_trainer):
+    """The dry run's estimate: the median recorded seconds per iteration of the scored runs (the
+    fake runs record 120 s) times each step's iterations still to train (the rows' budgets at the
+    tiny preset, counted here with m4dgs.training.variants.budget), over the workers."""
+    from eval.campaign import load_campaign, run_campaign
+    from eval.runner import job_list
+    from m4dgs.core.errors import InputError
+    from m4dgs.training.variants import budget
+
+    suite = tmp_path / "t2.yaml"
+    suite.write_text(SUITE_YAML)
+    out, csv_path = tmp_path / "exp", tmp_path / "runs.csv"
+    for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
+        make_fake_clip(Path(j), seed=len(j))
+    camp = load_campaign(_campaign_file(tmp_path, suite, [{"scenes": "ONE"}, {"seeds": 2}]))
+    code = "c0ffee" + "0" * 58
+    lines = []
+    kw = dict(code=code, log=lines.append, run_kw={"score_kw": {"fps": False}, "progress": False})
+    plan = run_campaign(camp, out, csv_path, dry_run=True, jobs=2, **kw)
+    assert all("estimate_hours" not in p for p in plan)  # nothing scored yet: no estimate
+    # step 1 trains; step 2 stops at the code guard (the fake runs record no code)
+    with pytest.raises(InputError, match="mix code versions"):
+        run_campaign(camp, out, csv_path, **kw)
+    lines.clear()
+    plan = run_campaign(camp, out, csv_path, dry_run=True, jobs=2, **kw)
+    it = {v: budget("tiny", v)[2] for v in ("world-only", "full")}
+    # the two scored runs of step 1 (world-only, full), 120 s each
+    rate = sorted([120.0 / it["world-only"], 120.0 / it["full"]])[1]
+    # step 2: 2 scenes x 2 rows x 2 seeds, of which step 1's two runs are scored
+    todo = 3 * it["world-only"] + 3 * it["full"]
+    assert "estimate_hours" not in plan[0]
+    assert plan[1]["estimate_hours"] == pytest.approx(todo * rate / 2 / 3600)
+    assert any("h of training left at --jobs 2" in ln for ln in lines)
+
+
 def test_campaign_runs_exports_resumes_and_guards_the_code(tmp_path, fake_trainer):
     import csv
 
