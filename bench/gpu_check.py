@@ -8,8 +8,9 @@ tree; `bench/gpu_kit.sh` packs one and the wheels the CUDA machine lacks. Steps,
 
 - env:   torch / CUDA / device, the gsplat import and the seconds of its first rasterization (gsplat
          compiles its CUDA code on first use; the later steps reuse that build).
-- tests: `pytest -m gpu` (the gsplat backend against the C++ cpu backend on values and gradients,
-         the device selection, FPS synchronisation) in a subprocess, its last lines kept.
+- tests: `pytest -m gpu` on the modules holding gpu-marked tests (the gsplat backend against the
+         C++ cpu backend on values and gradients, the device selection, FPS synchronisation) in a
+         subprocess, its last lines kept.
 - train: one `bench/train_bench.py CLIP --device cuda --no-score` run (wall time per phase and
          iterations/s), the run folder kept in DIR/run.
 - fps:   render FPS of that trained model at the clip's resolution and at 864x480
@@ -86,8 +87,18 @@ def _env(device: str) -> dict:
     return info
 
 
+def gpu_test_files() -> list:
+    """The test modules that hold `gpu`-marked tests. Only these are collected: the CUDA image lacks
+    benchgen's renderer and denoiser (mitsuba, pyoidn), which other test modules import."""
+    tests = ROOT / "tests"
+    return sorted(
+        str(p.relative_to(ROOT)) for p in tests.rglob("test_*.py") if "mark.gpu" in p.read_text()
+    )
+
+
 def _tests() -> dict:
     cmd = [sys.executable, "-m", "pytest", "-q", "-rs", "-m", "gpu", "-p", "no:cacheprovider"]
+    cmd += gpu_test_files()
     t0 = time.perf_counter()
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     tail = (p.stdout + p.stderr).strip().splitlines()[-15:]

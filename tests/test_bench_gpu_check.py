@@ -4,6 +4,7 @@ ground truth is enough, every step reports, and the JSON holds what was printed.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -58,3 +59,29 @@ def test_gpu_check_dry_run_on_a_clip_without_ground_truth(tiny_clip_realistic, t
         for k in range(2)
     ]
     assert seeds == [0, 1]
+
+
+def test_gpu_check_tests_step_collects_without_the_renderer(tmp_path):
+    """The CUDA image has no mitsuba, drjit, pyoidn, imageio-ffmpeg or gsplat (until the kit's wheel
+    is installed): the tests step must still collect and run the gpu-marked tests (skipped here
+    without CUDA), which `pytest -m gpu` over every module would not (collection imports them
+    all)."""
+    block = tmp_path / "block"
+    block.mkdir()
+    for m in ("mitsuba", "drjit", "pyoidn", "imageio_ffmpeg", "gsplat"):
+        (block / f"{m}.py").write_text(f"raise ImportError('not on the CUDA image: {m}')\n")
+    tiny = tmp_path / "noclip"
+    tiny.mkdir()
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=f"{block}{os.pathsep}{ROOT}")
+    cmd = [sys.executable, str(ROOT / "bench" / "gpu_check.py"), str(tiny), "--out", str(out)]
+    p = subprocess.run(
+        cmd + ["--steps", "env,tests"], cwd=ROOT, env=env, capture_output=True, text=True
+    )
+    assert p.returncode == 0, p.stdout + p.stderr
+    res = json.loads((out / "gpu_check.json").read_text())
+    assert "import failed" in res["steps"]["env"]["gsplat"]
+    t = res["steps"]["tests"]
+    assert t["rc"] == 0, t["tail"]
+    assert "tests/raster/test_raster_gsplat.py" in t["cmd"]
+    assert any("skipped" in ln or "passed" in ln for ln in t["tail"])
