@@ -1045,14 +1045,12 @@ def test_campaign_file_errors_name_the_field(tmp_path):
     assert r.exit_code != 0 and "results-small" in r.output
 
 
-def test_campaign_time_estimate_from_recorded_seconds(tmp_path, fake_trainer):
-    """The dry run's estimate: the median recorded seconds per iteration of the scored runs (the
-    fake runs record 120 s) times each step's iterations still to train (the rows' budgets at the
-    tiny preset, counted here with m4dgs.training.variants.budget), over the workers."""
-    from eval.campaign import load_campaign, run_campaign
+def _two_step_campaign(tmp_path):
+    """(suite file, root, CSV path, campaign) of the fake-trainer campaign tests: suite t2 (rows
+    base = world-only, full) with its clips made, step 1 on scene set ONE with one seed, step 2 on
+    every scene with two."""
+    from eval.campaign import load_campaign
     from eval.runner import job_list
-    from m4dgs.core.errors import InputError
-    from m4dgs.training.variants import budget
 
     suite = tmp_path / "t2.yaml"
     suite.write_text(SUITE_YAML)
@@ -1060,6 +1058,18 @@ def test_campaign_time_estimate_from_recorded_seconds(tmp_path, fake_trainer):
     for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
         make_fake_clip(Path(j), seed=len(j))
     camp = load_campaign(_campaign_file(tmp_path, suite, [{"scenes": "ONE"}, {"seeds": 2}]))
+    return suite, out, csv_path, camp
+
+
+def test_campaign_time_estimate_from_recorded_seconds(tmp_path, fake_trainer):
+    """The dry run's estimate: the median recorded seconds per iteration of the scored runs (the
+    fake runs record 120 s) times each step's iterations still to train (the rows' budgets at the
+    tiny preset, counted here with m4dgs.training.variants.budget), over the workers."""
+    from eval.campaign import run_campaign
+    from m4dgs.core.errors import InputError
+    from m4dgs.training.variants import budget
+
+    suite, out, csv_path, camp = _two_step_campaign(tmp_path)
     code = "c0ffee" + "0" * 58
     lines = []
     kw = dict(code=code, log=lines.append, run_kw={"score_kw": {"fps": False}, "progress": False})
@@ -1083,16 +1093,11 @@ def test_campaign_time_estimate_from_recorded_seconds(tmp_path, fake_trainer):
 def test_campaign_runs_exports_resumes_and_guards_the_code(tmp_path, fake_trainer):
     import csv
 
-    from eval.campaign import load_campaign, run_campaign
+    from eval.campaign import run_campaign
     from eval.runner import job_list
     from m4dgs.core.errors import InputError
 
-    suite = tmp_path / "t2.yaml"
-    suite.write_text(SUITE_YAML)
-    out, csv_path = tmp_path / "exp", tmp_path / "runs.csv"
-    for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
-        make_fake_clip(Path(j), seed=len(j))
-    camp = load_campaign(_campaign_file(tmp_path, suite, [{"scenes": "ONE"}, {"seeds": 2}]))
+    suite, out, csv_path, camp = _two_step_campaign(tmp_path)
     code = "c0ffee" + "0" * 58
     kw = dict(code=code, log=lambda s: None, run_kw={"score_kw": {"fps": False}, "progress": False})
     plan = run_campaign(camp, out, csv_path, dry_run=True, **kw)
