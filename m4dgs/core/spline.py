@@ -113,9 +113,10 @@ def apply_basis(coeffs: Tensor, basis: Tensor) -> Tensor:
     with the [K D, T D] matrix basis^T (x) I_D (forward and backward stay contiguous; an einsum
     permutes and copies the coefficients first).
 
-    Only the coefficients of the basis's nonzero column range enter the product (a spline at a few
-    nearby times reads 4-6 of its K control points): a column slice of the [N, K D] view, which the
-    matrix product reads in place, so forward and backward touch a fraction of the coefficients.
+    On the CPU only the coefficients of the basis's nonzero column range enter the product (a
+    spline at a few nearby times reads 4-6 of its K control points): a column slice of the [N, K D]
+    view, which the matrix product reads in place, so forward and backward touch a fraction of the
+    coefficients.
 
     Args:
         coeffs: [N, K, D] per-Gaussian coefficients (spline control points, polynomial terms).
@@ -124,7 +125,13 @@ def apply_basis(coeffs: Tensor, basis: Tensor) -> Tensor:
         [N, T, D].
     """
     n, k, d = coeffs.shape
-    cols = torch.nonzero(basis.detach().abs().sum(0)).flatten()
+    # the column range is read on the host to slice with it: on CUDA that would be a device sync per
+    # spline evaluation, where the full product is cheap, so only CPU tensors are narrowed
+    cols = (
+        torch.nonzero(basis.detach().abs().sum(0)).flatten()
+        if coeffs.device.type == "cpu"
+        else basis.new_zeros(0)
+    )
     if 0 < cols.numel() and (cols[-1] - cols[0] + 1) < k:
         lo, hi = int(cols[0]), int(cols[-1]) + 1
         coeffs, basis, k = coeffs[:, lo:hi], basis[:, lo:hi], hi - lo
