@@ -244,6 +244,13 @@ _device_opt = click.option(
     help="Training / scoring device: auto, cpu or cuda.",
 )
 
+_jobs_opt = click.option(
+    "--jobs",
+    default=1,
+    show_default=True,
+    type=click.IntRange(min=1),
+    help="Local worker processes (each gets cpu_count / N torch threads).",
+)
 _no_share_opt = click.option(
     "--no-share",
     is_flag=True,
@@ -258,7 +265,7 @@ _no_share_opt = click.option(
 @click.argument("suite")
 @_out_opt
 @_preset_opt
-@click.option("--jobs", default=1, show_default=True, type=int, help="Local worker processes.")
+@_jobs_opt
 @click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
 @click.option(
     "--seeds",
@@ -627,10 +634,12 @@ _runs_csv_opt = click.option(
 @main.command()
 @click.argument("campaign")
 @_out_opt
-@click.option("--jobs", default=1, show_default=True, type=int, help="Local worker processes.")
+@_jobs_opt
 @_runs_csv_opt
 @click.option(
-    "--dry-run", is_flag=True, help="Print each step with its scored / total runs and exit."
+    "--dry-run",
+    is_flag=True,
+    help="Print each step with its scored / total runs and the hours left at --jobs, and exit.",
 )
 @click.option(
     "--allow-mixed-code",
