@@ -17,10 +17,12 @@ table`: mean +- Student-t 95 % interval, paired differences to the reference row
 and the direction-agreement column), figures (per-scene bars of the main metric, learned CRF curves
 against the true ones, HDR-TAE vs LDR-OE PSNR), and a "Findings" section with one table per finding
 of the paper (FINDINGS): the paper's difference, ours with its interval and number of (scene, seed)
-pairs, and the verdict. It also replaces the block between README_START and README_END of the README
+pairs, and the verdict; then a "Controls" section (CONTROLS): for each control run for a
+disagreement, the effect as found, the same effect under the control, and their difference in
+differences with its interval. It also replaces the block between README_START and README_END of the README
 with the main table. The output depends only on the CSV (no dates), so running it twice changes
-nothing. Prose that needs a human (the controls run for disagreements) lives in a hand-written notes
-file that the page links."""
+nothing. Prose that needs a human (what a verdict or a control's answer means) lives in a
+hand-written notes file that the page links."""
 
 from __future__ import annotations
 
@@ -691,6 +693,206 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
 
 
 # --------------------------------------------------------------------------------------------------
+# controls for disagreements
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Effect:
+    """Δ = row - ref within one suite, under a named condition (e.g. "realistic priors")."""
+
+    suite: str
+    row: str
+    ref: str
+    condition: str
+
+
+@dataclass(frozen=True)
+class Control:
+    """A control run for a disagreement: does the effect found under `base` change under
+    `control`? The change is the difference of the two paired differences (a difference in
+    differences), paired over the (scene, seed) runs all four rows have. `arm` names which of the
+    three causes the control tests (method, scale, benchmark; docs/results-notes.md)."""
+
+    key: str
+    title: str
+    arm: str
+    base: Effect
+    control: Effect
+    metrics: Tuple[str, ...] = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae")
+
+
+_VIDEO_INIT_SMALL = Effect(
+    "control-video-init-priors", "no-video-init", "full", "realistic priors, small schedule"
+)
+CONTROLS: Tuple[Control, ...] = (
+    Control(
+        "video-init-split",
+        "Ablation (a): is (a)'s lead the stage split? (full with the paper's 27 / 73 % split)",
+        "method",
+        Effect("control-video-init", "no-video-init", "full", "full with 3,000 + 2,500"),
+        Effect(
+            "control-video-init", "no-video-init", "full-paper-split", "full with 1,500 + 4,000"
+        ),
+    ),
+    Control(
+        "video-init-priors",
+        "Ablation (a): is (a)'s lead the benchmark's priors? (oracle against realistic priors)",
+        "benchmark",
+        _VIDEO_INIT_SMALL,
+        Effect(
+            "control-video-init-priors",
+            "no-video-init-oracle",
+            "full-oracle",
+            "oracle priors, small schedule",
+        ),
+    ),
+    Control(
+        "video-init-scale",
+        "Ablation (a): is (a)'s lead the small schedule? (the paper's 4K + 11K against 15K)",
+        "scale",
+        _VIDEO_INIT_SMALL,
+        Effect(
+            "control-video-init-scale",
+            "no-video-init-paper-schedule",
+            "full-paper-schedule",
+            "realistic priors, the paper's schedule",
+        ),
+    ),
+)
+
+NO_CHANGE, GROWS, SHRINKS = "no resolvable change", "grows", "shrinks"
+
+
+@dataclass
+class ControlResult:
+    metric: str
+    base: object  # eval.stats.Interval of the base effect (None: no data)
+    control: object  # the same under the control
+    change: object  # Interval of control - base, paired over the keys all four rows have
+    reading: str
+
+
+def _effect_by_key(e: Effect, rows: List[dict], metric: str) -> Dict[tuple, float]:
+    """{(scene, seed): row - ref} of one metric over the scored CSV rows of e's suite."""
+    from .stats import by_key
+
+    mine = [r for r in rows if r["suite"] == e.suite and r.get("status") == SCORED]
+    a = by_key([r for r in mine if r["row"] == e.row], metric)
+    b = by_key([r for r in mine if r["row"] == e.ref], metric)
+    return {k: a[k] - b[k] for k in a if k in b}
+
+
+def control_reading(base, change) -> str:
+    """ "grows" / "shrinks" (the change's interval excludes 0 and points away from / towards 0
+    from the base effect's mean), "no resolvable change", or NO_DATA (fewer than 2 pairs)."""
+    if change is None or change.half is None or base is None or base.mean is None:
+        return NO_DATA
+    if not change.excludes_zero:
+        return NO_CHANGE
+    return GROWS if (change.mean > 0) == (base.mean > 0) else SHRINKS
+
+
+def evaluate_control(c: Control, rows: List[dict]) -> List[ControlResult]:
+    """Per metric: the base effect, the control effect (each paired over its own (scene, seed)
+    pairs) and the change control - base (paired over the pairs both effects have)."""
+    from .stats import mean_ci, paired_diff
+
+    out = []
+    for m in c.metrics:
+        eb, ec = _effect_by_key(c.base, rows, m), _effect_by_key(c.control, rows, m)
+        base = mean_ci(eb.values()) if eb else None
+        ctrl = mean_ci(ec.values()) if ec else None
+        change = paired_diff(ec, eb) if eb and ec else None
+        if change is not None and change.n == 0:
+            change = None
+        out.append(ControlResult(m, base, ctrl, change, control_reading(base, change)))
+    return out
+
+
+def _provenance_of(e: Effect, rows: List[dict], column: str) -> List[str]:
+    return sorted(
+        {
+            str(r.get(column) or "?")
+            for r in rows
+            if r["suite"] == e.suite and r["row"] in (e.row, e.ref) and r.get("status") == SCORED
+        }
+    )
+
+
+def _interval_text(iv, fmt: str) -> str:
+    if iv is None or iv.mean is None:
+        return "n/a"
+    half = "n/a" if iv.half is None else format(iv.half, fmt)
+    dag = "†" if iv.excludes_zero else ""
+    return f"{format(iv.mean, '+' + fmt)} ± {half}{dag} (n = {iv.n})"
+
+
+def controls_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
+    """The "Controls" section: one table per control whose two effects have data."""
+    from .suite import metric_columns
+
+    cols = metric_columns()
+    lines = [
+        "## Controls",
+        "",
+        "Runs made to tell apart why a result disagrees with the paper (the method, the scale of "
+        "the runs, or the benchmark). Each table compares the effect as found (base) with the "
+        "same effect under the control: Δ = row - ref, each paired over its own (scene, seed) "
+        "runs, and the change = control Δ - base Δ, paired over the (scene, seed) runs all four "
+        "rows have (a difference in differences; mean ± Student-t 95 % interval, † where it "
+        "excludes 0). Reading: the effect grows or shrinks under the control († on the change), "
+        "or no resolvable change. An effect and its control compare rows of one code and "
+        "generator version unless the table says otherwise."
+        + (
+            f" What the answers mean is written in [{Path(notes_link).name}]({notes_link})."
+            if notes_link
+            else ""
+        ),
+        "",
+    ]
+    present = {r["suite"] for r in rows if r.get("status") == SCORED}
+    for c in CONTROLS:
+        lines += [f"### {c.title}", ""]
+        missing = [s for s in dict.fromkeys((c.base.suite, c.control.suite)) if s not in present]
+        if missing:
+            lines += [
+                "**not enough data**: no scored run of "
+                + ", ".join(f"suite `{s}`" for s in missing)
+                + " in the CSV.",
+                "",
+            ]
+            continue
+        lines += [
+            f"Arm: {c.arm}. Base: `{c.base.row}` - `{c.base.ref}` in `{c.base.suite}` "
+            f"({c.base.condition}); control: `{c.control.row}` - `{c.control.ref}` in "
+            f"`{c.control.suite}` ({c.control.condition}).",
+            "",
+        ]
+        for column, what in (("code", "code"), ("generator", "generator")):
+            vb, vc = _provenance_of(c.base, rows, column), _provenance_of(c.control, rows, column)
+            if vb != vc:
+                lines += [
+                    f"**Different {what} versions**: base {', '.join(vb)}, control "
+                    f"{', '.join(vc)}; the change mixes the control with that difference.",
+                    "",
+                ]
+        lines += [
+            f"| metric | base Δ ({c.base.condition}) | control Δ ({c.control.condition}) "
+            "| change | reading |",
+            "|:---|---:|---:|---:|:---|",
+        ]
+        for r in evaluate_control(c, rows):
+            col = cols[r.metric]
+            name = ((col.group + " ") if col.group else "") + col.header
+            lines.append(
+                f"| {name} | {_interval_text(r.base, col.fmt)} | "
+                f"{_interval_text(r.control, col.fmt)} | {_interval_text(r.change, col.fmt)} "
+                f"| {r.reading} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------------
 # figures
 # --------------------------------------------------------------------------------------------------
 def _plt():
@@ -1090,6 +1292,7 @@ def render_results(
         figs += fp
         lines += [suite_section(datas[n], fp, out_dir), ""]
     lines.append(findings_markdown(rows, notes_link))
+    lines += ["", controls_markdown(rows, notes_link)]
     text = "\n".join(lines).rstrip("\n") + "\n"
     mio.write_bytes_atomic(out_md, text.encode())
     res = {"suites": names, "figures": [str(p) for p in figs], "readme": None}

@@ -439,7 +439,8 @@ def test_export_merge_results_readme(tmp_path):
 
 
 def test_results_pending(tmp_path):
-    """Without a CSV the page says the runs are pending and every finding lacks data."""
+    """Without a CSV the page says the runs are pending and every finding and control lacks
+    data."""
     readme = tmp_path / "README.md"
     readme.write_text("x\n<!-- results:main:start -->\n<!-- results:main:end -->\n")
     out = tmp_path / "docs" / "results.md"
@@ -458,7 +459,9 @@ def test_results_pending(tmp_path):
     assert r.exit_code == 0, r.output
     text = out.read_text()
     assert "**The runs are pending**" in text and "does not exist yet" in text
-    assert text.count("**not enough data**") == 6
+    from eval.results import CONTROLS, FINDINGS
+
+    assert text.count("**not enough data**") == len(FINDINGS) + len(CONTROLS) == 9
     assert "The result tables are pending" in readme.read_text()
     assert not (tmp_path / "docs" / "figures" / "results").exists() or not any(
         (tmp_path / "docs" / "figures" / "results").iterdir()
@@ -508,3 +511,141 @@ def test_committed_results_page_is_regenerated_from_the_committed_csv(tmp_path, 
     figs = sorted(p.name for p in (tmp_path / "docs" / "figures" / "results").glob("*.png"))
     committed = sorted(p.name for p in (repo / "docs" / "figures" / "results").glob("*.png"))
     assert figs == committed
+
+
+# --------------------------------------------------------------------------------------------------
+# controls: differences in differences
+# --------------------------------------------------------------------------------------------------
+def _control_rows(rng, code_scale="c0"):
+    """CSV rows of the two ablation-(a) control suites: 3 scenes x 2 seeds; (a)'s lead is ~+1 dB
+    on realistic priors, ~0 on oracle priors, ~+0.8 with the paper's schedule. The scale suite
+    misses one (scene, seed), so its change is paired over 5 keys."""
+    scenes = ["lamp-room-orbit", "pendulum-lamp-handheld", "robot-arm-dolly"]
+    lead = {
+        ("control-video-init-priors", "no-video-init"): 1.0,
+        ("control-video-init-priors", "no-video-init-oracle"): 0.0,
+        ("control-video-init-scale", "no-video-init-paper-schedule"): 0.8,
+    }
+    suites = {
+        "control-video-init-priors": [
+            "full",
+            "no-video-init",
+            "full-oracle",
+            "no-video-init-oracle",
+        ],
+        "control-video-init-scale": ["full-paper-schedule", "no-video-init-paper-schedule"],
+    }
+    rows = []
+    for suite, names in suites.items():
+        for scene in scenes:
+            for seed in (0, 1):
+                if suite == "control-video-init-scale" and (scene, seed) == (scenes[2], 1):
+                    continue
+                base = 30.0 + 2 * rng.random()
+                for name in names:
+                    oe = base + lead.get((suite, name), 0.0) + rng.normal(0, 0.3)
+                    code = code_scale if suite.endswith("scale") else "c0"
+                    rows.append(
+                        dict(suite=suite, scene=scene, row=name, seed=seed, status="scored")
+                        | dict(generator="6", code=code, ldr_oe_psnr=oe, ldr_ne_psnr=oe - 0.5)
+                        | dict(hdr_psnr=38 + rng.normal(0, 1), hdr_tae=0.1 + rng.normal(0, 0.01))
+                    )
+    return rows
+
+
+def _t_interval(x):
+    x = np.asarray(x, float)
+    return x.mean(), stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x))
+
+
+def _table_row(text, title, metric_header):
+    block = text.split(f"### {title}", 1)[1].split("\n### ", 1)[0]
+    for line in block.splitlines():
+        if line.startswith(f"| {metric_header} |"):
+            return [c.strip() for c in line.strip("|").split("|")]
+    raise AssertionError(f"no row {metric_header} under {title}")
+
+
+def _parse_interval(cell):
+    mean, rest = cell.split(" ± ")
+    half, n = rest.split(" (n = ")
+    return float(mean), float(half.rstrip("†")), int(n.rstrip(")")), half.endswith("†")
+
+
+def test_controls_are_differences_in_differences(tmp_path):
+    """The Controls section: each effect's mean and interval, and the change paired over the keys
+    all four rows have, recomputed here with numpy / scipy from the same rows (written to a CSV
+    and read back as `m4dgs-eval results` does)."""
+    from eval import results as R
+
+    rng = np.random.default_rng(7)
+    csv_path = tmp_path / "runs.csv"
+    R.write_runs_csv(csv_path, _control_rows(rng))
+    rows = R.read_runs_csv(csv_path)
+    text = R.controls_markdown(rows, "results-notes.md")
+
+    def vals(suite, row):
+        return {
+            (r["scene"], r["seed"]): r["ldr_oe_psnr"]
+            for r in rows
+            if r["suite"] == suite and r["row"] == row
+        }
+
+    P, S = "control-video-init-priors", "control-video-init-scale"
+    real = {k: v - vals(P, "full")[k] for k, v in vals(P, "no-video-init").items()}
+    oracle = {k: v - vals(P, "full-oracle")[k] for k, v in vals(P, "no-video-init-oracle").items()}
+    paper = {
+        k: v - vals(S, "full-paper-schedule")[k]
+        for k, v in vals(S, "no-video-init-paper-schedule").items()
+    }
+    assert len(real) == 6 and len(paper) == 5
+    for key, ctrl in (("video-init-priors", oracle), ("video-init-scale", paper)):
+        title = next(c.title for c in R.CONTROLS if c.key == key)
+        cells = _table_row(text, title, "LDR-OE PSNR")
+        for cell, values in ((cells[1], real), (cells[2], ctrl)):
+            mean, half, n, _ = _parse_interval(cell)
+            em, eh = _t_interval(list(values.values()))
+            assert n == len(values) and mean == pytest.approx(em, abs=0.006)
+            assert half == pytest.approx(eh, abs=0.006)
+        keys = [k for k in ctrl if k in real]
+        mean, half, n, dag = _parse_interval(cells[3])
+        em, eh = _t_interval([ctrl[k] - real[k] for k in keys])
+        assert n == len(keys) and mean == pytest.approx(em, abs=0.006)
+        assert half == pytest.approx(eh, abs=0.006)
+        assert dag == (abs(em) > eh)
+        expect = (
+            R.NO_CHANGE
+            if abs(em) <= eh
+            else (R.GROWS if (em > 0) == (np.mean(list(real.values())) > 0) else R.SHRINKS)
+        )
+        assert cells[4] == expect
+    # oracle priors remove the ~1 dB lead: the change is resolved and the lead shrinks
+    assert _table_row(text, R.CONTROLS[1].title, "LDR-OE PSNR")[4] == R.SHRINKS
+    # the split control's suite is not in these rows
+    split = text.split(f"### {R.CONTROLS[0].title}", 1)[1].split("\n### ", 1)[0]
+    assert "not enough data" in split and "`control-video-init`" in split
+    assert "Different code versions" not in text
+
+
+def test_controls_flag_different_code_versions(tmp_path):
+    from eval import results as R
+
+    rows = _control_rows(np.random.default_rng(3), code_scale="c1")
+    text = R.controls_markdown(rows, None)
+    scale = text.split(f"### {R.CONTROLS[2].title}", 1)[1]
+    priors = text.split(f"### {R.CONTROLS[1].title}", 1)[1].split("\n### ", 1)[0]
+    assert "**Different code versions**: base c0, control c1" in scale
+    assert "Different code versions" not in priors
+
+
+def test_control_reading():
+    from eval import results as R
+    from eval.stats import Interval
+
+    base = Interval(1.0, 0.5, 4)
+    assert R.control_reading(base, Interval(-0.9, 0.5, 4)) == R.SHRINKS
+    assert R.control_reading(base, Interval(0.9, 0.5, 4)) == R.GROWS
+    assert R.control_reading(base, Interval(0.3, 0.5, 4)) == R.NO_CHANGE
+    assert R.control_reading(Interval(-1.0, 0.5, 4), Interval(0.9, 0.5, 4)) == R.SHRINKS
+    assert R.control_reading(base, Interval(0.9, None, 1)) == R.NO_DATA
+    assert R.control_reading(None, Interval(0.9, 0.5, 4)) == R.NO_DATA
