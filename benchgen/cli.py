@@ -72,10 +72,15 @@ def main():
 )
 @click.option(
     "--priors",
-    type=click.Choice(["oracle", "realistic", "harsh"]),
+    # benchgen.priors.PROFILES (not imported here: it pulls scipy into every --help)
+    type=click.Choice(
+        ["oracle", "realistic", "harsh", "realistic-exact-depth", "realistic-exact-motion"]
+    ),
     default="realistic",
     show_default=True,
-    help="Prior degradation profile (docs/priors.md).",
+    help="Prior degradation profile (docs/priors.md): oracle (exact), realistic, harsh, or "
+    "realistic with the depth (realistic-exact-depth) or the tracks and flow "
+    "(realistic-exact-motion) exact.",
 )
 @click.option(
     "--out",

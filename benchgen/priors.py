@@ -253,7 +253,27 @@ HARSH = PriorProfile(
     flow_fb_beta=3.0,
 )
 
-PROFILES: Dict[str, PriorProfile] = {p.name: p for p in (ORACLE, REALISTIC, HARSH)}
+
+def exact_family(base: PriorProfile, name: str, *families: str) -> PriorProfile:
+    """`base` with every parameter of the given families ("depth", "track", "flow") at its oracle
+    (identity) value: that prior is then exact while the others stay as degraded as in `base`, with
+    the same random draws (each family has its own generator, `make_rng(seed, scene, family)`)."""
+    prefixes = tuple(f + "_" for f in families)
+    exact = {
+        f.name: getattr(ORACLE, f.name)
+        for f in dataclasses.fields(PriorProfile)
+        if f.name.startswith(prefixes)
+    }
+    return dataclasses.replace(base, name=name, **exact)
+
+
+#: controls that tell which prior a result depends on (docs/priors.md, "Partly exact profiles")
+REALISTIC_EXACT_DEPTH = exact_family(REALISTIC, "realistic-exact-depth", "depth")
+REALISTIC_EXACT_MOTION = exact_family(REALISTIC, "realistic-exact-motion", "track", "flow")
+
+PROFILES: Dict[str, PriorProfile] = {
+    p.name: p for p in (ORACLE, REALISTIC, HARSH, REALISTIC_EXACT_DEPTH, REALISTIC_EXACT_MOTION)
+}
 DEFAULT_PROFILE = "realistic"
 
 

@@ -19,10 +19,10 @@ against the true ones, HDR-TAE vs LDR-OE PSNR), and a "Findings" section with on
 of the paper (FINDINGS): the paper's difference, ours with its interval and number of (scene, seed)
 pairs, and the verdict; then a "Controls" section (CONTROLS): for each control run for a
 disagreement, the effect as found, the same effect under the control, and their difference in
-differences with its interval. It also replaces the block between README_START and README_END of the README
-with the main table. The output depends only on the CSV (no dates), so running it twice changes
-nothing. Prose that needs a human (what a verdict or a control's answer means) lives in a
-hand-written notes file that the page links."""
+differences with its interval. It also replaces the block between README_START and README_END of
+the README with the main table. The output depends only on the CSV (no dates), so running it
+twice changes nothing. Prose that needs a human (what a verdict or a control's answer means) lives
+in a hand-written notes file that the page links."""
 
 from __future__ import annotations
 
@@ -743,6 +743,31 @@ CONTROLS: Tuple[Control, ...] = (
             "no-video-init-oracle",
             "full-oracle",
             "oracle priors, small schedule",
+        ),
+    ),
+    Control(
+        "video-init-depth",
+        "Ablation (a): is (a)'s lead the depth prior? (exact depth, tracks and flow realistic)",
+        "benchmark",
+        Effect("control-video-init-prior-parts", "no-video-init", "full", "realistic priors"),
+        Effect(
+            "control-video-init-prior-parts",
+            "no-video-init-exact-depth",
+            "full-exact-depth",
+            "exact depth",
+        ),
+    ),
+    Control(
+        "video-init-motion",
+        "Ablation (a): is (a)'s lead the track and flow priors? (exact tracks and flow, depth "
+        "realistic)",
+        "benchmark",
+        Effect("control-video-init-prior-parts", "no-video-init", "full", "realistic priors"),
+        Effect(
+            "control-video-init-prior-parts",
+            "no-video-init-exact-motion",
+            "full-exact-motion",
+            "exact tracks and flow",
         ),
     ),
     Control(

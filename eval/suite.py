@@ -49,7 +49,14 @@ from m4dgs.core.checks import is_integer, is_number, unknown_keys
 from m4dgs.core.errors import InputError
 
 SCHEDULES = ("alternating", "random-order", "random-values")
-PRIOR_PROFILES = ("oracle", "realistic", "harsh")
+# benchgen.priors.PROFILES (a test keeps the two equal; eval does not import benchgen's numerics)
+PRIOR_PROFILES = (
+    "oracle",
+    "realistic",
+    "harsh",
+    "realistic-exact-depth",
+    "realistic-exact-motion",
+)
 DEFAULT_PRIORS = "realistic"
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]*$")
 _SEED_SUFFIX_RE = re.compile(r"-seed-[0-9]+$")

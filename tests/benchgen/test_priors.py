@@ -90,7 +90,20 @@ def _flow_scene(shift=6):
 # --------------------------------------------------------------------------------------------------
 # profiles
 def test_profiles_registry_and_metadata():
-    assert set(PROFILES) == {"oracle", "realistic", "harsh"}
+    assert list(PROFILES) == [
+        "oracle",
+        "realistic",
+        "harsh",
+        "realistic-exact-depth",
+        "realistic-exact-motion",
+    ]
+    # the lists of names the CLI and the suite files accept
+    from benchgen.cli import make as make_cmd
+    from eval.suite import PRIOR_PROFILES
+
+    assert PRIOR_PROFILES == tuple(PROFILES)
+    choice = next(p for p in make_cmd.params if p.name == "priors").type
+    assert tuple(choice.choices) == tuple(PROFILES)
     assert get_profile() is REALISTIC
     with pytest.raises(KeyError):
         get_profile("perfect")
@@ -119,6 +132,36 @@ def test_oracle_equals_ground_truth_bytes():
     flow, valid, la, lb, _ = _flow_scene()
     f, v = degrade_flow(flow, valid, la, lb, 3.0, ORACLE, None)
     assert f.tobytes() == flow.tobytes() and v.tobytes() == valid.tobytes()
+
+
+def test_partly_exact_profiles_keep_the_other_priors_byte_identical():
+    """realistic-exact-depth: the depth is the ground truth, the tracks and flow are the realistic
+    profile's bytes (same seed); realistic-exact-motion: the other way round."""
+    depth, emit, gloss, ts = _scene()
+    flow, valid, la, lb, _ = _flow_scene()
+
+    def run(profile):
+        d = degrade_depth(depth, emit, gloss, profile, make_rng(4, "depth"))
+        t = degrade_tracks(ts, depth, W, H, profile, make_rng(4, "tracks"))
+        f, v = degrade_flow(flow, valid, la, lb, 2.0, profile, make_rng(4, "flow", 0, 2))
+        return d.tobytes(), t.tracks.tobytes(), t.visible.tobytes(), f.tobytes(), v.tobytes()
+
+    gt = (depth.tobytes(), ts.tracks.tobytes(), ts.visible.tobytes())
+    gt += (flow.astype(np.float32).tobytes(), valid.tobytes())
+    real = run(REALISTIC)
+    exact_depth = run(PROFILES["realistic-exact-depth"])
+    exact_motion = run(PROFILES["realistic-exact-motion"])
+    assert exact_depth[0] == gt[0] != real[0]
+    assert exact_depth[1:] == real[1:]
+    assert exact_motion[0] == real[0]
+    assert exact_motion[1:] == gt[1:] and real[1] != gt[1] and real[3] != gt[3]
+    for name, exact in (
+        ("realistic-exact-depth", ("depth",)),
+        ("realistic-exact-motion", ("tracks", "flow")),
+    ):
+        p = PROFILES[name]
+        for fam in ("depth", "tracks", "flow"):
+            assert getattr(p, f"{fam}_is_identity") == (fam in exact), (name, fam)
 
 
 @pytest.mark.parametrize("profile", [REALISTIC, HARSH], ids=lambda p: p.name)

@@ -1009,14 +1009,15 @@ def test_campaign_file_errors_name_the_field(tmp_path):
     from eval.campaign import CampaignError, load_campaign, parse_campaign
 
     c = load_campaign("results-small")
-    assert c.preset == "small" and [s.suite for s in c.steps][:4] == [
+    assert c.preset == "small" and [s.suite for s in c.steps][:5] == [
         "crf",
         "control-video-init-priors",
         "control-video-init-scale",
+        "control-video-init-prior-parts",
         "paper-main",
     ]
-    assert c.steps[3].scenes is None and all(s.seeds == 2 for s in c.steps)
-    assert c.steps[4].scenes == [
+    assert c.steps[4].scenes is None and all(s.seeds == 2 for s in c.steps)
+    assert c.steps[5].scenes == [
         "lamp-room-orbit",
         "pendulum-lamp-handheld",
         "conveyor-occlusion-orbit",

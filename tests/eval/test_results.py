@@ -461,7 +461,7 @@ def test_results_pending(tmp_path):
     assert "**The runs are pending**" in text and "does not exist yet" in text
     from eval.results import CONTROLS, FINDINGS
 
-    assert text.count("**not enough data**") == len(FINDINGS) + len(CONTROLS) == 9
+    assert text.count("**not enough data**") == len(FINDINGS) + len(CONTROLS) == 11
     assert "The result tables are pending" in readme.read_text()
     assert not (tmp_path / "docs" / "figures" / "results").exists() or not any(
         (tmp_path / "docs" / "figures" / "results").iterdir()
@@ -558,12 +558,20 @@ def _t_interval(x):
     return x.mean(), stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x))
 
 
-def _table_row(text, title, metric_header):
-    block = text.split(f"### {title}", 1)[1].split("\n### ", 1)[0]
+def _section(text, key):
+    """The Controls section of control `key`."""
+    from eval.results import CONTROLS
+
+    title = next(c.title for c in CONTROLS if c.key == key)
+    return text.split(f"### {title}", 1)[1].split("\n### ", 1)[0]
+
+
+def _table_row(text, key, metric_header):
+    block = _section(text, key)
     for line in block.splitlines():
         if line.startswith(f"| {metric_header} |"):
             return [c.strip() for c in line.strip("|").split("|")]
-    raise AssertionError(f"no row {metric_header} under {title}")
+    raise AssertionError(f"no row {metric_header} under control {key}")
 
 
 def _parse_interval(cell):
@@ -600,8 +608,7 @@ def test_controls_are_differences_in_differences(tmp_path):
     }
     assert len(real) == 6 and len(paper) == 5
     for key, ctrl in (("video-init-priors", oracle), ("video-init-scale", paper)):
-        title = next(c.title for c in R.CONTROLS if c.key == key)
-        cells = _table_row(text, title, "LDR-OE PSNR")
+        cells = _table_row(text, key, "LDR-OE PSNR")
         for cell, values in ((cells[1], real), (cells[2], ctrl)):
             mean, half, n, _ = _parse_interval(cell)
             em, eh = _t_interval(list(values.values()))
@@ -620,9 +627,9 @@ def test_controls_are_differences_in_differences(tmp_path):
         )
         assert cells[4] == expect
     # oracle priors remove the ~1 dB lead: the change is resolved and the lead shrinks
-    assert _table_row(text, R.CONTROLS[1].title, "LDR-OE PSNR")[4] == R.SHRINKS
+    assert _table_row(text, "video-init-priors", "LDR-OE PSNR")[4] == R.SHRINKS
     # the split control's suite is not in these rows
-    split = text.split(f"### {R.CONTROLS[0].title}", 1)[1].split("\n### ", 1)[0]
+    split = _section(text, "video-init-split")
     assert "not enough data" in split and "`control-video-init`" in split
     assert "Different code versions" not in text
 
@@ -632,8 +639,7 @@ def test_controls_flag_different_code_versions(tmp_path):
 
     rows = _control_rows(np.random.default_rng(3), code_scale="c1")
     text = R.controls_markdown(rows, None)
-    scale = text.split(f"### {R.CONTROLS[2].title}", 1)[1]
-    priors = text.split(f"### {R.CONTROLS[1].title}", 1)[1].split("\n### ", 1)[0]
+    scale, priors = _section(text, "video-init-scale"), _section(text, "video-init-priors")
     assert "**Different code versions**: base c0, control c1" in scale
     assert "Different code versions" not in priors
 
