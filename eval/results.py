@@ -612,6 +612,16 @@ def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
     return out
 
 
+def paper_inside(res: ComparisonResult) -> Optional[bool]:
+    """Whether the paper's Δ lies inside our interval (None without a paper Δ or an interval). A
+    "not significant" verdict with the paper's Δ outside our interval says more than "too few
+    runs": our runs rule out an effect of the paper's size."""
+    iv = res.ours
+    if res.paper_diff is None or iv is None or iv.mean is None or iv.half is None:
+        return None
+    return iv.low <= res.paper_diff <= iv.high
+
+
 def _claim_text(res: ComparisonResult, col) -> str:
     if res.claim == 0:
         return "tie"
@@ -643,7 +653,9 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
         "table, `eval/paper_values.yaml`), or, where the paper has no value for one of the rows, "
         "the direction the finding states. Verdict: agrees / disagrees (our interval excludes 0 "
         "on the claimed / the other side), not significant (it includes 0), paper tie (the "
-        "paper's two values are equal as printed), not enough data (fewer than 2 pairs). The "
+        "paper's two values are equal as printed), not enough data (fewer than 2 pairs). Paper Δ "
+        "in ours: whether the paper's Δ lies inside our interval; where it does not, our runs "
+        "rule out an effect of the paper's size even when the verdict is not significant. The "
         "verdicts are computed from the CSV; what they mean, and the controls run for "
         "disagreements, are written by hand"
         + (f" in [{Path(notes_link).name}]({notes_link})." if notes_link else "."),
@@ -659,8 +671,8 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
         lines += [
             f"Suite `{f.suite}`" + (f"; paper values: {src}." if src else "."),
             "",
-            "| row | ref | metric | paper Δ | claim | ours Δ | n | verdict |",
-            "|:---|:---|:---|---:|:---|---:|---:|:---|",
+            "| row | ref | metric | paper Δ | claim | ours Δ | n | verdict | paper Δ in ours |",
+            "|:---|:---|:---|---:|:---|---:|---:|:---|:---|",
         ]
         for r in res:
             col = cols[r.metric]
@@ -672,21 +684,30 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
                 half = "n/a" if r.ours.half is None else format(r.ours.half, col.fmt)
                 ours, n = f"{format(r.ours.mean, '+' + col.fmt)} ± {half}", r.ours.n
             claim = _claim_text(r, col) + ("" if r.claim_from == "paper" else " (finding)")
+            inside = {True: "yes", False: "no", None: "n/a"}[paper_inside(r)]
             lines.append(
                 f"| {r.comparison.row} | {r.comparison.ref} | {name} | {pd} | {claim} | {ours} "
-                f"| {n} | {r.verdict} |"
+                f"| {n} | {r.verdict} | {inside} |"
             )
         counts = {
             v: sum(r.verdict == v for r in res)
             for v in (AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA)
         }
         pairs = max((r.ours.n for r in res if r.ours is not None), default=0)
+        inside = [paper_inside(r) for r in res]
+        known = [x for x in inside if x is not None]
         lines += [
             "",
             f"Verdicts: {counts[AGREES]} agree, {counts[DISAGREES]} disagree, "
             f"{counts[NOT_SIG]} not significant, {counts[PAPER_TIE]} paper tie, "
             f"{counts[NO_DATA]} not enough data, of {len(res)} comparisons; "
-            f"at most {pairs} (scene, seed) pairs per comparison.",
+            f"at most {pairs} (scene, seed) pairs per comparison"
+            + (
+                f"; the paper's Δ lies inside our interval in {sum(known)} of the {len(known)} "
+                "comparisons with both."
+                if known
+                else "."
+            ),
             "",
         ]
     return "\n".join(lines)

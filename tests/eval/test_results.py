@@ -387,7 +387,7 @@ def test_export_merge_results_readme(tmp_path):
     # findings: every comparison of the ablation finding recomputed from the CSV
     lines = text.split("## Findings", 1)[1].splitlines()
     fl = [ln for ln in lines if ln.startswith("| ") and not ln.startswith("| row")]
-    checked = 0
+    checked = inside = 0
     for row in ABL_ROWS[:-1]:
         for metric in FINDING_METRICS:
             name, fmt, _ = COLS[metric]
@@ -410,14 +410,18 @@ def test_export_merge_results_readme(tmp_path):
             else:
                 want = "agrees" if (d > 0) == (pd > 0) else "disagrees"
             assert cells[7] == want, (row, metric)
+            assert cells[8] == ("yes" if d - h <= pd <= d + h else "no"), (row, metric)
+            inside += d - h <= pd <= d + h
             checked += 1
     assert checked == 20
+    assert f"the paper's Δ lies inside our interval in {inside} of the 20 comparisons" in text
+    assert 0 < inside < 20  # both kinds occur in the fake data
     assert "| no-cov-invariance | full | LDR-OE PSNR | -0.44 | - (worse) |" in text
     for suite in ("control-points", "exposure-noise", "exposure-schedules", "priors"):
         assert f"**not enough data**: no scored run of suite `{suite}` in the CSV." in text
     # the paper-main finding: full vs each baseline, 2 pairs each
     line = next(ln for ln in fl if ln.startswith("| full | world-only | HDR-TAE |"))
-    assert line.rstrip().split("|")[-3].strip() == "2"
+    assert line.rstrip().split("|")[-4].strip() == "2"
 
     # README: the block is replaced, the rest kept, and a second run changes nothing
     rd = readme.read_text()
