@@ -497,12 +497,28 @@ def test_update_reuses_scene_and_matches_fresh_load():
     np.testing.assert_allclose(c_upd.depth, c_new.depth, rtol=1e-6)
 
 
+def test_render_noise_rel_std_is_unbiased_for_gaussian_noise():
+    """Two renders with independent Gaussian noise of known relative std: rel_std recovers it (the
+    two-sample |A - B| / sqrt(2) reads sqrt(2 / pi) of it), checked against the analytic value and
+    against the per-pixel std of 16 draws."""
+    rng = np.random.default_rng(3)
+    mu = rng.uniform(0.01, 100.0, (64, 64, 3))
+    for sigma in (0.02, 0.05):
+        draws = mu * (1 + sigma * rng.standard_normal((16, 64, 64, 3)))
+        n = render_noise(draws[0], draws[1])
+        assert n["rel_std"] == pytest.approx(sigma, rel=0.02)
+        assert n["rel_std_two_sample"] == pytest.approx(sigma * math.sqrt(2 / math.pi), rel=0.02)
+        per_pixel = (draws.std(0, ddof=1) / draws.mean(0)).mean()
+        assert n["rel_std"] == pytest.approx(per_pixel, rel=0.03)
+
+
 def test_render_noise_known_answers():
     rng = np.random.default_rng(0)
     a = rng.uniform(0.5, 2.0, (16, 16, 3)).astype(np.float32)
     n = render_noise(a, a * 1.1)
     assert abs(n["tae_two_seeds"] - 3 * 0.1 / 2.1) < 1e-6
-    assert abs(n["rel_std"] - 0.1 / math.sqrt(2) / 1.05) < 1e-6
+    assert abs(n["rel_std_two_sample"] - 0.1 / math.sqrt(2) / 1.05) < 1e-6
+    assert abs(n["rel_std"] - 0.1 * math.sqrt(math.pi) / 2 / 1.05) < 1e-6
     assert render_noise(a, a)["mu_psnr"] == float("inf")
     b = a.copy()
     b[:, :8] *= 1.1
