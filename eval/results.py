@@ -803,6 +803,14 @@ CONTROLS: Tuple[Control, ...] = (
             "realistic priors, the paper's schedule",
         ),
     ),
+    Control(
+        "tlr-weight",
+        "Ablation (e): is TLR's small effect on HDR-TAE its weight? (0.1, the paper's text, "
+        "against 0.01)",
+        "method",
+        Effect("control-tlr", "no-tlr", "full", "TLR weight 0.01"),
+        Effect("control-tlr", "no-tlr", "full-tlr-0.1", "TLR weight 0.1"),
+    ),
 )
 
 NO_CHANGE, GROWS, SHRINKS = "no resolvable change", "grows", "shrinks"
