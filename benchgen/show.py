@@ -30,6 +30,23 @@ def summary(clip: Clip) -> dict:
     for k in ("dynamic_fraction", "dynamic_range_stops", "hdr_tae_floor", "render_noise"):
         if k in m.gt:
             out[k] = m.gt[k]
+    if "render_noise" in out:
+        out["render_noise"] = render_noise_view(out["render_noise"])
+    return out
+
+
+def render_noise_view(noise: dict) -> dict:
+    """clip.json gt.render_noise with rel_std as the unbiased estimate: clips made before
+    benchgen.groundtruth.render_noise recorded rel_std_two_sample held the two-sample estimate
+    (sqrt(2 / pi) of it) under rel_std; that value is converted and kept beside it."""
+    import math
+
+    out = dict(noise)
+    rel = out.get("rel_std")
+    if "rel_std_two_sample" not in out and isinstance(rel, (int, float)):
+        out["rel_std"] = float(rel) * math.sqrt(math.pi / 2.0)
+        out["rel_std_two_sample"] = float(rel)
+        out["rel_std_note"] = "converted from the two-sample value this clip recorded"
     return out
 
 
