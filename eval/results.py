@@ -563,6 +563,9 @@ class ComparisonResult:
     claim_from: str  # "paper" or "finding"
     ours: object  # eval.stats.Interval or None
     verdict: str
+    # the same difference over scenes (eval.stats.scene_paired_diff: n = scenes) and its verdict
+    scenes: object = None
+    verdict_scenes: str = NO_DATA
 
 
 def claim_sign(c: Comparison, metric: str, paper_diff: Optional[float]) -> Tuple[int, str]:
@@ -591,7 +594,7 @@ def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
     """Every (comparison, metric) of a finding on the scored CSV rows of its suite: the paired
     difference over the (scene, seed) runs both rows have (eval.stats.paired_diff)."""
     from .paper import load_paper_values
-    from .stats import by_key, paired_diff
+    from .stats import by_key, paired_diff, scene_paired_diff
 
     pt = load_paper_values().get(f.paper) if f.paper else None
     mine = [r for r in rows if r["suite"] == f.suite and r.get("status") == SCORED]
@@ -608,7 +611,12 @@ def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
             ours = paired_diff(by_key(a, m), by_key(b, m)) if a and b else None
             if ours is not None and ours.n == 0:
                 ours = None
-            out.append(ComparisonResult(c, m, pd, sign, src, ours, verdict(sign, ours)))
+            scenes = scene_paired_diff(by_key(a, m), by_key(b, m)) if ours is not None else None
+            out.append(
+                ComparisonResult(
+                    c, m, pd, sign, src, ours, verdict(sign, ours), scenes, verdict(sign, scenes)
+                )
+            )
     return out
 
 
@@ -655,9 +663,12 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
         "on the claimed / the other side), not significant (it includes 0), paper tie (the "
         "paper's two values are equal as printed), not enough data (fewer than 2 pairs). Paper Δ "
         "in ours: whether the paper's Δ lies inside our interval; where it does not, our runs "
-        "rule out an effect of the paper's size even when the verdict is not significant. The "
-        "verdicts are computed from the CSV; what they mean, and the controls run for "
-        "disagreements, are written by hand"
+        "rule out an effect of the paper's size even when the verdict is not significant. Over "
+        "scenes: the same difference averaged per scene first, the interval taken over the scene "
+        "means (n = scenes, `eval.stats.scene_paired_diff`), with its verdict; the first interval "
+        "speaks for these scenes and their seeds, this one for scenes like them, and with two "
+        "scenes it is wide by design. The verdicts are computed from the CSV; what they mean, "
+        "and the controls run for disagreements, are written by hand"
         + (f" in [{Path(notes_link).name}]({notes_link})." if notes_link else "."),
         "",
     ]
@@ -671,8 +682,9 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
         lines += [
             f"Suite `{f.suite}`" + (f"; paper values: {src}." if src else "."),
             "",
-            "| row | ref | metric | paper Δ | claim | ours Δ | n | verdict | paper Δ in ours |",
-            "|:---|:---|:---|---:|:---|---:|---:|:---|:---|",
+            "| row | ref | metric | paper Δ | claim | ours Δ | n | verdict | paper Δ in ours "
+            "| over scenes | scenes | verdict over scenes |",
+            "|:---|:---|:---|---:|:---|---:|---:|:---|:---|---:|---:|:---|",
         ]
         for r in res:
             col = cols[r.metric]
@@ -685,12 +697,22 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
                 ours, n = f"{format(r.ours.mean, '+' + col.fmt)} ± {half}", r.ours.n
             claim = _claim_text(r, col) + ("" if r.claim_from == "paper" else " (finding)")
             inside = {True: "yes", False: "no", None: "n/a"}[paper_inside(r)]
+            sc = r.scenes
+            if sc is None or sc.mean is None:
+                over, k = "n/a", 0 if sc is None else sc.n
+            else:
+                half = "n/a" if sc.half is None else format(sc.half, col.fmt)
+                over, k = f"{format(sc.mean, '+' + col.fmt)} ± {half}", sc.n
             lines.append(
                 f"| {r.comparison.row} | {r.comparison.ref} | {name} | {pd} | {claim} | {ours} "
-                f"| {n} | {r.verdict} | {inside} |"
+                f"| {n} | {r.verdict} | {inside} | {over} | {k} | {r.verdict_scenes} |"
             )
         counts = {
             v: sum(r.verdict == v for r in res)
+            for v in (AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA)
+        }
+        over = {
+            v: sum(r.verdict_scenes == v for r in res)
             for v in (AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA)
         }
         pairs = max((r.ours.n for r in res if r.ours is not None), default=0)
@@ -708,6 +730,10 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
                 if known
                 else "."
             ),
+            "",
+            f"Over scenes: {over[AGREES]} agree, {over[DISAGREES]} disagree, "
+            f"{over[NOT_SIG]} not significant, {over[PAPER_TIE]} paper tie, "
+            f"{over[NO_DATA]} not enough data (fewer than 2 scenes).",
             "",
         ]
     return "\n".join(lines)

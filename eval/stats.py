@@ -82,6 +82,26 @@ def paired_diff(
     return mean_ci([float(values[k]) - float(reference[k]) for k in keys], level)
 
 
+def scene_paired_diff(
+    values: Mapping[Hashable, float], reference: Mapping[Hashable, float], level: float = LEVEL
+) -> Interval:
+    """Interval of the mean over SCENES of values - reference: the paired differences over the
+    (scene, seed) keys both have are averaged per scene (keys[0]), and the Student-t interval is
+    taken over those scene means (n = scenes, n - 1 degrees of freedom). Where paired_diff treats
+    every (scene, seed) run as an independent sample, and so answers for these scenes, this one
+    answers for scenes like these: an effect that holds on one scene and reverses on another
+    stays open here however many seeds each has."""
+
+    def ok(v):
+        return v is not None and not (isinstance(v, float) and math.isnan(v))
+
+    per: Dict[Hashable, list] = {}
+    for k in values:
+        if k in reference and ok(values[k]) and ok(reference[k]):
+            per.setdefault(k[0], []).append(float(values[k]) - float(reference[k]))
+    return mean_ci([sum(d) / len(d) for d in per.values()], level)
+
+
 # --------------------------------------------------------------------------------------------------
 # agreement with the paper
 # --------------------------------------------------------------------------------------------------

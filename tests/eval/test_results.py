@@ -121,6 +121,16 @@ def paired(a: dict, b: dict):
     return float((x - y).mean()), float((hi - lo) / 2), bool(lo > 0 or hi < 0), len(keys)
 
 
+def over_scenes(a: dict, b: dict):
+    """Mean over scenes of the per-scene mean paired difference, its t interval over the scene
+    means (scipy), and the number of scenes."""
+    keys = sorted(set(a) & set(b))
+    scenes = sorted({k[0] for k in keys})
+    means = np.array([np.mean([a[k] - b[k] for k in keys if k[0] == sc]) for sc in scenes])
+    lo, hi = stats.ttest_1samp(means, 0.0).confidence_interval(0.95)
+    return float(means.mean()), float((hi - lo) / 2), bool(lo > 0 or hi < 0), len(scenes)
+
+
 def by_run(csv_rows, suite, row, metric):
     return {
         (r["scene"], int(r["seed"])): float(r[metric])
@@ -388,6 +398,7 @@ def test_export_merge_results_readme(tmp_path):
     lines = text.split("## Findings", 1)[1].splitlines()
     fl = [ln for ln in lines if ln.startswith("| ") and not ln.startswith("| row")]
     checked = inside = 0
+    over_verdicts = []
     for row in ABL_ROWS[:-1]:
         for metric in FINDING_METRICS:
             name, fmt, _ = COLS[metric]
@@ -411,17 +422,34 @@ def test_export_merge_results_readme(tmp_path):
                 want = "agrees" if (d > 0) == (pd > 0) else "disagrees"
             assert cells[7] == want, (row, metric)
             assert cells[8] == ("yes" if d - h <= pd <= d + h else "no"), (row, metric)
+            d2, h2, excl2, k = over_scenes(
+                by_run(rows, "paper-ablation", row, metric),
+                by_run(rows, "paper-ablation", "full", metric),
+            )
+            assert cells[9] == f"{d2:+{fmt}} ± {h2:{fmt}}" and cells[10] == str(k) == "3"
+            if abs(pd) < 1e-9:
+                want2 = "paper tie"
+            elif not excl2:
+                want2 = "not significant"
+            else:
+                want2 = "agrees" if (d2 > 0) == (pd > 0) else "disagrees"
+            assert cells[11] == want2, (row, metric)
+            over_verdicts.append(want2)
             inside += d - h <= pd <= d + h
             checked += 1
     assert checked == 20
     assert f"the paper's Δ lies inside our interval in {inside} of the 20 comparisons" in text
     assert 0 < inside < 20  # both kinds occur in the fake data
+    assert len(set(over_verdicts)) >= 2  # the scene-level verdicts are not all alike
+    n_ag = over_verdicts.count("agrees")
+    assert f"Over scenes: {n_ag} agree, {over_verdicts.count('disagrees')} disagree" in text
     assert "| no-cov-invariance | full | LDR-OE PSNR | -0.44 | - (worse) |" in text
     for suite in ("control-points", "exposure-noise", "exposure-schedules", "priors"):
         assert f"**not enough data**: no scored run of suite `{suite}` in the CSV." in text
     # the paper-main finding: full vs each baseline, 2 pairs each
     line = next(ln for ln in fl if ln.startswith("| full | world-only | HDR-TAE |"))
-    assert line.rstrip().split("|")[-4].strip() == "2"
+    cells = [c.strip() for c in line.strip().strip("|").split("|")]
+    assert cells[6] == "2" and cells[10] == "2"  # 2 (scene, seed) pairs, 2 scenes
 
     # README: the block is replaced, the rest kept, and a second run changes nothing
     rd = readme.read_text()

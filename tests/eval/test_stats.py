@@ -39,6 +39,27 @@ def test_mean_ci_matches_scipy_t():
     assert stats.t_quantile(0.975, 10) == pytest.approx(2.228139, abs=1e-6)
 
 
+def test_scene_paired_diff_is_a_t_interval_over_scene_means():
+    rng = np.random.default_rng(5)
+    a, b = {}, {}
+    for i, sc in enumerate(["s0", "s1", "s2"]):
+        for seed in range(3):
+            b[(sc, seed)] = rng.normal(30, 1)
+            a[(sc, seed)] = b[(sc, seed)] + [0.5, 1.5, -0.2][i] + rng.normal(0, 0.1)
+    del a[("s2", 2)]  # an unpaired run is dropped, the scene stays
+    iv = stats.scene_paired_diff(a, b)
+    means = [np.mean([a[k] - b[k] for k in a if k[0] == sc]) for sc in ("s0", "s1", "s2")]
+    lo, hi = sps.ttest_1samp(means, 0.0).confidence_interval(0.95)
+    assert iv.n == 3 and iv.mean == pytest.approx(np.mean(means))
+    assert iv.half == pytest.approx((hi - lo) / 2)
+    # many seeds on each scene do not narrow it: the scenes disagree
+    assert not iv.excludes_zero and stats.paired_diff(a, b).excludes_zero
+    one = stats.scene_paired_diff(
+        {("s0", 0): 1.0, ("s0", 1): 2.0}, {("s0", 0): 0.0, ("s0", 1): 0.0}
+    )
+    assert one.n == 1 and one.mean == 1.5 and one.half is None
+
+
 def test_paired_diff_matches_ttest_rel():
     a = [30.1, 31.4, 29.8, 33.0, 28.7, 30.9]
     b = [29.5, 31.0, 29.9, 32.1, 28.0, 30.2]
