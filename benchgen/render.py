@@ -967,9 +967,14 @@ def _frame_progress(frames, scene, progress: bool):
     """The frames, with a tqdm progress bar when asked for and available."""
     if progress:
         try:
-            from tqdm import tqdm
+            from m4dgs.core.progress import progress_bar
 
-            return tqdm(frames, desc=f"render {getattr(scene, 'name', '')}", unit="frame")
+            return progress_bar(
+                frames,
+                desc=f"render {getattr(scene, 'name', '')}",
+                unit="frame",
+                dynamic_ncols=False,
+            )
         except ImportError:
             pass
     return frames

@@ -11,11 +11,11 @@ from typing import Dict
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from m4dgs.clip import frame_name, level_name
 from m4dgs.core.io import write_exr, write_png
 from m4dgs.core.lock import FolderLock
+from m4dgs.core.progress import progress_bar
 from m4dgs.model.trained import load_model
 from m4dgs.run import RunDir
 
@@ -40,7 +40,7 @@ def _render_run(run_dir, overwrite: bool, progress: bool, device: str) -> Dict[s
     jobs = [("train", g) for g in clip.train_frames] + [("test", g) for g in clip.test_frames]
     it = jobs
     if progress:
-        it = tqdm(jobs, desc="render", unit="frame", dynamic_ncols=True)
+        it = progress_bar(jobs, desc="render", unit="frame")
     written = {"train": 0, "test": 0}
     for split, g in it:
         hdr_p = run.path("renders", split, "hdr", frame_name(g, "exr"))

@@ -42,11 +42,11 @@ from typing import Iterable, List, Optional
 import numpy as np
 import torch
 from PIL import Image, ImageDraw
-from tqdm import tqdm
 
 from m4dgs.core import camera as cam
 from m4dgs.core.hdr import mu_law
 from m4dgs.core.io import atomic_target, write_bytes_atomic, write_npz
+from m4dgs.core.progress import progress_bar
 from m4dgs.model.trained import load_model
 
 
@@ -113,7 +113,7 @@ def write_mp4(path, frames: Iterable[np.ndarray], fps: float) -> Path:
 def _progress(it, progress: bool, desc: str, total: Optional[int] = None):
     if not progress:
         return it
-    return tqdm(it, desc=desc, total=total, unit="frame", dynamic_ncols=True, leave=False)
+    return progress_bar(it, desc=desc, total=total, unit="frame", leave=False)
 
 
 # --------------------------------------------------------------------------------------------------

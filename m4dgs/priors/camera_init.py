@@ -54,6 +54,7 @@ from m4dgs.core.camera import (
     umeyama_sim3,
     unproject_pinhole,
 )
+from m4dgs.core.progress import progress_bar
 from m4dgs.core.warp import sample_per_frame
 
 
@@ -521,9 +522,7 @@ def bundle_adjust(
 
     steps = range(cfg.ba_steps)
     if progress:
-        from tqdm import tqdm
-
-        steps = tqdm(steps, desc=progress, unit="step", dynamic_ncols=True, leave=False)
+        steps = progress_bar(steps, desc=progress, unit="step", leave=False)
     for step in steps:
         opt.zero_grad(set_to_none=True)
         log = bool(cfg.log_every) and (step % cfg.log_every == 0 or step == cfg.ba_steps - 1)

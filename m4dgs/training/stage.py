@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from m4dgs.core.errors import NonFiniteError
+from m4dgs.core.progress import progress_bar
 from m4dgs.model.render import RenderResult
 from m4dgs.training.config import LossConfig, LRConfig, TrainConfig
 from m4dgs.training.data import TrainingData
@@ -290,9 +291,7 @@ def train_loop(
     and a callback after each step (logging, checkpoints). Shared by both stages."""
     bar = None
     if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=iterations, initial=start, desc=desc, unit="it", dynamic_ncols=True)
+        bar = progress_bar(total=iterations, initial=start, desc=desc, unit="it")
     for it in range(start, iterations):
         t0 = time.perf_counter()
         rec = stage.step(it)
