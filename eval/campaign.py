@@ -15,10 +15,13 @@ and the steps in order:
       - {suite: priors, scenes: [a, b], seeds: 1}
 
 Each step is `m4dgs-eval run SUITE --scenes ... --seeds ...` followed by `m4dgs-eval export`; a step
-whose runs are all scored is only exported again. Before a step trains anything, the m4dgs code of
-its finished runs (run.json `code`) is compared with this checkout's: a step is never finished with
-other code than it was started with (its paired differences would compare code versions), unless
-allow_mixed_code."""
+whose runs are all scored is only exported again. Each job is exported into the runs CSV as soon
+as it is scored, and a job whose row the CSV holds as scored (same preset, clips of this benchgen
+generator version) counts as finished even without its run folder: the CSV is the record that
+survives a lost root, so a campaign restarted into a new root trains only what the CSV lacks.
+Before a step trains anything, the m4dgs code of its finished runs (run.json `code`, or the CSV's
+`code` column) is compared with this checkout's: a step is never finished with other code than it
+was started with (its paired differences would compare code versions), unless allow_mixed_code."""
 
 from __future__ import annotations
 
@@ -145,20 +148,55 @@ def job_iterations(job) -> int:
     return int(s1 + cfg.stage2.iterations)
 
 
-def step_status(step: Step, root, preset: str) -> dict:
-    """{"total", "scored", "codes", "todo_iterations", "sec_per_iteration"}: the step's jobs, how
-    many have metrics.json, a Counter of the m4dgs code (run.json `code`, 12 hex digits) of the
-    scored ones, the iterations of the jobs still to train, and the recorded training seconds per
-    iteration of each scored run (run.json `train_seconds`: the method's cost, shared phases
-    counted at their producer's time)."""
+def recorded_runs(csv_path, preset: str, generator: Optional[str] = None) -> Dict[tuple, dict]:
+    """{(suite, scene, row, seed): CSV row} of the runs CSV's scored runs at `preset` (and, when
+    `generator` is given, not on clips of another benchgen generator version): the record of
+    finished runs that survives the loss of their run folders (empty without a CSV)."""
+    from .results import SCORED, read_runs_csv
+
+    if csv_path is None:
+        return {}
+    out = {}
+    for r in read_runs_csv(csv_path):
+        if r.get("status") != SCORED or r.get("preset") != preset:
+            continue
+        made_by = str(r.get("generator") or "")  # "" for clips benchgen did not make
+        if generator is not None and made_by and made_by != str(generator):
+            continue  # runs on clips of another generator version: another benchmark
+        out[(r["suite"], r["scene"], r["row"], int(r["seed"]))] = r
+    return out
+
+
+def job_key(job) -> tuple:
+    """A job's key in the runs CSV: (suite, scene, row, trainer seed)."""
+    return (job.suite_name, job.scene, job.row, int(job.seed))
+
+
+def step_status(
+    step: Step, root, preset: str, recorded: Optional[Dict[tuple, dict]] = None
+) -> dict:
+    """{"total", "scored", "recorded", "codes", "todo_iterations", "sec_per_iteration"}: the step's
+    jobs, how many are finished (metrics.json under ROOT, or, for a job without a run folder under
+    ROOT, a scored row of `recorded`, the runs CSV: recorded_runs), how many of those only the CSV
+    holds, a Counter of the
+    m4dgs code (run.json / CSV `code`, 12 hex digits) of the finished ones, the iterations of the
+    jobs still to train, and the recorded training seconds per iteration of each run scored under
+    ROOT (run.json `train_seconds`: the method's cost, shared phases counted at their producer's
+    time)."""
     from .runner import job_list
 
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
+    recorded = recorded or {}
     codes: Counter = Counter()
-    scored, todo, rates = 0, 0, []
+    scored, in_csv, todo, rates = 0, 0, 0, []
     for j in jl:
         run = Path(j.run_dir)
-        if (run / "metrics.json").exists():
+        row = recorded.get(job_key(j))
+        if row is not None and not run.exists():  # a run folder, even unscored, wins
+            scored += 1
+            in_csv += 1
+            codes[str(row.get("code") or "unknown")[:12]] += 1
+        elif (run / "metrics.json").exists():
             scored += 1
             info = mio.read_json(run / "run.json") if (run / "run.json").exists() else {}
             codes[str(info.get("code") or "unknown")[:12]] += 1
@@ -170,6 +208,7 @@ def step_status(step: Step, root, preset: str) -> dict:
     return {
         "total": len(jl),
         "scored": scored,
+        "recorded": in_csv,
         "codes": codes,
         "todo_iterations": todo,
         "sec_per_iteration": rates,
@@ -195,7 +234,10 @@ def run_campaign(
     run_kw: Optional[dict] = None,
 ) -> List[Dict]:
     """Run and export every step in order (see the module docstring); returns one summary per step
-    ({"suite", "scenes", "seeds", "total", "scored", "codes", "ran"}). dry_run: only the summaries.
+    ({"suite", "scenes", "seeds", "total", "scored", "recorded", "codes", "ran"}). dry_run: only
+    the summaries. csv_path: the runs CSV the steps are exported into; its scored runs (this
+    preset, this generator's clips) count as finished, so a campaign resumes from it after its root
+    is lost.
     code: the fingerprint of this checkout's m4dgs sources (default: computed). Raises InputError
     before a step whose finished runs have other code (unless allow_mixed_code) and M4DGSError
     after a step with failed jobs (its finished runs exported first)."""
@@ -215,12 +257,21 @@ def run_campaign(
     n = len(campaign.steps)
     # the time estimate: the median recorded seconds per iteration over every scored run of the
     # campaign in this root (one machine, one --jobs setting make it meaningful)
-    statuses = [step_status(st, root, campaign.preset) for st in campaign.steps]
+    from benchgen.make import GENERATOR_VERSION
+
+    # the runs CSV is the record that outlives the root: a job scored there (same preset, clips of
+    # this generator) is finished even when its run folder is gone
+    recorded = recorded_runs(csv_path, campaign.preset, str(GENERATOR_VERSION))
+    statuses = [step_status(st, root, campaign.preset, recorded) for st in campaign.steps]
     rates = sorted(r for s in statuses for r in s["sec_per_iteration"])
     rate = rates[len(rates) // 2] if rates else None
     left = 0.0
     for i, st in enumerate(campaign.steps, 1):
-        s = statuses[i - 1] if i == 1 or dry_run else step_status(st, root, campaign.preset)
+        s = (
+            statuses[i - 1]
+            if i == 1 or dry_run
+            else step_status(st, root, campaign.preset, recorded)
+        )
         summary = dict(suite=st.suite, scenes=st.scenes, seeds=st.seeds, ran=False, **s)
         where = "all scenes" if st.scenes is None else ",".join(st.scenes)
         eta = ""
@@ -231,7 +282,9 @@ def run_campaign(
             eta = f", ~{hours:.1f} h left at --jobs {jobs}"
         say(
             f"[campaign {campaign.name}] step {i}/{n}: {st.suite} ({where}, {st.seeds} seed(s)): "
-            f"{s['scored']} of {s['total']} runs scored{eta}"
+            f"{s['scored']} of {s['total']} runs scored"
+            + (f" ({s['recorded']} of them only in {csv_path})" if s["recorded"] else "")
+            + eta
         )
         if dry_run:
             out.append(summary)
@@ -244,6 +297,14 @@ def run_campaign(
                 + f"; this checkout is {code}. Finishing the suite would mix code versions in "
                 "one table: use a new --root (or check out that code), or pass --allow-mixed-code."
             )
+
+        def export_step(st=st, quiet=False):
+            try:
+                export([st.suite], root, csv_path, st.scenes, st.seeds, log=say)
+            except InputError as e:  # nothing of the step scored under ROOT yet
+                if not quiet:
+                    say(f"[campaign {campaign.name}] not exported: {e}")
+
         res = []
         if s["scored"] < s["total"]:
             res = run_suite(
@@ -254,12 +315,16 @@ def run_campaign(
                 scenes=st.scenes,
                 seeds=st.seeds,
                 log=say,
+                # a job the CSV records is not run again; each finished job is exported at once,
+                # so that a lost root loses at most the runs in progress
+                skip=lambda j: job_key(j) in recorded and not Path(j.run_dir).exists(),
+                on_result=lambda j, r: export_step(quiet=True),
                 **(run_kw or {}),
             )
             summary["ran"] = True
-        summary.update(step_status(st, root, campaign.preset))
-        if summary["scored"]:
-            export([st.suite], root, csv_path, st.scenes, st.seeds, log=say)
+        summary.update(step_status(st, root, campaign.preset, recorded))
+        if summary["scored"] > summary["recorded"]:
+            export_step()
         out.append(summary)
         bad = failed_jobs(res)
         if bad:

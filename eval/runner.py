@@ -36,10 +36,10 @@ import shlex
 import sys
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence
 
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
@@ -361,16 +361,27 @@ def run_suite(
     seeds: int = 1,
     share: bool = True,
     fail_fast: bool = False,
+    skip: Optional[Callable[[Job], bool]] = None,
+    on_result: Optional[Callable[[Job, dict], None]] = None,
 ) -> List[dict]:
     """Make every missing clip, then train and score every (scene, row, seed) of a suite; resumable.
+
+    skip(job) true: the job is recorded elsewhere (eval.campaign: scored in the runs CSV), so it is
+    neither trained nor scored and its clip is made only if another job needs it; its result is
+    {"id", "run", "steps": [], "recorded": True}. on_result(job, result) is called in this process
+    after each job that finished (not after failed or skipped ones), e.g. to export it at once.
 
     jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool
     of `jobs` workers, each with cpu_count / jobs torch threads. Returns the per-job results
     (run_job) in job order; a job that failed has an "error" entry instead of metrics (and the
     jobs of a clip that failed to be made are not started), unless fail_fast, which raises the
     first failure."""
-    jl = job_list(suite, out, preset, scenes, seeds)
+    every = job_list(suite, out, preset, scenes, seeds)
+    recorded = {j.id for j in every if skip is not None and skip(j)}
+    jl = [j for j in every if j.id not in recorded]
     say = log or (lambda msg: print(msg, file=sys.stderr))
+    if recorded:
+        say(f"[eval run] {len(recorded)} of {len(every)} jobs are recorded already: not run")
     firsts: Dict[str, Job] = {}
     for j in jl:
         firsts.setdefault(j.clip_key, j)
@@ -394,6 +405,18 @@ def run_suite(
             say("".join(traceback.format_exception(type(exc), exc, exc.__traceback__)).rstrip())
         return r
 
+    def finished(job: Job, r: dict) -> dict:
+        if on_result is not None:
+            on_result(job, r)
+        return r
+
+    def in_order(results: List[dict]) -> List[dict]:
+        by_id = {r["id"]: r for r in results}
+        return [
+            by_id.get(j.id) or {"id": j.id, "run": j.run_dir, "steps": [], "recorded": True}
+            for j in every
+        ]
+
     def skipped(job: Job) -> dict:
         r = dict(clip_errors[job.clip_key], id=job.id, run=job.run_dir)
         say(f"[eval run] skipped {job.id}: its clip {job.clip_key} could not be made")
@@ -415,10 +438,12 @@ def run_suite(
                 continue
             say(f"[eval run] {i + 1}/{len(jl)} {j.id}")
             try:
-                results.append(run_job(j, progress=progress, **kw))
+                r = run_job(j, progress=progress, **kw)
             except Exception as exc:
                 results.append(failed(j, exc, "the job", j.id))
-        return results
+                continue
+            results.append(finished(j, r))
+        return in_order(results)
     threads = max(1, (os.cpu_count() or 1) // jobs)
     with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init, initargs=(threads,)) as ex:
         try:
@@ -433,17 +458,15 @@ def run_suite(
             if clips_only:
                 return [{"id": j.id, "clip": j.clip_dir} for j in jl]
             futs = {
-                j.id: ex.submit(_run_job_kw, j, dict(kw, progress=False))
+                ex.submit(_run_job_kw, j, dict(kw, progress=False)): j
                 for j in jl
                 if j.clip_key not in clip_errors
             }
-            results = []
-            for j in jl:
-                if j.id not in futs:
-                    results.append(skipped(j))
-                    continue
+            results = [skipped(j) for j in jl if j.clip_key in clip_errors]
+            for f in as_completed(futs):  # as they finish: on_result exports each one at once
+                j = futs[f]
                 try:
-                    r = futs[j.id].result()
+                    r = f.result()
                 except Exception as exc:
                     results.append(failed(j, exc, "the job", j.id))
                     continue
@@ -451,8 +474,8 @@ def run_suite(
                     f"[eval run] done {j.id} ({', '.join(r['steps']) or 'nothing to do'}, "
                     f"{r['seconds']} s)"
                 )
-                results.append(r)
-            return results
+                results.append(finished(j, r))
+            return in_order(results)
         except BaseException:
             ex.shutdown(wait=True, cancel_futures=True)  # fail fast / Ctrl-C: start nothing more
             raise

@@ -788,12 +788,25 @@ def test_run_suite_process_pool(tmp_path, fake_trainer):
     jl = job_list(suite, out, "tiny")
     for j in {j.clip_dir for j in jl}:
         make_fake_clip(Path(j), seed=len(j))
+    seen = []
     res = run_suite(
-        suite, out, "tiny", jobs=2, score_kw={"fps": False, "model": False}, log=lambda s: None
+        suite,
+        out,
+        "tiny",
+        jobs=2,
+        score_kw={"fps": False, "model": False},
+        log=lambda s: None,
+        skip=lambda j: j.id == jl[1].id,  # recorded elsewhere: neither trained nor scored
+        on_result=lambda j, r: seen.append((j.id, (Path(j.run_dir) / "metrics.json").exists())),
     )
-    assert [r["id"] for r in res] == [j.id for j in jl]
-    assert all(r["steps"] == ["train", "score"] for r in res)
-    assert all((Path(j.run_dir) / "metrics.json").exists() for j in jl)
+    assert [r["id"] for r in res] == [j.id for j in jl]  # job order, whatever order they finish in
+    assert res[1] == {"id": jl[1].id, "run": jl[1].run_dir, "steps": [], "recorded": True}
+    assert not Path(jl[1].run_dir).exists()
+    others = [j for i, j in enumerate(jl) if i != 1]
+    assert all(r["steps"] == ["train", "score"] for i, r in enumerate(res) if i != 1)
+    assert all((Path(j.run_dir) / "metrics.json").exists() for j in others)
+    # on_result ran once per finished job, in this process, after its metrics were written
+    assert sorted(seen) == sorted((j.id, True) for j in others)
 
 
 def test_score_with_lpips_weights(tmp_path, fake_trainer):
@@ -1012,11 +1025,11 @@ def test_campaign_file_errors_name_the_field(tmp_path):
     assert c.preset == "small" and [s.suite for s in c.steps][:5] == [
         "crf",
         "control-video-init-priors",
+        "paper-main",
         "control-video-init-scale",
         "control-video-init-prior-parts",
-        "paper-main",
     ]
-    assert c.steps[4].scenes is None and all(s.seeds == 2 for s in c.steps)
+    assert c.steps[2].scenes is None and all(s.seeds == 2 for s in c.steps)
     assert c.steps[5].scenes == [
         "lamp-room-orbit",
         "pendulum-lamp-handheld",
@@ -1136,3 +1149,61 @@ def test_campaign_runs_exports_resumes_and_guards_the_code(tmp_path, fake_traine
         camp, out, csv_path, allow_mixed_code=True, **dict(kw, code="beef" + "0" * 60)
     )
     assert res[1]["ran"] and len(fake_trainer["train"]) == 8  # rescored, not retrained
+
+
+def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trainer, monkeypatch):
+    """The runs CSV is the record that survives: each job is exported as soon as it is scored (a
+    step that stops on a failure keeps its finished jobs), and a campaign restarted into an empty
+    root trains only the jobs the CSV lacks; CSV rows of other code stop an unfinished step."""
+    import csv
+    import shutil
+    import sys
+
+    from eval.campaign import run_campaign
+    from eval.runner import job_list
+    from m4dgs.core.errors import InputError, M4DGSError
+
+    suite, out, csv_path, camp = _two_step_campaign(tmp_path)
+    code = "c0ffee" + "0" * 58
+    kw = dict(code=code, log=lambda s: None, run_kw={"score_kw": {"fps": False}, "progress": False})
+    pmod = sys.modules["m4dgs.training.pipeline"]
+    fake_train = pmod.train
+    diverge = {"tiny-flag-arm/full-seed-1"}  # one job of step 2 fails the first time
+
+    def train(clip_dir, run_dir, **k):  # the fake trainer, recording the code as the real one does
+        if any(str(run_dir).endswith(d) for d in diverge):
+            raise RuntimeError("diverged")
+        fake_train(clip_dir, run_dir, **k)
+        rj = Path(run_dir) / "run.json"
+        mio.write_json(rj, dict(mio.read_json(rj), code=code))
+        return run_dir
+
+    monkeypatch.setattr(pmod, "train", train)
+    with pytest.raises(M4DGSError, match="1 job"):
+        run_campaign(camp, out, csv_path, **kw)
+
+    def csv_keys():
+        with open(csv_path) as f:
+            return sorted(
+                (r["scene"], r["row"], r["seed"])
+                for r in csv.DictReader(f)
+                if r["status"] == "scored"
+            )
+
+    # every job but the failed one is in the CSV, and was put there by the per-job export
+    assert len(csv_keys()) == 7 and len(fake_trainer["train"]) == 7
+    shutil.rmtree(out)  # the root is lost (a machine restart); the CSV survives
+    for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
+        make_fake_clip(Path(j), seed=len(j))
+    plan = run_campaign(camp, out, csv_path, dry_run=True, **kw)
+    assert [(p["scored"], p["recorded"], p["total"]) for p in plan] == [(2, 2, 2), (7, 7, 8)]
+    diverge.clear()
+    # another checkout's code: the unfinished step would mix versions, so nothing is trained
+    with pytest.raises(InputError, match="c0ffee"):
+        run_campaign(camp, out, csv_path, **dict(kw, code="beef" + "0" * 60))
+    assert len(fake_trainer["train"]) == 7
+    res = run_campaign(camp, out, csv_path, **kw)
+    assert [(r["scored"], r["total"], r["ran"]) for r in res] == [(2, 2, False), (8, 8, True)]
+    assert len(fake_trainer["train"]) == 8  # only the job the CSV lacked
+    assert fake_trainer["train"][-1][0].endswith("tiny-flag-arm/full-seed-1")
+    assert len(csv_keys()) == 8
