@@ -14,7 +14,8 @@ stay, so suites run in different sessions accumulate.
 `results` renders, for every suite in the CSV, what stands behind it (scenes, seeds, presets, scored
 and missing runs), every table of the suite through eval.cli.build_tables (the same code as `eval
 table`: mean +- Student-t 95 % interval, paired differences to the reference row, the paper's values
-and the direction-agreement column), figures (per-scene bars of the main metric, learned CRF curves
+and the direction-agreement column) over the (scene, seed) pairs on which every row with runs is
+scored (SuiteData.complete_pairs: a suite still running compares every row on the same runs), figures (per-scene bars of the main metric, learned CRF curves
 against the true ones, HDR-TAE vs LDR-OE PSNR), and a "Findings" section with one table per finding
 of the paper (FINDINGS): the paper's difference, ours with its interval and number of (scene, seed)
 pairs, and the verdict; then a "Controls" section (CONTROLS): for each control run for a
@@ -348,6 +349,37 @@ class SuiteData:
         return [e for e in self.entries if e["metrics"]]
 
     @property
+    def pairs(self) -> List[Tuple[str, int]]:
+        """Every (scene, seed) of the grid."""
+        return list(dict.fromkeys((e["scene"], e["seed"]) for e in self.entries))
+
+    @property
+    def complete_pairs(self) -> List[Tuple[str, int]]:
+        """The (scene, seed) pairs on which every row that has a scored run anywhere in the suite
+        is scored (a row nobody ran does not hold a pair back): the runs the tables compare while
+        a suite is still running, every row on the same pairs."""
+        ran = {e["row"] for e in self.scored}
+        done: Dict[Tuple[str, int], set] = {}
+        for e in self.scored:
+            done.setdefault((e["scene"], e["seed"]), set()).add(e["row"])
+        return [p for p in self.pairs if ran and ran <= done.get(p, set())]
+
+    @property
+    def table_entries(self) -> List[dict]:
+        """The entries the tables and figures use: those of the complete pairs; every entry when
+        no pair is complete (the tables then show n/a where a row lacks a run) or all are."""
+        keep = set(self.complete_pairs)
+        if not keep:
+            return list(self.entries)
+        return [e for e in self.entries if (e["scene"], e["seed"]) in keep]
+
+    @property
+    def left_out(self) -> List[dict]:
+        """Scored entries the tables leave out: those of pairs that are not complete yet."""
+        kept = {id(e) for e in self.table_entries}
+        return [e for e in self.scored if id(e) not in kept]
+
+    @property
     def missing(self) -> List[dict]:
         return [e for e in self.entries if not e["metrics"]]
 
@@ -452,7 +484,7 @@ def suite_tables(data: SuiteData, fmt: str = "markdown", first_only: bool = Fals
         ref = "full" if "full" in data.row_names else None
     if first_only:
         defs = defs[:1]
-    return build_tables(data.entries, defs, fmt, ref)
+    return build_tables(data.table_entries, defs, fmt, ref)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -1020,7 +1052,9 @@ def bars_figure(data: SuiteData, out_png) -> Optional[Path]:
     key = _main_metric(data)
     col = metric_columns()[key]
     vals = {}
-    for e in data.scored:
+    for e in data.table_entries:
+        if not e["metrics"]:
+            continue
         v = e["metrics"].get(key)
         if v is not None and math.isfinite(v):
             vals.setdefault((e["scene"], e["row"]), []).append(v)
@@ -1136,7 +1170,9 @@ def crf_figure(data: SuiteData, curves: Dict[tuple, dict], out_png) -> Optional[
 def scatter_figure(data: SuiteData, out_png) -> Optional[Path]:
     """HDR-TAE against LDR-OE PSNR, one point per scored run, one colour per row."""
     pts = {}
-    for e in data.scored:
+    for e in data.table_entries:
+        if not e["metrics"]:
+            continue
         x, y = e["metrics"].get("ldr_oe_psnr"), e["metrics"].get("hdr_tae")
         if x is not None and y is not None and math.isfinite(x) and math.isfinite(y):
             pts.setdefault(e["row"], []).append((x, y))
@@ -1182,6 +1218,9 @@ def _suite_summary(data: SuiteData) -> dict:
         "rows": len(data.row_names),
         "scored": len(data.scored),
         "missing": len(data.missing),
+        "pairs": len(data.pairs),
+        "complete_pairs": len(data.complete_pairs),
+        "left_out": len(data.left_out),
         "expected": expected,
         "presets": data.presets,
         "code": data.provenance("code"),
@@ -1203,6 +1242,17 @@ def _presets_text(p: Dict[str, int]) -> str:
     if len(p) == 1:
         return next(iter(p))
     return "mixed: " + ", ".join(f"{k} ({v} runs)" for k, v in p.items())
+
+
+def _partial_text(data: SuiteData) -> str:
+    """The line saying which runs the tables of a suite in progress compare."""
+    pairs = ", ".join(f"{sc} seed {seed}" for sc, seed in data.complete_pairs)
+    return (
+        f"- **Incomplete pairs**: the tables and figures use the {len(data.complete_pairs)} of "
+        f"{len(data.pairs)} (scene, seed) pairs on which every row with runs is scored ({pairs}), "
+        "so that every row is compared on the same runs; the "
+        f"{len(data.left_out)} scored run(s) of the other pairs wait for the missing runs above"
+    )
 
 
 def suite_section(data: SuiteData, fig_paths: List[Path], out_dir: Path) -> str:
@@ -1239,6 +1289,10 @@ def suite_section(data: SuiteData, fig_paths: List[Path], out_dir: Path) -> str:
         f"- Runs: {sm['scored']} scored of {sm['expected']} "
         f"(= {sm['scenes']} scenes x {sm['rows']} rows x {sm['seeds']} seeds); missing: "
         + miss_txt,
+    ]
+    if sm["left_out"]:
+        lines.append(_partial_text(data))
+    lines += [
         "",
         suite_tables(data).rstrip("\n"),
         "",
@@ -1261,13 +1315,27 @@ def readme_block(main: Optional[SuiteData], results_link: str, csv_name: str) ->
             f"The result tables are pending: `{csv_name}` has no scored run of `{MAIN_SUITE}` yet. "
             f"[{results_link}]({results_link}) lists what is there.",
         ]
+    elif not main.complete_pairs or {e["row"] for e in main.table_entries if e["metrics"]} != set(
+        main.row_names
+    ):
+        body = [
+            f"The result tables are pending: `{csv_name}` has {len(main.scored)} scored run(s) of "
+            f"`{MAIN_SUITE}` so far, and not yet a (scene, seed) pair on which every row is "
+            f"scored. [{results_link}]({results_link}) lists what is there.",
+        ]
     else:
         sm = _suite_summary(main)
+        partial = ""
+        if sm["left_out"]:
+            partial = (
+                f" The table compares the {sm['complete_pairs']} (scene, seed) pairs on which "
+                f"every row is scored ({sm['left_out']} more run(s) wait for their pairs)."
+            )
         body = [
             f"Suite `{MAIN_SUITE}`, preset {_presets_text(sm['presets'])}: {sm['scored']} of "
             f"{sm['expected']} runs scored ({sm['scenes']} scenes x {sm['rows']} rows x "
-            f"{sm['seeds']} seeds). Every suite, the paper's values beside ours, figures and the "
-            f"findings: [{results_link}]({results_link}).",
+            f"{sm['seeds']} seeds).{partial} Every suite, the paper's values beside ours, figures "
+            f"and the findings: [{results_link}]({results_link}).",
             "",
             suite_tables(main, first_only=True).rstrip("\n"),
         ]
