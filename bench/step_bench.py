@@ -40,8 +40,12 @@ from m4dgs.training.stage1 import VideoStage, build_appearance  # noqa: E402
 from m4dgs.training.stage2 import WorldInit, WorldStage  # noqa: E402
 
 
-def make_stage(tr: Trainer, src: Path, stage: str, start: int, checkpoint: bool = False):
-    """The stage object of `tr` loaded from the copied models; returns (stage, first step)."""
+def make_stage(
+    tr: Trainer, src: Path, stage: str, start: int, checkpoint: bool = False, final: bool = False
+):
+    """The stage object of `tr` loaded from the copied models; returns (stage, first step).
+    final: stage 2 starts from the run's final Gaussians, appearance and cameras (model/final.pt:
+    the size stage 2 has late in a run) instead of the V2W output."""
     cfg, d = tr.cfg, tr.data
     if stage == "stage1":
         st = VideoStage(d, cfg, "cpu", cfg.raster_backend, init=False)
@@ -71,6 +75,13 @@ def make_stage(tr: Trainer, src: Path, stage: str, start: int, checkpoint: bool 
         dynamic_masks=ci["masks"],
         stage1_hdr=hdr,
     )
+    if final:
+        f = load_torch(src / "model" / "final.pt")
+        color.load_state_dict(f["color"])
+        tm.load_state_dict(f["tonemap"])
+        bg.load_state_dict(f["background"])
+        init.gauss = WorldGaussians.from_state(f["gaussians"])
+        init.c2w = f["c2w"]
     st = WorldStage(d, cfg, init, "cpu", cfg.raster_backend)
     ck = src / "model" / "ckpt.pt"
     if checkpoint and ck.exists():
@@ -99,6 +110,16 @@ def main() -> None:
         action="store_true",
         help="stage 2: start from RUN's mid-stage checkpoint instead of the V2W output",
     )
+    ap.add_argument(
+        "--from-final",
+        action="store_true",
+        help="stage 2: start from RUN's final model (its late-stage Gaussian count) at --start",
+    )
+    ap.add_argument(
+        "--torch-profile",
+        action="store_true",
+        help="print the top operations by self CPU time (torch profiler) over the timed steps",
+    )
     a = ap.parse_args()
     if a.threads:
         torch.set_num_threads(a.threads)
@@ -109,10 +130,16 @@ def main() -> None:
         shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
         (tmp / "model" / "ckpt.pt").unlink(missing_ok=True)
         tr = Trainer(a.clip, tmp, a.preset, a.variant, {}, "cpu", progress=False)
-        st, start = make_stage(tr, src, a.stage, a.start, a.checkpoint)
+        st, start = make_stage(tr, src, a.stage, a.start, a.checkpoint, a.from_final)
         for it in range(start, start + 5):
             st.step(it)
         prof = cProfile.Profile() if a.cprofile else None
+        tprof = None
+        if a.torch_profile:
+            from torch.profiler import ProfilerActivity, profile
+
+            tprof = profile(activities=[ProfilerActivity.CPU])
+            tprof.__enter__()
         t0 = time.perf_counter()
         if prof:
             prof.enable()
@@ -121,6 +148,8 @@ def main() -> None:
         if prof:
             prof.disable()
         dt = time.perf_counter() - t0
+        if tprof is not None:
+            tprof.__exit__(None, None, None)
         print(
             f"{a.stage} steps {start + 5}..{start + 4 + a.steps}: "
             f"{1000 * dt / a.steps:.1f} ms/step "
@@ -129,6 +158,8 @@ def main() -> None:
         )
         if prof:
             pstats.Stats(prof).sort_stats("cumulative").print_stats(30)
+        if tprof is not None:
+            print(tprof.key_averages().table(sort_by="self_cpu_time_total", row_limit=30))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
