@@ -178,11 +178,10 @@ def step_status(
     """{"total", "scored", "recorded", "codes", "todo_iterations", "sec_per_iteration"}: the step's
     jobs, how many are finished (metrics.json under ROOT, or, for a job without a run folder under
     ROOT, a scored row of `recorded`, the runs CSV: recorded_runs), how many of those only the CSV
-    holds, a Counter of the
-    m4dgs code (run.json / CSV `code`, 12 hex digits) of the finished ones, the iterations of the
-    jobs still to train, and the recorded training seconds per iteration of each run scored under
-    ROOT (run.json `train_seconds`: the method's cost, shared phases counted at their producer's
-    time)."""
+    holds, a Counter of the m4dgs code (run.json / CSV `code`, 12 hex digits) of the finished ones,
+    the iterations of the jobs still to train, and the recorded training seconds per iteration of
+    each finished run (run.json `train_seconds`, or the CSV's `train_minutes`: the method's cost,
+    shared phases counted at their producer's time)."""
     from .runner import job_list
 
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
@@ -196,6 +195,9 @@ def step_status(
             scored += 1
             in_csv += 1
             codes[str(row.get("code") or "unknown")[:12]] += 1
+            minutes = row.get("train_minutes")
+            if isinstance(minutes, (int, float)) and minutes > 0:
+                rates.append(60.0 * float(minutes) / max(job_iterations(j), 1))
         elif (run / "metrics.json").exists():
             scored += 1
             info = mio.read_json(run / "run.json") if (run / "run.json").exists() else {}
@@ -255,13 +257,13 @@ def run_campaign(
     code = code[:12]
     out = []
     n = len(campaign.steps)
-    # the time estimate: the median recorded seconds per iteration over every scored run of the
-    # campaign in this root (one machine, one --jobs setting make it meaningful)
     from benchgen.make import GENERATOR_VERSION
 
     # the runs CSV is the record that outlives the root: a job scored there (same preset, clips of
     # this generator) is finished even when its run folder is gone
     recorded = recorded_runs(csv_path, campaign.preset, str(GENERATOR_VERSION))
+    # the time estimate: the median recorded seconds per iteration over every finished run of the
+    # campaign, in this root or in the CSV (one machine, one --jobs setting make it meaningful)
     statuses = [step_status(st, root, campaign.preset, recorded) for st in campaign.steps]
     rates = sorted(r for s in statuses for r in s["sec_per_iteration"])
     rate = rates[len(rates) // 2] if rates else None

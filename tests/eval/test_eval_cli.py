@@ -1197,6 +1197,19 @@ def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trai
         make_fake_clip(Path(j), seed=len(j))
     plan = run_campaign(camp, out, csv_path, dry_run=True, **kw)
     assert [(p["scored"], p["recorded"], p["total"]) for p in plan] == [(2, 2, 2), (7, 7, 8)]
+    # the time estimate comes from the CSV's train_minutes (the fake runs record 120 s)
+    from eval.campaign import job_iterations
+
+    todo = job_iterations(
+        next(
+            j
+            for j in job_list(suite, out, "tiny", seeds=2)
+            if "flag" in j.id and j.id.endswith("full-seed-1")
+        )
+    )
+    rates = sorted(p for p in plan[0]["sec_per_iteration"] + plan[1]["sec_per_iteration"])
+    assert len(rates) == 9 and all(r > 0 for r in rates)
+    assert plan[1]["estimate_hours"] == pytest.approx(todo * rates[4] / 3600)
     diverge.clear()
     # another checkout's code: the unfinished step would mix versions, so nothing is trained
     with pytest.raises(InputError, match="c0ffee"):
