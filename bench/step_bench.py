@@ -32,6 +32,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import torch  # noqa: E402
 
 from m4dgs.core.io import read_exr  # noqa: E402
+from m4dgs.core.threads import kernel_threads, use_threads  # noqa: E402
 from m4dgs.model.gaussians import WorldGaussians  # noqa: E402
 from m4dgs.run import load_torch  # noqa: E402
 from m4dgs.training.exposure import training_exposures  # noqa: E402
@@ -103,7 +104,20 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=60, help="timed steps (after 5 warm-up steps)")
     ap.add_argument("--preset", default="small", choices=["tiny", "small", "paper"])
     ap.add_argument("--variant", default="full")
-    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="CPU threads, spent as `m4dgs train` spends them (m4dgs.core.threads.use_threads: "
+        "torch 1, the rasterizer N; default: every CPU)",
+    )
+    ap.add_argument(
+        "--torch-threads",
+        type=int,
+        default=None,
+        help="instead: torch.set_num_threads(N), the rasterizer following torch (the split "
+        "before m4dgs.core.threads)",
+    )
     ap.add_argument("--cprofile", action="store_true", help="print the top functions (cProfile)")
     ap.add_argument(
         "--checkpoint",
@@ -121,8 +135,10 @@ def main() -> None:
         help="print the top operations by self CPU time (torch profiler) over the timed steps",
     )
     a = ap.parse_args()
-    if a.threads:
-        torch.set_num_threads(a.threads)
+    if a.torch_threads:
+        torch.set_num_threads(a.torch_threads)
+    else:
+        use_threads(a.threads)
     src = Path(a.run)
     tmp = Path(tempfile.mkdtemp(prefix="step_bench_"))
     try:
@@ -153,7 +169,8 @@ def main() -> None:
         print(
             f"{a.stage} steps {start + 5}..{start + 4 + a.steps}: "
             f"{1000 * dt / a.steps:.1f} ms/step "
-            f"({st.gauss.num_gaussians} Gaussians, {torch.get_num_threads()} threads, "
+            f"({st.gauss.num_gaussians} Gaussians, {torch.get_num_threads()} torch / "
+            f"{kernel_threads()} kernel threads, "
             f"load average {os.getloadavg()[0]:.2f})"
         )
         if prof:

@@ -29,6 +29,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import torch  # noqa: E402
 from torch.profiler import ProfilerActivity, profile, schedule  # noqa: E402
 
+from m4dgs.core.threads import kernel_threads, use_threads  # noqa: E402
 from m4dgs.run import RunDir  # noqa: E402
 from m4dgs.training.pipeline import Trainer  # noqa: E402
 
@@ -83,14 +84,29 @@ def main() -> None:
     ap.add_argument(
         "--profile-steps", type=int, default=20, help="profiled steps per stage (0: off)"
     )
-    ap.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="CPU threads, spent as `m4dgs train` spends them (m4dgs.core.threads.use_threads: "
+        "torch 1, the rasterizer N; default: every CPU)",
+    )
+    ap.add_argument(
+        "--torch-threads",
+        type=int,
+        default=None,
+        help="instead: torch.set_num_threads(N), the rasterizer following torch (the split "
+        "before m4dgs.core.threads)",
+    )
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--seed", type=int, default=None, help="trainer seed (default: the preset's)")
     ap.add_argument("--out", default=None, help="run folder (default: a temporary one, deleted)")
     ap.add_argument("--no-score", action="store_true", help="skip timing `eval score`")
     a = ap.parse_args()
-    if a.threads:
-        torch.set_num_threads(a.threads)
+    if a.torch_threads:
+        torch.set_num_threads(a.torch_threads)
+    else:
+        use_threads(a.threads)
     overrides = {}
     if a.iters1 is not None:
         overrides["stage1.iterations"] = a.iters1
@@ -136,7 +152,8 @@ def main() -> None:
     iters = {s: getattr(tr.cfg, s).iterations for s in ("stage1", "stage2")}
     print(
         f"# {Path(a.clip).name}, preset {a.preset}, variant {a.variant}, device {a.device}, "
-        f"torch threads {torch.get_num_threads()}, load average {os.getloadavg()[0]:.2f}"
+        f"torch threads {torch.get_num_threads()}, kernel threads {kernel_threads()}, "
+        f"load average {os.getloadavg()[0]:.2f}"
     )
     print(f"{'phase':24s} {'seconds':>9s} {'share':>6s}  iterations/s")
     for k, v in wall.items():

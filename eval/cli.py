@@ -249,7 +249,8 @@ _jobs_opt = click.option(
     default=1,
     show_default=True,
     type=click.IntRange(min=1),
-    help="Local worker processes (each gets cpu_count / N torch threads).",
+    help="Local worker processes, each with cpu_count / N threads (torch's operations on one, "
+    "the compiled rasterizer on all of them: the fastest split measured, docs/performance.md).",
 )
 _no_share_opt = click.option(
     "--no-share",
@@ -382,21 +383,23 @@ def run(
 def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, device, no_share):
     """Run ONE job of SUITE: make its clip if missing, train (resumes), score. Prints a JSON result
     line."""
+    from m4dgs.core.threads import threads_for
+
     from .runner import find_job, run_job
 
     j = find_job(suite, out, preset, scene, row, seed)
-    click.echo(
-        json.dumps(
-            run_job(
-                j,
-                force=force,
-                lpips_weights=lpips_weights,
-                device=device,
-                clip_only=clip_only,
-                share=not no_share,
-            )
+    with (
+        threads_for()
+    ):  # one job per process: every CPU, split as the workers of `run` split theirs
+        res = run_job(
+            j,
+            force=force,
+            lpips_weights=lpips_weights,
+            device=device,
+            clip_only=clip_only,
+            share=not no_share,
         )
-    )
+    click.echo(json.dumps(res))
 
 
 # --------------------------------------------------------------------------------------------------

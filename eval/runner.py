@@ -311,13 +311,13 @@ def run_job(
 
 
 def _worker_init(threads: int) -> None:
+    """Spend a worker's `threads` CPUs as m4dgs.core.threads.use_threads does (torch 1, the
+    compiled kernels `threads`)."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    try:
-        import torch  # deferred: job listing and locking stay torch-free
+    # deferred: job listing and locking stay torch-free
+    from m4dgs.core.threads import use_threads
 
-        torch.set_num_threads(max(1, threads))
-    except ImportError:  # pragma: no cover
-        pass
+    use_threads(max(1, threads))
 
 
 def _run_job_kw(job: Job, kw: dict) -> dict:
@@ -372,7 +372,9 @@ def run_suite(
     after each job that finished (not after failed or skipped ones), e.g. to export it at once.
 
     jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool
-    of `jobs` workers, each with cpu_count / jobs torch threads. Returns the per-job results
+    of `jobs` workers, each spending cpu_count / jobs threads as m4dgs.core.threads.use_threads
+    does (torch 1, the compiled kernels the rest); jobs = 1 spends every CPU that way in this
+    process. Returns the per-job results
     (run_job) in job order; a job that failed has an "error" entry instead of metrics (and the
     jobs of a clip that failed to be made are not started), unless fail_fast, which raises the
     first failure."""
@@ -423,6 +425,8 @@ def run_suite(
         return r
 
     if jobs <= 1:
+        from m4dgs.core.threads import threads_for
+
         for j in todo:
             say(f"[eval run] clip {j.clip_key}")
             try:
@@ -431,20 +435,24 @@ def run_suite(
                 clip_errors[j.clip_key] = failed(j, exc, "making the clip", f"clip {j.clip_key}")
         if clips_only:
             return [{"id": j.id, "clip": j.clip_dir} for j in jl]
-        results = []
-        for i, j in enumerate(jl):
-            if j.clip_key in clip_errors:
-                results.append(skipped(j))
-                continue
-            say(f"[eval run] {i + 1}/{len(jl)} {j.id}")
-            try:
-                r = run_job(j, progress=progress, **kw)
-            except Exception as exc:
-                results.append(failed(j, exc, "the job", j.id))
-                continue
-            results.append(finished(j, r))
-        return in_order(results)
-    threads = max(1, (os.cpu_count() or 1) // jobs)
+        # this process is the one worker: every CPU, split as a worker's, while it trains
+        with threads_for():
+            results = []
+            for i, j in enumerate(jl):
+                if j.clip_key in clip_errors:
+                    results.append(skipped(j))
+                    continue
+                say(f"[eval run] {i + 1}/{len(jl)} {j.id}")
+                try:
+                    r = run_job(j, progress=progress, **kw)
+                except Exception as exc:
+                    results.append(failed(j, exc, "the job", j.id))
+                    continue
+                results.append(finished(j, r))
+            return in_order(results)
+    from m4dgs.core.threads import cpu_budget
+
+    threads = max(1, cpu_budget() // jobs)
     with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init, initargs=(threads,)) as ex:
         try:
             for wave in clip_waves(todo):

@@ -94,9 +94,18 @@ def main():
     "--force", is_flag=True, help="Delete an existing run folder first (otherwise it is resumed)."
 )
 @click.option("--quiet", is_flag=True, help="No progress bars.")
-def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quiet):
+@click.option(
+    "--threads",
+    default=None,
+    type=click.IntRange(min=1),
+    help="CPU threads to use (default: every CPU of this process). torch's small operations run "
+    "on one of them and the compiled rasterizer on all, the fastest split measured "
+    "(docs/performance.md); the run records both counts.",
+)
+def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quiet, threads):
     """Train on a clip: camera init, stage 1, video-to-world, stage 2, renders. Resumes an
     interrupted run."""
+    from m4dgs.core.threads import threads_for
     from m4dgs.training.pipeline import train as run_train
     from m4dgs.training.variants import VARIANTS
 
@@ -108,16 +117,17 @@ def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quie
     if force and out.exists():
         with FolderLock(out):  # never delete a run another process is writing
             shutil.rmtree(out)
-    p = run_train(
-        clip_dir,
-        out,
-        preset=preset,
-        variant=variant,
-        overrides=_parse_sets(sets),
-        device=device,
-        progress=not quiet,
-        backend=backend,
-    )
+    with threads_for(threads):
+        p = run_train(
+            clip_dir,
+            out,
+            preset=preset,
+            variant=variant,
+            overrides=_parse_sets(sets),
+            device=device,
+            progress=not quiet,
+            backend=backend,
+        )
     click.echo(str(p))
 
 

@@ -92,3 +92,21 @@ def test_second_writer_of_a_run_is_refused(not_a_clip, tmp_path):
     finally:
         p.kill()
         p.wait()
+
+
+def test_train_threads_option(not_a_clip, tmp_path):
+    """--threads is checked by click, and a training command leaves the process's thread counts
+    as they were (it holds its split only while it trains)."""
+    import torch
+
+    from m4dgs.core import threads
+
+    r = CliRunner().invoke(m4dgs_main, ["train", "--clip", str(not_a_clip), "--threads", "0"])
+    assert r.exit_code == 2 and "--threads" in r.output
+    before = (torch.get_num_threads(), threads.kernel_threads())
+    r = CliRunner().invoke(
+        m4dgs_main,
+        ["train", "--clip", str(not_a_clip), "--out", str(tmp_path / "r"), "--threads", "3"],
+    )
+    assert r.exit_code == 1 and "clip.json" in r.output
+    assert (torch.get_num_threads(), threads.kernel_threads()) == before

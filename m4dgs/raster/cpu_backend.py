@@ -20,6 +20,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from m4dgs.core.threads import kernel_threads
+
 from .binning import TILE_SIZE, TileBins
 from .projection import (
     EPS2D,
@@ -133,7 +135,7 @@ class _RasterizeCPU(torch.autograd.Function):
         ctx, means2d, conics, opacities, features, offsets, flat_ids, width, height, tile_size
     ):
         ext = load_extension()
-        n_threads = torch.get_num_threads()
+        n_threads = kernel_threads()
         feat, t_final, last = ext.forward(
             means2d,
             conics,
@@ -213,7 +215,7 @@ class _ProjectCPU(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, viewmat, K, ortho, width, height):
         ext = load_extension()
-        n_threads = torch.get_num_threads()
+        n_threads = kernel_threads()
         args = (
             means,
             quats,

@@ -41,6 +41,7 @@ from m4dgs.core.device import peak_memory_mib, resolve_device
 from m4dgs.core.errors import InputError
 from m4dgs.core.io import read_exr, write_exr, write_json, write_png
 from m4dgs.core.lock import FolderLock
+from m4dgs.core.threads import kernel_threads
 from m4dgs.model.gaussians import VideoGaussians, WorldGaussians, init_video_gaussians
 from m4dgs.outputs.render import render_run
 from m4dgs.priors.camera_init import initialize_cameras
@@ -155,6 +156,7 @@ class Trainer:
             "method": self.cfg.method,
             "device": str(self.device),
             "torch_threads": torch.get_num_threads(),
+            "kernel_threads": kernel_threads(),
             # the m4dgs sources the run was trained with (m4dgs.training.phases.code_fingerprint):
             # exported beside the metrics, so a table can tell runs of different code apart
             "code": code_fingerprint(),
@@ -460,6 +462,7 @@ class Trainer:
             # float sums add up in another order with another thread count (1 vs 2 threads moved
             # tiny runs' LDR PSNR by up to 0.6 dB): a shared phase must come from the same count
             "threads": torch.get_num_threads(),
+            "kernel_threads": kernel_threads(),
             "device": self.device.type,
             "backend": resolve_backend(self.cfg.raster_backend, self.device),
         }

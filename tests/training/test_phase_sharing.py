@@ -5,6 +5,7 @@ computed itself."""
 from __future__ import annotations
 
 import copy
+import json
 
 import pytest
 import torch
@@ -20,6 +21,7 @@ CONTEXT = {
     "code": "d" * 64,
     "torch": "x",
     "threads": 1,
+    "kernel_threads": 1,
     "device": "cpu",
     "backend": "cpu",
 }
@@ -209,3 +211,12 @@ def test_shared_phases_give_the_run_what_it_would_compute(
     torch.set_num_threads(2)
     threads2 = run("threads-2", "full")
     assert "shared_phases" not in threads2.status()
+    # nor does another thread count of the compiled kernels (the rasterizer's backward adds
+    # per-thread partial gradients), and run.json records both counts
+    from m4dgs.core.threads import threads_for
+
+    with threads_for(2):
+        kernels2 = run("kernels-2", "full")
+    assert "shared_phases" not in kernels2.status()
+    info = json.loads(kernels2.path("run.json").read_text())
+    assert (info["torch_threads"], info["kernel_threads"]) == (1, 2)
