@@ -136,7 +136,7 @@ def main() -> None:
         if phase == "stage1" and not tr.cfg.ablation.use_video_init:
             continue
         t0 = time.perf_counter()
-        getattr(tr, phase)()
+        tr.run_phase(phase)  # seeded as `m4dgs train` seeds it: the same run, timed by phase
         if phase in ("stage1", "stage2"):
             prof.close()
         wall[phase] = time.perf_counter() - t0

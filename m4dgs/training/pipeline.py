@@ -496,6 +496,14 @@ class Trainer:
 
     # -- all
     # ----------------------------------------------------------------------------------------------
+    def run_phase(self, phase: str, compute=None) -> None:
+        """Run one phase (`compute`, default the method of that name) from the trainer seed's
+        generator state, whatever ran before it in this process: a phase computes the same
+        whether it follows the phases before it here, in another process (a resumed run) or in
+        another run (a shared phase). Tools that time phases one by one call this too."""
+        torch.manual_seed(self.cfg.seed)
+        (compute or getattr(self, phase))()
+
     def train(self) -> Path:
         status = self.run.status()
         if status.get("stage") == "done":
@@ -512,12 +520,10 @@ class Trainer:
             if phase == "stage1" and not self.cfg.ablation.use_video_init:
                 self._finish("stage1", 0.0)
                 continue
-            # each phase starts from the same generator state, whatever ran before it here
-            torch.manual_seed(self.cfg.seed)
             if self.share is not None and phase in SHARED_PHASES:
-                self._shared(phase, steps[phase])
+                self.run_phase(phase, lambda p=phase: self._shared(p, steps[p]))
             else:
-                steps[phase]()
+                self.run_phase(phase)
         for p in (self.run.ckpt_path, self.run.prev_ckpt_path):  # a finished run needs neither
             if p.exists():
                 p.unlink()
