@@ -1027,10 +1027,11 @@ def test_campaign_file_errors_name_the_field(tmp_path):
         "control-video-init-priors",
         "paper-main",
         "control-video-init-scale",
-        "control-video-init-prior-parts",
+        "paper-main",
     ]
-    assert c.steps[2].scenes is None and all(s.seeds == 2 for s in c.steps)
-    assert c.steps[5].scenes == [
+    assert c.steps[2].scenes is None and c.steps[2].seeds == 1 and c.steps[4].scenes is None
+    assert all(s.seeds == 2 for i, s in enumerate(c.steps) if i != 2)
+    assert c.steps[6].scenes == [
         "lamp-room-orbit",
         "pendulum-lamp-handheld",
         "conveyor-occlusion-orbit",
