@@ -388,9 +388,8 @@ def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, d
     from .runner import find_job, run_job
 
     j = find_job(suite, out, preset, scene, row, seed)
-    with (
-        threads_for()
-    ):  # one job per process: every CPU, split as the workers of `run` split theirs
+    # one job per process: every CPU, split as the workers of `run` split theirs
+    with threads_for():
         res = run_job(
             j,
             force=force,

@@ -373,11 +373,10 @@ def run_suite(
 
     jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool
     of `jobs` workers, each spending cpu_count / jobs threads as m4dgs.core.threads.use_threads
-    does (torch 1, the compiled kernels the rest); jobs = 1 spends every CPU that way in this
-    process. Returns the per-job results
-    (run_job) in job order; a job that failed has an "error" entry instead of metrics (and the
-    jobs of a clip that failed to be made are not started), unless fail_fast, which raises the
-    first failure."""
+    does (torch 1, the compiled kernels all of them); jobs = 1 spends every CPU that way in this
+    process while it trains. Returns the per-job results (run_job) in job order; a job that failed
+    has an "error" entry instead of metrics (and the jobs of a clip that failed to be made are not
+    started), unless fail_fast, which raises the first failure."""
     every = job_list(suite, out, preset, scenes, seeds)
     recorded = {j.id for j in every if skip is not None and skip(j)}
     jl = [j for j in every if j.id not in recorded]
@@ -415,7 +414,9 @@ def run_suite(
     def in_order(results: List[dict]) -> List[dict]:
         by_id = {r["id"]: r for r in results}
         return [
-            by_id.get(j.id) or {"id": j.id, "run": j.run_dir, "steps": [], "recorded": True}
+            {"id": j.id, "run": j.run_dir, "steps": [], "recorded": True}
+            if j.id in recorded
+            else by_id[j.id]
             for j in every
         ]
 
