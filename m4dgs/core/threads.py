@@ -12,11 +12,11 @@ faster than both on one.
 workers and the bench scripts call it, and the commands that train in their own process (`m4dgs
 train --threads`, `m4dgs-eval job`, `m4dgs-eval run --jobs 1`) hold it while they train
 (`threads_for`, which restores the counts from before); library functions do not change the
-process's threads otherwise. `kernel_threads()` is what the CPU kernels
-use: the count set here, or torch's own when nothing was set (so code that only calls
-`torch.set_num_threads` keeps its behaviour). Both counts change float summation order (the
-rasterizer's backward adds per-thread partial gradients), so a run records both and shared phases
-are keyed by both (m4dgs.training.pipeline)."""
+process's threads otherwise. `kernel_threads()` is what the CPU kernels use: the count set here, or
+torch's own when nothing was set (so code that only calls `torch.set_num_threads` keeps its
+behaviour). Both counts change float summation order (the projection's backward adds per-thread
+partial camera gradients), so a run records both and shared phases are keyed by both
+(m4dgs.training.pipeline)."""
 
 from __future__ import annotations
 
