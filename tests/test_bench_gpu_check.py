@@ -85,3 +85,33 @@ def test_gpu_check_tests_step_collects_without_the_renderer(tmp_path):
     assert t["rc"] == 0, t["tail"]
     assert "tests/raster/test_raster_gsplat.py" in t["cmd"]
     assert any("skipped" in ln or "passed" in ln for ln in t["tail"])
+
+
+def test_step_bench_times_both_stages_of_a_finished_run(tiny_clip_realistic, tmp_path):
+    """bench/step_bench.py on a finished tiny run: stage 1 from its final stage-1 model, stage 2
+    from the V2W output and from the final model (--from-final), with the thread split printed;
+    the run folder is not touched."""
+    from m4dgs.training.pipeline import train
+
+    ov = {"stage1.iterations": 12, "stage2.iterations": 12, "camera_init.ba_steps": 20}
+    run = train(tiny_clip_realistic, tmp_path / "run", preset="tiny", overrides=ov, progress=False)
+    before = sorted(str(p.relative_to(run)) for p in run.rglob("*"))
+    base = [
+        sys.executable,
+        str(ROOT / "bench" / "step_bench.py"),
+        str(tiny_clip_realistic),
+        str(run),
+    ]
+    base += ["--preset", "tiny", "--steps", "3", "--threads", "2"]
+    for extra, stage in (
+        (["--stage", "stage1", "--start", "5"], "stage1 steps 10..12"),
+        (["--stage", "stage2", "--start", "5", "--torch-profile"], "stage2 steps 10..12"),
+        (["--stage", "stage2", "--start", "5", "--from-final"], "stage2 steps 10..12"),
+    ):
+        p = subprocess.run(base + extra, cwd=ROOT, capture_output=True, text=True, timeout=600)
+        assert p.returncode == 0, p.stdout + p.stderr
+        line = next(ln for ln in p.stdout.splitlines() if ln.startswith(stage))
+        assert "ms/step" in line and "1 torch / 2 kernel threads" in line, line
+        if "--torch-profile" in extra:
+            assert "Self CPU" in p.stdout
+    assert sorted(str(p.relative_to(run)) for p in run.rglob("*")) == before
