@@ -129,7 +129,7 @@ def rotmat_to_quat(R):
         dim=1,
     )  # [B, 4 branches, 4]
     best = cand.argmax(dim=-1)
-    q = qs[torch.arange(m.shape[0]), best]
+    q = qs[torch.arange(m.shape[0], device=qs.device), best]
     q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     q = torch.where(q[:, :1] < 0, -q, q)
     return _ret(q.reshape(*t.shape[:-2], 4), np_in)

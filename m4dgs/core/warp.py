@@ -78,14 +78,14 @@ def sample_per_frame(maps: torch.Tensor, uv: torch.Tensor, mode: str = "bilinear
     if mode == "nearest":
         xi = x.round().long()
         yi = y.round().long()
-        return maps[torch.arange(T)[None].expand_as(xi), yi, xi]
+        return maps[torch.arange(T, device=maps.device)[None].expand_as(xi), yi, xi]
     x0 = x.floor().long().clamp(0, W - 1)
     y0 = y.floor().long().clamp(0, H - 1)
     x1 = (x0 + 1).clamp(max=W - 1)
     y1 = (y0 + 1).clamp(max=H - 1)
     fx = (x - x0).to(maps.dtype)
     fy = (y - y0).to(maps.dtype)
-    ti = torch.arange(T)[None].expand_as(x0)
+    ti = torch.arange(T, device=maps.device)[None].expand_as(x0)
     v00, v01 = maps[ti, y0, x0], maps[ti, y0, x1]
     v10, v11 = maps[ti, y1, x0], maps[ti, y1, x1]
     return (v00 * (1 - fx) + v01 * fx) * (1 - fy) + (v10 * (1 - fx) + v11 * fx) * fy

@@ -238,7 +238,11 @@ class Strategy:
 
     def load_state_dict(self, sd: Dict[str, Any]) -> None:
         for dev, state in sd.get("generators", {}).items():
-            self._generator(torch.device(dev)).set_state(state)
+            # a generator's state is a CPU byte tensor whatever its device; `torch.load(...,
+            # map_location="cuda")` moves it to the GPU, where `set_state` refuses it
+            self._generator(torch.device(dev)).set_state(
+                torch.as_tensor(state).to("cpu", torch.uint8)
+            )
 
     @staticmethod
     def initialize_state() -> Dict[str, Any]:

@@ -72,8 +72,8 @@ class CameraRig(torch.nn.Module):
         T = c2w_init.shape[0]
         self.register_buffer("K", K.float())
         self.register_buffer("c2w_init", c2w_init.float())
-        self.dw = torch.nn.Parameter(torch.zeros(T, 3))
-        self.dt = torch.nn.Parameter(torch.zeros(T, 3))
+        self.dw = torch.nn.Parameter(torch.zeros(T, 3, device=c2w_init.device))
+        self.dt = torch.nn.Parameter(torch.zeros(T, 3, device=c2w_init.device))
 
     def c2w(self) -> torch.Tensor:
         """[T, 4, 4] current camera-to-world poses."""
@@ -133,7 +133,12 @@ class WorldStage(Stage):
         d = data.depth.to(self.device) * self.depth_scale[:, None, None]
         self.extent = float(d[d > 0].median()) if bool((d > 0).any()) else 1.0
         self.camera_extent = camera_extent(init.c2w, self.extent)
-        self._setup(init.gauss.to(self.device), init.color, init.tonemap, init.background)
+        self._setup(
+            init.gauss.to(self.device),
+            init.color.to(self.device),
+            init.tonemap.to(self.device),
+            init.background.to(self.device),
+        )
 
     def _setup(self, gauss: WorldGaussians, color, tm, bg):
         s2 = self.cfg.stage2
@@ -349,7 +354,9 @@ class WorldStage(Stage):
 
         s2, g = self.cfg.stage2, self.gauss
         n = g.num_dynamic
-        cand = self.removal_candidates() if n else torch.zeros(0, dtype=torch.bool)
+        cand = (
+            self.removal_candidates() if n else torch.zeros(0, dtype=torch.bool, device=self.device)
+        )
         self.state_dynamic["last_removal"] = it
         idx = torch.where(cand)[0]
         counts = {"dynamic_removal_tested": int(idx.numel()), "dynamic_removal_removed": 0}

@@ -37,3 +37,46 @@ def test_cuda_peak_memory_window():
     dv.synchronize(dev)
     assert dv.peak_memory_mib(dev) >= 64
     del x
+
+
+# --------------------------------------------------------------------------------------------------
+# device placement: what broke on the first CUDA run (the CPU tests cannot see a second device, so
+# the "meta" device stands in for it where it can)
+# --------------------------------------------------------------------------------------------------
+def test_camera_rig_parameters_follow_the_poses_device():
+    from m4dgs.training.stage2 import CameraRig
+
+    rig = CameraRig(torch.eye(3, device="meta"), torch.empty(4, 4, 4, device="meta"))
+    assert rig.dw.device.type == rig.dt.device.type == "meta"
+    assert rig.c2w().device.type == "meta"  # composing them with the poses does not cross devices
+
+
+def _strategy_with_state():
+    from m4dgs.training.densify import DensifyConfig, GaussianLayout, Strategy
+
+    strat = Strategy(DensifyConfig(), GaussianLayout(), seed=3)
+    strat._generator(torch.device("cpu"))  # noqa: SLF001 (created on first split, as in training)
+    return strat, Strategy(DensifyConfig(), GaussianLayout(), seed=99)
+
+
+def test_strategy_generator_state_loads_whatever_tensor_it_arrives_as():
+    # torch.load(map_location=...) can hand the state back as a tensor other than a CPU byte tensor
+    strat, fresh = _strategy_with_state()
+    sd = strat.state_dict()
+    want = torch.rand(5, generator=strat._generator(torch.device("cpu")))  # noqa: SLF001
+    sd["generators"] = {d: s.to(torch.int64) for d, s in sd["generators"].items()}
+    fresh.load_state_dict(sd)
+    got = torch.rand(5, generator=fresh._generator(torch.device("cpu")))  # noqa: SLF001
+    assert torch.equal(got, want)
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_strategy_state_survives_a_checkpoint_loaded_onto_the_gpu(tmp_path):
+    strat, fresh = _strategy_with_state()
+    want = torch.rand(5, generator=strat._generator(torch.device("cpu")))  # noqa: SLF001
+    strat, fresh = _strategy_with_state()
+    torch.save(strat.state_dict(), tmp_path / "s.pt")
+    fresh.load_state_dict(torch.load(tmp_path / "s.pt", map_location="cuda"))
+    got = torch.rand(5, generator=fresh._generator(torch.device("cpu")))  # noqa: SLF001
+    assert torch.equal(got, want)
