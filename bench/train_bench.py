@@ -106,7 +106,7 @@ def main() -> None:
     if a.torch_threads:
         torch.set_num_threads(a.torch_threads)
     else:
-        use_threads(a.threads)
+        use_threads(a.threads, a.device)
     overrides = {}
     if a.iters1 is not None:
         overrides["stage1.iterations"] = a.iters1

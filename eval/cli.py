@@ -389,7 +389,7 @@ def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, d
 
     j = find_job(suite, out, preset, scene, row, seed)
     # one job per process: every CPU, split as the workers of `run` split theirs
-    with threads_for():
+    with threads_for(device=device):
         res = run_job(
             j,
             force=force,

@@ -310,14 +310,14 @@ def run_job(
     return res
 
 
-def _worker_init(threads: int) -> None:
-    """Spend a worker's `threads` CPUs as m4dgs.core.threads.use_threads does (torch 1, the
-    compiled kernels `threads`)."""
+def _worker_init(threads: int, device: str = "auto") -> None:
+    """Spend a worker's `threads` CPUs as m4dgs.core.threads.use_threads does (on the CPU: torch 1,
+    the compiled kernels `threads`)."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     # deferred: job listing and locking stay torch-free
     from m4dgs.core.threads import use_threads
 
-    use_threads(max(1, threads))
+    use_threads(max(1, threads), device)
 
 
 def _run_job_kw(job: Job, kw: dict) -> dict:
@@ -437,7 +437,7 @@ def run_suite(
         if clips_only:
             return [{"id": j.id, "clip": j.clip_dir} for j in jl]
         # this process is the one worker: every CPU, split as a worker's, while it trains
-        with threads_for():
+        with threads_for(device=device):
             results = []
             for i, j in enumerate(jl):
                 if j.clip_key in clip_errors:
@@ -454,7 +454,9 @@ def run_suite(
     from m4dgs.core.threads import cpu_budget
 
     threads = max(1, cpu_budget() // jobs)
-    with ProcessPoolExecutor(max_workers=jobs, initializer=_worker_init, initargs=(threads,)) as ex:
+    with ProcessPoolExecutor(
+        max_workers=jobs, initializer=_worker_init, initargs=(threads, device)
+    ) as ex:
         try:
             for wave in clip_waves(todo):
                 for j, f in [(j, ex.submit(make_job_clip, j, False)) for j in wave]:

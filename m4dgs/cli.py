@@ -117,7 +117,7 @@ def train(clip_dir, preset, variant, out_dir, sets, device, backend, force, quie
     if force and out.exists():
         with FolderLock(out):  # never delete a run another process is writing
             shutil.rmtree(out)
-    with threads_for(threads):
+    with threads_for(threads, device):
         p = run_train(
             clip_dir,
             out,

@@ -8,7 +8,9 @@ from it. Measured on the 2-core machine (docs/performance.md, "Threads"): torch 
 the kernels on both cores is 1.13-1.21x faster per step than both on two threads, and 1.15-1.28x
 faster than both on one.
 
-`use_threads(budget)` spends a budget that way (torch 1, kernels `budget`): the `m4dgs-eval run`
+`use_threads(budget)` spends a budget that way (torch 1, kernels `budget`) when training on the
+CPU; with a CUDA device the compiled CPU kernels are idle, so torch's own CPU work (camera
+initialisation, data loading, scoring) gets the whole budget instead. The `m4dgs-eval run`
 workers and the bench scripts call it, and the commands that train in their own process (`m4dgs
 train --threads`, `m4dgs-eval job`, `m4dgs-eval run --jobs 1`) hold it while they train
 (`threads_for`, which restores the counts from before); library functions do not change the
@@ -50,24 +52,35 @@ def cpu_budget() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def use_threads(budget: Optional[int] = None) -> Tuple[int, int]:
-    """Spend `budget` CPU threads (default: cpu_budget()) as measured fastest: torch's intra-op
-    operations on one thread, the compiled kernels on `budget`. Returns (torch threads, kernel
+def _is_cuda(device) -> bool:
+    if device is None:
+        return False
+    if str(device) == "auto":
+        return torch.cuda.is_available()
+    return torch.device(device).type == "cuda"
+
+
+def use_threads(budget: Optional[int] = None, device=None) -> Tuple[int, int]:
+    """Spend `budget` CPU threads (default: cpu_budget()) as measured fastest on the CPU: torch's
+    intra-op operations on one thread, the compiled kernels on `budget`. When `device` is (or,
+    "auto", resolves to) CUDA, the rasterizer runs on the GPU and torch gets all `budget` threads
+    (the split is a CPU measurement; not measured on a GPU machine). Returns (torch threads, kernel
     threads)."""
     n = cpu_budget() if budget is None else int(budget)
     if n < 1:
         raise ValueError(f"a thread budget must be >= 1, got {budget!r}")
-    torch.set_num_threads(1)
+    t = n if _is_cuda(device) else 1
+    torch.set_num_threads(t)
     set_kernel_threads(n)
-    return 1, n
+    return t, n
 
 
 @contextmanager
-def threads_for(budget: Optional[int] = None) -> Iterator[Tuple[int, int]]:
-    """use_threads(budget) for the duration of a with block, then the counts from before."""
+def threads_for(budget: Optional[int] = None, device=None) -> Iterator[Tuple[int, int]]:
+    """use_threads(budget, device) for the duration of a with block, then the counts from before."""
     before = (torch.get_num_threads(), _kernel_threads)
     try:
-        yield use_threads(budget)
+        yield use_threads(budget, device)
     finally:
         torch.set_num_threads(before[0])
         set_kernel_threads(before[1])

@@ -30,6 +30,17 @@ def test_a_budget_is_torch_one_kernels_all():
             th.set_kernel_threads(bad)
 
 
+def test_on_a_cuda_device_torch_gets_the_whole_budget():
+    # the compiled CPU kernels are idle when gsplat rasterizes on the GPU
+    assert th.use_threads(3, "cpu") == (1, 3)
+    assert th.use_threads(3, "cuda") == (3, 3) and torch.get_num_threads() == 3
+    assert th.use_threads(3, torch.device("cuda", 0)) == (3, 3)
+    want = 3 if torch.cuda.is_available() else 1
+    assert th.use_threads(3, "auto") == (want, 3)
+    with th.threads_for(2, "cuda") as got:
+        assert got == (2, 2)
+
+
 def test_threads_for_restores_what_was_set():
     torch.set_num_threads(2)
     th.set_kernel_threads(None)
