@@ -179,7 +179,8 @@ def _fps(out: Path, device: str) -> dict:
     return res
 
 
-def _jobs(clip: str, out: Path, a, device: str) -> dict:
+def _jobs(clip: str, out: Path, a, device: str, progress=None) -> dict:
+    """`progress(res)` after every N: a command cut at its time limit keeps the Ns it finished."""
     res = {"iters_per_stage": a.jobs_iters, "runs": {}}
     first = None  # runs per second of the first N (1 by default): the reference throughput
     for n in [int(x) for x in a.jobs.split(",") if x]:
@@ -203,6 +204,8 @@ def _jobs(clip: str, out: Path, a, device: str) -> dict:
             "rc": rcs,
             "throughput_vs_first": round(n / wall / first, 2),
         }
+        if progress:
+            progress(res)
     return res
 
 
@@ -247,7 +250,12 @@ def main() -> None:
         elif s == "fps":
             r = _fps(out, device)
         else:
-            r = _jobs(a.clip, out, a, device)
+
+            def progress(partial):
+                res["steps"]["jobs"] = partial
+                _save(out, res)
+
+            r = _jobs(a.clip, out, a, device, progress)
         r["step_s"] = round(time.perf_counter() - t0, 1)
         res["steps"][s] = r
         _save(out, res)

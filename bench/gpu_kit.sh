@@ -32,9 +32,8 @@ cat <<EOF
 
 Packed. On the CUDA machine (device run, carry [".gpu"], timeout 600), one command:
 
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .gpu/whl/*.whl && export PYTHONPATH=/tmp/site:\$PWD TORCH_CUDA_ARCH_LIST=9.0 MAX_JOBS=16 PYTHONUNBUFFERED=1 && python3 bench/gpu_check.py .gpu/clip/$name --out /tmp/gpu --steps env,tests,train,fps 2>&1 | tee \$OUT/gpu_check.log; cp /tmp/gpu/gpu_check.json \$OUT/
+set -o pipefail; bash bench/gpu_session.sh 2>&1 | tee \$OUT/log.txt
 
-then, if time is left, the concurrency figure (same machine while it is warm, or a fresh one: gsplat compiles again):
-
-... && python3 bench/gpu_check.py .gpu/clip/$name --out /tmp/gpu --steps env,jobs --jobs 1,2,4,8 --jobs-iters 500 ...
+(its time slots and what each measures: the head of bench/gpu_session.sh; what the first GPU session measured:
+docs/performance.md, "The GPU path").
 EOF

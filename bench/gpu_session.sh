@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# The whole GPU check of one lent-device session, in time slots that fit one 10-minute command. Run it on
+# the CUDA machine from the repository root, after `bash bench/gpu_kit.sh CLIP` packed .gpu/ here
+# (device run: carry [".gpu"]):
+#
+#   set -o pipefail; bash bench/gpu_session.sh 2>&1 | tee $OUT/log.txt
+#
+# Slots (seconds, environment variables): T_A env + `pytest -m gpu` (gsplat compiles its CUDA code on
+# first use: 56-78 s on 16 cores), T_B one training at PRESET with ITERS iterations per stage and its
+# render FPS, T_C JOBS concurrent trainings of JOBS_ITERS iterations at the small preset. A slot that
+# runs out is cut (its JSON then holds the steps it finished) and the next one starts; a gsplat that
+# does not build stops the script after slot A. The JSON of each slot comes back as $OUT/{a,b,c}.json.
+set -u
+T0=$(date +%s)
+el() { echo "[gpu_session] $(($(date +%s) - T0)) s: $*"; }
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .gpu/whl/*.whl || exit 3
+export PYTHONPATH=/tmp/site:$PWD TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0} MAX_JOBS=${MAX_JOBS:-16} PYTHONUNBUFFERED=1
+nvidia-smi -L
+nvcc --version | tail -1
+C=$(ls -d .gpu/clip/*/ | head -1)
+OUT=${OUT:-/tmp/gpu_out}
+mkdir -p "$OUT"
+el "slot A: ${STEPS_A:-env,tests}"
+timeout -k 5 "${T_A:-270}" python3 bench/gpu_check.py "$C" --out /tmp/a --steps "${STEPS_A:-env,tests}"
+pkill -f pytest
+cp /tmp/a/gpu_check.json "$OUT/a.json"
+python3 -c "import json,sys; d=json.load(open('/tmp/a/gpu_check.json')); sys.exit('gsplat_first_render_s' not in d['steps']['env'])" || { el "gsplat did not build"; exit 4; }
+el "slot B: ${PRESET:-paper} training, ${ITERS:-1000} iterations per stage, FPS"
+timeout -k 5 "${T_B:-200}" python3 bench/gpu_check.py "$C" --out /tmp/b --preset "${PRESET:-paper}" --iters "${ITERS:-1000}" --steps train,fps
+pkill -f train_bench.py
+cp /tmp/b/gpu_check.json "$OUT/b.json"
+el "slot C: ${JOBS:-1,2,4} concurrent small trainings of ${JOBS_ITERS:-300} iterations per stage"
+timeout -k 5 "${T_C:-100}" python3 bench/gpu_check.py "$C" --out /tmp/c --preset small --steps jobs --jobs "${JOBS:-1,2,4}" --jobs-iters "${JOBS_ITERS:-300}"
+pkill -f train_bench.py
+cp /tmp/c/gpu_check.json "$OUT/c.json" 2>/dev/null
+nvidia-smi --query-gpu=name,memory.used,memory.total --format=csv
+el "done"
