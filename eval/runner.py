@@ -320,6 +320,17 @@ def _worker_init(threads: int, device: str = "auto") -> None:
     use_threads(max(1, threads), device)
 
 
+def pool_context(device: str = "auto"):
+    """The multiprocessing context of `run --jobs N` workers: "spawn" where they train on CUDA (a
+    forked child cannot use CUDA once its parent has touched it, and spawn is what PyTorch supports
+    for CUDA in subprocesses), else the platform default (fork on Linux: no re-imports)."""
+    import multiprocessing
+
+    from m4dgs.core.threads import is_cuda_device
+
+    return multiprocessing.get_context("spawn" if is_cuda_device(device) else None)
+
+
 def _run_job_kw(job: Job, kw: dict) -> dict:
     return run_job(job, **kw)
 
@@ -455,7 +466,10 @@ def run_suite(
 
     threads = max(1, cpu_budget() // jobs)
     with ProcessPoolExecutor(
-        max_workers=jobs, initializer=_worker_init, initargs=(threads, device)
+        max_workers=jobs,
+        mp_context=pool_context(device),
+        initializer=_worker_init,
+        initargs=(threads, device),
     ) as ex:
         try:
             for wave in clip_waves(todo):

@@ -52,7 +52,9 @@ def cpu_budget() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _is_cuda(device) -> bool:
+def is_cuda_device(device) -> bool:
+    """Whether `device` (None, "auto", a name or a torch.device) means CUDA ("auto": whether
+    torch.cuda.is_available())."""
     if device is None:
         return False
     if str(device) == "auto":
@@ -69,7 +71,7 @@ def use_threads(budget: Optional[int] = None, device=None) -> Tuple[int, int]:
     n = cpu_budget() if budget is None else int(budget)
     if n < 1:
         raise ValueError(f"a thread budget must be >= 1, got {budget!r}")
-    t = n if _is_cuda(device) else 1
+    t = n if is_cuda_device(device) else 1
     torch.set_num_threads(t)
     set_kernel_threads(n)
     return t, n

@@ -105,3 +105,24 @@ def test_the_rasterizer_uses_the_kernel_threads(monkeypatch):
     assert torch.equal(f1, f2)  # each tile is composited by one thread: same bits
     for a, b in zip(g1, g2):
         assert torch.allclose(a, b, rtol=1e-5, atol=1e-6)
+
+
+def _threads_in_worker():
+    return torch.get_num_threads(), th.kernel_threads()
+
+
+def test_run_workers_spawn_for_cuda_and_set_their_threads():
+    """`m4dgs-eval run --jobs N` on CUDA starts its workers with spawn (a forked child cannot use
+    CUDA after its parent did); the worker initialiser survives spawn (picklable, module-level) and
+    spends its budget as use_threads does."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from eval.runner import _worker_init, pool_context
+
+    assert pool_context("cuda").get_start_method() == "spawn"
+    assert pool_context("cuda:0").get_start_method() == "spawn"
+    assert pool_context("cpu").get_start_method() != "spawn"  # the platform default (fork)
+    with ProcessPoolExecutor(
+        1, mp_context=pool_context("cuda"), initializer=_worker_init, initargs=(2, "cpu")
+    ) as ex:
+        assert ex.submit(_threads_in_worker).result(timeout=120) == (1, 2)
