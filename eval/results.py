@@ -17,14 +17,14 @@ table`: mean +- Student-t 95 % interval, paired differences to the reference row
 and the direction-agreement column) over the (scene, seed) pairs on which every row with runs is
 scored (SuiteData.complete_pairs: a suite still running compares every row on the same runs),
 figures (per-scene bars of the main metric, learned CRF curves against the true ones, HDR-TAE vs
-LDR-OE PSNR), and a "Findings" section with one table per finding of the paper (FINDINGS): the
-paper's difference, ours with its interval and number of (scene, seed) pairs, and the verdict; then
-a "Controls" section (CONTROLS): for each control run for a disagreement, the effect as found, the
-same effect under the control, and their difference in differences with its interval. It also
-replaces the block between README_START and README_END of the README with the main table. The output
-depends only on the CSV (no dates), so running it twice changes nothing. Prose that needs a human
-(what a verdict or a control's answer means) lives in a hand-written notes file that the page
-links."""
+LDR-OE PSNR per run and as paired differences to the reference row), and a "Findings" section with
+one table per finding of the paper (FINDINGS): the paper's difference, ours with its interval and
+number of (scene, seed) pairs, and the verdict; then a "Controls" section (CONTROLS): for each
+control run for a disagreement, the effect as found, the same effect under the control, and their
+difference in differences with its interval. It also replaces the block between README_START and
+README_END of the README with the main table. The output depends only on the CSV (no dates), so
+running it twice changes nothing. Prose that needs a human (what a verdict or a control's answer
+means) lives in a hand-written notes file that the page links."""
 
 from __future__ import annotations
 
@@ -1193,12 +1193,59 @@ def scatter_figure(data: SuiteData, out_png) -> Optional[Path]:
     return _save(fig, out_png)
 
 
+def paired_deltas(data: SuiteData, x_key="ldr_oe_psnr", y_key="hdr_tae") -> Dict[str, list]:
+    """{row: [(scene, seed, x(row) - x(ref), y(row) - y(ref))]} over the pairs the tables use where
+    the row and the suite's reference row both have finite x and y (the reference row left out)."""
+    ref = data.suite.reference if data.suite is not None else None
+    at = {
+        (e["scene"], e["seed"], e["row"]): e["metrics"] for e in data.table_entries if e["metrics"]
+    }
+    out: Dict[str, list] = {}
+    for (scene, seed, row), m in at.items():
+        r = at.get((scene, seed, ref))
+        if row == ref or r is None:
+            continue
+        vals = [m.get(x_key), m.get(y_key), r.get(x_key), r.get(y_key)]
+        if all(v is not None and math.isfinite(v) for v in vals):
+            out.setdefault(row, []).append((scene, seed, vals[0] - vals[2], vals[1] - vals[3]))
+    return out
+
+
+def delta_scatter_figure(data: SuiteData, out_png) -> Optional[Path]:
+    """Per (scene, seed) pair, each row's HDR-TAE difference to the reference row against its LDR-OE
+    PSNR difference: a row that trades temporal stability for PSNR lands top right."""
+    pts = paired_deltas(data)
+    if not pts:
+        return None
+    ref = data.suite.reference
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 3.6))
+    for rn, c in zip(data.row_names, _colors(len(data.row_names))):
+        if rn in pts:
+            ax.scatter(
+                [p[2] for p in pts[rn]],
+                [p[3] for p in pts[rn]],
+                s=14,
+                color=c,
+                label=data.labels[rn],
+            )
+    ax.axhline(0.0, color="0.4", lw=0.8)
+    ax.axvline(0.0, color="0.4", lw=0.8)
+    ax.set_xlabel(f"Δ LDR-OE PSNR vs {ref} (dB; right: row better)")
+    ax.set_ylabel(f"Δ HDR-TAE vs {ref} (up: row worse)")
+    ax.set_title(f"{data.name}: one point per (scene, seed) pair and row", fontsize=8)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return _save(fig, out_png)
+
+
 def suite_result_figures(data: SuiteData, curves: Dict[tuple, dict], fig_dir) -> List[Path]:
     fig_dir = Path(fig_dir)
     out = [
         bars_figure(data, fig_dir / f"{data.name}_bars.png"),
         crf_figure(data, curves, fig_dir / f"{data.name}_crf.png"),
         scatter_figure(data, fig_dir / f"{data.name}_tae_psnr.png"),
+        delta_scatter_figure(data, fig_dir / f"{data.name}_delta_tae_psnr.png"),
     ]
     return [p for p in out if p is not None]
 

@@ -391,10 +391,22 @@ def test_export_merge_results_readme(tmp_path):
     # figures
     figs = docs / "figures" / "results"
     for suite in ("paper-ablation", "paper-main"):
-        for kind in ("bars", "crf", "tae_psnr"):
+        for kind in ("bars", "crf", "tae_psnr", "delta_tae_psnr"):
             p = figs / f"{suite}_{kind}.png"
             assert p.exists() and p.read_bytes()[:4] == b"\x89PNG", p
             assert f"](figures/results/{suite}_{kind}.png)" in text
+    # the paired differences behind the delta figure, recomputed from the CSV rows
+    from eval.results import paired_deltas, read_runs_csv, suite_data
+
+    got = paired_deltas(suite_data("paper-main", read_runs_csv(csvp)))
+    at = {(r["scene"], r["row"]): r for r in rows if r["suite"] == "paper-main"}
+    assert sorted(got) == sorted(MAIN_ROWS[:-1])
+    for row, pts in got.items():
+        assert sorted((p[0], p[1]) for p in pts) == sorted((sc, 0) for sc in MAIN_SCENES)
+        for scene, _, dx, dy in pts:
+            a, ref = at[(scene, row)], at[(scene, "full")]
+            assert dx == pytest.approx(float(a["ldr_oe_psnr"]) - float(ref["ldr_oe_psnr"]))
+            assert dy == pytest.approx(float(a["hdr_tae"]) - float(ref["hdr_tae"]))
 
     # findings: every comparison of the ablation finding recomputed from the CSV
     lines = text.split("## Findings", 1)[1].splitlines()
