@@ -10,11 +10,19 @@
 # render FPS, T_C JOBS concurrent trainings of JOBS_ITERS iterations at the small preset. A slot that
 # runs out is cut (its JSON then holds the steps it finished) and the next one starts; a gsplat that
 # does not build stops the script after slot A. The JSON of each slot comes back as $OUT/{a,b,c}.json.
+#
+# PAPER_RUN=1 adds slot P: `m4dgs train --preset paper` at full length (about 11+ minutes on an H200, more than
+# one command may run) into .gpu_run/paper, cut at T_P seconds. The run folder and gsplat's build live in
+# .gpu_run/ (git-ignored, not carried, so a warm machine keeps them between calls): the same command again at
+# once (within the machine's 30 s warm window) skips the build and resumes the run from its checkpoint. Run it
+# with STEPS_A=env T_B=0 T_C=0 to spend a call on slot P alone; $OUT/paper.txt says where the run stands.
 set -u
 T0=$(date +%s)
 el() { echo "[gpu_session] $(($(date +%s) - T0)) s: $*"; }
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .gpu/whl/*.whl || exit 3
 export PYTHONPATH=/tmp/site:$PWD TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0} MAX_JOBS=${MAX_JOBS:-16} PYTHONUNBUFFERED=1
+mkdir -p .gpu_run
+export TORCH_EXTENSIONS_DIR=$PWD/.gpu_run/torch_extensions
 nvidia-smi -L
 nvcc --version | tail -1
 C=$(ls -d .gpu/clip/*/ | head -1)
@@ -25,6 +33,14 @@ timeout -k 5 "${T_A:-270}" python3 bench/gpu_check.py "$C" --out /tmp/a --steps 
 pkill -f pytest
 cp /tmp/a/gpu_check.json "$OUT/a.json"
 python3 -c "import json,sys; d=json.load(open('/tmp/a/gpu_check.json')); sys.exit('gsplat_first_render_s' not in d['steps']['env'])" || { el "gsplat did not build"; exit 4; }
+if [ "${PAPER_RUN:-0}" = 1 ]; then
+  el "slot P: m4dgs train --preset paper (full length) into .gpu_run/paper, ${T_P:-480} s"
+  timeout -k 5 "${T_P:-480}" python3 -m m4dgs train --clip "$C" --preset paper --device cuda --quiet --out .gpu_run/paper
+  echo "rc $?" > "$OUT/paper.txt"
+  cat .gpu_run/paper/status.json >> "$OUT/paper.txt" 2>/dev/null
+  tail -2 .gpu_run/paper/log.jsonl >> "$OUT/paper.txt" 2>/dev/null
+fi
+[ "${T_B:-200}" = 0 ] && [ "${T_C:-100}" = 0 ] && { el "done"; exit 0; }
 el "slot B: ${PRESET:-paper} training, ${ITERS:-1000} iterations per stage, FPS"
 timeout -k 5 "${T_B:-200}" python3 bench/gpu_check.py "$C" --out /tmp/b --preset "${PRESET:-paper}" --iters "${ITERS:-1000}" --steps train,fps
 pkill -f train_bench.py
