@@ -15,7 +15,8 @@
 # one command may run) into .gpu_run/paper, cut at T_P seconds. The run folder and gsplat's build live in
 # .gpu_run/ (git-ignored, not carried, so a warm machine keeps them between calls): the same command again at
 # once (within the machine's 30 s warm window) skips the build and resumes the run from its checkpoint. Run it
-# with STEPS_A=env T_B=0 T_C=0 to spend a call on slot P alone; $OUT/paper.txt says where the run stands.
+# with STEPS_A=env T_B=0 T_C=0 to spend a call on slot P alone (a slot given 0 s is skipped); $OUT/paper.txt
+# says where the run stands.
 set -u
 T0=$(date +%s)
 el() { echo "[gpu_session] $(($(date +%s) - T0)) s: $*"; }
@@ -40,14 +41,18 @@ if [ "${PAPER_RUN:-0}" = 1 ]; then
   cat .gpu_run/paper/status.json >> "$OUT/paper.txt" 2>/dev/null
   tail -2 .gpu_run/paper/log.jsonl >> "$OUT/paper.txt" 2>/dev/null
 fi
-[ "${T_B:-200}" = 0 ] && [ "${T_C:-100}" = 0 ] && { el "done"; exit 0; }
-el "slot B: ${PRESET:-paper} training, ${ITERS:-1000} iterations per stage, FPS"
-timeout -k 5 "${T_B:-200}" python3 bench/gpu_check.py "$C" --out /tmp/b --preset "${PRESET:-paper}" --iters "${ITERS:-1000}" --steps train,fps
-pkill -f train_bench.py
-cp /tmp/b/gpu_check.json "$OUT/b.json"
-el "slot C: ${JOBS:-1,2,4} concurrent small trainings of ${JOBS_ITERS:-300} iterations per stage"
-timeout -k 5 "${T_C:-100}" python3 bench/gpu_check.py "$C" --out /tmp/c --preset small --steps jobs --jobs "${JOBS:-1,2,4}" --jobs-iters "${JOBS_ITERS:-300}"
-pkill -f train_bench.py
-cp /tmp/c/gpu_check.json "$OUT/c.json" 2>/dev/null
+# a slot given 0 seconds is skipped (`timeout 0` would mean no limit at all)
+if [ "${T_B:-200}" != 0 ]; then
+  el "slot B: ${PRESET:-paper} training, ${ITERS:-1000} iterations per stage, FPS"
+  timeout -k 5 "${T_B:-200}" python3 bench/gpu_check.py "$C" --out /tmp/b --preset "${PRESET:-paper}" --iters "${ITERS:-1000}" --steps train,fps
+  pkill -f train_bench.py
+  cp /tmp/b/gpu_check.json "$OUT/b.json"
+fi
+if [ "${T_C:-100}" != 0 ]; then
+  el "slot C: ${JOBS:-1,2,4} concurrent small trainings of ${JOBS_ITERS:-300} iterations per stage"
+  timeout -k 5 "${T_C:-100}" python3 bench/gpu_check.py "$C" --out /tmp/c --preset small --steps jobs --jobs "${JOBS:-1,2,4}" --jobs-iters "${JOBS_ITERS:-300}"
+  pkill -f train_bench.py
+  cp /tmp/c/gpu_check.json "$OUT/c.json" 2>/dev/null
+fi
 nvidia-smi --query-gpu=name,memory.used,memory.total --format=csv
 el "done"
