@@ -159,7 +159,14 @@ def _fps(out: Path, device: str) -> dict:
     g = frames[len(frames) // 2]
     t = model.time_of(g)
     K, c2w = model.camera(g)
-    res = {"num_gaussians": model.num_gaussians, "backend": getattr(model, "backend", None)}
+    from m4dgs.raster import resolve_backend
+
+    backend = getattr(model, "backend", None) or "auto"
+    # the rasterizer that actually ran ("auto" resolves to gsplat on CUDA when it imports)
+    res = {
+        "num_gaussians": model.num_gaussians,
+        "backend": resolve_backend(backend, torch.device(device)),
+    }
     if device == "cuda":
         torch.cuda.reset_peak_memory_stats()
     for name, (w, h) in (("clip", (model.width, model.height)), ("864x480", FPS_SIZE)):

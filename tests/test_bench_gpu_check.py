@@ -50,6 +50,8 @@ def test_gpu_check_dry_run_on_a_clip_without_ground_truth(tiny_clip_realistic, t
     assert "(10 it)" in table  # --iters reached the training
     fps = steps["fps"]
     assert fps["num_gaussians"] > 0 and fps["fps_clip"] > 0 and fps["fps_864x480"] > 0
+    # the rasterizer that ran, not the "auto" setting
+    assert fps["backend"] == ("gsplat" if steps["env"]["device"] == "cuda" else "cpu")
     runs = steps["jobs"]["runs"]
     assert runs["1"]["rc"] == [0] and runs["2"]["rc"] == [0, 0]
     assert runs["1"]["throughput_vs_first"] == 1.0
