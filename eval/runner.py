@@ -326,9 +326,10 @@ def pool_context(device: str = "auto"):
     for CUDA in subprocesses), else the platform default (fork on Linux: no re-imports)."""
     import multiprocessing
 
-    from m4dgs.core.threads import is_cuda_device
+    from m4dgs.core.device import resolve_device
 
-    return multiprocessing.get_context("spawn" if is_cuda_device(device) else None)
+    cuda = device is not None and resolve_device(device).type == "cuda"
+    return multiprocessing.get_context("spawn" if cuda else None)
 
 
 def _run_job_kw(job: Job, kw: dict) -> dict:

@@ -28,6 +28,8 @@ from typing import Iterator, Optional, Tuple
 
 import torch
 
+from m4dgs.core.device import resolve_device
+
 _kernel_threads: Optional[int] = None
 
 
@@ -52,16 +54,6 @@ def cpu_budget() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def is_cuda_device(device) -> bool:
-    """Whether `device` (None, "auto", a name or a torch.device) means CUDA ("auto": whether
-    torch.cuda.is_available())."""
-    if device is None:
-        return False
-    if str(device) == "auto":
-        return torch.cuda.is_available()
-    return torch.device(device).type == "cuda"
-
-
 def use_threads(budget: Optional[int] = None, device=None) -> Tuple[int, int]:
     """Spend `budget` CPU threads (default: cpu_budget()) as measured fastest on the CPU: torch's
     intra-op operations on one thread, the compiled kernels on `budget`. When `device` is (or,
@@ -71,7 +63,9 @@ def use_threads(budget: Optional[int] = None, device=None) -> Tuple[int, int]:
     n = cpu_budget() if budget is None else int(budget)
     if n < 1:
         raise ValueError(f"a thread budget must be >= 1, got {budget!r}")
-    t = n if is_cuda_device(device) else 1
+    # "auto" resolves as the trainer resolves it (m4dgs.core.device); no CUDA availability check
+    # for an explicit "cuda": the split follows what the caller asked for
+    t = n if device is not None and resolve_device(device).type == "cuda" else 1
     torch.set_num_threads(t)
     set_kernel_threads(n)
     return t, n
