@@ -1,7 +1,8 @@
 """The checks of the GPU path in one command, for a session that is lent a CUDA machine.
 
-    python bench/gpu_check.py CLIP --out DIR [--steps env,tests,train,fps,jobs] [--preset small]
-                              [--variant full] [--iters N] [--jobs 1,2,4] [--jobs-iters 300]
+    python bench/gpu_check.py CLIP --out DIR [--steps env,tests,train,fps,fps_scale,jobs]
+                              [--preset small] [--variant full] [--iters N] [--jobs 1,2,4]
+                              [--jobs-iters 300] [--fps-counts 50000,150000] [--fps-run RUN]
 
 CLIP needs only input/ and priors/ (no ground truth), so a small clip can travel with the working
 tree; `bench/gpu_kit.sh` packs one and the wheels the CUDA machine lacks. Steps, in order:
@@ -16,9 +17,14 @@ tree; `bench/gpu_kit.sh` packs one and the wheels the CUDA machine lacks. Steps,
 - fps:   render FPS of that trained model at the clip's resolution and at 864x480
          (eval.metrics.measure_fps, device synchronised), the Gaussian count and the peak GPU
          memory of the renders.
+- fps_scale: render FPS at 864x480 of the trained model with its Gaussians split into more,
+         smaller ones (--fps-counts totals; `split_gaussians`: each Gaussian becomes k copies,
+         jittered within its own extent, scales shrunk by k^(-1/3) so the summed volume stays),
+         a stand-in for a model densified to paper scale (~150K) when no full-length run fits.
 - jobs:  for each N of --jobs, N trainings of CLIP at once with --jobs-iters iterations per stage
-         (different seeds, separate run folders): the wall time and the runs per second relative
-         to the first N (what `m4dgs-eval run --jobs N` can expect from one GPU).
+         (different seeds, separate run folders, cpu_count / N CPU threads each as `m4dgs-eval
+         run --jobs N` gives its workers): the wall time and the runs per second relative to the
+         first N (what `m4dgs-eval run --jobs N` can expect from one GPU).
 
 Everything measured goes to DIR/gpu_check.json (rewritten after every step, so a command stopped at
 its time limit still leaves what it finished) and is printed. On a machine without CUDA the script
@@ -42,7 +48,9 @@ if str(ROOT) not in sys.path:
 
 import torch  # noqa: E402
 
-STEPS = ("env", "tests", "train", "fps", "jobs")
+from m4dgs.core.threads import cpu_budget  # noqa: E402
+
+STEPS = ("env", "tests", "train", "fps", "fps_scale", "jobs")
 FPS_SIZE = (864, 480)
 
 
@@ -186,17 +194,87 @@ def _fps(out: Path, device: str) -> dict:
     return res
 
 
+def split_gaussians(state: dict, k: int, seed: int = 0) -> dict:
+    """A WorldGaussians state (`to_state()`) with every Gaussian split into `k` copies: positions
+    (static means, dynamic spline control points, the same offset for all of one Gaussian's
+    points) jittered by N(0, scale^2) along each axis, activated scales divided by k^(1/3) (the
+    summed volume of the model stays), everything else repeated. What a model densified k-fold
+    costs the rasterizer, without training one. Returns a new state; `state` is not changed."""
+    from m4dgs.model.gaussians import scale_activation, scale_inverse
+
+    if k < 1:
+        raise ValueError(f"split_gaussians: k must be >= 1, got {k}")
+    g = torch.Generator().manual_seed(seed)
+    kind, smax = state["scale_kind"], state["scale_max"]
+    out = {key: val for key, val in state.items() if key not in ("static", "dynamic")}
+    for part, pos in (("static", "means"), ("dynamic", "ctrl")):
+        p = {key: v.detach().cpu() for key, v in state[part].items()}
+        sc = scale_activation(p["scales"], kind, smax)  # [N, 3]
+        new = {key: v.repeat_interleave(k, dim=0) for key, v in p.items()}
+        jitter = torch.randn(sc.shape[0] * k, 3, generator=g) * sc.repeat_interleave(k, dim=0)
+        # means [N*k, 3]; ctrl [N*k, K, 3]: one offset for all of a Gaussian's control points
+        new[pos] = new[pos] + (jitter if pos == "means" else jitter[:, None, :])
+        new["scales"] = scale_inverse(sc.repeat_interleave(k, dim=0) / k ** (1.0 / 3.0), kind, smax)
+        out[part] = new
+    return out
+
+
+def _fps_scale(run: Path, device: str, counts) -> dict:
+    """Render FPS at 864x480 of the model in `run` split (`split_gaussians`) to about each total of
+    `counts` (k = round(count / N), at least 1)."""
+    from eval.metrics.perf import measure_fps
+    from m4dgs.model.gaussians import WorldGaussians
+    from m4dgs.model.trained import load_model
+    from m4dgs.raster import resolve_backend
+
+    model = load_model(run, device=device)
+    base = model.gauss.to_state()
+    n0 = model.num_gaussians
+    frames = model.clip.meta.frames
+    g = frames[len(frames) // 2]
+    t = model.time_of(g)
+    K, c2w = model.camera(g)
+    w, h = FPS_SIZE
+    K = K.copy()
+    K[0] *= w / model.width
+    K[1] *= h / model.height
+    res = {
+        "trained_gaussians": n0,
+        "backend": resolve_backend(model.backend or "auto", torch.device(device)),
+        "size": f"{w}x{h}",
+        "models": [],
+    }
+    for count in counts:
+        k = max(1, round(count / n0))
+        model.gauss = WorldGaussians.from_state(split_gaussians(base, k)).to(device)
+        if device == "cuda":
+            torch.cuda.reset_peak_memory_stats()
+        r = measure_fps(lambda: model.render(t, c2w, K, w, h), warmup=3, iters=20, device=device)
+        row = {
+            "num_gaussians": model.num_gaussians,
+            "split_k": k,
+            "fps": round(r["fps"], 1),
+            "ms_per_frame": round(r["ms_per_frame"], 2),
+        }
+        if device == "cuda":
+            row["peak_render_memory_mib"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
+        res["models"].append(row)
+    return res
+
+
 def _jobs(clip: str, out: Path, a, device: str, progress=None) -> dict:
     """`progress(res)` after every N: a command cut at its time limit keeps the Ns it finished."""
     res = {"iters_per_stage": a.jobs_iters, "runs": {}}
     first = None  # runs per second of the first N (1 by default): the reference throughput
     for n in [int(x) for x in a.jobs.split(",") if x]:
+        threads = max(1, cpu_budget() // n)  # as eval.runner.run_suite splits the CPUs
         t0 = time.perf_counter()
         procs = []
         for k in range(n):
             run = out / f"jobs{n}" / f"run{k}"
             # separate seeds, as `m4dgs-eval run --seeds` gives separate runs (no shared work)
             extra = ["--iters1", str(a.jobs_iters), "--iters2", str(a.jobs_iters), "--seed", str(k)]
+            extra += ["--threads", str(threads)]
             cmd = _train_cmd(clip, run, a, device, extra)
             procs.append(
                 subprocess.Popen(
@@ -209,6 +287,7 @@ def _jobs(clip: str, out: Path, a, device: str, progress=None) -> dict:
         res["runs"][str(n)] = {
             "wall_s": round(wall, 1),
             "rc": rcs,
+            "threads_each": threads,
             "throughput_vs_first": round(n / wall / first, 2),
         }
         if progress:
@@ -235,6 +314,17 @@ def main() -> None:
         default=300,
         help="iterations per stage of each timed concurrent training",
     )
+    ap.add_argument(
+        "--fps-counts",
+        default="50000,150000,300000",
+        help="fps_scale step: Gaussian totals to split the trained model to",
+    )
+    ap.add_argument(
+        "--fps-run",
+        default=None,
+        help="fps_scale step: the run folder of the model to split (default: the train step's "
+        "OUT/run)",
+    )
     a = ap.parse_args()
     steps = [s for s in a.steps.split(",") if s]
     bad = [s for s in steps if s not in STEPS]
@@ -256,6 +346,9 @@ def main() -> None:
             r = _train(a.clip, out, a, device)
         elif s == "fps":
             r = _fps(out, device)
+        elif s == "fps_scale":
+            run = Path(a.fps_run) if a.fps_run else out / "run"
+            r = _fps_scale(run, device, [int(x) for x in a.fps_counts.split(",") if x])
         else:
 
             def progress(partial):

@@ -15,8 +15,6 @@ pyver=${2:-3.12}
 exclude=$(git rev-parse --git-path info/exclude)
 mkdir -p "$(dirname "$exclude")"
 grep -qx '/.gpu/' "$exclude" 2>/dev/null || echo '/.gpu/' >> "$exclude"
-# bench/gpu_session.sh keeps gsplat's build and a resumable paper-preset run there on the CUDA machine
-grep -qx '/.gpu_run/' "$exclude" 2>/dev/null || echo '/.gpu_run/' >> "$exclude"
 PY=${PYTHON:-.venv/bin/python}
 rm -rf .gpu && mkdir -p .gpu/whl .gpu/clip
 plat=(--platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux_2_17_x86_64

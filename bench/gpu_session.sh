@@ -6,14 +6,17 @@
 #   set -o pipefail; bash bench/gpu_session.sh 2>&1 | tee $OUT/log.txt
 #
 # Slots (seconds, environment variables): T_A env + `pytest -m gpu` (gsplat compiles its CUDA code on
-# first use: 56-78 s on 16 cores), T_B one training at PRESET with ITERS iterations per stage and its
-# render FPS, T_C JOBS concurrent trainings of JOBS_ITERS iterations at the small preset. A slot that
+# first use: 56-78 s on 16 cores), T_B one training at PRESET with ITERS iterations per stage, its
+# render FPS and the FPS of that model split to FPS_COUNTS Gaussians (STEPS_B, default train,fps,fps_scale),
+# T_C JOBS concurrent trainings of JOBS_ITERS iterations at the small preset. A slot that
 # runs out is cut (its JSON then holds the steps it finished) and the next one starts; a gsplat that
 # does not build stops the script after slot A. The JSON of each slot comes back as $OUT/{a,b,c}.json.
 #
 # PAPER_RUN=1 adds slot P: `m4dgs train --preset paper` at full length (about 11+ minutes on an H200, more than
-# one command may run) into .gpu_run/paper, cut at T_P seconds. The run folder and gsplat's build live in
-# .gpu_run/ (git-ignored, not carried, so a warm machine keeps them between calls): the same command again at
+# one command may run) into $GPU_RUN/paper, cut at T_P seconds. The run folder and gsplat's build live in
+# GPU_RUN (default /tmp/gpu_run, outside the repository: a warm machine kept /tmp between two calls, while
+# the copy of the working tree came back without its ignored .gpu_run/ and gsplat compiled again, 55 s, in
+# the second call of 2026-11-26; /tmp keeping the build is not yet measured): the same command again at
 # once (within the machine's 30 s warm window) skips the build and resumes the run from its checkpoint. Run it
 # with STEPS_A=env T_B=0 T_C=0 to spend a call on slot P alone (a slot given 0 s is skipped); $OUT/paper.txt
 # says where the run stands.
@@ -22,8 +25,9 @@ T0=$(date +%s)
 el() { echo "[gpu_session] $(($(date +%s) - T0)) s: $*"; }
 python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .gpu/whl/*.whl || exit 3
 export PYTHONPATH=/tmp/site:$PWD TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0} MAX_JOBS=${MAX_JOBS:-16} PYTHONUNBUFFERED=1
-mkdir -p .gpu_run
-export TORCH_EXTENSIONS_DIR=$PWD/.gpu_run/torch_extensions
+GPU_RUN=${GPU_RUN:-/tmp/gpu_run}
+mkdir -p "$GPU_RUN"
+export TORCH_EXTENSIONS_DIR=$GPU_RUN/torch_extensions
 nvidia-smi -L
 nvcc --version | tail -1
 C=$(ls -d .gpu/clip/*/ | head -1)
@@ -35,16 +39,17 @@ pkill -f pytest
 cp /tmp/a/gpu_check.json "$OUT/a.json"
 python3 -c "import json,sys; d=json.load(open('/tmp/a/gpu_check.json')); sys.exit('gsplat_first_render_s' not in d['steps']['env'])" || { el "gsplat did not build"; exit 4; }
 if [ "${PAPER_RUN:-0}" = 1 ]; then
-  el "slot P: m4dgs train --preset paper (full length) into .gpu_run/paper, ${T_P:-480} s"
-  timeout -k 5 "${T_P:-480}" python3 -m m4dgs train --clip "$C" --preset paper --device cuda --quiet --out .gpu_run/paper
+  el "slot P: m4dgs train --preset paper (full length) into $GPU_RUN/paper, ${T_P:-480} s"
+  timeout -k 5 "${T_P:-480}" python3 -m m4dgs train --clip "$C" --preset paper --device cuda --quiet --out "$GPU_RUN/paper"
   echo "rc $?" > "$OUT/paper.txt"
-  cat .gpu_run/paper/status.json >> "$OUT/paper.txt" 2>/dev/null
-  tail -2 .gpu_run/paper/log.jsonl >> "$OUT/paper.txt" 2>/dev/null
+  cat "$GPU_RUN/paper/status.json" >> "$OUT/paper.txt" 2>/dev/null
+  tail -2 "$GPU_RUN/paper/log.jsonl" >> "$OUT/paper.txt" 2>/dev/null
 fi
 # a slot given 0 seconds is skipped (`timeout 0` would mean no limit at all)
 if [ "${T_B:-200}" != 0 ]; then
-  el "slot B: ${PRESET:-paper} training, ${ITERS:-1000} iterations per stage, FPS"
-  timeout -k 5 "${T_B:-200}" python3 bench/gpu_check.py "$C" --out /tmp/b --preset "${PRESET:-paper}" --iters "${ITERS:-1000}" --steps train,fps
+  el "slot B: ${PRESET:-paper} training, ${ITERS:-1000} iterations per stage, ${STEPS_B:-train,fps,fps_scale}"
+  timeout -k 5 "${T_B:-200}" python3 bench/gpu_check.py "$C" --out /tmp/b --preset "${PRESET:-paper}" --iters "${ITERS:-1000}" \
+    --steps "${STEPS_B:-train,fps,fps_scale}" --fps-counts "${FPS_COUNTS:-50000,150000,300000}"
   pkill -f train_bench.py
   cp /tmp/b/gpu_check.json "$OUT/b.json"
 fi
