@@ -1022,21 +1022,41 @@ def test_campaign_file_errors_name_the_field(tmp_path):
     from eval.campaign import CampaignError, load_campaign, parse_campaign
 
     c = load_campaign("results-small")
-    assert c.preset == "small" and [s.suite for s in c.steps][:5] == [
-        "crf",
-        "control-video-init-priors",
-        "paper-main",
-        "control-video-init-scale",
-        "paper-main",
-    ]
-    assert c.steps[2].scenes is None and c.steps[2].seeds == 1 and c.steps[4].scenes is None
-    assert all(s.seeds == 2 for i, s in enumerate(c.steps) if i != 2)
-    assert c.steps[6].scenes == [
+    four = [
         "lamp-room-orbit",
         "pendulum-lamp-handheld",
         "conveyor-occlusion-orbit",
         "robot-arm-dolly",
     ]
+    appendix = [
+        "paper-ablation",
+        "control-points",
+        "exposure-noise",
+        "exposure-schedules",
+        "priors",
+    ]
+    assert c.preset == "small" and [s.suite for s in c.steps] == [
+        "crf",
+        "control-video-init-priors",
+        "paper-main",
+        "control-video-init-scale",
+        *appendix,
+        "crf",
+        "control-tlr",
+        "control-video-init-prior-parts",
+        "paper-main",
+        *appendix,
+        "crf",
+        "control-tlr",
+    ]
+    assert c.steps[2].scenes is None and c.steps[2].seeds == 1 and c.steps[12].scenes is None
+    # breadth first: each appendix suite's first seed on the four scenes, then every suite's second
+    assert [s.seeds for s in c.steps[4:11]] == [1] * 7
+    assert all(s.seeds == 2 for i, s in enumerate(c.steps) if not (i == 2 or 4 <= i <= 10))
+    assert all(c.steps[i].scenes == four for i in (4, 5, 6, 7, 8, 10, 13, 14, 15, 16, 17, 19))
+    assert (
+        c.steps[9].scenes == c.steps[18].scenes == ["conveyor-occlusion-orbit", "robot-arm-dolly"]
+    )
     good = {"preset": "tiny", "steps": [{"suite": "tiny"}]}
     assert parse_campaign(good, "f.yaml").steps[0].seeds == 1
     for bad, field in [
