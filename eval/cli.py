@@ -730,7 +730,9 @@ def export(suites, out, csv_path, scenes, seeds):
     "figures_dir",
     default=None,
     type=click.Path(file_okay=False),
-    help="Folder for the figures (default: <folder of --out>/figures/results).",
+    help="Folder for the figures, the page's own: PNGs in it that the page does not make are "
+    "removed (default: <folder of --out>/figures/<name of --out without .md>, e.g. "
+    "docs/figures/results).",
 )
 @click.option("--no-figures", is_flag=True, help="Write no figures (and link none).")
 @click.option(
@@ -743,22 +745,43 @@ def export(suites, out, csv_path, scenes, seeds):
 )
 @click.option("--no-readme", is_flag=True, help="Leave the README alone.")
 @click.option(
+    "--title",
+    default="Results",
+    show_default=True,
+    help="The page's heading (e.g. for a page of runs on an earlier benchmark version).",
+)
+@click.option(
     "--notes",
     default=None,
     type=click.Path(dir_okay=False),
     help="Hand-written notes linked from the page (default: results-notes.md beside --out, "
     "when it exists).",
 )
-def results(csv_path, out_md, figures_dir, no_figures, readme, no_readme, notes):
+def results(csv_path, out_md, figures_dir, no_figures, readme, no_readme, title, notes):
     """Regenerate the results page (every suite's tables with intervals, the paper's values and
     the agreement column, figures, findings) and the README's main table from the runs CSV."""
     from .results import render_results
 
+    notes_given = notes is not None
     if notes is None:
         cand = Path(out_md).parent / "results-notes.md"
         notes = str(cand) if cand.exists() else None
-    fig = None if no_figures else (figures_dir or str(Path(out_md).parent / "figures/results"))
+    default_fig = str(Path(out_md).parent / "figures" / Path(out_md).stem)
+    fig = None if no_figures else (figures_dir or default_fig)
+    # the command written into the page regenerates it as it is
     cmd = f"m4dgs-eval results --csv {csv_path} --out {out_md}"
+    if no_figures:
+        cmd += " --no-figures"
+    elif figures_dir and figures_dir != default_fig:
+        cmd += f" --figures {figures_dir}"
+    if no_readme:
+        cmd += " --no-readme"
+    elif readme != "README.md":
+        cmd += f" --readme {readme}"
+    if title != "Results":
+        cmd += f" --title '{title}'"
+    if notes_given:
+        cmd += f" --notes {notes}"
     res = render_results(
         csv_path,
         out_md,
@@ -766,6 +789,7 @@ def results(csv_path, out_md, figures_dir, no_figures, readme, no_readme, notes)
         readme=None if no_readme else readme,
         notes=notes,
         command=cmd,
+        title=title,
     )
     click.echo(
         f"wrote {out_md} ({len(res['suites'])} suite(s), {len(res['figures'])} figure(s))"
