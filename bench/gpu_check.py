@@ -1,8 +1,8 @@
 """The checks of the GPU path in one command, for a session that is lent a CUDA machine.
 
-    python bench/gpu_check.py CLIP --out DIR [--steps env,tests,train,fps,fps_scale,jobs]
+    python bench/gpu_check.py CLIP --out DIR [--steps env,tests,train,fps,fps_scale,profile,jobs]
                               [--preset small] [--variant full] [--iters N] [--jobs 1,2,4]
-                              [--jobs-iters 300] [--fps-counts 50000,150000] [--fps-run RUN]
+                              [--jobs-iters 300] [--fps-counts 50000,150000] [--run RUN]
 
 CLIP needs only input/ and priors/ (no ground truth), so a small clip can travel with the working
 tree; `bench/gpu_kit.sh` packs one and the wheels the CUDA machine lacks. Steps, in order:
@@ -14,13 +14,17 @@ tree; `bench/gpu_kit.sh` packs one and the wheels the CUDA machine lacks. Steps,
          subprocess, its last lines kept.
 - train: one `bench/train_bench.py CLIP --device cuda --no-score` run (wall time per phase and
          iterations/s), the run folder kept in DIR/run.
-- fps:   render FPS of that trained model at the clip's resolution and at 864x480
+- fps:   render FPS of that trained model (or of --run) at the clip's resolution and at 864x480
          (eval.metrics.measure_fps, device synchronised), the Gaussian count and the peak GPU
          memory of the renders.
 - fps_scale: render FPS at 864x480 of the trained model with its Gaussians split into more,
          smaller ones (--fps-counts totals; `split_gaussians`: each Gaussian becomes k copies,
          jittered within its own extent, scales shrunk by k^(-1/3) so the summed volume stays),
          a stand-in for a model densified to paper scale (~150K) when no full-length run fits.
+- profile: `bench/step_bench.py` on the trained run (or --run):
+         stage-2 steps from its final model at the middle of stage 2 (TLR on, its final Gaussian
+         count) on the device, with the torch profiler: milliseconds per step, the top operations
+         by CPU and by GPU time, and the host-device waits per step.
 - jobs:  for each N of --jobs, N trainings of CLIP at once with --jobs-iters iterations per stage
          (different seeds, separate run folders, cpu_count / N CPU threads each as `m4dgs-eval
          run --jobs N` gives its workers): the wall time and the runs per second relative to the
@@ -50,7 +54,7 @@ import torch  # noqa: E402
 
 from m4dgs.core.threads import cpu_budget  # noqa: E402
 
-STEPS = ("env", "tests", "train", "fps", "fps_scale", "jobs")
+STEPS = ("env", "tests", "train", "fps", "fps_scale", "profile", "jobs")
 FPS_SIZE = (864, 480)
 
 
@@ -158,11 +162,11 @@ def _train(clip: str, out: Path, a, device: str) -> dict:
     }
 
 
-def _fps(out: Path, device: str) -> dict:
+def _fps(run: Path, device: str) -> dict:
     from eval.metrics.perf import measure_fps
     from m4dgs.model.trained import load_model
 
-    model = load_model(out / "run", device=device)
+    model = load_model(run, device=device)
     frames = model.clip.meta.frames
     g = frames[len(frames) // 2]
     t = model.time_of(g)
@@ -262,6 +266,31 @@ def _fps_scale(run: Path, device: str, counts) -> dict:
     return res
 
 
+def _profile(clip: str, run: Path, a, device: str) -> dict:
+    """bench/step_bench.py --torch-profile on `run` (stage 2 from its final model, at the middle of
+    its stage 2) on `device`; the printed lines are kept."""
+    import yaml
+
+    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    start = int(cfg["stage2"]["iterations"]) // 2
+    cmd = [sys.executable, str(ROOT / "bench" / "step_bench.py"), clip, str(run)]
+    cmd += ["--preset", a.preset, "--variant", a.variant, "--stage", "stage2", "--from-final"]
+    cmd += ["--start", str(start), "--steps", str(a.profile_steps), "--device", device]
+    cmd += ["--torch-profile"]
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    lines = [ln for ln in (p.stdout + p.stderr).splitlines() if ln.strip()]
+    head = next((ln for ln in lines if "ms/step" in ln), None)
+    return {
+        "rc": p.returncode,
+        "seconds": round(time.perf_counter() - t0, 1),
+        "start": start,
+        "ms_per_step": head,
+        "waits": next((ln for ln in lines if ln.startswith("host-device waits")), None),
+        "lines": lines[-80:],
+    }
+
+
 def _jobs(clip: str, out: Path, a, device: str, progress=None) -> dict:
     """`progress(res)` after every N: a command cut at its time limit keeps the Ns it finished."""
     res = {"iters_per_stage": a.jobs_iters, "runs": {}}
@@ -320,11 +349,12 @@ def main() -> None:
         help="fps_scale step: Gaussian totals to split the trained model to",
     )
     ap.add_argument(
-        "--fps-run",
+        "--run",
         default=None,
-        help="fps_scale step: the run folder of the model to split (default: the train step's "
-        "OUT/run)",
+        help="the finished run folder that the fps, fps_scale and profile steps read (default: "
+        "the train step's OUT/run)",
     )
+    ap.add_argument("--profile-steps", type=int, default=30, help="profile step: timed steps")
     a = ap.parse_args()
     steps = [s for s in a.steps.split(",") if s]
     bad = [s for s in steps if s not in STEPS]
@@ -336,6 +366,7 @@ def main() -> None:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     res = {"clip": a.clip, "preset": a.preset, "variant": a.variant, "steps": {}}
+    run = Path(a.run) if a.run else out / "run"
     for s in steps:
         t0 = time.perf_counter()
         if s == "env":
@@ -345,9 +376,10 @@ def main() -> None:
         elif s == "train":
             r = _train(a.clip, out, a, device)
         elif s == "fps":
-            r = _fps(out, device)
+            r = _fps(run, device)
+        elif s == "profile":
+            r = _profile(a.clip, run, a, device)
         elif s == "fps_scale":
-            run = Path(a.fps_run) if a.fps_run else out / "run"
             r = _fps_scale(run, device, [int(x) for x in a.fps_counts.split(",") if x])
         else:
 

@@ -7,7 +7,8 @@
 #
 # Slots (seconds, environment variables): T_A env + `pytest -m gpu` (gsplat compiles its CUDA code on
 # first use: 56-78 s on 16 cores), T_B one training at PRESET with ITERS iterations per stage, its
-# render FPS and the FPS of that model split to FPS_COUNTS Gaussians (STEPS_B, default train,fps,fps_scale),
+# render FPS, the FPS of that model split to FPS_COUNTS Gaussians and a profile of its stage-2 steps (STEPS_B,
+# default train,fps,fps_scale,profile),
 # T_C JOBS concurrent trainings of JOBS_ITERS iterations at the small preset. A slot that
 # runs out is cut (its JSON then holds the steps it finished) and the next one starts; a gsplat that
 # does not build stops the script after slot A. The JSON of each slot comes back as $OUT/{a,b,c}.json.
@@ -19,7 +20,8 @@
 # the second call of 2026-11-26; /tmp keeping the build is not yet measured): the same command again at
 # once (within the machine's 30 s warm window) skips the build and resumes the run from its checkpoint. Run it
 # with STEPS_A=env T_B=0 T_C=0 to spend a call on slot P alone (a slot given 0 s is skipped); $OUT/paper.txt
-# says where the run stands.
+# says where the run stands (status.json: its seconds per phase), and once it is finished slot P2 (T_PP)
+# writes $OUT/paper.json: the FPS of the paper-scale model and a profile of its late stage 2.
 set -u
 T0=$(date +%s)
 el() { echo "[gpu_session] $(($(date +%s) - T0)) s: $*"; }
@@ -44,12 +46,18 @@ if [ "${PAPER_RUN:-0}" = 1 ]; then
   echo "rc $?" > "$OUT/paper.txt"
   cat "$GPU_RUN/paper/status.json" >> "$OUT/paper.txt" 2>/dev/null
   tail -2 "$GPU_RUN/paper/log.jsonl" >> "$OUT/paper.txt" 2>/dev/null
+  # once the run is finished: FPS of the paper-scale model it trained and a profile of its late stage 2
+  if grep -q '"stage": "done"' "$GPU_RUN/paper/status.json" 2>/dev/null && [ "${T_PP:-150}" != 0 ]; then
+    el "slot P2: FPS and stage-2 profile of the finished paper run, ${T_PP:-150} s"
+    timeout -k 5 "${T_PP:-150}" python3 bench/gpu_check.py "$C" --out /tmp/p --preset paper --steps fps,profile --run "$GPU_RUN/paper"
+    cp /tmp/p/gpu_check.json "$OUT/paper.json" 2>/dev/null
+  fi
 fi
 # a slot given 0 seconds is skipped (`timeout 0` would mean no limit at all)
 if [ "${T_B:-200}" != 0 ]; then
-  el "slot B: ${PRESET:-paper} training, ${ITERS:-1000} iterations per stage, ${STEPS_B:-train,fps,fps_scale}"
+  el "slot B: ${PRESET:-paper} training, ${ITERS:-1000} iterations per stage, ${STEPS_B:-train,fps,fps_scale,profile}"
   timeout -k 5 "${T_B:-200}" python3 bench/gpu_check.py "$C" --out /tmp/b --preset "${PRESET:-paper}" --iters "${ITERS:-1000}" \
-    --steps "${STEPS_B:-train,fps,fps_scale}" --fps-counts "${FPS_COUNTS:-50000,150000,300000}"
+    --steps "${STEPS_B:-train,fps,fps_scale,profile}" --fps-counts "${FPS_COUNTS:-50000,150000,300000}"
   pkill -f train_bench.py
   cp /tmp/b/gpu_check.json "$OUT/b.json"
 fi

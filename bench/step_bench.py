@@ -2,7 +2,7 @@
 figure of a code change without the minutes of camera initialisation and the stages before.
 
     python bench/step_bench.py CLIP RUN --stage stage1 --start 1500 --steps 60 [--threads 2]
-                               [--cprofile]
+                               [--cprofile | --torch-profile] [--device cpu|cuda]
 
 RUN is a finished run folder of CLIP (its model/stage1.pt, model/v2w.pt, model/camera_init.pt and
 renders/stage1 are copied to a temporary folder; RUN is not touched). Stage 1 starts from the final
@@ -10,7 +10,9 @@ stage-1 model at step --start (so the step's schedule, e.g. TLR after the densif
 stage 2 starts from the V2W output at --start, or with --checkpoint from RUN's mid-stage
 checkpoint of stage 2 (then at its step; its optimiser settings come with it, so do not use it to
 compare commits that set up the optimisers differently). Five warm-up steps, then --steps timed
-steps; prints milliseconds per step and, with --cprofile, the functions that take the time.
+steps; prints milliseconds per step and, with --cprofile, the functions that take the time, with
+--torch-profile the operations (on CUDA also their GPU time and the host-device synchronisations: a
+step that waits for the GPU several times is bound by those waits, not by the kernels).
 
 Compare commits side by side: check out each commit in its own worktree and run the same command
 with PYTHONPATH set to it, one after the other, on an otherwise idle machine.
@@ -44,18 +46,18 @@ from m4dgs.training.stage2 import WorldInit, WorldStage  # noqa: E402
 def make_stage(
     tr: Trainer, src: Path, stage: str, start: int, checkpoint: bool = False, final: bool = False
 ):
-    """The stage object of `tr` loaded from the copied models; returns (stage, first step).
-    final: stage 2 starts from the run's final Gaussians, appearance and cameras (model/final.pt:
-    the size stage 2 has late in a run) instead of the V2W output."""
-    cfg, d = tr.cfg, tr.data
+    """The stage object of `tr` loaded from the copied models, on `tr.device`; returns (stage, first
+    step). final: stage 2 starts from the run's final Gaussians, appearance and cameras
+    (model/final.pt: the size stage 2 has late in a run) instead of the V2W output."""
+    cfg, d, dev = tr.cfg, tr.data, tr.device
     if stage == "stage1":
-        st = VideoStage(d, cfg, "cpu", cfg.raster_backend, init=False)
+        st = VideoStage(d, cfg, dev, cfg.raster_backend, init=False)
         st.load_state_dict(load_torch(tr.run.path("model", "stage1.pt")))
         return st, start
     ci = load_torch(tr.run.path("model", "camera_init.pt"))
     v = load_torch(tr.run.path("model", "v2w.pt"))
-    c0, _ = training_exposures(cfg.exposure, d, "cpu")
-    color, tm, bg = build_appearance(cfg, c0, "cpu", pretrain=False)
+    c0, _ = training_exposures(cfg.exposure, d, dev)
+    color, tm, bg = build_appearance(cfg, c0, dev, pretrain=False)
     color.load_state_dict(v["appearance"]["color"])
     tm.load_state_dict(v["appearance"]["tonemap"])
     bg.load_state_dict(v["appearance"]["background"])
@@ -83,7 +85,7 @@ def make_stage(
         bg.load_state_dict(f["background"])
         init.gauss = WorldGaussians.from_state(f["gaussians"])
         init.c2w = f["c2w"]
-    st = WorldStage(d, cfg, init, "cpu", cfg.raster_backend)
+    st = WorldStage(d, cfg, init, dev, cfg.raster_backend)
     ck = src / "model" / "ckpt.pt"
     if checkpoint and ck.exists():
         sd = load_torch(ck)
@@ -134,18 +136,26 @@ def main() -> None:
         action="store_true",
         help="print the top operations by self CPU time (torch profiler) over the timed steps",
     )
+    ap.add_argument(
+        "--device",
+        default="cpu",
+        choices=["cpu", "cuda"],
+        help="where the stage runs (cuda: gsplat rasterizes; the timing synchronises the device)",
+    )
     a = ap.parse_args()
     if a.torch_threads:
         torch.set_num_threads(a.torch_threads)
     else:
-        use_threads(a.threads)
+        use_threads(a.threads, a.device)
+    cuda = a.device == "cuda"
+    sync = torch.cuda.synchronize if cuda else (lambda: None)
     src = Path(a.run)
     tmp = Path(tempfile.mkdtemp(prefix="step_bench_"))
     try:
         shutil.copytree(src / "model", tmp / "model")
         shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
         (tmp / "model" / "ckpt.pt").unlink(missing_ok=True)
-        tr = Trainer(a.clip, tmp, a.preset, a.variant, {}, "cpu", progress=False)
+        tr = Trainer(a.clip, tmp, a.preset, a.variant, {}, a.device, progress=False)
         st, start = make_stage(tr, src, a.stage, a.start, a.checkpoint, a.from_final)
         for it in range(start, start + 5):
             st.step(it)
@@ -154,13 +164,16 @@ def main() -> None:
         if a.torch_profile:
             from torch.profiler import ProfilerActivity, profile
 
-            tprof = profile(activities=[ProfilerActivity.CPU])
+            acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
+            tprof = profile(activities=acts)
             tprof.__enter__()
+        sync()
         t0 = time.perf_counter()
         if prof:
             prof.enable()
         for it in range(start + 5, start + 5 + a.steps):
             st.step(it)
+        sync()
         if prof:
             prof.disable()
         dt = time.perf_counter() - t0
@@ -176,7 +189,21 @@ def main() -> None:
         if prof:
             pstats.Stats(prof).sort_stats("cumulative").print_stats(30)
         if tprof is not None:
-            print(tprof.key_averages().table(sort_by="self_cpu_time_total", row_limit=30))
+            ev = tprof.key_averages()
+            print(ev.table(sort_by="self_cpu_time_total", row_limit=30))
+            if cuda:
+                print(ev.table(sort_by="self_device_time_total", row_limit=20))
+                waits = {
+                    e.key: e.count
+                    for e in ev
+                    if e.key
+                    in ("cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaMemcpyAsync")
+                    or e.key.startswith("aten::_local_scalar_dense")
+                }
+                print(
+                    "host-device waits per step: "
+                    + ", ".join(f"{k} {v / a.steps:.1f}" for k, v in sorted(waits.items()))
+                )
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

@@ -27,7 +27,7 @@ def test_gpu_check_dry_run_on_a_clip_without_ground_truth(tiny_clip_realistic, t
         "--out",
         str(out),
         "--steps",
-        "env,train,fps,fps_scale,jobs",
+        "env,train,fps,fps_scale,profile,jobs",
         "--preset",
         "tiny",
         "--iters",
@@ -38,12 +38,14 @@ def test_gpu_check_dry_run_on_a_clip_without_ground_truth(tiny_clip_realistic, t
         "5",
         "--fps-counts",
         "1,2000",
+        "--profile-steps",
+        "2",
     ]
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stdout + p.stderr
     res = json.loads((out / "gpu_check.json").read_text())
     steps = res["steps"]
-    assert list(steps) == ["env", "train", "fps", "fps_scale", "jobs"]
+    assert list(steps) == ["env", "train", "fps", "fps_scale", "profile", "jobs"]
     assert steps["env"]["device"] in ("cpu", "cuda")
     assert steps["train"]["rc"] == 0
     table = "\n".join(steps["train"]["table"])
@@ -61,6 +63,11 @@ def test_gpu_check_dry_run_on_a_clip_without_ground_truth(tiny_clip_realistic, t
     assert [m["split_k"] for m in sc["models"]] == [1, max(1, round(2000 / n0))]
     assert [m["num_gaussians"] for m in sc["models"]] == [n0 * m["split_k"] for m in sc["models"]]
     assert all(m["fps"] > 0 for m in sc["models"])
+    prof = steps["profile"]
+    assert prof["rc"] == 0, prof["lines"]
+    # stage 2 from the final model at the middle of its 10 iterations, 2 timed steps, profiled
+    assert prof["start"] == 5 and "stage2 steps 10..11" in prof["ms_per_step"], prof
+    assert any("Self CPU" in ln for ln in prof["lines"])
     runs = steps["jobs"]["runs"]
     assert runs["1"]["rc"] == [0] and runs["2"]["rc"] == [0, 0]
     assert runs["1"]["throughput_vs_first"] == 1.0
