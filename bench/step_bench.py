@@ -150,6 +150,14 @@ def main() -> None:
     cuda = a.device == "cuda"
     sync = torch.cuda.synchronize if cuda else (lambda: None)
     src = Path(a.run)
+    need = ["model/stage1.pt", "renders/stage1"]
+    if a.stage == "stage2":
+        need += ["model/camera_init.pt", "model/v2w.pt"] + (
+            ["model/final.pt"] if a.from_final else []
+        )
+    missing = [n for n in need if not (src / n).exists()]
+    if missing:
+        ap.error(f"{src} lacks {', '.join(missing)}: RUN must be a run that got past that stage")
     tmp = Path(tempfile.mkdtemp(prefix="step_bench_"))
     try:
         shutil.copytree(src / "model", tmp / "model")
