@@ -21,10 +21,10 @@ tree; `bench/gpu_kit.sh` packs one and the wheels the CUDA machine lacks. Steps,
          smaller ones (--fps-counts totals; `split_gaussians`: each Gaussian becomes k copies,
          jittered within its own extent, scales shrunk by k^(-1/3) so the summed volume stays),
          a stand-in for a model densified to paper scale (~150K) when no full-length run fits.
-- profile: `bench/step_bench.py` on the trained run (or --run):
-         stage-2 steps from its final model at the middle of stage 2 (TLR on, its final Gaussian
-         count) on the device, with the torch profiler: milliseconds per step, the top operations
-         by CPU and by GPU time, and the host-device waits per step.
+- profile: `bench/step_bench.py` on the trained run (or --run): stage-2 steps from its final
+         model (its final Gaussian count) at the middle of stage 2, or at TLR's first step if
+         later (three renders a step), on the device, with the torch profiler: milliseconds per
+         step, the top operations by CPU and by GPU time, and the host-device waits per step.
 - jobs:  for each N of --jobs, N trainings of CLIP at once with --jobs-iters iterations per stage
          (different seeds, separate run folders, cpu_count / N CPU threads each as `m4dgs-eval
          run --jobs N` gives its workers): the wall time and the runs per second relative to the
@@ -268,11 +268,12 @@ def _fps_scale(run: Path, device: str, counts) -> dict:
 
 def _profile(clip: str, run: Path, a, device: str) -> dict:
     """bench/step_bench.py --torch-profile on `run` (stage 2 from its final model, at the middle of
-    its stage 2) on `device`; the printed lines are kept."""
-    import yaml
+    its stage 2 or, when TLR starts later, at TLR's first step) on `device`; the printed lines are
+    kept."""
+    from m4dgs.training.config import load_yaml
 
-    cfg = yaml.safe_load((run / "config.yaml").read_text())
-    start = int(cfg["stage2"]["iterations"]) // 2
+    s2 = load_yaml(run / "config.yaml").stage2
+    start = max(s2.iterations // 2, min(s2.tlr_start_step(), s2.iterations - a.profile_steps - 5))
     cmd = [sys.executable, str(ROOT / "bench" / "step_bench.py"), clip, str(run)]
     cmd += ["--preset", a.preset, "--variant", a.variant, "--stage", "stage2", "--from-final"]
     cmd += ["--start", str(start), "--steps", str(a.profile_steps), "--device", device]
