@@ -1,27 +1,26 @@
 #!/usr/bin/env bash
-# The whole GPU check of one lent-device session, in time slots that fit one 10-minute command. Run it on
-# the CUDA machine from the repository root, after `bash bench/gpu_kit.sh CLIP` packed .gpu/ here
-# (device run: carry [".gpu"]):
+# The whole GPU check of one lent-device session, in time slots that fit one 10-minute command. Run it on the
+# CUDA machine from the repository root, after `bash bench/gpu_kit.sh CLIP` packed .gpu/ here (device run:
+# carry [".gpu"]):
 #
 #   set -o pipefail; bash bench/gpu_session.sh 2>&1 | tee $OUT/log.txt
 #
-# Slots (seconds, environment variables): T_A env + `pytest -m gpu` (gsplat compiles its CUDA code on
-# first use: 56-78 s on 16 cores), T_B one training at PRESET with ITERS iterations per stage, its
-# render FPS, the FPS of that model split to FPS_COUNTS Gaussians and a profile of its stage-2 steps (STEPS_B,
-# default train,fps,fps_scale,profile),
-# T_C JOBS concurrent trainings of JOBS_ITERS iterations at the small preset. A slot that
-# runs out is cut (its JSON then holds the steps it finished) and the next one starts; a gsplat that
+# Slots (seconds, environment variables): T_A env + `pytest -m gpu` (gsplat compiles its CUDA code on first
+# use: 55-78 s on 16 cores), T_B one training at PRESET with ITERS iterations per stage, its render FPS, the
+# FPS of that model split to FPS_COUNTS Gaussians and a profile of its stage-2 steps (STEPS_B, default
+# train,fps,fps_scale,profile), T_C JOBS concurrent trainings of JOBS_ITERS iterations at the small preset. A
+# slot that runs out is cut (its JSON then holds the steps it finished) and the next one starts; a gsplat that
 # does not build stops the script after slot A. The JSON of each slot comes back as $OUT/{a,b,c}.json.
 #
-# PAPER_RUN=1 adds slot P: `m4dgs train --preset paper` at full length (about 11+ minutes on an H200, more than
-# one command may run) into $GPU_RUN/paper, cut at T_P seconds. The run folder and gsplat's build live in
-# GPU_RUN (default /tmp/gpu_run, outside the repository: a warm machine kept /tmp between two calls, while
-# the copy of the working tree came back without its ignored .gpu_run/ and gsplat compiled again, 55 s, in
-# the second call of 2026-11-26; /tmp keeping the build is not yet measured): the same command again at
-# once (within the machine's 30 s warm window) skips the build and resumes the run from its checkpoint. Run it
-# with STEPS_A=env T_B=0 T_C=0 to spend a call on slot P alone (a slot given 0 s is skipped); $OUT/paper.txt
-# says where the run stands (status.json: its seconds per phase), and once it is finished slot P2 (T_PP)
-# writes $OUT/paper.json: the FPS of the paper-scale model and a profile of its late stage 2.
+# PAPER_RUN=1 adds slot P: `m4dgs train --preset paper` at full length (about 11+ minutes on an H200, more
+# than one command may run) into $GPU_RUN/paper, cut at T_P seconds. The run folder and gsplat's build live in
+# GPU_RUN (default /tmp/gpu_run, outside the repository: a warm machine kept /tmp between two calls, while the
+# copy of the working tree came back without its ignored .gpu_run/ and gsplat compiled again, 55 s, in the
+# second call of 2026-11-26; that /tmp keeps the build is inferred, not yet seen): the same command again at
+# once (within the machine's 30 s warm window) should skip the build, and resumes the run from its checkpoint.
+# Run it with STEPS_A=env T_B=0 T_C=0 to spend a call on slot P alone (a slot given 0 s is skipped);
+# $OUT/paper.txt says where the run stands (status.json: its seconds per phase), and once it is finished slot
+# P2 (T_PP) writes $OUT/paper.json: the FPS of the paper-scale model and a profile of its late stage 2.
 set -u
 T0=$(date +%s)
 el() { echo "[gpu_session] $(($(date +%s) - T0)) s: $*"; }

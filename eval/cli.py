@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shlex
 from pathlib import Path
 
 import click
@@ -769,19 +770,20 @@ def results(csv_path, out_md, figures_dir, no_figures, readme, no_readme, title,
     default_fig = str(Path(out_md).parent / "figures" / Path(out_md).stem)
     fig = None if no_figures else (figures_dir or default_fig)
     # the command written into the page regenerates it as it is
-    cmd = f"m4dgs-eval results --csv {csv_path} --out {out_md}"
+    q = shlex.quote
+    cmd = f"m4dgs-eval results --csv {q(str(csv_path))} --out {q(str(out_md))}"
     if no_figures:
         cmd += " --no-figures"
     elif figures_dir and figures_dir != default_fig:
-        cmd += f" --figures {figures_dir}"
+        cmd += f" --figures {q(str(figures_dir))}"
     if no_readme:
         cmd += " --no-readme"
     elif readme != "README.md":
-        cmd += f" --readme {readme}"
+        cmd += f" --readme {q(str(readme))}"
     if title != "Results":
-        cmd += f" --title '{title}'"
+        cmd += f" --title {q(title)}"
     if notes_given:
-        cmd += f" --notes {notes}"
+        cmd += f" --notes {q(str(notes))}"
     res = render_results(
         csv_path,
         out_md,
