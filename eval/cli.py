@@ -731,9 +731,9 @@ def export(suites, out, csv_path, scenes, seeds):
     "figures_dir",
     default=None,
     type=click.Path(file_okay=False),
-    help="Folder for the figures, the page's own: PNGs in it that the page does not make are "
-    "removed (default: <folder of --out>/figures/<name of --out without .md>, e.g. "
-    "docs/figures/results).",
+    help="Folder for the figures; PNGs in it named as the page's figures (<suite>_<kind>.png) that "
+    "it no longer makes are removed (default: <folder of --out>/figures/<name of --out without "
+    ".md>, e.g. docs/figures/results).",
 )
 @click.option("--no-figures", is_flag=True, help="Write no figures (and link none).")
 @click.option(

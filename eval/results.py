@@ -1402,6 +1402,21 @@ def replace_readme_block(text: str, block: str, path="README") -> str:
     return text[:i] + block + text[j + len(README_END) :]
 
 
+FIGURE_KINDS = ("bars", "crf", "tae_psnr", "delta_tae_psnr")  # suite_result_figures' names
+
+
+def _is_results_figure(name: str) -> bool:
+    """Whether a file name is one `suite_result_figures` writes: <suite>_<kind>.png, the suite a
+    shipped suite (eval/suites/*.yaml)."""
+    from .suite import suites_dir
+
+    for kind in sorted(FIGURE_KINDS, key=len, reverse=True):
+        tail = f"_{kind}.png"
+        if name.endswith(tail):
+            return (suites_dir() / f"{name[: -len(tail)]}.yaml").is_file()
+    return False
+
+
 def render_results(
     csv_path,
     out_md,
@@ -1414,10 +1429,10 @@ def render_results(
 ) -> dict:
     """Write out_md (and the figures, and the README block) from the runs CSV.
 
-    figures_dir None: no figures (else the page's own folder: PNGs in it that this page does not
-    make are removed). readme: a README path whose marked block is replaced (None: none).
-    notes: the hand-written notes file linked from the page (None: no link). title: the page's
-    heading. Returns {"suites", "figures", "readme"}."""
+    figures_dir None: no figures (else PNGs in it named as this page's figures, <suite>_<kind>.png,
+    that the page no longer makes are removed). readme: a README path whose marked block is
+    replaced (None: none). notes: the hand-written notes file linked from the page (None: no
+    link). title: the page's heading. Returns {"suites", "figures", "readme"}."""
     csv_path, out_md = Path(csv_path), Path(out_md)
     out_dir = out_md.parent
     rows = read_runs_csv(csv_path)
@@ -1494,10 +1509,11 @@ def render_results(
     text = "\n".join(lines).rstrip("\n") + "\n"
     mio.write_bytes_atomic(out_md, text.encode())
     if figures_dir:
-        # the folder is the page's own: figures of suites no longer in the CSV go with them
+        # figures of suites no longer in the CSV go with them; only files named as this function
+        # names its figures are touched, so a shared folder keeps everything else
         made = {Path(p).resolve() for p in figs}
         for old_fig in Path(figures_dir).glob("*.png"):
-            if old_fig.resolve() not in made:
+            if old_fig.resolve() not in made and _is_results_figure(old_fig.name):
                 old_fig.unlink()
     res = {"suites": names, "figures": [str(p) for p in figs], "readme": None}
     if readme:

@@ -667,6 +667,11 @@ def test_results_page_title_own_figures_and_stated_command(tmp_path, monkeypatch
     main_figs = Path("docs/figures/results")
     main_figs.mkdir(parents=True)
     (main_figs / "keep.png").write_bytes(b"x")
+    # a PNG in the page's folder that is not named like a results figure of a shipped suite stays
+    figs = Path("docs/figures/results-old")
+    figs.mkdir(parents=True)
+    for other in ("diagram.png", "my-suite_bars.png"):
+        (figs / other).write_bytes(b"x")
     args = ["results", "--csv", "results/runs-old.csv", "--out", "docs/results-old.md"]
     args += ["--no-readme", "--title", "Old runs (superseded)"]
     r = CliRunner().invoke(main, args)
@@ -674,8 +679,8 @@ def test_results_page_title_own_figures_and_stated_command(tmp_path, monkeypatch
     page = Path("docs/results-old.md").read_text()
     assert page.startswith("# Old runs (superseded)\n")
     assert _page_command(page) == args
-    figs = Path("docs/figures/results-old")
-    made = sorted(p.name for p in figs.glob("*.png"))
+    foreign = ["diagram.png", "my-suite_bars.png"]
+    made = sorted(p.name for p in figs.glob("*.png") if p.name not in foreign)
     assert any(n.startswith("control-video-init-scale_") for n in made), made
     assert (main_figs / "keep.png").exists() and Path("README.md").read_text() == "# x\n"
     # the scale suite leaves the CSV: its figures leave the folder, the others stay
@@ -683,7 +688,8 @@ def test_results_page_title_own_figures_and_stated_command(tmp_path, monkeypatch
     r = CliRunner().invoke(main, _page_command(page))
     assert r.exit_code == 0, r.output
     after = sorted(p.name for p in figs.glob("*.png"))
-    assert after == [n for n in made if not n.startswith("control-video-init-scale_")]
+    kept = [n for n in made if not n.startswith("control-video-init-scale_")]
+    assert after == sorted(kept + foreign)
     assert after and Path("docs/results-old.md").read_text() != page
 
 
