@@ -87,6 +87,56 @@ def crf_csv_path(csv_path) -> Path:
     return p.with_name(p.stem + "-crf.csv")
 
 
+def floors_csv_path(csv_path) -> Path:
+    """The clip-floor CSV beside the runs CSV: results/runs.csv -> results/runs-floors.csv."""
+    p = Path(csv_path)
+    return p.with_name(p.stem + "-floors.csv")
+
+
+# the ground-truth HDR-TAE floors of a scene's clips (clip.json gt): the metric scored on the
+# ground truth itself, a property of the scene's HDR render, which every clip setting of one scene
+# and generator version shares (priors, camera response and exposure schedule change the inputs)
+FLOOR_KEY = ("scene", "generator")
+FLOOR_COLUMNS = ("hdr_tae_floor", "hdr_tae_floor_interior")
+
+
+def read_floors_csv(path) -> Dict[tuple, Dict[str, Optional[float]]]:
+    """{(scene, generator): {"hdr_tae_floor", "hdr_tae_floor_interior"}} of a clip-floor CSV."""
+    p = Path(path)
+    if not p.exists():
+        return {}
+    with open(p, newline="", encoding="utf-8") as f:
+        return {
+            (r["scene"], r["generator"]): {c: parse_number(r.get(c)) for c in FLOOR_COLUMNS}
+            for r in csv.DictReader(f)
+        }
+
+
+def write_floors_csv(path, floors: Dict[tuple, Dict[str, Optional[float]]]) -> None:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(list(FLOOR_KEY) + list(FLOOR_COLUMNS))
+    for k in sorted(floors):
+        w.writerow(list(k) + [fmt_number(floors[k].get(c)) for c in FLOOR_COLUMNS])
+    mio.write_bytes_atomic(Path(path), buf.getvalue().encode())
+
+
+def clip_floors(clip_dir) -> Optional[Tuple[tuple, Dict[str, Optional[float]]]]:
+    """((scene, generator), floors) from a clip's clip.json, None without a generator version or
+    a recorded floor (clips benchgen did not make, or made before the floors were recorded)."""
+    c = Path(clip_dir) / "clip.json" if clip_dir else None
+    if c is None or not c.exists():
+        return None
+    meta = mio.read_json(c)
+    gen = str((meta.get("generator") or {}).get("version", ""))
+    gt = meta.get("gt") or {}
+    vals = {k: gt.get(k) for k in FLOOR_COLUMNS}
+    vals = {k: float(v) if isinstance(v, (int, float)) else None for k, v in vals.items()}
+    if not gen or vals["hdr_tae_floor"] is None:
+        return None
+    return (str(meta.get("name") or Path(clip_dir).name), gen), vals
+
+
 def fmt_number(v) -> str:
     """A metric as CSV text: 6 significant digits (integers from 1e6 on), "" for None / NaN."""
     if v is None or isinstance(v, bool):
@@ -140,9 +190,10 @@ def _provenance(run_dir, clip_dir) -> Dict[str, str]:
     }
 
 
-def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List[dict]]:
-    """(runs rows, CRF rows) of one suite's jobs under ROOT (eval.cli.collect_suite): every job, a
-    scored one with its metrics, a job without metrics.json with status "missing". Without
+def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List[dict], dict]:
+    """(runs rows, CRF rows, clip floors) of one suite's jobs under ROOT (eval.cli.collect_suite):
+    every job, a scored one with its metrics, a job without metrics.json with status "missing";
+    the floors {(scene, generator): {...}} of the scored runs' clips (clip_floors). Without
     `scenes`, only the scenes with at least one run folder of the suite (the subset that was run);
     with `scenes`, every job of those scenes."""
     from .cli import collect_suite
@@ -154,7 +205,7 @@ def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List
         ran = {e["scene"] for e in entries if Path(e["run_dir"]).exists()}
         entries = [e for e in entries if e["scene"] in ran]
     keys = metric_keys()
-    rows, crfs = [], []
+    rows, crfs, floors = [], [], {}
     for e in entries:
         row = s.row(e["row"])
         setting = s.clips[row.clip]
@@ -181,7 +232,10 @@ def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List
         vals = _crf_values(curve) if e["metrics"] else None
         if vals is not None:
             crfs.append({**{k: r[k] for k in CRF_KEY}, "values": vals})
-    return rows, crfs
+        fl = clip_floors(e["clip_dir"]) if e["metrics"] else None
+        if fl is not None:
+            floors[(e["scene"], fl[0][1])] = fl[1]
+    return rows, crfs, floors
 
 
 def read_runs_csv(path) -> List[dict]:
@@ -272,7 +326,8 @@ def merge_rows(old: List[dict], new: List[dict]) -> List[dict]:
 
 
 def export(suites: Sequence[str], root, csv_path, scenes=None, seeds=None, log=None) -> dict:
-    """Collect the runs of `suites` under ROOT and merge them into csv_path and its CRF CSV.
+    """Collect the runs of `suites` under ROOT and merge them into csv_path, its CRF CSV and its
+    clip-floor CSV (floors_csv_path; written when a run's clip records its floors).
 
     Returns {suite: {"scored", "missing"}} of what was collected; raises InputError when a suite
     has no scored run under ROOT (a wrong ROOT would otherwise add only missing rows)."""
@@ -286,9 +341,11 @@ def export(suites: Sequence[str], root, csv_path, scenes=None, seeds=None, log=N
             head = next(csv.reader(f), [])
         extra = [c for c in head if c not in META and c not in metric_keys()]
     curves = read_crf_csv(crf_csv_path(csv_path))
+    floors = read_floors_csv(floors_csv_path(csv_path))
     new_rows, summary = [], {}
     for suite in suites:
-        rows, crfs = export_suite(suite, root, scenes, seeds)
+        rows, crfs, fl = export_suite(suite, root, scenes, seeds)
+        floors.update(fl)
         name = rows[0]["suite"] if rows else str(suite)
         scored = [r for r in rows if r["status"] == SCORED]
         if not scored:
@@ -325,6 +382,8 @@ def export(suites: Sequence[str], root, csv_path, scenes=None, seeds=None, log=N
     Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
     write_runs_csv(csv_path, merged, extra)
     write_crf_csv(crf_csv_path(csv_path), curves)
+    if floors:
+        write_floors_csv(floors_csv_path(csv_path), floors)
     return summary
 
 
@@ -1303,7 +1362,32 @@ def _partial_text(data: SuiteData) -> str:
     )
 
 
-def suite_section(data: SuiteData, fig_paths: List[Path], out_dir: Path) -> str:
+def floors_text(data: SuiteData, floors: Dict[tuple, Dict[str, Optional[float]]]) -> Optional[str]:
+    """The suite's line on the ground-truth HDR-TAE floors of its scored runs' clips (mean and
+    range over its (scene, generator) clips in `floors`), None when none has a recorded floor."""
+    clips = sorted(
+        {(r["scene"], str(r.get("generator") or "")) for r in data.rows if r["status"] == SCORED}
+    )
+    have = [floors[c] for c in clips if c in floors]
+    if not have:
+        return None
+
+    def stat(col):
+        v = [f[col] for f in have if f.get(col) is not None]
+        return f"{sum(v) / len(v):.3f} ({min(v):.3f}-{max(v):.3f})" if v else "n/a"
+
+    return (
+        "- Ground-truth HDR-TAE floor of its clips (clip.json `gt.hdr_tae_floor`: the metric "
+        "scored on the ground truth itself, the level a method's HDR-TAE is read against, "
+        "docs/rendering.md): "
+        f"mean {stat('hdr_tae_floor')} over {len(have)} of its {len(clips)} clips; edge-excluded "
+        f"(`gt.hdr_tae_floor_interior`, for `hdr_tae_interior`) {stat('hdr_tae_floor_interior')}"
+    )
+
+
+def suite_section(
+    data: SuiteData, fig_paths: List[Path], out_dir: Path, floors: Optional[dict] = None
+) -> str:
     from .suite import suites_dir
 
     sm = _suite_summary(data)
@@ -1338,6 +1422,9 @@ def suite_section(data: SuiteData, fig_paths: List[Path], out_dir: Path) -> str:
         f"(= {sm['scenes']} scenes x {sm['rows']} rows x {sm['seeds']} seeds); missing: "
         + miss_txt,
     ]
+    ft = floors_text(data, floors or {})
+    if ft:
+        lines.append(ft)
     if sm["left_out"]:
         lines.append(_partial_text(data))
     lines += [
@@ -1437,6 +1524,7 @@ def render_results(
     out_dir = out_md.parent
     rows = read_runs_csv(csv_path)
     curves = read_crf_csv(crf_csv_path(csv_path))
+    floors = read_floors_csv(floors_csv_path(csv_path))
     names = suites_in(rows)
     datas = {n: suite_data(n, rows) for n in names}
     notes_link = _rel(notes, out_dir) if notes else None
@@ -1450,7 +1538,12 @@ def render_results(
         "",
         (
             f"Generated by `{cmd}` from [{csv_path.as_posix()}]({csv_link}) (sha256 {digest}, "
-            f"with the CRF curves in `{crf_csv_path(csv_path).name}`)."
+            f"with the CRF curves in `{crf_csv_path(csv_path).name}`"
+            + (
+                f" and the clips' HDR-TAE floors in `{floors_csv_path(csv_path).name}`)."
+                if floors
+                else ")."
+            )
             if digest
             else f"Generated by `{cmd}` from `{csv_path.as_posix()}` (the file does not exist yet)."
         ),
@@ -1503,7 +1596,7 @@ def render_results(
     for n in names:
         fp = suite_result_figures(datas[n], curves, figures_dir) if figures_dir else []
         figs += fp
-        lines += [suite_section(datas[n], fp, out_dir), ""]
+        lines += [suite_section(datas[n], fp, out_dir, floors), ""]
     lines.append(findings_markdown(rows, notes_link))
     lines += ["", controls_markdown(rows, notes_link)]
     text = "\n".join(lines).rstrip("\n") + "\n"

@@ -47,6 +47,9 @@ def _value(rng, scene_base, row, k):
     return scene_base[k] + OFFSETS[row][k] + rng.normal(0, [0.15, 0.15, 0.2, 0.003, 0.002][k])
 
 
+LAMP_FLOORS = {"hdr_tae_floor": 0.1234, "hdr_tae_floor_interior": 0.0712}
+
+
 def _write_run(root, suite, scene, row, seed, vals, curve_gain=None):
     d = Path(root) / "runs" / suite / scene / (row if seed == 0 else f"{row}-seed-{seed}")
     d.mkdir(parents=True, exist_ok=True)
@@ -56,7 +59,8 @@ def _write_run(root, suite, scene, row, seed, vals, curve_gain=None):
     if scene == "lamp-room-orbit":  # only this scene's clip says its generator version
         c = Path(root) / "clips" / "syn-exp-3" / scene
         c.mkdir(parents=True, exist_ok=True)
-        (c / "clip.json").write_text(json.dumps({"generator": {"tool": "benchgen", "version": 7}}))
+        meta = {"generator": {"tool": "benchgen", "version": 7}, "gt": LAMP_FLOORS}
+        (c / "clip.json").write_text(json.dumps(meta))
     if (suite, scene, row, seed) == MISSING:
         return None
     m = dict(vals)
@@ -274,6 +278,16 @@ def test_export_merge_results_readme(tmp_path):
     assert r.exit_code == 0, r.output
     assert "warning: suite paper-main mixes m4dgs code versions" in r.output
     assert "ffffffffffff (1 runs)" in r.output and "(9 runs)" in r.output
+    # the clips' HDR-TAE floors: one row per (scene, generator) whose clip.json records them
+    floors = read_csv(tmp_path / "results" / "runs-floors.csv")
+    assert floors == [
+        {
+            "scene": "lamp-room-orbit",
+            "generator": "7",
+            "hdr_tae_floor": "0.1234",
+            "hdr_tae_floor_interior": "0.0712",
+        }
+    ]
     # the CRF curves: seed-0 runs only (the others have none), mean of RGB at 3 decimals
     crf = read_csv(tmp_path / "results" / "runs-crf.csv")
     assert len(crf) == 3 * 6 + 2 * 5
@@ -387,6 +401,15 @@ def test_export_merge_results_readme(tmp_path):
     assert "- Runs: 10 scored of 10 (= 2 scenes x 5 rows x 1 seeds); missing: 0" in text
     assert text.count("**Incomplete pairs**") == 1  # paper-main is complete
     assert "- Preset: small" in text and "[results-notes.md](results-notes.md)" in text
+    # the floor line: paper-ablation's clips are lamp-room-orbit (generator 7, floors recorded)
+    # and two scenes whose clips say no generator
+    n_abl = len({(r["scene"], r["generator"]) for r in rows if r["suite"] == "paper-ablation"})
+    assert (
+        "mean 0.123 (0.123-0.123) over 1 of its "
+        f"{n_abl} clips; edge-excluded (`gt.hdr_tae_floor_interior`, for `hdr_tae_interior`) "
+        "0.071 (0.071-0.071)" in text
+    )
+    assert "the clips' HDR-TAE floors in `runs-floors.csv`" in text
     assert "| [paper-ablation](#paper-ablation) | 3 of 9 | 6 | 2 | small | 35 of 36 | 1 |" in text
     # figures
     figs = docs / "figures" / "results"
@@ -835,3 +858,24 @@ def test_control_reading():
     assert R.control_reading(Interval(-1.0, 0.5, 4), Interval(0.9, 0.5, 4)) == R.SHRINKS
     assert R.control_reading(base, Interval(0.9, None, 1)) == R.NO_DATA
     assert R.control_reading(None, Interval(0.9, 0.5, 4)) == R.NO_DATA
+
+
+def test_floor_line_mean_and_range_over_the_suites_clips(tmp_path):
+    """floors_text: mean and range over the (scene, generator) clips of the suite's scored runs
+    that have a recorded floor, recomputed with numpy; clips of another generator version do not
+    count; no line without any floor."""
+    from eval import results as R
+
+    csv_path = tmp_path / "runs.csv"
+    R.write_runs_csv(csv_path, _control_rows(np.random.default_rng(3)))
+    data = R.suite_data("control-video-init-priors", R.read_runs_csv(csv_path))
+    floors = {
+        ("lamp-room-orbit", "6"): {"hdr_tae_floor": 0.118, "hdr_tae_floor_interior": 0.068},
+        ("pendulum-lamp-handheld", "6"): {"hdr_tae_floor": 0.126, "hdr_tae_floor_interior": None},
+        ("robot-arm-dolly", "5"): {"hdr_tae_floor": 0.5, "hdr_tae_floor_interior": 0.5},
+    }
+    line = R.floors_text(data, floors)
+    f = np.array([0.118, 0.126])
+    assert f"mean {f.mean():.3f} ({f.min():.3f}-{f.max():.3f}) over 2 of its 3 clips" in line
+    assert line.endswith("0.068 (0.068-0.068)")
+    assert R.floors_text(data, {}) is None
