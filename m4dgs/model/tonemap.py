@@ -105,7 +105,7 @@ class ToneMapper(nn.Module):
         (checked in the tests)."""
         c = self.n_channels
         zd = z.detach()
-        lo, hi = float(zd.min()), float(zd.max())
+        lo, hi = torch.stack(torch.aminmax(zd)).tolist()  # one read from the device, not two
         if not hi > lo:
             return self.curve(z)
         nodes = torch.linspace(lo, hi, self.lut_size, dtype=z.dtype, device=z.device)

@@ -205,14 +205,21 @@ class Stage(ABC):
                 group["lr"] = lr
         L, meta = self.losses(it)
         total = total_loss(L, self.weights())
-        total_value = float(total.detach())
-        if not math.isfinite(total_value):
-            self.raise_non_finite(it, L)
         info = {"means2d": meta.means2d, "radii": meta.radii, "width": self.W, "height": self.H}
         sets = self.gaussian_sets()
         for s in sets:
             s.strategy.step_pre_backward(s.params, s.optimizers, s.state, it, info)
         total.backward()
+        # every logged value in one read from the device (each read waits for it on CUDA), taken
+        # after backward so that the backward kernels are queued before the wait; a non-finite
+        # loss stops the step before any parameter moves
+        values = torch.stack(
+            [total.detach().double().reshape(())]
+            + [v.detach().double().reshape(()) for v in L.values()]
+        ).tolist()
+        total_value = values[0]
+        if not math.isfinite(total_value):
+            self.raise_non_finite(it, L)
         for o in optimizers:
             o.step()
         counts = self.densify(it, info, sets)
@@ -221,7 +228,7 @@ class Stage(ABC):
         counts.update(self.after_step(it))
         if (it + 1) % PARAMETER_CHECK_EVERY == 0 or (it + 1) % self.cfg.checkpoint_every == 0:
             self.check_parameters(it)
-        rec = {k: float(v.detach()) for k, v in L.items()}
+        rec = dict(zip(L.keys(), values[1:]))
         rec["total"] = total_value
         rec.update(self.record())
         rec.update(counts)

@@ -468,8 +468,12 @@ def test_a_non_finite_loss_stops_training_naming_stage_step_and_term(data):
     st.step(0)
     with torch.no_grad():
         st.gauss.params["features"].fill_(float("nan"))  # every colour NaN -> rgb loss NaN
+    before = {k: v.detach().clone() for k, v in st.gauss.params.items() if k != "features"}
     with pytest.raises(NonFiniteError, match=r"stage1: step 1: non-finite loss \(rgb=nan"):
         st.step(1)
+    # it stops before any optimiser step: the other parameters have not moved
+    for k, v in before.items():
+        assert torch.equal(st.gauss.params[k].detach(), v), k
 
 
 def test_a_non_finite_parameter_stops_training_naming_it(data):
@@ -517,3 +521,72 @@ def test_too_few_training_frames_or_an_unseen_level_is_refused():
         check_enough_frames([0.125, 2.0, 0.125, 2.0], [0.125, 2.0, 32.0], "clip.json")
     # random-values: the exposures lie between the levels by design
     check_enough_frames([0.2, 1.7, 9.0, 0.4], [0.125, 2.0, 32.0], "clip.json", "random-values")
+
+
+# device reads of a training step: on CUDA each one (float(t), bool(t), int(t), .item(), .tolist(),
+# nonzero) waits for the GPU, so the CPU cannot queue the next kernels meanwhile
+_READS = ("__float__", "__bool__", "__int__", "__index__", "item", "tolist", "nonzero")
+# not counted: the spline's column narrowing (CPU tensors only) and the rasterizers (their reads are
+# the backend's own: gsplat's on CUDA, which the GPU profile of bench/step_bench.py counts)
+_NOT_COUNTED = ("core/spline.py", "raster/")
+
+
+def _count_device_reads(fn):
+    """(result, {call site: reads}) of fn(), counting the reads on paths that also run on CUDA."""
+    import traceback
+    from collections import Counter
+
+    sites: Counter = Counter()
+    saved = {n: getattr(torch.Tensor, n) for n in _READS}
+    saved_nz = torch.nonzero
+
+    def site():
+        frames = [f for f in traceback.extract_stack()[:-2] if "/m4dgs/" in f.filename]
+        return f"{frames[-1].filename.split('/m4dgs/')[-1]}:{frames[-1].lineno}" if frames else ""
+
+    def wrap(orig):
+        def f(*a, **k):
+            s = site()
+            if s and not s.startswith(_NOT_COUNTED):
+                sites[s] += 1
+            return orig(*a, **k)
+
+        return f
+
+    try:
+        for n, orig in saved.items():
+            setattr(torch.Tensor, n, wrap(orig))
+        torch.nonzero = wrap(saved_nz)
+        out = fn()
+    finally:
+        for n, orig in saved.items():
+            setattr(torch.Tensor, n, orig)
+        torch.nonzero = saved_nz
+    return out, sites
+
+
+def test_a_training_step_reads_the_device_a_few_times(data):
+    """A stage-1 and a stage-2 step (TLR on, no densification this step) read values from the
+    device at most 4 times: the logged losses in one read, the tone mapper's input range in one,
+    and a validity test or two. Each read waits for the GPU on CUDA; the logged losses alone were
+    9 reads (counted here with the Tensor methods wrapped; _NOT_COUNTED says what is left out)."""
+    for make, it in ((video_stage, 2_500), (world_stage, 2_000)):
+        st = make(data)
+        assert it >= st.tlr_start_step()
+        st.step(it)  # first step: lazy set-up outside the count
+        rec, sites = _count_device_reads(lambda st=st, it=it: st.step(it + 1))
+        assert "total" in rec and "tlr" in rec, rec
+        assert sum(sites.values()) <= 4, dict(sites)
+        assert all(n == 1 for n in sites.values()), dict(sites)
+
+
+def test_the_tone_mapper_table_reads_its_input_range_once():
+    """ToneMapper.curve_lut spans its table over the input's range with one read from the device
+    (the min and max together), and gives the table's values: against the exact curve."""
+    from m4dgs.model.tonemap import ToneMapper
+
+    tm = ToneMapper(hidden=16, generator=torch.Generator().manual_seed(0))
+    z = torch.linspace(-3.0, 2.0, 300).reshape(100, 3)
+    out, sites = _count_device_reads(lambda: tm.curve_lut(z))
+    assert list(sites.values()) == [1] and next(iter(sites)).startswith("model/tonemap.py:"), sites
+    torch.testing.assert_close(out, tm.curve(z), rtol=0, atol=1e-4)
