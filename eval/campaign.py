@@ -28,7 +28,7 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, List, Optional
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import yaml
 
@@ -141,11 +141,45 @@ def _seeds(v, path, key) -> int:
 def job_iterations(job) -> int:
     """Optimisation iterations of a job (stage 1, when trained, + stage 2) under its resolved
     configuration: the unit of the campaign's time estimate."""
+    _, s1, s2 = job_cost(job)
+    return s1 + s2
+
+
+def job_cost(job) -> Tuple[Optional[str], int, int]:
+    """(stage-1 share key, stage-1 iterations, stage-2 iterations) of a job: the key groups the
+    jobs whose stage 1 (with camera initialisation) is one computation shared through ROOT/.shared
+    (m4dgs.training.phases.phase_keys over the resolved configuration, with the clip folder
+    standing for the clip: the rest of the real key's context is the same for every job of one
+    campaign); None for a variant without stage 1."""
+    from m4dgs.training.config import to_dict
+    from m4dgs.training.phases import phase_keys
     from m4dgs.training.variants import variant_config
 
     cfg = variant_config(job.preset, job.variant, job.overrides)
-    s1 = cfg.stage1.iterations if cfg.ablation.use_video_init else 0
-    return int(s1 + cfg.stage2.iterations)
+    if not cfg.ablation.use_video_init:
+        return None, 0, int(cfg.stage2.iterations)
+    key = phase_keys(to_dict(cfg), {"clip": str(job.clip_dir)}, job.variant)["stage1"]
+    return key, int(cfg.stage1.iterations), int(cfg.stage2.iterations)
+
+
+def todo_iterations(statuses: Sequence[dict]) -> List[int]:
+    """Per step (in campaign order), the iterations still to train, counting a stage 1 that rows
+    share once: not at all when a finished job of the campaign has it (it is in the share
+    folder), else for the first job that needs it."""
+    have = {k for s in statuses for done, k, _, _ in s["job_costs"] if done and k}
+    out = []
+    for s in statuses:
+        n = 0
+        for done, key, s1, s2 in s["job_costs"]:
+            if done:
+                continue
+            n += s2
+            if key is None or key not in have:
+                n += s1
+                if key is not None:
+                    have.add(key)
+        out.append(n)
+    return out
 
 
 def recorded_runs(csv_path, preset: str, generator: Optional[str] = None) -> Dict[tuple, dict]:
@@ -175,22 +209,27 @@ def job_key(job) -> tuple:
 def step_status(
     step: Step, root, preset: str, recorded: Optional[Dict[tuple, dict]] = None
 ) -> dict:
-    """{"total", "scored", "recorded", "codes", "todo_iterations", "sec_per_iteration"}: the step's
-    jobs, how many are finished (metrics.json under ROOT, or, for a job without a run folder under
-    ROOT, a scored row of `recorded`, the runs CSV: recorded_runs), how many of those only the CSV
-    holds, a Counter of the m4dgs code (run.json / CSV `code`, 12 hex digits) of the finished ones,
-    the iterations of the jobs still to train, and the recorded training seconds per iteration of
-    each finished run (run.json `train_seconds`, or the CSV's `train_minutes`: the method's cost,
-    shared phases counted at their producer's time)."""
+    """{"total", "scored", "recorded", "codes", "todo_iterations", "sec_per_iteration",
+    "job_costs"}: the step's jobs, how many are finished (metrics.json under ROOT, or, for a job
+    without a run folder under ROOT, a scored row of `recorded`, the runs CSV: recorded_runs),
+    how many of those only the CSV holds, a Counter of the m4dgs code (run.json / CSV `code`, 12
+    hex digits) of the finished ones, the iterations of the jobs still to train, and the
+    recorded training seconds per iteration of each finished run (run.json `train_seconds`, or
+    the CSV's `train_minutes`: the method's cost, shared phases counted at their producer's
+    time), and per job (finished, stage-1 share key, stage-1 iterations, stage-2 iterations) for
+    todo_iterations (todo_iterations here counts every job in full)."""
     from .runner import job_list
 
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
     recorded = recorded or {}
     codes: Counter = Counter()
-    scored, in_csv, todo, rates = 0, 0, 0, []
+    scored, in_csv, todo, rates, costs = 0, 0, 0, [], []
     for j in jl:
         run = Path(j.run_dir)
         row = recorded.get(job_key(j))
+        done = (row is not None and not run.exists()) or (run / "metrics.json").exists()
+        key, s1, s2 = job_cost(j)
+        costs.append((done, key, s1, s2))
         if row is not None and not run.exists():  # a run folder, even unscored, wins
             scored += 1
             in_csv += 1
@@ -206,7 +245,7 @@ def step_status(
             if isinstance(sec, (int, float)) and sec > 0:
                 rates.append(float(sec) / max(job_iterations(j), 1))
         else:
-            todo += job_iterations(j)
+            todo += s1 + s2
     return {
         "total": len(jl),
         "scored": scored,
@@ -214,12 +253,13 @@ def step_status(
         "codes": codes,
         "todo_iterations": todo,
         "sec_per_iteration": rates,
+        "job_costs": costs,
     }
 
 
 def estimate_hours(todo_iterations: int, sec_per_iteration: float, jobs: int) -> float:
     """Hours for `todo_iterations` at the recorded seconds per iteration of one run, `jobs` runs
-    at a time (an upper bound where phases are shared: the recorded seconds count them in full)."""
+    at a time."""
     return todo_iterations * sec_per_iteration / max(jobs, 1) / 3600.0
 
 
@@ -267,13 +307,16 @@ def run_campaign(
     statuses = [step_status(st, root, campaign.preset, recorded) for st in campaign.steps]
     rates = sorted(r for s in statuses for r in s["sec_per_iteration"])
     rate = rates[len(rates) // 2] if rates else None
+    # a stage 1 that rows share (in the share folder already, or made by an earlier job) counts once
+    for s, todo in zip(statuses, todo_iterations(statuses)):
+        s["todo_iterations"] = todo
     left = 0.0
     for i, st in enumerate(campaign.steps, 1):
-        s = (
-            statuses[i - 1]
-            if i == 1 or dry_run
-            else step_status(st, root, campaign.preset, recorded)
-        )
+        if i == 1 or dry_run:
+            s = statuses[i - 1]
+        else:  # earlier steps have run since: this step's state now
+            s = step_status(st, root, campaign.preset, recorded)
+            s["todo_iterations"] = todo_iterations([s])[0]
         summary = dict(suite=st.suite, scenes=st.scenes, seeds=st.seeds, ran=False, **s)
         where = "all scenes" if st.scenes is None else ",".join(st.scenes)
         eta = ""
@@ -338,7 +381,7 @@ def run_campaign(
     if dry_run and left:
         say(
             f"[campaign {campaign.name}] estimate: ~{left:.1f} h of training left at --jobs {jobs} "
-            f"(median {rate:.3f} s per iteration over {len(rates)} scored run(s) in this root; "
-            "shared phases make it an upper bound)"
+            f"(median {rate:.3f} s per iteration over {len(rates)} scored run(s) in this root or "
+            "the CSV; a stage 1 that rows share counted once)"
         )
     return out

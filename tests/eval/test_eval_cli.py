@@ -1123,6 +1123,7 @@ def test_campaign_time_estimate_from_recorded_seconds(tmp_path, fake_trainer):
     assert "estimate_hours" not in plan[0]
     assert plan[1]["estimate_hours"] == pytest.approx(todo * rate / 2 / 3600)
     assert any("h of training left at --jobs 2" in ln for ln in lines)
+    assert [ln.split(":")[0].split()[-1] for ln in lines if "] step " in ln] == ["1/2", "2/2"]
 
 
 def test_campaign_runs_exports_resumes_and_guards_the_code(tmp_path, fake_trainer):
@@ -1241,3 +1242,56 @@ def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trai
     assert len(fake_trainer["train"]) == 8  # only the job the CSV lacked
     assert fake_trainer["train"][-1][0].endswith("tiny-flag-arm/full-seed-1")
     assert len(csv_keys()) == 8
+
+
+SHARE_SUITE_YAML = """name: t3
+description: rows that differ after stage 1, one that does not
+scenes: tiny
+rows:
+  - {name: full, label: "Ours", variant: full}
+  - {name: no-occlusion, label: "(b)", variant: no-occlusion}
+  - {name: no-reproj, label: "(d)", variant: no-reproj}
+  - {name: no-tlr, label: "(e)", variant: no-tlr}
+  - {name: base, label: "Baseline", variant: world-only}
+tables:
+  - {title: "Main", columns: paper}
+"""
+
+
+def test_campaign_estimate_counts_a_shared_stage_1_once(tmp_path):
+    """job_cost: rows that change only V2W or stage 2 ((b), (d)) share full's stage-1 key, a row
+    that changes stage 1 ((e) w/o TLR), another trainer seed or another clip does not, a row
+    without stage 1 has none. todo_iterations counts each key's stage 1 once, and not at all when
+    a finished job has it; counted here from the budgets (m4dgs.training.variants.budget)."""
+    from eval.campaign import Step, job_cost, step_status, todo_iterations
+    from eval.runner import job_list
+    from m4dgs.training.variants import budget
+
+    suite = tmp_path / "t3.yaml"
+    suite.write_text(SHARE_SUITE_YAML)
+    out = tmp_path / "exp"
+    jobs = job_list(suite, out, "tiny", seeds=2)
+    key = {(j.scene, j.row, j.seed): job_cost(j)[0] for j in jobs}
+    lamp = "tiny-lamp-box"
+    assert key[(lamp, "full", 0)] == key[(lamp, "no-occlusion", 0)] == key[(lamp, "no-reproj", 0)]
+    assert key[(lamp, "no-tlr", 0)] not in (None, key[(lamp, "full", 0)])
+    assert key[(lamp, "full", 1)] != key[(lamp, "full", 0)]  # trainer seeds are never shared
+    assert key[("tiny-flag-arm", "full", 0)] != key[(lamp, "full", 0)]
+    assert key[(lamp, "base", 0)] is None
+    s1 = {v: budget("tiny", v)[0] for v in ("full", "no-tlr", "world-only")}
+    s2 = {
+        v: budget("tiny", v)[1]
+        for v in ("full", "no-occlusion", "no-reproj", "no-tlr", "world-only")
+    }
+    assert s1["world-only"] == 0 and s1["full"] > 0
+    st = step_status(Step(suite=str(suite), scenes=None, seeds=2), out, "tiny")
+    rows = ("full", "no-occlusion", "no-reproj", "no-tlr", "base")
+    variants = ("full", "no-occlusion", "no-reproj", "no-tlr", "world-only")
+    per_clip_seed = sum(s2[v] for v in variants) + s1["full"] + s1["no-tlr"]
+    assert todo_iterations([st]) == [4 * per_clip_seed]  # 2 clips x 2 seeds, nothing finished
+    assert st["todo_iterations"] == 4 * (per_clip_seed + 2 * s1["full"])  # every job in full
+    # lamp's seed-0 full is finished: (b) and (d) there find its stage 1 in the share folder
+    costs = [(j.scene == lamp and j.row == "full" and j.seed == 0, *job_cost(j)) for j in jobs]
+    assert len(costs) == 4 * len(rows)
+    done_st = dict(st, job_costs=costs)
+    assert todo_iterations([done_st]) == [4 * per_clip_seed - s2["full"] - s1["full"]]
