@@ -146,20 +146,13 @@ def job_iterations(job) -> int:
 
 
 def job_cost(job) -> Tuple[Optional[str], int, int]:
-    """(stage-1 share key, stage-1 iterations, stage-2 iterations) of a job: the key groups the
-    jobs whose stage 1 (with camera initialisation) is one computation shared through ROOT/.shared
-    (m4dgs.training.phases.phase_keys over the resolved configuration, with the clip folder
-    standing for the clip: the rest of the real key's context is the same for every job of one
-    campaign); None for a variant without stage 1."""
-    from m4dgs.training.config import to_dict
-    from m4dgs.training.phases import phase_keys
-    from m4dgs.training.variants import variant_config
+    """(stage-1 share key, stage-1 iterations, stage-2 iterations) of a job
+    (m4dgs.training.variants.stage1_plan with the job's clip folder standing for the clip): the
+    key groups the jobs whose stage 1 is one computation shared through ROOT/.shared; None for a
+    variant without stage 1."""
+    from m4dgs.training.variants import stage1_plan
 
-    cfg = variant_config(job.preset, job.variant, job.overrides)
-    if not cfg.ablation.use_video_init:
-        return None, 0, int(cfg.stage2.iterations)
-    key = phase_keys(to_dict(cfg), {"clip": str(job.clip_dir)}, job.variant)["stage1"]
-    return key, int(cfg.stage1.iterations), int(cfg.stage2.iterations)
+    return stage1_plan(job.preset, job.variant, job.overrides, str(job.clip_dir))
 
 
 def todo_iterations(statuses: Sequence[dict]) -> List[int]:

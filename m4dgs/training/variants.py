@@ -191,3 +191,21 @@ def budget(preset: str, variant: str = "full") -> Tuple[int, int, int]:
     cfg = variant_config(preset, variant)
     s1 = cfg.stage1.iterations if cfg.ablation.use_video_init else 0
     return s1, cfg.stage2.iterations, s1 + cfg.stage2.iterations
+
+
+def stage1_plan(
+    preset: str, variant: str, overrides: Optional[Mapping[str, Any]] = None, clip: str = ""
+) -> Tuple[Optional[str], int, int]:
+    """(stage-1 share key, stage-1 iterations, stage-2 iterations) of a run: runs with one key
+    compute one stage 1 (with camera initialisation) through a share folder
+    (m4dgs.training.phases.phase_keys over the resolved configuration; `clip` stands for the
+    clip, the rest of the real key's context being the same for the runs of one experiment
+    root). The key is None for a variant without stage 1."""
+    from m4dgs.training.config import to_dict
+    from m4dgs.training.phases import phase_keys
+
+    cfg = variant_config(preset, variant, overrides)
+    if not cfg.ablation.use_video_init:
+        return None, 0, int(cfg.stage2.iterations)
+    key = phase_keys(to_dict(cfg), {"clip": str(clip)}, variant)["stage1"]
+    return key, int(cfg.stage1.iterations), int(cfg.stage2.iterations)
