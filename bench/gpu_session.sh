@@ -24,10 +24,11 @@
 set -u
 T0=$(date +%s)
 el() { echo "[gpu_session] $(($(date +%s) - T0)) s: $*"; }
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .gpu/whl/*.whl || exit 3
-export PYTHONPATH=/tmp/site:$PWD TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0} MAX_JOBS=${MAX_JOBS:-16} PYTHONUNBUFFERED=1
 GPU_RUN=${GPU_RUN:-/tmp/gpu_run}
 mkdir -p "$GPU_RUN"
+# the wheels, gsplat's build, the paper run and each slot's scratch folder all live in GPU_RUN
+python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target "$GPU_RUN/site" .gpu/whl/*.whl || exit 3
+export PYTHONPATH=$GPU_RUN/site:$PWD TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0} MAX_JOBS=${MAX_JOBS:-16} PYTHONUNBUFFERED=1
 export TORCH_EXTENSIONS_DIR=$GPU_RUN/torch_extensions
 nvidia-smi -L
 nvcc --version | tail -1
@@ -35,10 +36,10 @@ C=$(ls -d .gpu/clip/*/ | head -1)
 OUT=${OUT:-/tmp/gpu_out}
 mkdir -p "$OUT"
 el "slot A: ${STEPS_A:-env,tests}"
-timeout -k 5 "${T_A:-270}" python3 bench/gpu_check.py "$C" --out /tmp/a --steps "${STEPS_A:-env,tests}"
+timeout -k 5 "${T_A:-270}" python3 bench/gpu_check.py "$C" --out "$GPU_RUN/a" --steps "${STEPS_A:-env,tests}"
 pkill -f pytest
-cp /tmp/a/gpu_check.json "$OUT/a.json"
-python3 -c "import json,sys; d=json.load(open('/tmp/a/gpu_check.json')); sys.exit('gsplat_first_render_s' not in d['steps']['env'])" || { el "gsplat did not build"; exit 4; }
+cp "$GPU_RUN/a/gpu_check.json" "$OUT/a.json"
+python3 -c "import json,sys; d=json.load(open(sys.argv[1])); sys.exit('gsplat_first_render_s' not in d['steps']['env'])" "$GPU_RUN/a/gpu_check.json" || { el "gsplat did not build"; exit 4; }
 if [ "${PAPER_RUN:-0}" = 1 ]; then
   el "slot P: m4dgs train --preset paper (full length) into $GPU_RUN/paper, ${T_P:-480} s"
   timeout -k 5 "${T_P:-480}" python3 -m m4dgs train --clip "$C" --preset paper --device cuda --quiet --out "$GPU_RUN/paper"
@@ -48,23 +49,23 @@ if [ "${PAPER_RUN:-0}" = 1 ]; then
   # once the run is finished: FPS of the paper-scale model it trained and a profile of its late stage 2
   if grep -q '"stage": "done"' "$GPU_RUN/paper/status.json" 2>/dev/null && [ "${T_PP:-150}" != 0 ]; then
     el "slot P2: FPS and stage-2 profile of the finished paper run, ${T_PP:-150} s"
-    timeout -k 5 "${T_PP:-150}" python3 bench/gpu_check.py "$C" --out /tmp/p --preset paper --steps fps,profile --run "$GPU_RUN/paper"
-    cp /tmp/p/gpu_check.json "$OUT/paper.json" 2>/dev/null
+    timeout -k 5 "${T_PP:-150}" python3 bench/gpu_check.py "$C" --out "$GPU_RUN/p" --preset paper --steps fps,profile --run "$GPU_RUN/paper"
+    cp "$GPU_RUN/p/gpu_check.json" "$OUT/paper.json" 2>/dev/null
   fi
 fi
 # a slot given 0 seconds is skipped (`timeout 0` would mean no limit at all)
 if [ "${T_B:-200}" != 0 ]; then
   el "slot B: ${PRESET:-paper} training, ${ITERS:-1000} iterations per stage, ${STEPS_B:-train,fps,fps_scale,profile}"
-  timeout -k 5 "${T_B:-200}" python3 bench/gpu_check.py "$C" --out /tmp/b --preset "${PRESET:-paper}" --iters "${ITERS:-1000}" \
+  timeout -k 5 "${T_B:-200}" python3 bench/gpu_check.py "$C" --out "$GPU_RUN/b" --preset "${PRESET:-paper}" --iters "${ITERS:-1000}" \
     --steps "${STEPS_B:-train,fps,fps_scale,profile}" --fps-counts "${FPS_COUNTS:-50000,150000,300000}"
   pkill -f train_bench.py
-  cp /tmp/b/gpu_check.json "$OUT/b.json"
+  cp "$GPU_RUN/b/gpu_check.json" "$OUT/b.json"
 fi
 if [ "${T_C:-100}" != 0 ]; then
   el "slot C: ${JOBS:-1,2,4} concurrent small trainings of ${JOBS_ITERS:-300} iterations per stage"
-  timeout -k 5 "${T_C:-100}" python3 bench/gpu_check.py "$C" --out /tmp/c --preset small --steps jobs --jobs "${JOBS:-1,2,4}" --jobs-iters "${JOBS_ITERS:-300}"
+  timeout -k 5 "${T_C:-100}" python3 bench/gpu_check.py "$C" --out "$GPU_RUN/c" --preset small --steps jobs --jobs "${JOBS:-1,2,4}" --jobs-iters "${JOBS_ITERS:-300}"
   pkill -f train_bench.py
-  cp /tmp/c/gpu_check.json "$OUT/c.json" 2>/dev/null
+  cp "$GPU_RUN/c/gpu_check.json" "$OUT/c.json" 2>/dev/null
 fi
 nvidia-smi --query-gpu=name,memory.used,memory.total --format=csv
 el "done"
