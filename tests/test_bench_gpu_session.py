@@ -29,12 +29,15 @@ case "$1" in
   -c) exec "$REAL_PYTHON" "$@" ;;
   -m)
     if [ "$2" = "m4dgs" ]; then
-      mkdir -p "$out"; echo '{"stage": "done"}' > "$out/status.json"; echo '{"step": 1}' > "$out/log.jsonl"
+      mkdir -p "$out"
+      echo '{"stage": "done"}' > "$out/status.json"
+      echo '{"step": 1}' > "$out/log.jsonl"
     fi
     exit 0 ;;
   bench/gpu_check.py)
     mkdir -p "$out"
-    if [ "$GSPLAT_BUILDS" = 1 ]; then env='{"gsplat_first_render_s": 60.0}'; else env='{"gsplat": "import failed"}'; fi
+    env='{"gsplat": "import failed"}'
+    if [ "$GSPLAT_BUILDS" = 1 ]; then env='{"gsplat_first_render_s": 60.0}'; fi
     echo "{\"steps\": {\"env\": $env}}" > "$out/gpu_check.json"
     exit 0 ;;
 esac
@@ -43,7 +46,7 @@ exit 0
 
 
 def _session(tmp_path, gsplat_builds=True, **env_over):
-    """Run the script in a copy of the kit layout; returns (rc, output, logged python3 calls, OUT)."""
+    """Run the script in a copy of the kit layout; returns (rc, output, python3 calls, OUT)."""
     work = tmp_path / "repo"
     (work / ".gpu" / "whl").mkdir(parents=True)
     (work / ".gpu" / "whl" / "x-1.0-py3-none-any.whl").write_bytes(b"")
