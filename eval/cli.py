@@ -697,7 +697,9 @@ def campaign(
 def export(suites, out, csv_path, scenes, seeds):
     """Collect the scored runs of SUITES under ROOT into one CSV of per-run metrics (one row per
     suite, scene, row, seed), merging with the existing CSV: a scored run replaces the row of
-    the same key, a run without metrics.json never replaces a scored one, other rows stay."""
+    the same key, a run without metrics.json never replaces a scored one, other rows stay. Beside
+    it, <name>-crf.csv holds the learned tone curves and <name>-floors.csv the clips'
+    ground-truth HDR-TAE floors (one row per scene and generator version)."""
     from .results import export as export_runs
 
     summary = export_runs(
@@ -715,8 +717,8 @@ def export(suites, out, csv_path, scenes, seeds):
     default="results/runs.csv",
     show_default=True,
     type=click.Path(dir_okay=False),
-    help="Runs CSV written by `export` (a missing file gives a page that says the runs are "
-    "pending).",
+    help="Runs CSV written by `export`, with its <name>-crf.csv and <name>-floors.csv beside it "
+    "(a missing file gives a page that says the runs are pending).",
 )
 @click.option(
     "--out",
