@@ -7,7 +7,7 @@ export DRJIT_LIBLLVM_PATH ?= $(firstword $(wildcard /usr/lib/x86_64-linux-gnu/li
 VENV := .venv/bin
 OUT ?= out
 
-.PHONY: setup demo test test-slow lint format clean
+.PHONY: setup demo test test-slow lint format results clean
 
 setup:
 	@bash scripts/setup.sh
@@ -26,6 +26,12 @@ lint: setup
 format: setup
 	$(VENV)/ruff format .
 	$(VENV)/ruff check --fix .
+
+# both results pages from their committed CSVs (each page states the command that makes it)
+results: setup
+	$(VENV)/m4dgs-eval results
+	$(VENV)/m4dgs-eval results --csv results/runs-generator5.csv --out docs/results-generator5.md \
+		--no-readme --title 'Results on the generator-5 benchmark (superseded)'
 
 test-slow: setup
 	$(VENV)/python -m pytest -m slow
