@@ -162,17 +162,23 @@ def _train(clip: str, out: Path, a, device: str) -> dict:
     }
 
 
+def _middle_view(model, size):
+    """(time, c2w, K) of the trained model's middle frame, K scaled to `size` = (w, h)."""
+    frames = model.clip.meta.frames
+    g = frames[len(frames) // 2]
+    K, c2w = model.camera(g)
+    K = K.copy()
+    K[0] *= size[0] / model.width
+    K[1] *= size[1] / model.height
+    return model.time_of(g), c2w, K
+
+
 def _fps(run: Path, device: str) -> dict:
     from eval.metrics.perf import measure_fps
     from m4dgs.model.trained import load_model
-
-    model = load_model(run, device=device)
-    frames = model.clip.meta.frames
-    g = frames[len(frames) // 2]
-    t = model.time_of(g)
-    K, c2w = model.camera(g)
     from m4dgs.raster import resolve_backend
 
+    model = load_model(run, device=device)
     backend = getattr(model, "backend", None) or "auto"
     # the rasterizer that actually ran ("auto" resolves to gsplat on CUDA when it imports)
     res = {
@@ -182,11 +188,9 @@ def _fps(run: Path, device: str) -> dict:
     if device == "cuda":
         torch.cuda.reset_peak_memory_stats()
     for name, (w, h) in (("clip", (model.width, model.height)), ("864x480", FPS_SIZE)):
-        Ks = K.copy()
-        Ks[0] *= w / model.width
-        Ks[1] *= h / model.height
+        t, c2w, Ks = _middle_view(model, (w, h))
         r = measure_fps(
-            lambda Ks=Ks, w=w, h=h: model.render(t, c2w, Ks, w, h),
+            lambda t=t, c2w=c2w, Ks=Ks, w=w, h=h: model.render(t, c2w, Ks, w, h),
             warmup=3,
             iters=20,
             device=device,
@@ -234,14 +238,8 @@ def _fps_scale(run: Path, device: str, counts) -> dict:
     model = load_model(run, device=device)
     base = model.gauss.to_state()
     n0 = model.num_gaussians
-    frames = model.clip.meta.frames
-    g = frames[len(frames) // 2]
-    t = model.time_of(g)
-    K, c2w = model.camera(g)
     w, h = FPS_SIZE
-    K = K.copy()
-    K[0] *= w / model.width
-    K[1] *= h / model.height
+    t, c2w, K = _middle_view(model, FPS_SIZE)
     res = {
         "trained_gaussians": n0,
         "backend": resolve_backend(model.backend or "auto", torch.device(device)),

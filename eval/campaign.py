@@ -229,14 +229,14 @@ def step_status(
             codes[str(row.get("code") or "unknown")[:12]] += 1
             minutes = row.get("train_minutes")
             if isinstance(minutes, (int, float)) and minutes > 0:
-                rates.append(60.0 * float(minutes) / max(job_iterations(j), 1))
+                rates.append(60.0 * float(minutes) / max(s1 + s2, 1))
         elif (run / "metrics.json").exists():
             scored += 1
             info = mio.read_json(run / "run.json") if (run / "run.json").exists() else {}
             codes[str(info.get("code") or "unknown")[:12]] += 1
             sec = info.get("train_seconds")
             if isinstance(sec, (int, float)) and sec > 0:
-                rates.append(float(sec) / max(job_iterations(j), 1))
+                rates.append(float(sec) / max(s1 + s2, 1))
         else:
             todo += s1 + s2
     return {

@@ -121,20 +121,23 @@ def write_floors_csv(path, floors: Dict[tuple, Dict[str, Optional[float]]]) -> N
     mio.write_bytes_atomic(Path(path), buf.getvalue().encode())
 
 
-def clip_floors(clip_dir) -> Optional[Tuple[tuple, Dict[str, Optional[float]]]]:
-    """((scene, generator), floors) from a clip's clip.json, None without a generator version or
-    a recorded floor (clips benchgen did not make, or made before the floors were recorded)."""
+def _clip_meta(clip_dir) -> dict:
+    """A clip's clip.json ({} when the clip folder or the file is missing)."""
     c = Path(clip_dir) / "clip.json" if clip_dir else None
-    if c is None or not c.exists():
-        return None
-    meta = mio.read_json(c)
+    return mio.read_json(c) if c is not None and c.exists() else {}
+
+
+def clip_floors(meta: dict) -> Optional[Tuple[str, Dict[str, Optional[float]]]]:
+    """(generator version, floors) from a clip's clip.json contents, None without a generator
+    version or a recorded floor (clips benchgen did not make, or made before the floors were
+    recorded)."""
     gen = str((meta.get("generator") or {}).get("version", ""))
     gt = meta.get("gt") or {}
     vals = {k: gt.get(k) for k in FLOOR_COLUMNS}
     vals = {k: float(v) if isinstance(v, (int, float)) else None for k, v in vals.items()}
     if not gen or vals["hdr_tae_floor"] is None:
         return None
-    return (str(meta.get("name") or Path(clip_dir).name), gen), vals
+    return gen, vals
 
 
 def fmt_number(v) -> str:
@@ -171,17 +174,15 @@ def _crf_values(curve: dict) -> Optional[List[float]]:
     return [float(v) for v in np.interp(CRF_GRID, z, y)]
 
 
-def _provenance(run_dir, clip_dir) -> Dict[str, str]:
+def _provenance(run_dir, clip_meta: dict) -> Dict[str, str]:
     """The provenance cells of a run: code fingerprint (12 hex digits), the clip's generator version
-    and the torch thread count; "" where a run (or an older run.json / clip.json) does not say."""
+    (from its clip.json contents) and the torch thread count; "" where a run (or an older run.json
+    / clip.json) does not say."""
     info = {}
     p = Path(run_dir) / "run.json"
     if p.exists():
         info = mio.read_json(p)
-    gen = ""
-    c = Path(clip_dir) / "clip.json" if clip_dir else None
-    if c is not None and c.exists():
-        gen = (mio.read_json(c).get("generator") or {}).get("version", "")
+    gen = (clip_meta.get("generator") or {}).get("version", "")
     threads = info.get("torch_threads", "")
     return {
         "code": str(info.get("code") or "")[:12],
@@ -205,8 +206,11 @@ def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List
         ran = {e["scene"] for e in entries if Path(e["run_dir"]).exists()}
         entries = [e for e in entries if e["scene"] in ran]
     keys = metric_keys()
-    rows, crfs, floors = [], [], {}
+    rows, crfs, floors, metas = [], [], {}, {}
     for e in entries:
+        if e["clip_dir"] not in metas:  # the runs of one clip read its clip.json once
+            metas[e["clip_dir"]] = _clip_meta(e["clip_dir"])
+        meta = metas[e["clip_dir"]]
         row = s.row(e["row"])
         setting = s.clips[row.clip]
         m = e["metrics"] or {}
@@ -223,7 +227,7 @@ def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List
             "preset": (m.get("run") or {}).get("preset") or "",
             "status": SCORED if e["metrics"] else MISSING,
             "ldr_convention": m.get("ldr_convention", "") if e["metrics"] else "",
-            **_provenance(e["run_dir"], e["clip_dir"]),
+            **_provenance(e["run_dir"], meta),
         }
         for k in keys:
             v = m.get(k)
@@ -232,9 +236,9 @@ def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List
         vals = _crf_values(curve) if e["metrics"] else None
         if vals is not None:
             crfs.append({**{k: r[k] for k in CRF_KEY}, "values": vals})
-        fl = clip_floors(e["clip_dir"]) if e["metrics"] else None
+        fl = clip_floors(meta) if e["metrics"] else None
         if fl is not None:
-            floors[(e["scene"], fl[0][1])] = fl[1]
+            floors[(e["scene"], fl[0])] = fl[1]
     return rows, crfs, floors
 
 
@@ -1298,14 +1302,19 @@ def delta_scatter_figure(data: SuiteData, out_png) -> Optional[Path]:
     return _save(fig, out_png)
 
 
+# the figures of a suite, <suite>_<kind>.png, in the page's order
+FIGURE_KINDS = ("bars", "crf", "tae_psnr", "delta_tae_psnr")
+
+
 def suite_result_figures(data: SuiteData, curves: Dict[tuple, dict], fig_dir) -> List[Path]:
     fig_dir = Path(fig_dir)
-    out = [
-        bars_figure(data, fig_dir / f"{data.name}_bars.png"),
-        crf_figure(data, curves, fig_dir / f"{data.name}_crf.png"),
-        scatter_figure(data, fig_dir / f"{data.name}_tae_psnr.png"),
-        delta_scatter_figure(data, fig_dir / f"{data.name}_delta_tae_psnr.png"),
-    ]
+    make = {
+        "bars": lambda p: bars_figure(data, p),
+        "crf": lambda p: crf_figure(data, curves, p),
+        "tae_psnr": lambda p: scatter_figure(data, p),
+        "delta_tae_psnr": lambda p: delta_scatter_figure(data, p),
+    }
+    out = [make[k](fig_dir / f"{data.name}_{k}.png") for k in FIGURE_KINDS]
     return [p for p in out if p is not None]
 
 
@@ -1493,9 +1502,6 @@ def replace_readme_block(text: str, block: str, path="README") -> str:
             "table goes, or pass --no-readme"
         )
     return text[:i] + block + text[j + len(README_END) :]
-
-
-FIGURE_KINDS = ("bars", "crf", "tae_psnr", "delta_tae_psnr")  # suite_result_figures' names
 
 
 def _is_results_figure(name: str) -> bool:
