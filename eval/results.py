@@ -662,6 +662,10 @@ class ComparisonResult:
     # the same difference over scenes (eval.stats.scene_paired_diff: n = scenes) and its verdict
     scenes: object = None
     verdict_scenes: str = NO_DATA
+    # Holm-adjusted p-value of `ours` within the finding's comparisons (eval.stats.holm) and the
+    # verdict with that significance
+    p_holm: Optional[float] = None
+    verdict_holm: str = NO_DATA
 
 
 def claim_sign(c: Comparison, metric: str, paper_diff: Optional[float]) -> Tuple[int, str]:
@@ -676,14 +680,27 @@ def claim_sign(c: Comparison, metric: str, paper_diff: Optional[float]) -> Tuple
     return (better if c.expect == "better" else -better), "finding"
 
 
-def verdict(claim: int, ours) -> str:
+def verdict(claim: int, ours, significant: Optional[bool] = None) -> str:
+    """The verdict of an interval against the claimed sign; `significant` overrides "the interval
+    excludes 0" (e.g. with a Holm-adjusted p-value)."""
     if ours is None or ours.mean is None or ours.half is None:
         return NO_DATA
     if claim == 0:
         return PAPER_TIE
-    if not ours.excludes_zero:
+    if not (ours.excludes_zero if significant is None else significant):
         return NOT_SIG
     return AGREES if (ours.mean > 0) == (claim > 0) else DISAGREES
+
+
+def _holm_verdicts(res: List["ComparisonResult"]) -> None:
+    """Fill p_holm / verdict_holm of one finding's results: the family is every comparison of the
+    finding that has an interval (paper ties included, so the correction is never too lenient)."""
+    from .stats import LEVEL, holm
+
+    adj = holm([None if r.ours is None or r.ours.half is None else r.ours.p for r in res])
+    for r, a in zip(res, adj):
+        r.p_holm = a
+        r.verdict_holm = verdict(r.claim, r.ours, None if a is None else a < 1 - LEVEL)
 
 
 def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
@@ -713,6 +730,7 @@ def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
                     c, m, pd, sign, src, ours, verdict(sign, ours), scenes, verdict(sign, scenes)
                 )
             )
+    _holm_verdicts(out)
     return out
 
 
@@ -763,8 +781,13 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
         "scenes: the same difference averaged per scene first, the interval taken over the scene "
         "means (n = scenes, `eval.stats.scene_paired_diff`), with its verdict; the first interval "
         "speaks for these scenes and their seeds, this one for scenes like them, and with two "
-        "scenes it is wide by design. The verdicts are computed from the CSV; what they mean, "
-        "and the controls run for disagreements, are written by hand"
+        "scenes it is wide by design. After Holm: the verdict again, with the p-values of the "
+        "paired t-tests adjusted by Holm's method over all the comparisons of the finding (its "
+        'rows x metrics), so that the chance of one or more false "agrees" or "disagrees" in a '
+        "finding is at most 5 % (`eval.stats.holm`); at 95 % per comparison about one in twenty "
+        "comparisons excludes 0 by chance when there is no effect, so read a verdict that does not "
+        "survive Holm as a lead, not a finding. The verdicts are computed from the CSV; what they "
+        "mean, and the controls run for disagreements, are written by hand"
         + (f" in [{Path(notes_link).name}]({notes_link})." if notes_link else "."),
         "",
     ]
@@ -778,9 +801,9 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
         lines += [
             f"Suite `{f.suite}`" + (f"; paper values: {src}." if src else "."),
             "",
-            "| row | ref | metric | paper Δ | claim | ours Δ | n | verdict | paper Δ in ours "
-            "| over scenes | scenes | verdict over scenes |",
-            "|:---|:---|:---|---:|:---|---:|---:|:---|:---|---:|---:|:---|",
+            "| row | ref | metric | paper Δ | claim | ours Δ | n | verdict | after Holm "
+            "| paper Δ in ours | over scenes | scenes | verdict over scenes |",
+            "|:---|:---|:---|---:|:---|---:|---:|:---|:---|:---|---:|---:|:---|",
         ]
         for r in res:
             col = cols[r.metric]
@@ -801,7 +824,8 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
                 over, k = f"{format(sc.mean, '+' + col.fmt)} ± {half}", sc.n
             lines.append(
                 f"| {r.comparison.row} | {r.comparison.ref} | {name} | {pd} | {claim} | {ours} "
-                f"| {n} | {r.verdict} | {inside} | {over} | {k} | {r.verdict_scenes} |"
+                f"| {n} | {r.verdict} | {r.verdict_holm} | {inside} | {over} | {k} "
+                f"| {r.verdict_scenes} |"
             )
         counts = {
             v: sum(r.verdict == v for r in res)
@@ -811,6 +835,8 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
             v: sum(r.verdict_scenes == v for r in res)
             for v in (AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA)
         }
+        tested = sum(r.p_holm is not None for r in res)
+        kept = {v: sum(r.verdict_holm == v for r in res) for v in (AGREES, DISAGREES)}
         pairs = max((r.ours.n for r in res if r.ours is not None), default=0)
         inside = [paper_inside(r) for r in res]
         known = [x for x in inside if x is not None]
@@ -826,6 +852,10 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
                 if known
                 else "."
             ),
+            "",
+            f"After Holm's correction over the {tested} comparisons with an interval: "
+            f"{kept[AGREES]} agree, {kept[DISAGREES]} disagree (with no effect anywhere, about "
+            f"{0.05 * tested:.1f} of them would exclude 0 by chance before the correction).",
             "",
             f"Over scenes: {over[AGREES]} agree, {over[DISAGREES]} disagree, "
             f"{over[NOT_SIG]} not significant, {over[PAPER_TIE]} paper tie, "

@@ -9,13 +9,19 @@ then dominates the width). n < 2 has no interval.
 
 The paired difference of a row to the reference row pairs the runs by (scene, seed): d_k = row_k -
 reference_k over the pairs both rows have, and the same t-interval of the mean of d
-(scipy.stats.ttest_rel's interval). It is "significant" when its interval excludes 0."""
+(scipy.stats.ttest_rel's interval). It is "significant" when its interval excludes 0, which is the
+same as its two-sided p-value (`Interval.p`) being below 1 - level.
+
+One finding of the paper is tested by several such differences (rows x metrics), and at 95 % about
+one in twenty of them excludes 0 by chance alone when no effect exists. `holm` adjusts the p-values
+of such a family (Holm's step-down method: the family-wise error rate is at most 1 - level whatever
+the dependence between the tests), so a table can say which verdicts survive the multiplicity."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, Hashable, Iterable, Mapping, Optional, Tuple
+from typing import Dict, Hashable, Iterable, List, Mapping, Optional, Sequence, Tuple
 
 LEVEL = 0.95
 
@@ -27,13 +33,23 @@ def t_quantile(p: float, df: int) -> float:
     return float(t.ppf(p, df))
 
 
+def t_two_sided_p(stat: float, df: int) -> float:
+    """P(|T| >= |stat|) for Student's t with df degrees of freedom (scipy.stats.t.sf)."""
+    from scipy.stats import t
+
+    return float(min(1.0, 2.0 * t.sf(abs(stat), df)))
+
+
 @dataclass(frozen=True)
 class Interval:
-    """mean +- half (half None when n < 2: no interval); n = number of values."""
+    """mean +- half (half None when n < 2: no interval); n = number of values; p = two-sided p-value
+    of the t-test of mean 0 (None without an interval; a difference's interval excludes 0 exactly
+    when p < 1 - level)."""
 
     mean: Optional[float]
     half: Optional[float]
     n: int
+    p: Optional[float] = None
 
     @property
     def low(self) -> Optional[float]:
@@ -65,8 +81,25 @@ def mean_ci(values: Iterable[float], level: float = LEVEL) -> Interval:
     if any(math.isinf(x) for x in xs):
         return Interval(m, None, n)
     var = sum((x - m) ** 2 for x in xs) / (n - 1)
-    half = t_quantile(0.5 + level / 2, n - 1) * math.sqrt(var / n)
-    return Interval(m, half, n)
+    se = math.sqrt(var / n)
+    half = t_quantile(0.5 + level / 2, n - 1) * se
+    p = (1.0 if m == 0 else 0.0) if se == 0 else t_two_sided_p(m / se, n - 1)
+    return Interval(m, half, n, p)
+
+
+def holm(pvalues: Sequence[Optional[float]]) -> List[Optional[float]]:
+    """Holm's step-down adjusted p-values of one family of tests, in the input order (None, a test
+    without a p-value, stays None and is not counted in the family). With the m p-values sorted
+    ascending, p_(k) becomes max over j <= k of min(1, (m - j + 1) p_(j)); a test is significant at
+    family-wise level alpha when its adjusted value is < alpha."""
+    order = sorted((i for i, v in enumerate(pvalues) if v is not None), key=lambda i: pvalues[i])
+    m = len(order)
+    out: List[Optional[float]] = [None] * len(pvalues)
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * float(pvalues[i])))
+        out[i] = running
+    return out
 
 
 def paired_diff(

@@ -117,11 +117,25 @@ def mean_ci(xs):
     return xs.mean(), h
 
 
-def paired(a: dict, b: dict):
+def paired(a: dict, b: dict, with_p: bool = False):
     keys = sorted(set(a) & set(b))
     x, y = np.array([a[k] for k in keys]), np.array([b[k] for k in keys])
-    lo, hi = stats.ttest_rel(x, y).confidence_interval(0.95)
-    return float((x - y).mean()), float((hi - lo) / 2), bool(lo > 0 or hi < 0), len(keys)
+    res = stats.ttest_rel(x, y)
+    lo, hi = res.confidence_interval(0.95)
+    out = float((x - y).mean()), float((hi - lo) / 2), bool(lo > 0 or hi < 0), len(keys)
+    return (*out, float(res.pvalue)) if with_p else out
+
+
+def holm_rejects(pvalues: list, alpha: float = 0.05) -> list:
+    """Holm's procedure as a sequence of tests (not adjusted p-values): sort ascending, reject the
+    k-th smallest (k = 0, 1, ...) while p <= alpha / (m - k), stop at the first that is not."""
+    order = sorted(range(len(pvalues)), key=lambda i: pvalues[i])
+    rejected = [False] * len(pvalues)
+    for k, i in enumerate(order):
+        if pvalues[i] > alpha / (len(pvalues) - k):
+            break
+        rejected[i] = True
+    return rejected
 
 
 def over_scenes(a: dict, b: dict):
@@ -436,6 +450,18 @@ def test_export_merge_results_readme(tmp_path):
     fl = [ln for ln in lines if ln.startswith("| ") and not ln.startswith("| row")]
     checked = inside = 0
     over_verdicts = []
+    # the Holm family: every comparison of the finding (5 rows x 4 metrics), tested by scipy
+    fam = [(row, m) for row in ABL_ROWS[:-1] for m in FINDING_METRICS]
+    pv = [
+        paired(
+            by_run(rows, "paper-ablation", row, m),
+            by_run(rows, "paper-ablation", "full", m),
+            with_p=True,
+        )[4]
+        for row, m in fam
+    ]
+    holm_sig = dict(zip(fam, holm_rejects(pv)))
+    holm_verdicts, raw_verdicts = [], []
     for row in ABL_ROWS[:-1]:
         for metric in FINDING_METRICS:
             name, fmt, _ = COLS[metric]
@@ -458,19 +484,28 @@ def test_export_merge_results_readme(tmp_path):
             else:
                 want = "agrees" if (d > 0) == (pd > 0) else "disagrees"
             assert cells[7] == want, (row, metric)
-            assert cells[8] == ("yes" if d - h <= pd <= d + h else "no"), (row, metric)
+            raw_verdicts.append(want)
+            if abs(pd) < 1e-9:
+                want_h = "paper tie"
+            elif not holm_sig[(row, metric)]:
+                want_h = "not significant"
+            else:
+                want_h = "agrees" if (d > 0) == (pd > 0) else "disagrees"
+            assert cells[8] == want_h, (row, metric)
+            holm_verdicts.append(want_h)
+            assert cells[9] == ("yes" if d - h <= pd <= d + h else "no"), (row, metric)
             d2, h2, excl2, k = over_scenes(
                 by_run(rows, "paper-ablation", row, metric),
                 by_run(rows, "paper-ablation", "full", metric),
             )
-            assert cells[9] == f"{d2:+{fmt}} ± {h2:{fmt}}" and cells[10] == str(k) == "3"
+            assert cells[10] == f"{d2:+{fmt}} ± {h2:{fmt}}" and cells[11] == str(k) == "3"
             if abs(pd) < 1e-9:
                 want2 = "paper tie"
             elif not excl2:
                 want2 = "not significant"
             else:
                 want2 = "agrees" if (d2 > 0) == (pd > 0) else "disagrees"
-            assert cells[11] == want2, (row, metric)
+            assert cells[12] == want2, (row, metric)
             over_verdicts.append(want2)
             inside += d - h <= pd <= d + h
             checked += 1
@@ -480,13 +515,22 @@ def test_export_merge_results_readme(tmp_path):
     assert len(set(over_verdicts)) >= 2  # the scene-level verdicts are not all alike
     n_ag = over_verdicts.count("agrees")
     assert f"Over scenes: {n_ag} agree, {over_verdicts.count('disagrees')} disagree" in text
+    assert (
+        "After Holm's correction over the 20 comparisons with an interval: "
+        f"{holm_verdicts.count('agrees')} agree, {holm_verdicts.count('disagrees')} disagree"
+        in text
+    )
+    # the fake data has verdicts that survive the correction and verdicts that do not
+    dropped = [a != b for a, b in zip(raw_verdicts, holm_verdicts)]
+    assert any(dropped) and any(v in ("agrees", "disagrees") for v in holm_verdicts)
+    assert all(b == "not significant" for a, b, x in zip(raw_verdicts, holm_verdicts, dropped) if x)
     assert "| no-cov-invariance | full | LDR-OE PSNR | -0.44 | - (worse) |" in text
     for suite in ("control-points", "exposure-noise", "exposure-schedules", "priors"):
         assert f"**not enough data**: no scored run of suite `{suite}` in the CSV." in text
     # the paper-main finding: full vs each baseline, 2 pairs each
     line = next(ln for ln in fl if ln.startswith("| full | world-only | HDR-TAE |"))
     cells = [c.strip() for c in line.strip().strip("|").split("|")]
-    assert cells[6] == "2" and cells[10] == "2"  # 2 (scene, seed) pairs, 2 scenes
+    assert cells[6] == "2" and cells[11] == "2"  # 2 (scene, seed) pairs, 2 scenes
 
     # README: the block is replaced, the rest kept, and a second run changes nothing
     rd = readme.read_text()

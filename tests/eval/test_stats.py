@@ -364,3 +364,55 @@ def test_paper_values_file():
         "exposure-noise",
         "priors",
     } <= used
+
+
+# --------------------------------------------------------------------------------------------------
+# p-values and Holm's correction
+# --------------------------------------------------------------------------------------------------
+def test_interval_p_value_matches_scipy_and_the_interval():
+    rng = np.random.default_rng(11)
+    for n, shift in ((2, 0.3), (4, 0.8), (6, 0.1), (9, -0.5)):
+        a, b = rng.normal(30, 1, n), rng.normal(30, 1, n)
+        a = b + shift + rng.normal(0, 0.4, n)
+        keys = [(f"s{i}", 0) for i in range(n)]
+        iv = stats.paired_diff(dict(zip(keys, a)), dict(zip(keys, b)))
+        assert iv.p == pytest.approx(sps.ttest_rel(a, b).pvalue, rel=1e-9)
+        assert iv.excludes_zero == (iv.p < 0.05)
+    assert stats.mean_ci([1.0]).p is None
+    assert stats.mean_ci([2.0, 2.0]).p == 0.0 and stats.mean_ci([0.0, 0.0]).p == 1.0
+
+
+def _holm_closed_testing(p):
+    """Holm's adjusted p-values by their closed-testing definition: the largest Bonferroni p-value
+    min(1, |S| min_{j in S} p_j) over every subset S of the family that contains the test."""
+    from itertools import combinations
+
+    m = len(p)
+    out = []
+    for i in range(m):
+        best = 0.0
+        for size in range(1, m + 1):
+            for sub in combinations(range(m), size):
+                if i in sub:
+                    best = max(best, min(1.0, size * min(p[j] for j in sub)))
+        out.append(best)
+    return out
+
+
+def test_holm_matches_closed_testing_and_a_worked_example():
+    # worked example: sorted 0.005, 0.01, 0.03, 0.04 -> x4, x3, x2, x1 = 0.02, 0.03, 0.06, 0.04,
+    # then running maxima 0.02, 0.03, 0.06, 0.06
+    got = stats.holm([0.01, 0.04, 0.03, 0.005])
+    assert got == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    rng = np.random.default_rng(2)
+    for m in (1, 2, 5, 8):
+        p = list(rng.uniform(0, 0.2, m) ** 2)
+        assert stats.holm(p) == pytest.approx(_holm_closed_testing(p), rel=1e-12)
+    # tests without a p-value stay None and are not part of the family
+    assert stats.holm([None, 0.02, None, 0.04]) == [
+        None,
+        pytest.approx(0.04),
+        None,
+        pytest.approx(0.04),
+    ]
+    assert stats.holm([]) == []
