@@ -760,7 +760,11 @@ def _paper_diff_text(v: float, fmt: str) -> str:
     return format(v, "+" + fmt)
 
 
-def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
+def findings_markdown(
+    rows: List[dict], notes_link: Optional[str], figures: Optional[Dict[str, str]] = None
+) -> str:
+    """The Findings section; figures: {finding key: link of its forest plot} to show under its
+    table."""
     from .paper import load_paper_values
     from .suite import metric_columns
 
@@ -862,6 +866,8 @@ def findings_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
             f"{over[NO_DATA]} not enough data (fewer than 2 scenes).",
             "",
         ]
+        if figures and f.key in figures:
+            lines += [f"![{FINDING_FIGURE_PREFIX}{f.key}]({figures[f.key]})", ""]
     return "\n".join(lines)
 
 
@@ -1348,6 +1354,110 @@ def suite_result_figures(data: SuiteData, curves: Dict[tuple, dict], fig_dir) ->
     return [p for p in out if p is not None]
 
 
+FINDING_FIGURE_PREFIX = "finding_"
+
+
+@dataclass(frozen=True)
+class FindingPoint:
+    """One comparison of a finding as its figure draws it: our Δ's mean and 95 % interval, the
+    paper's Δ (None where it has none), and whether the verdict survives Holm's correction."""
+
+    label: str  # "row - ref"
+    metric: str
+    mean: float
+    low: Optional[float]
+    high: Optional[float]
+    paper: Optional[float]
+    holm_significant: bool
+
+
+def finding_points(res: List[ComparisonResult]) -> List[FindingPoint]:
+    """What `finding_figure` draws for one finding's results (comparisons without our mean left
+    out)."""
+    out = []
+    for r in res:
+        iv = r.ours
+        if iv is None or iv.mean is None:
+            continue
+        out.append(
+            FindingPoint(
+                f"{r.comparison.row} - {r.comparison.ref}",
+                r.metric,
+                iv.mean,
+                iv.low,
+                iv.high,
+                r.paper_diff,
+                r.verdict_holm in (AGREES, DISAGREES),
+            )
+        )
+    return out
+
+
+def finding_figure(f: Finding, res: List[ComparisonResult], out_png) -> Optional[Path]:
+    """Forest plot of one finding: a panel per metric, a line per comparison with our paired Δ and
+    its 95 % interval (filled where the verdict survives Holm's correction, open where it does
+    not), the paper's Δ as a red cross, and 0 as a vertical line. None without any of our Δ."""
+    from .suite import metric_columns
+
+    pts = finding_points(res)
+    if not pts:
+        return None
+    cols = metric_columns()
+    labels = list(dict.fromkeys(f"{c.row} - {c.ref}" for c in f.comparisons))
+    plt = _plt()
+    fig, axes = plt.subplots(
+        1, len(f.metrics), figsize=(2.3 * len(f.metrics) + 1.6, 0.42 * len(labels) + 1.2)
+    )
+    axes = list(axes) if len(f.metrics) > 1 else [axes]
+    for k, (ax, m) in enumerate(zip(axes, f.metrics)):
+        col = cols[m]
+        for p in (p for p in pts if p.metric == m):
+            y = labels.index(p.label)
+            if p.low is not None:
+                ax.plot([p.low, p.high], [y, y], color="0.25", lw=1.2)
+            ax.plot(
+                [p.mean],
+                [y],
+                "o",
+                ms=5,
+                color="0.15",
+                markerfacecolor="0.15" if p.holm_significant else "white",
+            )
+            if p.paper is not None:
+                ax.plot([p.paper], [y], "x", ms=6, mew=1.6, color="tab:red")
+        ax.axvline(0.0, color="0.5", lw=0.8, ls="--")
+        ax.set_yticks(range(len(labels)))
+        ax.set_yticklabels(labels if k == 0 else [], fontsize=7)
+        ax.set_ylim(len(labels) - 0.5, -0.5)
+        arrow = "right: better" if col.higher_is_better else "left: better"
+        name = ((col.group + " ") if col.group else "") + col.header
+        ax.set_xlabel(f"Δ {name} ({arrow})", fontsize=7)
+        ax.tick_params(axis="x", labelsize=7)
+        ax.grid(axis="x", alpha=0.3)
+    n = max((r.ours.n for r in res if r.ours is not None), default=0)
+    fig.suptitle(
+        f"{f.suite}: ours (mean, 95 % interval, at most {n} pairs; filled = survives Holm) "
+        "and the paper (x)",
+        fontsize=8,
+    )
+    return _save(fig, out_png)
+
+
+def finding_figures(rows: List[dict], fig_dir) -> Dict[str, Path]:
+    """{finding key: PNG} for every finding whose suite has scored runs, named
+    finding_<key>.png in fig_dir."""
+    present = {r["suite"] for r in rows if r.get("status") == SCORED}
+    out = {}
+    for f in FINDINGS:
+        if f.suite in present:
+            p = finding_figure(
+                f, evaluate_finding(f, rows), Path(fig_dir) / f"{FINDING_FIGURE_PREFIX}{f.key}.png"
+            )
+            if p is not None:
+                out[f.key] = p
+    return out
+
+
 # --------------------------------------------------------------------------------------------------
 # the page
 # --------------------------------------------------------------------------------------------------
@@ -1539,6 +1649,8 @@ def _is_results_figure(name: str) -> bool:
     shipped suite (eval/suites/*.yaml)."""
     from .suite import suites_dir
 
+    if name.startswith(FINDING_FIGURE_PREFIX) and name.endswith(".png"):
+        return name[len(FINDING_FIGURE_PREFIX) : -len(".png")] in {f.key for f in FINDINGS}
     for kind in sorted(FIGURE_KINDS, key=len, reverse=True):
         tail = f"_{kind}.png"
         if name.endswith(tail):
@@ -1639,7 +1751,10 @@ def render_results(
         fp = suite_result_figures(datas[n], curves, figures_dir) if figures_dir else []
         figs += fp
         lines += [suite_section(datas[n], fp, out_dir, floors), ""]
-    lines.append(findings_markdown(rows, notes_link))
+    ffigs = finding_figures(rows, figures_dir) if figures_dir else {}
+    figs += list(ffigs.values())
+    links = {k: _rel(p, out_dir) for k, p in ffigs.items()}
+    lines.append(findings_markdown(rows, notes_link, links))
     lines += ["", controls_markdown(rows, notes_link)]
     text = "\n".join(lines).rstrip("\n") + "\n"
     mio.write_bytes_atomic(out_md, text.encode())

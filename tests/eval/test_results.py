@@ -368,6 +368,10 @@ def test_export_merge_results_readme(tmp_path):
     docs = tmp_path / "docs"
     docs.mkdir()
     (docs / "results-notes.md").write_text("# Notes\n")
+    # a stale forest plot of a finding without runs goes; a file named like none of ours stays
+    (docs / "figures" / "results").mkdir(parents=True)
+    (docs / "figures" / "results" / "finding_priors.png").write_bytes(b"old")
+    (docs / "figures" / "results" / "finding_mine.png").write_bytes(b"mine")
     args = [
         "results",
         "--csv",
@@ -511,6 +515,26 @@ def test_export_merge_results_readme(tmp_path):
             checked += 1
     assert checked == 20
     assert f"the paper's Δ lies inside our interval in {inside} of the 20 comparisons" in text
+    # the finding's forest plot draws what its table says
+    from eval.results import FINDINGS, evaluate_finding, finding_points
+
+    fig = docs / "figures" / "results" / "finding_ablations.png"
+    assert fig.read_bytes()[:4] == b"\x89PNG" and "](figures/results/finding_ablations.png)" in text
+    assert not (docs / "figures" / "results" / "finding_priors.png").exists()
+    assert (docs / "figures" / "results" / "finding_mine.png").read_bytes() == b"mine"
+    f_abl = next(f for f in FINDINGS if f.key == "ablations")
+    pts = finding_points(evaluate_finding(f_abl, read_runs_csv(csvp)))
+    assert len(pts) == 20
+    for p in pts:
+        name, fmt, _ = COLS[p.metric]
+        row = p.label.split(" - ")[0]
+        line = next(ln for ln in fl if ln.startswith(f"| {row} | full | {name} |"))
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        mean, half = (float(x) for x in cells[5].split(" ± "))
+        tol = 0.6 * 10 ** -int(fmt[1:-1])  # the cells are rounded to the column's format
+        assert abs(p.mean - mean) < tol and abs((p.high - p.low) / 2 - half) < tol
+        assert abs(p.paper - float(cells[3])) < 0.6 * 10 ** -min(int(fmt[1:-1]), 3)
+        assert p.holm_significant == (cells[8] in ("agrees", "disagrees"))
     assert 0 < inside < 20  # both kinds occur in the fake data
     assert len(set(over_verdicts)) >= 2  # the scene-level verdicts are not all alike
     n_ag = over_verdicts.count("agrees")
