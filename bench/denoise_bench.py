@@ -12,8 +12,8 @@ finished clips whose clip.json light selection is reused (otherwise each scene's
 as benchgen make does). --spp-factors renders the two seeds again with the preset's spp and adaptive
 extra spp multiplied by each factor (what more samples would buy a generator version), with the
 render seconds per frame (the low-discrepancy sampler rounds spp up to a power of 4: use factors
-1, 4, 16; --adaptive-spp N sets the extra samples instead); --ladder-only skips the one-pass denoiser, --no-bias the 1,024-spp
-reference. docs/rendering.md has the tables.
+1, 4, 16; --adaptive-spp N sets the extra samples instead); --ladder-only skips the one-pass
+denoiser, --no-bias the 1,024-spp reference. docs/rendering.md has the tables.
 """
 
 from __future__ import annotations

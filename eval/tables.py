@@ -278,8 +278,10 @@ def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None
     if ref is not None:
         notes.append(
             f"Δ: paired difference row - {ref} over the (scene, seed) runs both rows have, mean ± "
-            "the "
-            f"Student-t {pct} interval of the mean difference; † where that interval excludes 0."
+            f"the Student-t {pct} interval of the mean difference; † where that interval excludes "
+            "0 (per difference, not corrected for the table's many differences: without any effect "
+            "about one in twenty would get a † by chance; `m4dgs-eval results` gives each finding "
+            "of the paper's verdicts after Holm's correction)."
         )
     if spec.paper is not None:
         src = f" ({spec.paper_source})" if spec.paper_source else ""
