@@ -99,14 +99,39 @@ _flip_opt = click.option(
     "--device", default="auto", show_default=True, help="Device for the model: auto, cpu or cuda."
 )
 @click.option("--force", is_flag=True, help="Recompute metrics.json even if it exists.")
+@click.option(
+    "--add-missing",
+    is_flag=True,
+    help="Compute only the metrics an existing metrics.json lacks because it was written by an "
+    "earlier version (today: hdr_tce), leaving every other value as it is; then re-export the "
+    "suite to get them into a runs CSV.",
+)
 def score(
-    run, clip_dir, lpips_weights, roundtrip, flip, tae_train_test, no_fps, no_model, device, force
+    run,
+    clip_dir,
+    lpips_weights,
+    roundtrip,
+    flip,
+    tae_train_test,
+    no_fps,
+    no_model,
+    device,
+    force,
+    add_missing,
 ):
     """Score one run folder and write RUN/metrics.json; prints the headline metrics as JSON."""
-    from .score import score_run
+    from .score import add_missing_metrics, score_run
 
     mpath = Path(run) / "metrics.json"
-    if mpath.exists() and not force:
+    if add_missing:
+        if force:
+            raise click.UsageError("--add-missing and --force exclude each other")
+        m, added = add_missing_metrics(run, clip=clip_dir)
+        click.echo(
+            f"{mpath}: added {', '.join(added)}" if added else f"{mpath}: nothing missing",
+            err=True,
+        )
+    elif mpath.exists() and not force:
         m = mio.read_json(mpath)
         click.echo(f"{mpath} exists (use --force to recompute)", err=True)
     else:

@@ -13,7 +13,10 @@ LPIPS weights, no model, no file):
   hdr_train_ssim.
 - HDR-TAE on the rendered TRAINING frames with the exact ground-truth flow and visibility between
   consecutive training frames (gt/flow.npz); without it (real clips) DIS flow on the tone-mapped
-  renders. hdr_tae_train_test (all frames, DIS flow; optional), hdr_t_std.
+  renders. hdr_tae_interior (the same without occlusion-edge pixels, gt depth); hdr_tce (the
+  renders' change between consecutive training frames against the ground truth's, same flow and
+  visibility: 0 for a perfect prediction, the clip's HDR-TAE floor for one frozen in time; gt HDR
+  needed); hdr_tae_train_test (all frames, DIS flow; optional), hdr_t_std.
 - Cameras (cameras.json and cameras_ba.json vs gt/cameras.json, Sim(3) over all common frames): ate,
   rpe_trans, rpe_rot, ate_ba, rpe_trans_ba, rpe_rot_ba.
 - depth_absrel: rendered test depth vs gt depth, ONE median scale over all test frames (the
@@ -80,7 +83,7 @@ from eval.metrics import (
     track_error,
 )
 from eval.metrics import roundtrip as ldr_roundtrip
-from eval.metrics.temporal import depth_edges, interior_visibility
+from eval.metrics.temporal import depth_edges, hdr_tce_pairs, interior_visibility
 from m4dgs.clip import Cameras, Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.core.crf import get_crf
@@ -319,6 +322,28 @@ def _tae_pairwise(frames: List[int], load, flow_fn) -> Optional[float]:
     return float(np.mean(vals)) if vals else None
 
 
+def _tce_pairwise(frames: List[int], load, load_gt, flow_fn) -> Optional[float]:
+    """HDR-TCE over consecutive frames (prediction against ground truth), one pair in memory at a
+    time. flow_fn(a, b, Ha, Hb) -> (ff, fb, vf, vb)."""
+    vals, prev = [], None
+    for a, b in zip(frames[:-1], frames[1:]):
+        pa, ga = prev if prev is not None else (load(a), load_gt(a))
+        pb, gb = load(b), load_gt(b)
+        ff, fb, vf, vb = flow_fn(a, b, pa, pb)
+        v = hdr_tce_pairs(
+            np.stack([pa, pb]),
+            np.stack([ga, gb]),
+            ff[None],
+            fb[None],
+            None if vf is None else vf[None],
+            None if vb is None else vb[None],
+        )[0]
+        if not math.isnan(v):
+            vals.append(v)
+        prev = pb, gb
+    return float(np.mean(vals)) if vals else None
+
+
 def _dis_flows(a, b, ha, hb):
     return dis_flow(ha, hb), dis_flow(hb, ha), None, None
 
@@ -488,6 +513,7 @@ METRIC_KEYS = [
     "hdr_train_ssim",
     "hdr_tae",
     "hdr_tae_interior",
+    "hdr_tce",
     "hdr_tae_train_test",
     "hdr_t_std",
     "ate",
@@ -732,6 +758,63 @@ def _score_hdr(job: _Job, m: dict, flip: bool) -> List[str]:
     return keys
 
 
+def _gt_flows(clip: Clip):
+    """flow_fn(a, b, Ha, Hb) -> (F_ab, F_ba, V_ab, V_ba) from the clip's exact flow (gt/flow.npz),
+    or None without it."""
+    if not (clip.has_gt and (clip.root / "gt/flow.npz").exists()):
+        return None
+    fs = clip.load_gt_flow()
+
+    def flows(a, b, ha, hb):
+        fab, vab = fs.get(a, b)
+        fba, vba = fs.get(b, a)
+        return fab, fba, vab, vba
+
+    return flows
+
+
+def _score_tce(job: _Job, m: dict, flows=None) -> List[str]:
+    """hdr_tce of the training renders against the ground truth (exact flow and gt HDR needed)."""
+    clip, train = job.clip, job.clip.train_frames
+    flows = flows if flows is not None else _gt_flows(clip)
+    if flows is None or not job.has_all("train/hdr", train, "exr"):
+        return []
+    if not all((clip.root / "gt/hdr" / frame_name(g, "exr")).exists() for g in train):
+        return []
+    m["hdr_tce"] = _tce_pairwise(train, job.load_train_hdr, clip.load_gt_hdr, flows)
+    return ["hdr_tce"]
+
+
+# metrics a metrics.json of an earlier version may lack, each with the step that computes it alone
+# (`add_missing_metrics`)
+ADDABLE = {"hdr_tce": _score_tce}
+
+
+def add_missing_metrics(run_dir, clip=None, write: bool = True) -> Tuple[dict, List[str]]:
+    """Compute the metrics of ADDABLE that RUN/metrics.json lacks (scored before they existed)
+    without recomputing anything else, and merge them in (with their conventions). Returns (the
+    metrics, the keys added; a key whose step finds no input is added as None)."""
+    run_dir = Path(run_dir)
+    mpath = run_dir / "metrics.json"
+    if not mpath.exists():
+        raise InputError(f"{mpath}: no metrics.json to add to; score the run first")
+    m = mio.read_json(mpath)
+    todo = [k for k in ADDABLE if k not in m]
+    if not todo:
+        return m, []
+    clip_obj = clip if isinstance(clip, Clip) else Clip.open(resolve_clip_dir(run_dir, clip))
+    job = _Job(run_dir, clip_obj, None, None)
+    conv = all_conventions()
+    for k in todo:
+        m[k] = None
+        for c in ADDABLE[k](job, m):
+            m.setdefault("conventions", {})[c] = conv[c]
+        m[k] = _clean(m[k])
+    if write:
+        mio.write_json(mpath, m)
+    return m, todo
+
+
 def _score_temporal(job: _Job, m: dict, tae_train_test: bool) -> List[str]:
     """HDR-TAE of the training renders (gt flow and visibility, or DIS flow without them), its
     interior variant (gt depth), optionally over all frames, and HDR_T_std."""
@@ -739,17 +822,11 @@ def _score_temporal(job: _Job, m: dict, tae_train_test: bool) -> List[str]:
     keys: List[str] = []
     if not job.has_all("train/hdr", train, "exr"):
         return keys
-    gt_flow = clip.has_gt and (clip.root / "gt/flow.npz").exists()
-    if gt_flow:
-        fs = clip.load_gt_flow()
-
-        def flows(a, b, ha, hb):
-            fab, vab = fs.get(a, b)
-            fba, vba = fs.get(b, a)
-            return fab, fba, vab, vba
-
+    flows = _gt_flows(clip)
+    if flows is not None:
         m["hdr_tae"] = _tae_pairwise(train, job.load_train_hdr, flows)
         keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_gt_flow"]
+        keys += _score_tce(job, m, flows)
         if all((clip.root / "gt/depth" / frame_name(g, "exr")).exists() for g in train):
             # the same pairs without occlusion-edge pixels (gt depth)
             def interior_flows(a, b, ha, hb):

@@ -1,11 +1,11 @@
 """Temporal stability of rendered HDR video: HDR-TAE (paper appendix "Evaluation Metrics"),
-HDR_T_std, DIS flow.
+HDR-TCE (its error against the ground truth's own change, beyond the paper), HDR_T_std, DIS flow.
 
-HDR-TAE (`hdr_tae`, `hdr_tae_pairs`) and the occlusion-edge masks of its interior variant
-(`depth_edges`, `interior_visibility`) live in m4dgs.core.temporal, whose docstring states the
-convention (the authors' compute_HDR_TAE: channel sum, bilinear backward warp with border padding,
-mean over visible pixels, both directions); benchgen uses them for the ground truth's HDR-TAE floor.
-They are re-exported here.
+HDR-TAE (`hdr_tae`, `hdr_tae_pairs`), HDR-TCE (`hdr_tce`, `hdr_tce_pairs`) and the
+occlusion-edge masks of HDR-TAE's interior variant (`depth_edges`, `interior_visibility`) live in
+m4dgs.core.temporal, whose docstring states the convention (the authors' compute_HDR_TAE: channel
+sum, bilinear backward warp with border padding, mean over visible pixels, both directions);
+benchgen uses them for the ground truth's HDR-TAE floor. They are re-exported here.
 
 Flow for real clips (no learned model without weights): OpenCV DIS optical flow, preset MEDIUM, on
 8-bit grey images of the mu-law tone-mapped HDR pair, both frames divided by the SAME scale (max
@@ -24,6 +24,8 @@ from m4dgs.core.temporal import (
     depth_edges,
     hdr_tae,
     hdr_tae_pairs,
+    hdr_tce,
+    hdr_tce_pairs,
     interior_visibility,
 )
 
@@ -40,6 +42,8 @@ __all__ = [
     "hdr_t_std",
     "hdr_tae",
     "hdr_tae_pairs",
+    "hdr_tce",
+    "hdr_tce_pairs",
     "interior_visibility",
     "tonemap_8bit",
 ]
@@ -55,6 +59,10 @@ CONVENTIONS = {
     "hdr_tae_interior": "HDR-TAE interior: the same, with occlusion-edge pixels (a 5 % depth jump "
     "or a surface "
     "boundary, grown by 1 px, in either frame) removed from the visibility",
+    "hdr_tce": "HDR-TCE (beyond the paper): the HDR-TAE pairs, warp and visibility, scoring "
+    "|d(P) - d(G)| with d(X) = (X_t - X_{t+1->t}) / (X_t + X_{t+1->t}), channel sum, against the "
+    "ground truth's change: 0 for a perfect prediction, the clip's HDR-TAE floor for one frozen in "
+    "time",
     "hdr_t_std": "HDR_T_std: population std over frames of each frame's mean HDR value, divided "
     "by the global mean",
 }

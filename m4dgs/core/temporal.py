@@ -14,7 +14,17 @@ HDR-TAE convention (the authors' compute_HDR_TAE):
 - visibility: given masks (exact from ground truth) or forward-backward consistency
   |f + b(x + f)| < 0.5 (|f| + |b(x + f)|) + 0.5 (m4dgs.core.warp.fb_consistency).
 A direction with no visible pixel is skipped (a pair with none in both directions too); all empty ->
-NaN."""
+NaN.
+
+HDR-TCE (temporal change error, beyond the paper; `hdr_tce`): HDR-TAE scores how much a video
+changes between frames along the true motion, so a prediction that changes less than the truth
+(blurred, or frozen where the scene's light really changes) scores lower than the truth itself.
+TCE compares the change with the ground truth's instead: per pixel and channel the signed relative
+change d(X) = (X_t - X_{t+1->t}) / (X_t + X_{t+1->t} + eps), the same warp, visibility, channel
+sum and averaging as HDR-TAE, and the error |d(P) - d(G)| of prediction P against ground truth G.
+A perfect prediction scores 0 (plus what the ground truth's own noise adds), a prediction frozen in
+time scores exactly the ground truth's HDR-TAE (the clip's floor), and a constant scale on P
+cancels."""
 
 from __future__ import annotations
 
@@ -40,6 +50,60 @@ def _tae_direction(
     return float((rel * vis_a.to(rel.dtype)).sum()), n
 
 
+def _tce_direction(
+    p_a: torch.Tensor,
+    p_b: torch.Tensor,
+    g_a: torch.Tensor,
+    g_b: torch.Tensor,
+    flow_ab: torch.Tensor,
+    vis_a: torch.Tensor,
+):
+    """Sum over visible pixels of frame a of sum_c |d(P) - d(G)| with d(X) = (X_a - W(X_b, F_ab)) /
+    (X_a + W + eps), and the visible count."""
+
+    def change(x_a, x_b):
+        xw = backward_warp(x_b, flow_ab, padding_mode="border")
+        return (x_a - xw) / (x_a + xw + TAE_EPS)
+
+    err = (change(p_a, p_b) - change(g_a, g_b)).abs().sum(dim=-1)  # [H, W] channel sum
+    n = int(vis_a.sum())
+    return float((err * vis_a.to(err.dtype)).sum()), n
+
+
+def _frames(frames, name: str) -> torch.Tensor:
+    if isinstance(frames, (list, tuple)):
+        frames = torch.stack([as_tensor(f) for f in frames]) if len(frames) else torch.zeros(0)
+    h = as_tensor(frames, uint8_scale=False)
+    if h.dim() != 4:
+        raise ValueError(f"{name}: frames must be [T, H, W, C], got {tuple(h.shape)}")
+    return h
+
+
+def _pair_values(name, h, flow_fwd, flow_bwd, vis_fwd, vis_bwd, direction) -> list[float]:
+    """The per-pair loop HDR-TAE and HDR-TCE share: direction(t_a, t_b, flow_ab, vis_a) -> (sum,
+    count) in both directions of each consecutive pair, averaged over the directions with a visible
+    pixel (NaN for none)."""
+    t_len = h.shape[0]
+    ff = as_tensor(flow_fwd, device=h.device, uint8_scale=False)
+    fb = as_tensor(flow_bwd, device=h.device, uint8_scale=False)
+    expect = (t_len - 1, h.shape[1], h.shape[2], 2)
+    if tuple(ff.shape) != expect or tuple(fb.shape) != expect:
+        raise ValueError(
+            f"{name}: flows must be {expect}, got {tuple(ff.shape)} and {tuple(fb.shape)}"
+        )
+    vf = as_mask(vis_fwd, h) if vis_fwd is not None else None
+    vb = as_mask(vis_bwd, h) if vis_bwd is not None else None
+    out = []
+    for t in range(t_len - 1):
+        va = vf[t] if vf is not None else fb_consistency(ff[t], fb[t])
+        vb_t = vb[t] if vb is not None else fb_consistency(fb[t], ff[t])
+        s1, n1 = direction(t, t + 1, ff[t], va)
+        s2, n2 = direction(t + 1, t, fb[t], vb_t)
+        terms = [s / n for s, n in ((s1, n1), (s2, n2)) if n > 0]
+        out.append(float(np.mean(terms)) if terms else math.nan)
+    return out
+
+
 def hdr_tae_pairs(frames, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> list[float]:
     """Per-pair HDR-TAE values (see module docstring).
 
@@ -53,30 +117,36 @@ def hdr_tae_pairs(frames, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> lis
     Returns:
         list of T-1 floats (NaN for a pair with no visible pixel in either direction).
     """
-    if isinstance(frames, (list, tuple)):
-        frames = torch.stack([as_tensor(f) for f in frames]) if len(frames) else torch.zeros(0)
-    h = as_tensor(frames, uint8_scale=False)
-    if h.dim() != 4:
-        raise ValueError(f"hdr_tae: frames must be [T, H, W, C], got {tuple(h.shape)}")
-    t_len = h.shape[0]
-    ff = as_tensor(flow_fwd, device=h.device, uint8_scale=False)
-    fb = as_tensor(flow_bwd, device=h.device, uint8_scale=False)
-    expect = (t_len - 1, h.shape[1], h.shape[2], 2)
-    if tuple(ff.shape) != expect or tuple(fb.shape) != expect:
+    h = _frames(frames, "hdr_tae")
+    return _pair_values(
+        "hdr_tae",
+        h,
+        flow_fwd,
+        flow_bwd,
+        vis_fwd,
+        vis_bwd,
+        lambda a, b, f, v: _tae_direction(h[a], h[b], f, v),
+    )
+
+
+def hdr_tce_pairs(pred, gt, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> list[float]:
+    """Per-pair HDR-TCE values (module docstring): pred and gt [T, H, W, 3] linear HDR frames of
+    the same times, the flows and visibilities as for `hdr_tae_pairs` (the ground truth's)."""
+    p, g = _frames(pred, "hdr_tce"), _frames(gt, "hdr_tce")
+    if p.shape != g.shape:
         raise ValueError(
-            f"hdr_tae: flows must be {expect}, got {tuple(ff.shape)} and {tuple(fb.shape)}"
+            f"hdr_tce: prediction {tuple(p.shape)} and ground truth {tuple(g.shape)} differ"
         )
-    vf = as_mask(vis_fwd, h) if vis_fwd is not None else None
-    vb = as_mask(vis_bwd, h) if vis_bwd is not None else None
-    out = []
-    for t in range(t_len - 1):
-        va = vf[t] if vf is not None else fb_consistency(ff[t], fb[t])
-        vb_t = vb[t] if vb is not None else fb_consistency(fb[t], ff[t])
-        s1, n1 = _tae_direction(h[t], h[t + 1], ff[t], va)
-        s2, n2 = _tae_direction(h[t + 1], h[t], fb[t], vb_t)
-        terms = [s / n for s, n in ((s1, n1), (s2, n2)) if n > 0]
-        out.append(float(np.mean(terms)) if terms else math.nan)
-    return out
+    g = g.to(p.dtype)
+    return _pair_values(
+        "hdr_tce",
+        p,
+        flow_fwd,
+        flow_bwd,
+        vis_fwd,
+        vis_bwd,
+        lambda a, b, f, v: _tce_direction(p[a], p[b], g[a], g[b], f, v),
+    )
 
 
 def hdr_tae(frames, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> float:
@@ -84,6 +154,17 @@ def hdr_tae(frames, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> float:
     docstring)."""
     vals = [
         v for v in hdr_tae_pairs(frames, flow_fwd, flow_bwd, vis_fwd, vis_bwd) if not math.isnan(v)
+    ]
+    return float(np.mean(vals)) if vals else math.nan
+
+
+def hdr_tce(pred, gt, flow_fwd, flow_bwd, vis_fwd=None, vis_bwd=None) -> float:
+    """HDR-TCE (lower is better; 0 for a perfect prediction): mean over consecutive pairs of the
+    two-direction average (module docstring)."""
+    vals = [
+        v
+        for v in hdr_tce_pairs(pred, gt, flow_fwd, flow_bwd, vis_fwd, vis_bwd)
+        if not math.isnan(v)
     ]
     return float(np.mean(vals)) if vals else math.nan
 

@@ -26,5 +26,12 @@ def test_hdr_tae_with_zero_flow_is_the_relative_difference():
 
 
 def test_eval_reexports_the_core_functions():
-    for name in ("hdr_tae", "hdr_tae_pairs", "depth_edges", "interior_visibility"):
+    for name in (
+        "hdr_tae",
+        "hdr_tae_pairs",
+        "hdr_tce",
+        "hdr_tce_pairs",
+        "depth_edges",
+        "interior_visibility",
+    ):
         assert getattr(et, name) is getattr(ct, name)

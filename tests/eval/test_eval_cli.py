@@ -323,6 +323,8 @@ def test_score_run_values(tmp_path, fake_trainer):
     assert m["hdr_psnr"] == pytest.approx(np.mean(hp), abs=1e-6)
     # HDR-TAE of a global flicker with zero flow: 3 |r - 1| / (r + 1)
     assert m["hdr_tae"] == pytest.approx(3 * (FLICKER - 1) / (FLICKER + 1), rel=1e-5)
+    # the ground truth's training frames do not change, so all of that change is an error
+    assert m["hdr_tce"] == pytest.approx(3 * (FLICKER - 1) / (FLICKER + 1), rel=1e-5)
     # training LDR renders equal the input: capped PSNR, SSIM 1
     assert m["ldr_train_psnr"] == 100.0 and m["ldr_train_ssim"] == pytest.approx(1.0, abs=1e-6)
     # cameras are a Sim(3) copy of the gt; depth a scaled copy; tracks offset by 0.5 px; the true
@@ -446,6 +448,35 @@ def test_cli_score(tmp_path, fake_trainer):
     assert m["options"]["roundtrip"] == "jpeg" and "ldr_jpeg" in m["conventions"]
     r2 = CliRunner().invoke(main, ["score", str(run)])
     assert r2.exit_code == 0 and "exists" in r2.output
+
+
+def test_score_add_missing_fills_only_what_an_older_metrics_json_lacks(tmp_path, fake_trainer):
+    clip = make_fake_clip(tmp_path / "clip")
+    run = tmp_path / "run"
+    make_fake_run(run, clip)
+    r = CliRunner().invoke(main, ["score", str(run), "--no-fps"])
+    assert r.exit_code == 0, r.output
+    full = json.loads((run / "metrics.json").read_text())
+    # as an earlier version wrote it: no hdr_tce, and a marker value that must survive
+    old = {k: v for k, v in full.items() if k != "hdr_tce"}
+    old["conventions"] = {k: v for k, v in full["conventions"].items() if k != "hdr_tce"}
+    old["ldr_oe_psnr"] = 12.5
+    (run / "metrics.json").write_text(json.dumps(old))
+    r = CliRunner().invoke(main, ["score", str(run), "--add-missing"])
+    assert r.exit_code == 0 and "added hdr_tce" in r.output, r.output
+    new = json.loads((run / "metrics.json").read_text())
+    assert new["hdr_tce"] == pytest.approx(full["hdr_tce"], rel=1e-12)
+    assert new["conventions"]["hdr_tce"] == full["conventions"]["hdr_tce"]
+    assert new["ldr_oe_psnr"] == 12.5  # nothing else recomputed
+    assert {k: v for k, v in new.items() if k not in ("hdr_tce", "conventions")} == {
+        k: v for k, v in old.items() if k != "conventions"
+    }
+    r = CliRunner().invoke(main, ["score", str(run), "--add-missing"])
+    assert r.exit_code == 0 and "nothing missing" in r.output
+    r = CliRunner().invoke(main, ["score", str(run), "--add-missing", "--force"])
+    assert r.exit_code == 2 and "exclude each other" in r.output
+    r = CliRunner().invoke(main, ["score", str(tmp_path / "clip"), "--add-missing"])
+    assert r.exit_code == 1 and "no metrics.json to add to" in r.output
 
 
 # --------------------------------------------------------------------------------------------------

@@ -270,6 +270,59 @@ def test_tae_subpixel_against_scipy_reference():
     assert temporal.hdr_tae(frames, fwd, bwd, vf, vb) == pytest.approx(ref, rel=1e-9)
 
 
+def test_tce_zero_for_the_truth_floor_for_a_frozen_video_and_scale_free():
+    frames, fwd, bwd, vf, vb = _exact_translation_clip()
+    # the truth changes between frames (a light that brightens), so its own HDR-TAE is not zero
+    gt = frames * np.array([1.0, 1.3, 1.1])[:, None, None, None]
+    tae_gt = temporal.hdr_tae(gt, fwd, bwd, vf, vb)
+    assert tae_gt > 0.05
+    assert temporal.hdr_tce(gt, gt, fwd, bwd, vf, vb) == pytest.approx(0.0, abs=1e-12)
+    # a constant scale on the prediction cancels
+    assert temporal.hdr_tce(42.0 * gt, gt, fwd, bwd, vf, vb) == pytest.approx(0.0, abs=1e-9)
+    # a prediction that follows the motion but not the brightening: HDR-TAE below the truth's,
+    # HDR-TCE exactly the truth's HDR-TAE (the clip's floor)
+    frozen = frames
+    assert temporal.hdr_tae(frozen, fwd, bwd, vf, vb) == pytest.approx(0.0, abs=1e-12)
+    assert temporal.hdr_tce(frozen, gt, fwd, bwd, vf, vb) == pytest.approx(tae_gt, rel=1e-9)
+    # flicker on top of the truth is an error too
+    fl = gt * np.array([1.0, 0.8, 1.2])[:, None, None, None]
+    assert temporal.hdr_tce(fl, gt, fwd, bwd, vf, vb) > 0.1
+    with pytest.raises(ValueError, match="differ"):
+        temporal.hdr_tce(gt[:2], gt, fwd, bwd, vf, vb)
+
+
+def test_tce_subpixel_against_scipy_reference():
+    rng = RNG(14)
+    h, w = 18, 22
+    tex = 0.1 + _smooth_texture(h, w, 15)
+    gt = tex[None].repeat(2, 0) * rng.uniform(0.8, 1.2, size=(2, 1, 1, 3))
+    gt[1] = np.roll(gt[1], 1, axis=1)
+    pred = gt * rng.uniform(0.9, 1.1, size=(2, h, w, 3))
+    fwd = rng.uniform(-1.5, 1.5, size=(1, h, w, 2))
+    bwd = rng.uniform(-1.5, 1.5, size=(1, h, w, 2))
+    vf = rng.random((1, h, w)) > 0.3
+    vb = rng.random((1, h, w)) > 0.3
+    ys, xs = np.mgrid[0:h, 0:w].astype(float)
+
+    def warp(img, flow):  # bilinear, border padding (coordinates clamped), scipy
+        cy = np.clip(ys + flow[..., 1], 0, h - 1)
+        cx = np.clip(xs + flow[..., 0], 0, w - 1)
+        return np.stack(
+            [ndimage.map_coordinates(img[..., c], [cy, cx], order=1) for c in range(3)], -1
+        )
+
+    def change(a, b, f):
+        bw = warp(b, f)
+        return (a - bw) / (a + bw + 1e-10)
+
+    def direction(i, j, f, v):
+        err = np.abs(change(pred[i], pred[j], f) - change(gt[i], gt[j], f)).sum(-1)
+        return (err * v).sum() / v.sum()
+
+    ref = 0.5 * (direction(0, 1, fwd[0], vf[0]) + direction(1, 0, bwd[0], vb[0]))
+    assert temporal.hdr_tce(pred, gt, fwd, bwd, vf, vb) == pytest.approx(ref, rel=1e-9)
+
+
 def test_hdr_t_std_against_numpy():
     rng = RNG(12)
     frames = rng.uniform(0, 3, size=(5, 8, 10, 3)) * rng.uniform(0.5, 1.5, size=(5, 1, 1, 1))

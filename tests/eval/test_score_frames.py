@@ -75,6 +75,8 @@ def test_frames_from_the_ground_truth_score_the_known_values(tiny_clip_realistic
     assert m["hdr_psnr"] == PSNR_CAP_DB and m["hdr_ssim"] == pytest.approx(1.0)
     assert m["hdr_train_psnr"] == PSNR_CAP_DB
     assert m["hdr_tae"] == pytest.approx(clip.meta.gt["hdr_tae_floor"], rel=1e-4)
+    # the truth scored against itself: HDR-TAE is the clip's floor, HDR-TCE is zero
+    assert m["hdr_tae"] > 0.01 and m["hdr_tce"] == pytest.approx(0.0, abs=1e-6)
     # nothing a model would give
     assert m["fps"] is None and m["crf_error"] is None and m["num_gaussians"] is None
     inp = m["options"]["input"]
