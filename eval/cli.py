@@ -719,7 +719,13 @@ def campaign(
     type=click.IntRange(min=1),
     help="Trainer seeds 0..N-1 to collect (default: up to the largest seed with a run folder).",
 )
-def export(suites, out, csv_path, scenes, seeds):
+@click.option(
+    "--add-missing",
+    is_flag=True,
+    help="First compute, in every scored run, the metrics its metrics.json lacks because an "
+    "earlier version scored it (as `score RUN --add-missing`; today: hdr_tce).",
+)
+def export(suites, out, csv_path, scenes, seeds, add_missing):
     """Collect the scored runs of SUITES under ROOT into one CSV of per-run metrics (one row per
     suite, scene, row, seed), merging with the existing CSV: a scored run replaces the row of
     the same key, a run without metrics.json never replaces a scored one, other rows stay. Beside
@@ -728,7 +734,13 @@ def export(suites, out, csv_path, scenes, seeds):
     from .results import export as export_runs
 
     summary = export_runs(
-        suites, out, csv_path, _scenes(scenes), seeds, log=lambda s: click.echo(s, err=True)
+        suites,
+        out,
+        csv_path,
+        _scenes(scenes),
+        seeds,
+        log=lambda s: click.echo(s, err=True),
+        add_missing=add_missing,
     )
     for name, c in summary.items():
         click.echo(f"{name}: {c['scored']} scored, {c['missing']} without metrics.json", err=True)

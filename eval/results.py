@@ -191,12 +191,16 @@ def _provenance(run_dir, clip_meta: dict) -> Dict[str, str]:
     }
 
 
-def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List[dict], dict]:
+def export_suite(
+    suite, root, scenes=None, seeds=None, add_missing: bool = False
+) -> Tuple[List[dict], List[dict], dict]:
     """(runs rows, CRF rows, clip floors) of one suite's jobs under ROOT (eval.cli.collect_suite):
     every job, a scored one with its metrics, a job without metrics.json with status "missing";
     the floors {(scene, generator): {...}} of the scored runs' clips (clip_floors). Without
     `scenes`, only the scenes with at least one run folder of the suite (the subset that was run);
-    with `scenes`, every job of those scenes."""
+    with `scenes`, every job of those scenes. add_missing: first compute, for every scored run, the
+    metrics its metrics.json lacks because an earlier version scored it
+    (eval.score.add_missing_metrics; written into the run's metrics.json)."""
     from .cli import collect_suite
     from .suite import load_eval_suite
 
@@ -205,6 +209,12 @@ def export_suite(suite, root, scenes=None, seeds=None) -> Tuple[List[dict], List
     if scenes is None:  # scenes without any run folder were not run: not part of the subset
         ran = {e["scene"] for e in entries if Path(e["run_dir"]).exists()}
         entries = [e for e in entries if e["scene"] in ran]
+    if add_missing:
+        from .score import add_missing_metrics
+
+        for e in entries:
+            if e["metrics"]:
+                e["metrics"], _ = add_missing_metrics(e["run_dir"], clip=e["clip_dir"])
     keys = metric_keys()
     rows, crfs, floors, metas = [], [], {}, {}
     for e in entries:
@@ -329,9 +339,18 @@ def merge_rows(old: List[dict], new: List[dict]) -> List[dict]:
     return _sorted(list(idx.values()))
 
 
-def export(suites: Sequence[str], root, csv_path, scenes=None, seeds=None, log=None) -> dict:
+def export(
+    suites: Sequence[str],
+    root,
+    csv_path,
+    scenes=None,
+    seeds=None,
+    log=None,
+    add_missing: bool = False,
+) -> dict:
     """Collect the runs of `suites` under ROOT and merge them into csv_path, its CRF CSV and its
-    clip-floor CSV (floors_csv_path; written when a run's clip records its floors).
+    clip-floor CSV (floors_csv_path; written when a run's clip records its floors). add_missing:
+    see export_suite.
 
     Returns {suite: {"scored", "missing"}} of what was collected; raises InputError when a suite
     has no scored run under ROOT (a wrong ROOT would otherwise add only missing rows)."""
@@ -348,7 +367,7 @@ def export(suites: Sequence[str], root, csv_path, scenes=None, seeds=None, log=N
     floors = read_floors_csv(floors_csv_path(csv_path))
     new_rows, summary = [], {}
     for suite in suites:
-        rows, crfs, fl = export_suite(suite, root, scenes, seeds)
+        rows, crfs, fl = export_suite(suite, root, scenes, seeds, add_missing=add_missing)
         floors.update(fl)
         name = rows[0]["suite"] if rows else str(suite)
         scored = [r for r in rows if r["status"] == SCORED]

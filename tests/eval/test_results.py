@@ -575,6 +575,37 @@ def test_export_merge_results_readme(tmp_path):
     assert r.exit_code == 1 and "results:main:start" in r.output
 
 
+def test_export_add_missing_fills_metrics_of_scored_runs_only(tmp_path, monkeypatch):
+    import eval.score as score
+
+    root, csvp = tmp_path / "exp", tmp_path / "runs.csv"
+    make_runs(root)
+    calls = []
+
+    def fake_add(run_dir, clip=None, write=True):  # stands in for the metric's own computation
+        calls.append((Path(run_dir).parts[-2:], Path(clip).name))
+        m = json.loads((Path(run_dir) / "metrics.json").read_text())
+        m["hdr_tce"] = 0.125
+        return m, ["hdr_tce"]
+
+    monkeypatch.setattr(score, "add_missing_metrics", fake_add)
+    args = ["export", "paper-ablation", "--root", str(root), "--csv", str(csvp)]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    assert calls == [] and all(not x["hdr_tce"] for x in read_csv(csvp))
+    r = CliRunner().invoke(main, args + ["--add-missing"])
+    assert r.exit_code == 0, r.output
+    rows = [x for x in read_csv(csvp) if x["suite"] == "paper-ablation"]
+    scored = [x for x in rows if x["status"] == "scored"]
+    folder = {"0": ""}  # seed 0's run folder is the row's name, seed s's <row>-seed-<s>
+    assert len(calls) == len(scored) and {c[0] for c in calls} == {
+        (x["scene"], x["row"] + folder.get(x["seed"], f"-seed-{x['seed']}")) for x in scored
+    }
+    assert all(c[1] == c[0][0] for c in calls)  # each run is given its own scene's clip
+    assert all(x["hdr_tce"] == "0.125" for x in scored)
+    assert all(not x["hdr_tce"] for x in rows if x["status"] != "scored")
+
+
 def test_results_pending(tmp_path):
     """Without a CSV the page says the runs are pending and every finding and control lacks
     data."""
