@@ -301,47 +301,48 @@ def _score_hdr_set(
     return out
 
 
-def _tae_pairwise(frames: List[int], load, flow_fn) -> Optional[float]:
-    """HDR-TAE over consecutive frames, one pair in memory at a time. flow_fn(a, b, Ha, Hb) -> (ff,
-    fb, vf, vb)."""
+def _pairwise(frames: List[int], load, flow_fn, pair_value) -> Optional[float]:
+    """Mean over consecutive frame pairs of pair_value(xa, xb, ff, fb, vf, vb) (NaN skipped), one
+    pair in memory at a time: load(g) -> a tuple of frames of g whose first is the rendered HDR,
+    flow_fn(a, b, Ha, Hb) -> (ff, fb, vf, vb) for the pair (vf / vb may be None), each given to
+    pair_value with a leading pair axis of 1."""
     vals, prev = [], None
     for a, b in zip(frames[:-1], frames[1:]):
-        ha = prev if prev is not None else load(a)
-        hb = load(b)
-        ff, fb, vf, vb = flow_fn(a, b, ha, hb)
-        v = hdr_tae_pairs(
-            np.stack([ha, hb]),
+        xa = prev if prev is not None else load(a)
+        xb = load(b)
+        ff, fb, vf, vb = flow_fn(a, b, xa[0], xb[0])
+        v = pair_value(
+            xa,
+            xb,
             ff[None],
             fb[None],
             None if vf is None else vf[None],
             None if vb is None else vb[None],
-        )[0]
+        )
         if not math.isnan(v):
             vals.append(v)
-        prev = hb
+        prev = xb
     return float(np.mean(vals)) if vals else None
+
+
+def _tae_pairwise(frames: List[int], load, flow_fn) -> Optional[float]:
+    """HDR-TAE over consecutive frames (load(g) -> the rendered HDR of g)."""
+    return _pairwise(
+        frames,
+        lambda g: (load(g),),
+        flow_fn,
+        lambda xa, xb, *f: hdr_tae_pairs(np.stack([xa[0], xb[0]]), *f)[0],
+    )
 
 
 def _tce_pairwise(frames: List[int], load, load_gt, flow_fn) -> Optional[float]:
-    """HDR-TCE over consecutive frames (prediction against ground truth), one pair in memory at a
-    time. flow_fn(a, b, Ha, Hb) -> (ff, fb, vf, vb)."""
-    vals, prev = [], None
-    for a, b in zip(frames[:-1], frames[1:]):
-        pa, ga = prev if prev is not None else (load(a), load_gt(a))
-        pb, gb = load(b), load_gt(b)
-        ff, fb, vf, vb = flow_fn(a, b, pa, pb)
-        v = hdr_tce_pairs(
-            np.stack([pa, pb]),
-            np.stack([ga, gb]),
-            ff[None],
-            fb[None],
-            None if vf is None else vf[None],
-            None if vb is None else vb[None],
-        )[0]
-        if not math.isnan(v):
-            vals.append(v)
-        prev = pb, gb
-    return float(np.mean(vals)) if vals else None
+    """HDR-TCE over consecutive frames, the renders (load) against the ground truth (load_gt)."""
+    return _pairwise(
+        frames,
+        lambda g: (load(g), load_gt(g)),
+        flow_fn,
+        lambda xa, xb, *f: hdr_tce_pairs(np.stack([xa[0], xb[0]]), np.stack([xa[1], xb[1]]), *f)[0],
+    )
 
 
 def _dis_flows(a, b, ha, hb):

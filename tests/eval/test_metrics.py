@@ -238,6 +238,16 @@ def test_tae_global_flicker_ratio():
     assert temporal.hdr_tae_pairs(frames, z2, z2) == pytest.approx([1.0, 1.0], rel=1e-9)
 
 
+def _scipy_warp(img, flow):
+    """Bilinear backward warp of img [H, W, 3] by flow [H, W, 2] with border padding (coordinates
+    clamped), by scipy.ndimage.map_coordinates: the temporal metrics' reference."""
+    h, w = img.shape[:2]
+    ys, xs = np.mgrid[0:h, 0:w].astype(float)
+    cy = np.clip(ys + flow[..., 1], 0, h - 1)
+    cx = np.clip(xs + flow[..., 0], 0, w - 1)
+    return np.stack([ndimage.map_coordinates(img[..., c], [cy, cx], order=1) for c in range(3)], -1)
+
+
 def test_tae_subpixel_against_scipy_reference():
     rng = RNG(10)
     h, w = 20, 24
@@ -249,17 +259,9 @@ def test_tae_subpixel_against_scipy_reference():
     bwd = rng.uniform(-1.5, 1.5, size=(1, h, w, 2))
     vf = rng.random((1, h, w)) > 0.3
     vb = rng.random((1, h, w)) > 0.3
-    ys, xs = np.mgrid[0:h, 0:w].astype(float)
-
-    def warp(img, flow):  # bilinear, border padding (coordinates clamped), scipy
-        cy = np.clip(ys + flow[..., 1], 0, h - 1)
-        cx = np.clip(xs + flow[..., 0], 0, w - 1)
-        return np.stack(
-            [ndimage.map_coordinates(img[..., c], [cy, cx], order=1) for c in range(3)], -1
-        )
 
     def direction(a, b, f, v):
-        hw = warp(b, f)
+        hw = _scipy_warp(b, f)
         rel = (np.abs(a - hw) / (a + hw + 1e-10)).sum(-1)
         return (rel * v).sum() / v.sum()
 
@@ -302,17 +304,9 @@ def test_tce_subpixel_against_scipy_reference():
     bwd = rng.uniform(-1.5, 1.5, size=(1, h, w, 2))
     vf = rng.random((1, h, w)) > 0.3
     vb = rng.random((1, h, w)) > 0.3
-    ys, xs = np.mgrid[0:h, 0:w].astype(float)
-
-    def warp(img, flow):  # bilinear, border padding (coordinates clamped), scipy
-        cy = np.clip(ys + flow[..., 1], 0, h - 1)
-        cx = np.clip(xs + flow[..., 0], 0, w - 1)
-        return np.stack(
-            [ndimage.map_coordinates(img[..., c], [cy, cx], order=1) for c in range(3)], -1
-        )
 
     def change(a, b, f):
-        bw = warp(b, f)
+        bw = _scipy_warp(b, f)
         return (a - bw) / (a + bw + 1e-10)
 
     def direction(i, j, f, v):
