@@ -988,6 +988,14 @@ CONTROLS: Tuple[Control, ...] = (
         Effect("control-tlr", "no-tlr", "full", "TLR weight 0.01"),
         Effect("control-tlr", "no-tlr", "full-tlr-0.1", "TLR weight 0.1"),
     ),
+    Control(
+        "reproj-schedule",
+        "Ablation (d): is the reprojection loss's small effect its schedule? (throughout stage 2, "
+        "the paper's text, against its first 700 steps)",
+        "method",
+        Effect("control-reproj", "no-reproj", "full", "L_pr in stage 2's first 700 steps"),
+        Effect("control-reproj", "no-reproj", "full-pr-whole", "L_pr throughout stage 2"),
+    ),
 )
 
 NO_CHANGE, GROWS, SHRINKS = "no resolvable change", "grows", "shrinks"
