@@ -1008,6 +1008,8 @@ class ControlResult:
     control: object  # the same under the control
     change: object  # Interval of control - base, paired over the keys all four rows have
     reading: str
+    # the reading with the change's p-value Holm-adjusted over the control's metrics
+    reading_holm: str = NO_DATA
 
 
 def _effect_by_key(e: Effect, rows: List[dict], metric: str) -> Dict[tuple, float]:
@@ -1020,20 +1022,22 @@ def _effect_by_key(e: Effect, rows: List[dict], metric: str) -> Dict[tuple, floa
     return {k: a[k] - b[k] for k in a if k in b}
 
 
-def control_reading(base, change) -> str:
+def control_reading(base, change, significant: Optional[bool] = None) -> str:
     """ "grows" / "shrinks" (the change's interval excludes 0 and points away from / towards 0
-    from the base effect's mean), "no resolvable change", or NO_DATA (fewer than 2 pairs)."""
+    from the base effect's mean), "no resolvable change", or NO_DATA (fewer than 2 pairs);
+    `significant` overrides "the interval excludes 0" (e.g. with a Holm-adjusted p-value)."""
     if change is None or change.half is None or base is None or base.mean is None:
         return NO_DATA
-    if not change.excludes_zero:
+    if not (change.excludes_zero if significant is None else significant):
         return NO_CHANGE
     return GROWS if (change.mean > 0) == (base.mean > 0) else SHRINKS
 
 
 def evaluate_control(c: Control, rows: List[dict]) -> List[ControlResult]:
     """Per metric: the base effect, the control effect (each paired over its own (scene, seed)
-    pairs) and the change control - base (paired over the pairs both effects have)."""
-    from .stats import mean_ci, paired_diff
+    pairs) and the change control - base (paired over the pairs both effects have), read as it is
+    and after Holm's correction over the control's metrics."""
+    from .stats import LEVEL, holm, mean_ci, paired_diff
 
     out = []
     for m in c.metrics:
@@ -1044,6 +1048,9 @@ def evaluate_control(c: Control, rows: List[dict]) -> List[ControlResult]:
         if change is not None and change.n == 0:
             change = None
         out.append(ControlResult(m, base, ctrl, change, control_reading(base, change)))
+    adj = holm([None if r.change is None or r.change.half is None else r.change.p for r in out])
+    for r, a in zip(out, adj):
+        r.reading_holm = control_reading(r.base, r.change, None if a is None else a < 1 - LEVEL)
     return out
 
 
@@ -1079,8 +1086,9 @@ def controls_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
         "runs, and the change = control Δ - base Δ, paired over the (scene, seed) runs all four "
         "rows have (a difference in differences; mean ± Student-t 95 % interval, † where it "
         "excludes 0). Reading: the effect grows or shrinks under the control († on the change), "
-        "or no resolvable change. An effect and its control compare rows of one code and "
-        "generator version unless the table says otherwise."
+        "or no resolvable change; after Holm: the same with the change's p-value adjusted over "
+        "the control's metrics (Holm's method, family-wise 5 %). An effect and its control "
+        "compare rows of one code and generator version unless the table says otherwise."
         + (
             f" What the answers mean is written in [{Path(notes_link).name}]({notes_link})."
             if notes_link
@@ -1116,8 +1124,8 @@ def controls_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
                 ]
         lines += [
             f"| metric | base Δ ({c.base.condition}) | control Δ ({c.control.condition}) "
-            "| change | reading |",
-            "|:---|---:|---:|---:|:---|",
+            "| change | reading | after Holm |",
+            "|:---|---:|---:|---:|:---|:---|",
         ]
         for r in evaluate_control(c, rows):
             col = cols[r.metric]
@@ -1125,7 +1133,7 @@ def controls_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
             lines.append(
                 f"| {name} | {_interval_text(r.base, col.fmt)} | "
                 f"{_interval_text(r.control, col.fmt)} | {_interval_text(r.change, col.fmt)} "
-                f"| {r.reading} |"
+                f"| {r.reading} | {r.reading_holm} |"
             )
         lines.append("")
     return "\n".join(lines)

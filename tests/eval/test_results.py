@@ -930,6 +930,40 @@ def test_controls_are_differences_in_differences(tmp_path):
         assert cells[4] == expect
     # oracle priors remove the ~1 dB lead: the change is resolved and the lead shrinks
     assert _table_row(text, "video-init-priors", "LDR-OE PSNR")[4] == R.SHRINKS
+    # after Holm: the change's scipy p-values over the control's four metrics, Holm's procedure
+    metrics = {"ldr_oe_psnr": "LDR-OE PSNR", "ldr_ne_psnr": "LDR-NE PSNR"}
+    metrics |= {"hdr_psnr": "HDR PSNR", "hdr_tae": "HDR-TAE"}
+
+    def effect(suite, row, ref, metric):
+        a = {
+            (r["scene"], r["seed"]): r[metric]
+            for r in rows
+            if (r["suite"], r["row"]) == (suite, row)
+        }
+        b = {
+            (r["scene"], r["seed"]): r[metric]
+            for r in rows
+            if (r["suite"], r["row"]) == (suite, ref)
+        }
+        return {k: a[k] - b[k] for k in a if k in b}
+
+    readings = []
+    for key, ctrl_rows in (
+        ("video-init-priors", (P, "no-video-init-oracle", "full-oracle")),
+        ("video-init-scale", (S, "no-video-init-paper-schedule", "full-paper-schedule")),
+    ):
+        pv, want = [], []
+        for m in metrics:
+            b, c = effect(P, "no-video-init", "full", m), effect(*ctrl_rows, m)
+            d = [c[k] - b[k] for k in c if k in b]
+            pv.append(stats.ttest_1samp(d, 0.0).pvalue)
+            want.append((np.mean(d), np.mean(list(b.values()))))
+        for (m, name), keep, (dm, bm) in zip(metrics.items(), holm_rejects(pv), want):
+            cell = _table_row(text, key, name)[5]
+            up = R.GROWS if (dm > 0) == (bm > 0) else R.SHRINKS
+            assert cell == (up if keep else R.NO_CHANGE), (key, m)
+            readings.append(cell)
+    assert R.SHRINKS in readings and R.NO_CHANGE in readings  # both kinds occur
     # the split control's suite is not in these rows
     split = _section(text, "video-init-split")
     assert "not enough data" in split and "`control-video-init`" in split
