@@ -996,6 +996,19 @@ CONTROLS: Tuple[Control, ...] = (
         Effect("control-reproj", "no-reproj", "full", "L_pr in stage 2's first 700 steps"),
         Effect("control-reproj", "no-reproj", "full-pr-whole", "L_pr throughout stage 2"),
     ),
+    *(
+        Control(
+            f"exposure-draw-{k}",
+            "Exposure perturbation: is the small cost of ±0.75 EV one draw of the offsets? "
+            f"(draw {k} against draw 0)",
+            "benchmark",
+            Effect("exposure-noise", "ev-0.75", "ev-0", "offsets of perturb_seed 0"),
+            Effect(
+                "exposure-noise-draw", f"ev-0.75-draw-{k}", "ev-0", f"offsets of perturb_seed {k}"
+            ),
+        )
+        for k in (1, 2)
+    ),
 )
 
 NO_CHANGE, GROWS, SHRINKS = "no resolvable change", "grows", "shrinks"
