@@ -1447,6 +1447,8 @@ def finding_figure(f: Finding, res: List[ComparisonResult], out_png) -> Optional
     not), the paper's Δ as a red cross, and 0 as a vertical line. None without any of our Δ."""
     from .suite import metric_columns
 
+    from matplotlib.ticker import MaxNLocator
+
     pts = finding_points(res)
     if not pts:
         return None
@@ -1480,6 +1482,7 @@ def finding_figure(f: Finding, res: List[ComparisonResult], out_png) -> Optional
         arrow = "right: better" if col.higher_is_better else "left: better"
         name = ((col.group + " ") if col.group else "") + col.header
         ax.set_xlabel(f"Δ {name} ({arrow})", fontsize=7)
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=4))
         ax.tick_params(axis="x", labelsize=7)
         ax.grid(axis="x", alpha=0.3)
     n = max((r.ours.n for r in res if r.ours is not None), default=0)
