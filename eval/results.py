@@ -1445,9 +1445,9 @@ def finding_figure(f: Finding, res: List[ComparisonResult], out_png) -> Optional
     """Forest plot of one finding: a panel per metric, a line per comparison with our paired Δ and
     its 95 % interval (filled where the verdict survives Holm's correction, open where it does
     not), the paper's Δ as a red cross, and 0 as a vertical line. None without any of our Δ."""
-    from .suite import metric_columns
-
     from matplotlib.ticker import MaxNLocator
+
+    from .suite import metric_columns
 
     pts = finding_points(res)
     if not pts:
