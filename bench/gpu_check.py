@@ -191,7 +191,7 @@ def _fps(run: Path, device: str) -> dict:
         t, c2w, Ks = _middle_view(model, (w, h))
         r = measure_fps(
             lambda t=t, c2w=c2w, Ks=Ks, w=w, h=h: model.render(t, c2w, Ks, w, h),
-            warmup=3,
+            warmup=10,
             iters=20,
             device=device,
         )
@@ -251,7 +251,7 @@ def _fps_scale(run: Path, device: str, counts) -> dict:
         model.gauss = WorldGaussians.from_state(split_gaussians(base, k)).to(device)
         if device == "cuda":
             torch.cuda.reset_peak_memory_stats()
-        r = measure_fps(lambda: model.render(t, c2w, K, w, h), warmup=3, iters=20, device=device)
+        r = measure_fps(lambda: model.render(t, c2w, K, w, h), warmup=10, iters=20, device=device)
         row = {
             "num_gaussians": model.num_gaussians,
             "split_k": k,

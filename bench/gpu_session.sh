@@ -12,13 +12,13 @@
 # slot that runs out is cut (its JSON then holds the steps it finished) and the next one starts; a gsplat that
 # does not build stops the script after slot A. The JSON of each slot comes back as $OUT/{a,b,c}.json.
 #
-# PAPER_RUN=1 adds slot P: `m4dgs train --preset paper` at full length (about 11+ minutes on an H200, more
-# than one command may run) into $GPU_RUN/paper, cut at T_P seconds. The run folder and gsplat's build live in
-# GPU_RUN (default /tmp/gpu_run, outside the repository: a warm machine kept /tmp between two calls, while the
-# copy of the working tree came back without its ignored .gpu_run/ and gsplat compiled again, 55 s, in the
-# second call of 2026-11-26; that /tmp keeps the build is inferred, not yet seen): the same command again at
-# once (within the machine's 30 s warm window) should skip the build, and resumes the run from its checkpoint.
-# Run it with STEPS_A=env T_B=0 T_C=0 to spend a call on slot P alone (a slot given 0 s is skipped);
+# PAPER_RUN=1 adds slot P: `m4dgs train --preset paper` at full length (11.0 min of phases on an H100, more than
+# one command may run) into $GPU_RUN/paper, cut at T_P seconds. The run folder and gsplat's build live in GPU_RUN
+# (default /tmp/gpu_run, outside the repository: the copy of the working tree comes back without ignored folders,
+# while a warm machine keeps /tmp between calls; seen in the third session: the second call's first render took
+# 0.4 s against the first call's 53 s build), so the same command again at once (within the machine's 30 s warm
+# window) skips the build and resumes the run from its checkpoint. Two calls (T_A=100 T_P=465, then T_A=80 T_P=240)
+# finished it. Run it with STEPS_A=env T_B=0 T_C=0 to spend a call on slot P alone (a slot given 0 s is skipped);
 # $OUT/paper.txt says where the run stands (status.json: its seconds per phase), and once it is finished slot
 # P2 (T_PP) writes $OUT/paper.json: the FPS of the paper-scale model and a profile of its late stage 2.
 set -u
@@ -27,7 +27,8 @@ el() { echo "[gpu_session] $(($(date +%s) - T0)) s: $*"; }
 GPU_RUN=${GPU_RUN:-/tmp/gpu_run}
 mkdir -p "$GPU_RUN"
 # the wheels, gsplat's build, the paper run and each slot's scratch folder all live in GPU_RUN
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target "$GPU_RUN/site" .gpu/whl/*.whl || exit 3
+# a warm machine's second call finds them installed
+[ -d "$GPU_RUN/site/gsplat" ] || python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target "$GPU_RUN/site" .gpu/whl/*.whl || exit 3
 export PYTHONPATH=$GPU_RUN/site:$PWD TORCH_CUDA_ARCH_LIST=${TORCH_CUDA_ARCH_LIST:-9.0} MAX_JOBS=${MAX_JOBS:-16} PYTHONUNBUFFERED=1
 export TORCH_EXTENSIONS_DIR=$GPU_RUN/torch_extensions
 nvidia-smi -L
