@@ -9,6 +9,7 @@ reports as AVX2-capable (which implies FMA) a variant named ``..._avx2`` is buil
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import os
@@ -32,6 +33,11 @@ from .projection import (
     footprint_radii,
     tile_grid,
 )
+
+try:  # POSIX only: the build lock (build_lock)
+    import fcntl
+except ImportError:  # pragma: no cover
+    fcntl = None
 
 SOURCE = Path(__file__).resolve().parent / "csrc" / "rasterize_cpu.cpp"
 EXT_NAME = "m4dgs_rasterize_cpu"
@@ -69,6 +75,42 @@ def build_folder_name(suffix: str = "") -> str:
     return f"{EXT_NAME}{suffix}-{tag}"
 
 
+@contextlib.contextmanager
+def build_lock(build_dir: Path, wait_message: str = ""):
+    """Hold an exclusive OS lock on ``build_dir/m4dgs.flock`` for the body (blocking; `wait_message`
+    printed to stderr first when another process holds it), and delete a stale ``build_dir/lock``.
+
+    torch marks a build in progress with a plain ``lock`` file that only the builder deletes, and
+    every other process waits for it to go; a builder killed mid-compile (Ctrl-C, a job's time
+    limit) leaves it behind, and every later first use would then wait forever without a word.
+    The flock is released by the kernel when its holder dies, and every m4dgs process takes it
+    before torch's build, so while it is held a ``lock`` file can only be a dead builder's.
+    Without ``fcntl`` (not POSIX) the body runs unlocked, as before."""
+    build_dir.mkdir(parents=True, exist_ok=True)
+    if fcntl is None:
+        yield
+        return
+    with open(build_dir / "m4dgs.flock", "a") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if wait_message:
+                print(wait_message, file=sys.stderr, flush=True)
+            fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            stale = build_dir / "lock"
+            if stale.exists():
+                print(
+                    f"[m4dgs] removing {stale}: left by a build that was interrupted",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                stale.unlink(missing_ok=True)
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 @functools.lru_cache(maxsize=None)
 def _load() -> tuple[object | None, str]:
     """(module, "") on success, (None, reason) on failure; cached so a failed build is not
@@ -98,14 +140,16 @@ def _load() -> tuple[object | None, str]:
                 flush=True,
             )
             t0 = time.perf_counter()
-        module = cpp_extension.load(
-            name=EXT_NAME + suffix,
-            sources=[str(SOURCE)],
-            extra_cflags=["-O3", "-fopenmp", *isa],
-            extra_ldflags=["-fopenmp"],
-            build_directory=str(build_dir),
-            verbose=False,
-        )
+        waiting = f"[m4dgs] waiting for another process building the C++ rasterizer in {build_dir}"
+        with build_lock(build_dir, waiting):
+            module = cpp_extension.load(
+                name=EXT_NAME + suffix,
+                sources=[str(SOURCE)],
+                extra_cflags=["-O3", "-fopenmp", *isa],
+                extra_ldflags=["-fopenmp"],
+                build_directory=str(build_dir),
+                verbose=False,
+            )
     except Exception as exc:  # compiler errors, missing ninja, read-only cache, ...
         return None, f"building the C++ rasterizer failed: {type(exc).__name__}: {exc}"
     if first_build:
