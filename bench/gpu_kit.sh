@@ -35,8 +35,10 @@ Packed. On the CUDA machine (device run, carry [".gpu"], timeout 600), one comma
 set -o pipefail; bash bench/gpu_session.sh 2>&1 | tee \$OUT/log.txt
 
 (its time slots and what each measures: the head of bench/gpu_session.sh; what the GPU sessions measured:
-docs/performance.md, "The GPU path"). The full-length paper run instead (a session's whole device budget), two
-calls, the second at once on the warm machine (it resumes the run, then times its FPS and profiles it):
+docs/performance.md, "The GPU path"; what is still to measure there: slot B's profile of a GPU step). The
+full-length paper run instead (measured once: 11.0 min of phases on an H100; a session's whole device budget), two
+calls, the second at once on the warm machine (it resumes the run; with time left, T_PP > 0 times its FPS and
+profiles it):
 
-set -o pipefail; PAPER_RUN=1 STEPS_A=env T_A=120 T_P=460 T_B=0 T_C=0 bash bench/gpu_session.sh 2>&1 | tee \$OUT/log.txt
+set -o pipefail; PAPER_RUN=1 STEPS_A=env T_A=100 T_P=465 T_B=0 T_C=0 bash bench/gpu_session.sh 2>&1 | tee \$OUT/log.txt
 EOF
