@@ -996,6 +996,32 @@ CONTROLS: Tuple[Control, ...] = (
         Effect("control-reproj", "no-reproj", "full", "L_pr in stage 2's first 700 steps"),
         Effect("control-reproj", "no-reproj", "full-pr-whole", "L_pr throughout stage 2"),
     ),
+    Control(
+        "depth-loss-prior",
+        "Priors: is the gain without the depth loss the benchmark's depth prior? (exact depth, "
+        "tracks and flow realistic)",
+        "benchmark",
+        Effect("control-depth-loss", "no-depth-loss", "full", "realistic depth prior"),
+        Effect(
+            "control-depth-loss",
+            "no-depth-loss-exact-depth",
+            "full-exact-depth",
+            "exact depth prior",
+        ),
+    ),
+    Control(
+        "depth-loss-stage",
+        "Priors: is the gain without the depth loss stage 2's term? (removed from stage 2 only, "
+        "against both stages)",
+        "method",
+        Effect("control-depth-loss", "no-depth-loss", "full", "depth term removed in both stages"),
+        Effect(
+            "control-depth-loss",
+            "no-depth-loss-stage2",
+            "full",
+            "depth term removed in stage 2 only",
+        ),
+    ),
     *(
         Control(
             f"exposure-draw-{k}",

@@ -629,7 +629,7 @@ def test_results_pending(tmp_path):
     assert "**The runs are pending**" in text and "does not exist yet" in text
     from eval.results import CONTROLS, FINDINGS
 
-    assert text.count("**not enough data**") == len(FINDINGS) + len(CONTROLS) == 15
+    assert text.count("**not enough data**") == len(FINDINGS) + len(CONTROLS) == 17
     assert "The result tables are pending" in readme.read_text()
     assert not (tmp_path / "docs" / "figures" / "results").exists() or not any(
         (tmp_path / "docs" / "figures" / "results").iterdir()
@@ -1012,3 +1012,15 @@ def test_floor_line_mean_and_range_over_the_suites_clips(tmp_path):
     assert f"mean {f.mean():.3f} ({f.min():.3f}-{f.max():.3f}) over 2 of its 3 clips" in line
     assert line.endswith("0.068 (0.068-0.068)")
     assert R.floors_text(data, {}) is None
+
+
+def test_every_control_names_rows_its_suites_have():
+    """A control reads four rows by name; a name its suite file lacks would leave the control
+    at "not enough data" forever instead of failing."""
+    from eval.results import CONTROLS
+    from eval.suite import load_eval_suite
+
+    for c in CONTROLS:
+        for e in (c.base, c.control):
+            rows = {r.name for r in load_eval_suite(e.suite).rows}
+            assert {e.row, e.ref} <= rows, (c.key, e.suite, {e.row, e.ref} - rows)
