@@ -97,18 +97,15 @@ def build_lock(build_dir: Path, wait_message: str = ""):
             if wait_message:
                 print(wait_message, file=sys.stderr, flush=True)
             fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            stale = build_dir / "lock"
-            if stale.exists():
-                print(
-                    f"[m4dgs] removing {stale}: left by a build that was interrupted",
-                    file=sys.stderr,
-                    flush=True,
-                )
-                stale.unlink(missing_ok=True)
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
+        stale = build_dir / "lock"
+        if stale.exists():
+            print(
+                f"[m4dgs] removing {stale}: left by a build that was interrupted",
+                file=sys.stderr,
+                flush=True,
+            )
+            stale.unlink(missing_ok=True)
+        yield  # closing the file releases the flock
 
 
 @functools.lru_cache(maxsize=None)
@@ -129,7 +126,6 @@ def _load() -> tuple[object | None, str]:
 
         suffix, isa = _isa_flags()
         build_dir = extension_dir() / build_folder_name(suffix)
-        build_dir.mkdir(parents=True, exist_ok=True)
         # the first use compiles the kernel (about a minute): say so instead of sitting silent
         first_build = not any(build_dir.glob("*.so"))
         if first_build:

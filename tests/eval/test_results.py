@@ -935,16 +935,14 @@ def test_controls_are_differences_in_differences(tmp_path):
     metrics |= {"hdr_psnr": "HDR PSNR", "hdr_tae": "HDR-TAE"}
 
     def effect(suite, row, ref, metric):
-        a = {
-            (r["scene"], r["seed"]): r[metric]
-            for r in rows
-            if (r["suite"], r["row"]) == (suite, row)
-        }
-        b = {
-            (r["scene"], r["seed"]): r[metric]
-            for r in rows
-            if (r["suite"], r["row"]) == (suite, ref)
-        }
+        def of(name):
+            return {
+                (r["scene"], r["seed"]): r[metric]
+                for r in rows
+                if (r["suite"], r["row"]) == (suite, name)
+            }
+
+        a, b = of(row), of(ref)
         return {k: a[k] - b[k] for k in a if k in b}
 
     readings = []
