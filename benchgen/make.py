@@ -444,6 +444,42 @@ def _render_ground_truth(job: _Job, writer: ClipWriter, progress: bool) -> None:
     job.save_state()
 
 
+def scale_key(job: _Job, train_dt, targets: PlacementTargets) -> str:
+    """Fingerprint (16 hex digits) of everything step 3 reads besides the render: the render key,
+    the camera response, the exposure settings, the training and test frames with their exposure
+    times, and the placement targets. Clips that differ only in their priors or trainer-side
+    settings share it, and so their HDR scale."""
+    payload = {
+        "render_key": job.state.get("render_key"),
+        "crf": job.crf.metadata(),
+        "exposures": dataclasses.asdict(job.settings),
+        "train": [int(g) for g in job.train],
+        "test": [int(g) for g in job.test],
+        "train_dt": [float(x) for x in train_dt],
+        "targets": dataclasses.asdict(targets),
+    }
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _scale_source(job: _Job, key: str) -> Optional[Path]:
+    """The clip this clip's render came from (resume state `render_source`) when that clip is
+    finished and its HDR scale was chosen with the same scale_key; else None (clips made before
+    scale keys existed included)."""
+    rel = job.state.get("render_source")
+    if rel is None:
+        return None
+    src = (job.out / rel).resolve()
+    src_state_path = src / ".benchgen" / "state.json"
+    if not (src / "clip.json").exists() or not src_state_path.exists():
+        return None
+    src_state = mio.read_json(src_state_path)
+    if src_state.get("scale_key") != key or "hdr_scale" not in src_state:
+        return None
+    if not all((src / "gt" / "hdr" / frame_name(g, "exr")).exists() for g in job.frames):
+        return None
+    return src
+
+
 def _apply_hdr_scale(job: _Job, writer: ClipWriter, meta: ClipMeta, train_dt, targets) -> None:
     """Step 3: one global HDR scale from the clip's own converged frames, then gt/hdr = scale *
     unit frame (light transport is linear in the emitters, so this equals rendering with every
@@ -451,13 +487,30 @@ def _apply_hdr_scale(job: _Job, writer: ClipWriter, meta: ClipMeta, train_dt, ta
     from .render import EMITTER_PROBE_SPP
 
     state, out = job.state, job.out
+    targets = targets or PlacementTargets()
     if "hdr_scale" not in state:
-        scale, report = choose_hdr_scale(
-            _frames_by_level(out, job.settings, job.train, train_dt, job.test),
-            job.crf,
-            targets or PlacementTargets(),
-        )
+        key = scale_key(job, train_dt, targets)
+        source = _scale_source(job, key)
+        if source is not None:
+            # the render's source clip chose its scale from the same unit frames, response,
+            # exposures and targets: take its scale and its HDR frames, so that the two clips'
+            # inputs are the same bytes (the unit frames rebuilt from its gt/hdr differ from the
+            # rendered ones by float32 rounding, and a scale chosen again from them moves a few
+            # 8-bit codes by one)
+            src_state = mio.read_json(source / ".benchgen" / "state.json")
+            (out / "gt" / "hdr").mkdir(parents=True, exist_ok=True)
+            for g in job.frames:
+                name = frame_name(g, "exr")
+                shutil.copy2(source / "gt" / "hdr" / name, out / "gt" / "hdr" / name)
+            scale, report = float(src_state["hdr_scale"]), src_state["hdr_scale_report"]
+        else:
+            scale, report = choose_hdr_scale(
+                _frames_by_level(out, job.settings, job.train, train_dt, job.test),
+                job.crf,
+                targets,
+            )
         state["hdr_scale"], state["hdr_scale_report"] = float(scale), report
+        state["scale_key"] = key
         job.save_state()
     scale = float(state["hdr_scale"])
     meta.hdr_scale = scale

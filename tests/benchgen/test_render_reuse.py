@@ -159,3 +159,76 @@ def test_cli_passes_the_reuse_root(tmp_path, monkeypatch):
         benchgen_main, ["make", "--suite", "tiny", "--reuse-renders", str(tmp_path / "nope")]
     )
     assert r.exit_code != 0 and "does not exist" in r.output
+
+
+def test_priors_only_sibling_has_the_same_inputs(clips):
+    """A clip that differs from its render's source in the priors alone takes the source's HDR
+    scale and HDR frames: its inputs are the same bytes (the comparison between the two isolates
+    the priors), while the crf sibling above chose its own scale from the rebuilt unit frames."""
+    import benchgen.make as bm
+
+    mp = pytest.MonkeyPatch()
+    chosen = []
+    real_choose = bm.choose_hdr_scale
+
+    def counting(*a, **kw):
+        chosen.append(1)
+        return real_choose(*a, **kw)
+
+    mp.setattr(brender, "render_clip_gt", lambda *a, **kw: pytest.fail("render not reused"))
+    mp.setattr(bm, "choose_hdr_scale", counting)
+    try:
+        out = make(
+            clips.root / "syn-exp-3-priors-realistic" / "tiny-lamp-box",
+            spp=4,
+            crf="hdrnerf",
+            priors="realistic",
+            render_from=[clips.base],
+        )
+    finally:
+        mp.undo()
+    assert chosen == []  # the scale was taken, not chosen again
+    base, sib = Clip.open(clips.base), Clip.open(out, validate="full")
+    assert sib.meta.hdr_scale == base.meta.hdr_scale
+    assert sib.meta.gt["hdr_scale_report"] == base.meta.gt["hdr_scale_report"]
+    for rel in (("input",), ("gt", "hdr"), ("gt", "ldr")):
+        names = _files(clips.base, rel)
+        assert names == _files(out, rel) and names, rel
+        for n in names:
+            assert (clips.base / n).read_bytes() == (out / n).read_bytes(), n
+    # the priors are the sibling's own
+    assert sib.meta.priors["profile"] == "realistic" != base.meta.priors["profile"]
+    # the crf sibling's scale was chosen for its own response
+    state = mio.read_json(clips.reused / ".benchgen" / "state.json")
+    assert state["scale_key"] != mio.read_json(clips.base / ".benchgen" / "state.json")["scale_key"]
+
+
+def test_scale_key_follows_what_step_3_reads(clips):
+    """scale_key changes with the response, the exposure times and the targets, not with the
+    priors or the trainer seed."""
+    from benchgen.make import scale_key
+    from benchgen.placement import PlacementTargets
+    from m4dgs.core.crf import clip_crf
+
+    job = SimpleNamespace(
+        state={"render_key": "r"},
+        crf=clip_crf("hdrnerf"),
+        settings=__import__("benchgen.exposure", fromlist=["ExposureSettings"]).ExposureSettings(),
+        train=[0, 2],
+        test=[1],
+        priors="oracle",
+        seed=0,
+    )
+    t = PlacementTargets()
+    k = scale_key(job, [0.125, 2.0], t)
+    assert k == scale_key(
+        SimpleNamespace(**{**vars(job), "priors": "harsh", "seed": 3}), [0.125, 2.0], t
+    )
+    assert k != scale_key(
+        SimpleNamespace(**{**vars(job), "crf": clip_crf("aces-filmic")}), [0.125, 2.0], t
+    )
+    assert k != scale_key(job, [0.125, 32.0], t)
+    assert k != scale_key(job, [0.125, 2.0], PlacementTargets(mid_median=(0.3, 0.7)))
+    assert k != scale_key(
+        SimpleNamespace(**{**vars(job), "state": {"render_key": "s"}}), [0.125, 2.0], t
+    )
