@@ -504,6 +504,9 @@ def _apply_hdr_scale(job: _Job, writer: ClipWriter, meta: ClipMeta, train_dt, ta
                 shutil.copy2(source / "gt" / "hdr" / name, out / "gt" / "hdr" / name)
             scale, report = float(src_state["hdr_scale"]), src_state["hdr_scale_report"]
         else:
+            # HDR frames without a scale in the resume state are an interrupted copy from a
+            # source that is no longer eligible: they would not match the scale chosen now
+            shutil.rmtree(out / "gt" / "hdr", ignore_errors=True)
             scale, report = choose_hdr_scale(
                 _frames_by_level(out, job.settings, job.train, train_dt, job.test),
                 job.crf,
