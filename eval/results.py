@@ -1038,6 +1038,7 @@ CONTROLS: Tuple[Control, ...] = (
 )
 
 NO_CHANGE, GROWS, SHRINKS = "no resolvable change", "grows", "shrinks"
+REVERSES = "reverses"
 
 
 @dataclass
@@ -1062,14 +1063,20 @@ def _effect_by_key(e: Effect, rows: List[dict], metric: str) -> Dict[tuple, floa
 
 
 def control_reading(base, change, significant: Optional[bool] = None) -> str:
-    """ "grows" / "shrinks" (the change's interval excludes 0 and points away from / towards 0
-    from the base effect's mean), "no resolvable change", or NO_DATA (fewer than 2 pairs);
-    `significant` overrides "the interval excludes 0" (e.g. with a Holm-adjusted p-value)."""
+    """How the effect moves under the control when the change's interval excludes 0, read on the
+    effect's size: with the control the effect is base.mean + change.mean, "shrinks" when that is
+    smaller in magnitude than base.mean, else "grows" (same sign) or "reverses" (the other sign,
+    and at least as large: an effect near 0 that becomes a large one of the opposite sign);
+    otherwise "no resolvable change", or NO_DATA (fewer than 2 pairs). `significant` overrides
+    "the interval excludes 0" (e.g. with a Holm-adjusted p-value)."""
     if change is None or change.half is None or base is None or base.mean is None:
         return NO_DATA
     if not (change.excludes_zero if significant is None else significant):
         return NO_CHANGE
-    return GROWS if (change.mean > 0) == (base.mean > 0) else SHRINKS
+    after = base.mean + change.mean
+    if abs(after) < abs(base.mean):
+        return SHRINKS
+    return GROWS if (after > 0) == (base.mean > 0) else REVERSES
 
 
 def evaluate_control(c: Control, rows: List[dict]) -> List[ControlResult]:
@@ -1124,10 +1131,12 @@ def controls_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
         "same effect under the control: Δ = row - ref, each paired over its own (scene, seed) "
         "runs, and the change = control Δ - base Δ, paired over the (scene, seed) runs all four "
         "rows have (a difference in differences; mean ± Student-t 95 % interval, † where it "
-        "excludes 0). Reading: the effect grows or shrinks under the control († on the change), "
-        "or no resolvable change; after Holm: the same with the change's p-value adjusted over "
-        "the control's metrics (Holm's method, family-wise 5 %). An effect and its control "
-        "compare rows of one code and generator version unless the table says otherwise."
+        "excludes 0). Reading, on the effect's size (base Δ + change): it grows or shrinks under "
+        "the control, or reverses (changes sign and ends at least as large), when the change is "
+        "resolved (†); else no resolvable change; after Holm: the same with the change's "
+        "p-value adjusted over the control's metrics (Holm's method, family-wise 5 %). An "
+        "effect and its control compare rows of one code and generator version unless the "
+        "table says otherwise."
         + (
             f" What the answers mean is written in [{Path(notes_link).name}]({notes_link})."
             if notes_link

@@ -922,11 +922,7 @@ def test_controls_are_differences_in_differences(tmp_path):
         assert n == len(keys) and mean == pytest.approx(em, abs=0.006)
         assert half == pytest.approx(eh, abs=0.006)
         assert dag == (abs(em) > eh)
-        expect = (
-            R.NO_CHANGE
-            if abs(em) <= eh
-            else (R.GROWS if (em > 0) == (np.mean(list(real.values())) > 0) else R.SHRINKS)
-        )
+        expect = R.NO_CHANGE if abs(em) <= eh else _reading(np.mean(list(real.values())), em)
         assert cells[4] == expect
     # oracle priors remove the ~1 dB lead: the change is resolved and the lead shrinks
     assert _table_row(text, "video-init-priors", "LDR-OE PSNR")[4] == R.SHRINKS
@@ -958,7 +954,7 @@ def test_controls_are_differences_in_differences(tmp_path):
             want.append((np.mean(d), np.mean(list(b.values()))))
         for (m, name), keep, (dm, bm) in zip(metrics.items(), holm_rejects(pv), want):
             cell = _table_row(text, key, name)[5]
-            up = R.GROWS if (dm > 0) == (bm > 0) else R.SHRINKS
+            up = _reading(bm, dm)
             assert cell == (up if keep else R.NO_CHANGE), (key, m)
             readings.append(cell)
     assert R.SHRINKS in readings and R.NO_CHANGE in readings  # both kinds occur
@@ -978,6 +974,16 @@ def test_controls_flag_different_code_versions(tmp_path):
     assert "Different code versions" not in priors
 
 
+def _reading(base_mean, change_mean):
+    """The expected reading of a resolved change, from the effect's magnitude before and after."""
+    from eval import results as R
+
+    before, after = base_mean, base_mean + change_mean
+    if abs(after) < abs(before):
+        return R.SHRINKS
+    return R.GROWS if np.sign(after) == np.sign(before) else R.REVERSES
+
+
 def test_control_reading():
     from eval import results as R
     from eval.stats import Interval
@@ -987,6 +993,12 @@ def test_control_reading():
     assert R.control_reading(base, Interval(0.9, 0.5, 4)) == R.GROWS
     assert R.control_reading(base, Interval(0.3, 0.5, 4)) == R.NO_CHANGE
     assert R.control_reading(Interval(-1.0, 0.5, 4), Interval(0.9, 0.5, 4)) == R.SHRINKS
+    # past 0 but smaller than before: shrinks; past 0 and larger: reverses
+    assert R.control_reading(base, Interval(-1.5, 0.5, 4)) == R.SHRINKS
+    assert R.control_reading(base, Interval(-2.5, 0.5, 4)) == R.REVERSES
+    # an effect near 0 that becomes large (control-tlr's LDR PSNR: -0.12 dB, then +1.51 dB)
+    assert R.control_reading(Interval(-0.12, 1.13, 4), Interval(1.63, 1.14, 4)) == R.REVERSES
+    assert R.control_reading(Interval(0.08, 0.71, 4), Interval(1.48, 0.72, 4)) == R.GROWS
     assert R.control_reading(base, Interval(0.9, None, 1)) == R.NO_DATA
     assert R.control_reading(None, Interval(0.9, 0.5, 4)) == R.NO_DATA
 
