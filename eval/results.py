@@ -997,6 +997,14 @@ CONTROLS: Tuple[Control, ...] = (
         Effect("control-reproj", "no-reproj", "full-pr-whole", "L_pr throughout stage 2"),
     ),
     Control(
+        "reproj-prior",
+        "Ablation (d): is the reprojection loss's small effect the benchmark's priors? (oracle "
+        "against realistic priors)",
+        "benchmark",
+        Effect("control-reproj-priors", "no-reproj", "full", "realistic priors"),
+        Effect("control-reproj-priors", "no-reproj-oracle", "full-oracle", "oracle priors"),
+    ),
+    Control(
         "depth-loss-prior",
         "Priors: is the gain without the depth loss the benchmark's depth prior? (exact depth, "
         "tracks and flow realistic)",
