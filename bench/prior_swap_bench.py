@@ -3,7 +3,7 @@ of one render and runs the trainer's camera-initialisation phase on each combina
 
     python bench/prior_swap_bench.py --base ROOT/clips/syn-exp-3 \\
         --other ROOT/clips/syn-exp-3-priors-harsh --scenes lamp-room-orbit,robot-arm-dolly \\
-        --out OUT [--preset small] [--combos single|all] [--json OUT.json]
+        --out OUT [--preset small] [--combos single|all|depth|...] [--json OUT.json]
 
 `--base` and `--other` are suite folders holding a clip per scene made from the same render
 (clip.json gt.render_key, checked) with different priors, e.g. a realistic and a harsh
@@ -40,21 +40,27 @@ PRIOR_FILES = {"depth": "depth", "tracks": "tracks.npz", "flow": "flow.npz"}
 
 def combinations(kind: str) -> List[Tuple[str, ...]]:
     """The families taken from the other clip, per combination: `single` = (), each family alone
-    and all three; `all` = the eight subsets (in order of size)."""
+    and all three; `all` = the eight subsets (in order of size); FAMILY[+FAMILY...] (e.g.
+    `depth` or `depth+flow`) = () and that set."""
     if kind == "single":
         return [()] + [(f,) for f in FAMILIES] + [FAMILIES]
     if kind == "all":
         return [c for n in range(4) for c in itertools.combinations(FAMILIES, n)]
-    raise ValueError(f"--combos {kind!r}: one of single, all")
+    fams = tuple(f for f in FAMILIES if f in kind.split("+"))
+    if fams and len(fams) == len(kind.split("+")):
+        return [(), fams]
+    raise ValueError(f"--combos {kind!r}: one of single, all, or families joined by + {FAMILIES}")
 
 
-def combo_name(families: Sequence[str]) -> str:
-    """Folder name of a combination: 'base', 'other' (all three) or e.g. 'other-depth+flow'."""
+def combo_name(families: Sequence[str], other: str = "other") -> str:
+    """Folder name of a combination: 'base', 'other' (all three) or e.g. 'other-depth+flow'
+    (`other` names the other clips, so that several of them can share one --out and its base
+    runs)."""
     if not families:
         return "base"
     if tuple(families) == FAMILIES:
-        return "other"
-    return "other-" + "+".join(families)
+        return other
+    return f"{other}-" + "+".join(families)
 
 
 def same_render(base: Path, other: Path) -> bool:
@@ -179,7 +185,14 @@ def main(argv=None) -> int:
     ap.add_argument(
         "--combos",
         default="single",
-        help="single: none, each family alone, all three (5 per scene); all: the 8 subsets",
+        help="single: none, each family alone, all three (5 per scene); all: the 8 subsets; "
+        "FAMILY[+FAMILY] (e.g. depth): none and that set",
+    )
+    ap.add_argument(
+        "--other-name",
+        default="other",
+        help="name of the other clips in the combination folders (default: other); give each "
+        "--other its own name to share one --out, and so its base runs, between them",
     )
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -193,7 +206,7 @@ def main(argv=None) -> int:
     for scene in [s for s in args.scenes.split(",") if s]:
         base, other = Path(args.base) / scene, Path(args.other) / scene
         for fams in combos:
-            name = combo_name(fams)
+            name = combo_name(fams, args.other_name)
             try:
                 clip = assemble_clip(base, other, fams, out / "clips" / scene / name)
             except ValueError as e:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import click
 
-from m4dgs.core.errors import ReportingGroup
+from m4dgs.core.errors import InputError, ReportingGroup
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
@@ -36,6 +36,38 @@ def _levels(text):
 def main():
     """Synthetic benchmark generator for Mono4DGS-HDR (Mitsuba 3 renders, exact ground truth,
     degraded priors)."""
+
+
+# benchgen.priors.PROFILES (not imported here: it pulls scipy into every --help)
+BUILTIN_PRIORS = ("oracle", "realistic", "harsh", "realistic-exact-depth", "realistic-exact-motion")
+
+
+class PriorsParam(click.ParamType):
+    """A built-in prior profile name, or an existing .yaml / .yml / .json profile file (read and
+    checked, so that a bad file fails before anything renders)."""
+
+    name = "PROFILE"
+
+    def convert(self, value, param, ctx):
+        v = str(value)
+        if v in BUILTIN_PRIORS:
+            return v
+        if v.endswith((".yaml", ".yml", ".json")):
+            from .priors import load_profile
+
+            if not Path(v).is_file():
+                self.fail(f"{v!r}: no such profile file", param, ctx)
+            try:
+                load_profile(v)
+            except InputError as e:
+                self.fail(str(e), param, ctx)
+            return v
+        self.fail(
+            f"{v!r} is neither a built-in profile ({', '.join(BUILTIN_PRIORS)}) nor a "
+            ".yaml / .json profile file",
+            param,
+            ctx,
+        )
 
 
 @main.command()
@@ -72,15 +104,13 @@ def main():
 )
 @click.option(
     "--priors",
-    # benchgen.priors.PROFILES (not imported here: it pulls scipy into every --help)
-    type=click.Choice(
-        ["oracle", "realistic", "harsh", "realistic-exact-depth", "realistic-exact-motion"]
-    ),
+    type=PriorsParam(),
     default="realistic",
     show_default=True,
-    help="Prior degradation profile (docs/priors.md): oracle (exact), realistic, harsh, or "
+    help="Prior degradation profile (docs/priors.md): oracle (exact), realistic, harsh, "
     "realistic with the depth (realistic-exact-depth) or the tracks and flow "
-    "(realistic-exact-motion) exact.",
+    "(realistic-exact-motion) exact, or a profile file (.yaml / .json: a base profile and the "
+    "parameters that differ from it, e.g. `base: realistic` and `depth_disp_shift: 0.08`).",
 )
 @click.option(
     "--out",

@@ -61,6 +61,7 @@ from m4dgs.core.errors import InputError
 from .exposure import ExposureSettings, exposure_gap_ev, schedule_train_dt, test_levels
 from .placement import PlacementTargets, choose_hdr_scale, measure_placement
 from .priors import (
+    PriorProfile,
     degrade_depth,
     degrade_flow,
     degrade_tracks,
@@ -68,6 +69,7 @@ from .priors import (
     get_profile,
     make_rng,
     priors_metadata,
+    profile_key,
 )
 from .scene import load_scene
 
@@ -179,7 +181,7 @@ class _Job:
     render: object  # benchgen.render.RenderSettings (light selection resolved in step 1)
     crf: object  # a response of the clip family (m4dgs.core.crf.CLIP_CRFS)
     gen: dict
-    priors: str
+    priors: PriorProfile
     seed: int
     state: dict
     state_path: Path
@@ -266,8 +268,10 @@ def _prepare_job(scene_path, out_dir, preset, settings, priors, seed, crf, max_f
         render_settings = dataclasses.replace(render_settings, spp=int(spp))
     # a response of the clip family (m4dgs.core.crf.CLIP_CRFS), recorded in clip.json
     crf_fn = clip_crf(crf)
+    # a built-in profile or a profile file, read (and checked) before anything is rendered
+    profile = get_profile(priors)
     gen = _generator_settings(
-        scene_path, preset, settings, priors, seed, render_settings.spp, crf_fn.name
+        scene_path, preset, settings, profile_key(profile), seed, render_settings.spp, crf_fn.name
     )
     frames = list(range(G))
     out = Path(out_dir)
@@ -283,7 +287,7 @@ def _prepare_job(scene_path, out_dir, preset, settings, priors, seed, crf, max_f
         render=render_settings,
         crf=crf_fn,
         gen=gen,
-        priors=priors,
+        priors=profile,
         seed=int(seed),
         state={},
         state_path=out / ".benchgen" / "state.json",
@@ -581,7 +585,7 @@ def _write_priors(job: _Job, writer: ClipWriter, meta: ClipMeta, train_dt) -> No
 
     out, scene, seed, train = job.out, job.scene, job.seed, job.train
     W, H = job.W, job.H
-    profile = get_profile(job.priors)
+    profile = job.priors
     clip_key = scene.name
     depth_gt = np.stack([mio.read_exr(out / "gt/depth" / frame_name(g, "exr")) for g in train])
     pairs = flow_pairs(train, train_dt, len(job.settings.observed))

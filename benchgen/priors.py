@@ -38,9 +38,12 @@ reject."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import math
 import zlib
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
@@ -277,12 +280,87 @@ PROFILES: Dict[str, PriorProfile] = {
 DEFAULT_PROFILE = "realistic"
 
 
+PROFILE_FILE_SUFFIXES = (".yaml", ".yml", ".json")
+
+
+def load_profile(path) -> PriorProfile:
+    """A profile from a YAML or JSON file: a mapping with `name` (default: the file's stem),
+    `base` (a named profile, default realistic) and any PriorProfile parameters, which replace the
+    base's (e.g. `{base: realistic, depth_disp_shift: 0.08}`: realistic with harsh's disparity
+    shift). Raises ValueError naming the file and the offending key or value."""
+    import yaml
+
+    from m4dgs.core.errors import InputError
+
+    p = Path(path)
+    try:
+        d = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise InputError(f"{p}: cannot read a prior profile: {e}") from None
+    if not isinstance(d, dict):
+        raise InputError(f"{p}: a prior profile is a mapping of parameters, got {type(d).__name__}")
+    d = dict(d)
+    base_name = str(d.pop("base", DEFAULT_PROFILE))
+    if base_name not in PROFILES:
+        raise InputError(
+            f"{p}: base: unknown prior profile {base_name!r}; one of {', '.join(sorted(PROFILES))}"
+        )
+    name = str(d.pop("name", p.stem))
+    if name in PROFILES:
+        raise InputError(f"{p}: name: {name!r} is a built-in profile's name; choose another")
+    fields = {f.name: f for f in dataclasses.fields(PriorProfile)}
+    unknown = sorted(k for k in d if k not in fields or k == "name")
+    if unknown:
+        raise InputError(f"{p}: unknown prior parameter(s) {unknown}; docs/priors.md lists them")
+    base = PROFILES[base_name]
+    values = {}
+    for k, v in d.items():
+        kind = str(fields[k].type)  # "float", "int", "Optional[int]", "Tuple[float, float]", ...
+        if kind.startswith("Tuple"):
+            if not (isinstance(v, (list, tuple)) and len(v) == 2):
+                raise InputError(f"{p}: {k}: expected [low, high], got {v!r}")
+            v = tuple(float(x) for x in v)
+            ok = all(math.isfinite(x) and x >= 0 for x in v) and v[0] <= v[1]
+            if not ok:
+                raise InputError(f"{p}: {k}: expected 0 <= low <= high, got {list(v)}")
+        elif v is None and kind.startswith("Optional"):
+            pass
+        elif isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise InputError(f"{p}: {k}: expected a number, got {v!r}")
+        elif not (math.isfinite(v) and v >= 0):
+            raise InputError(f"{p}: {k}: expected a finite number >= 0, got {v!r}")
+        elif "int" in kind:
+            if float(v) != int(v):
+                raise InputError(f"{p}: {k}: expected a whole number, got {v!r}")
+            v = int(v)
+        else:
+            v = float(v)
+        values[k] = v
+    return dataclasses.replace(base, name=name, **values)
+
+
+def profile_key(profile: PriorProfile) -> str:
+    """What a clip's generator settings record for its profile: the name of a built-in profile,
+    or name@<8 hex digits of the parameters> for one from a file (a finished clip made with other
+    parameters under the same name is then not taken for this one)."""
+    if PROFILES.get(profile.name) == profile:
+        return profile.name
+    payload = json.dumps(profile.to_dict(), sort_keys=True).encode()
+    return f"{profile.name}@{hashlib.sha256(payload).hexdigest()[:8]}"
+
+
 def get_profile(name: str = DEFAULT_PROFILE) -> PriorProfile:
+    """A built-in profile by name, or a profile file (`load_profile`) by its path."""
+    if isinstance(name, PriorProfile):
+        return name
+    if str(name).endswith(PROFILE_FILE_SUFFIXES):
+        return load_profile(name)
     try:
         return PROFILES[str(name)]
     except KeyError:
         raise KeyError(
-            f"unknown prior profile {name!r}; available: {', '.join(sorted(PROFILES))}"
+            f"unknown prior profile {name!r}; available: {', '.join(sorted(PROFILES))}, or a "
+            "profile file (.yaml / .json)"
         ) from None
 
 

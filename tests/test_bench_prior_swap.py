@@ -40,8 +40,13 @@ def test_combinations_and_names():
         "other",
     ]
     assert b.combo_name(("depth", "flow")) == "other-depth+flow"
-    with pytest.raises(ValueError, match="single, all"):
-        b.combinations("some")
+    assert b.combo_name(("depth",), "harsh") == "harsh-depth"
+    assert b.combo_name(b.FAMILIES, "harsh") == "harsh" and b.combo_name((), "harsh") == "base"
+    assert b.combinations("depth") == [(), ("depth",)]
+    assert b.combinations("flow+depth") == [(), ("depth", "flow")]
+    for bad in ("some", "depth+some", ""):
+        with pytest.raises(ValueError, match="single, all"):
+            b.combinations(bad)
 
 
 def test_assembled_clip_takes_each_family_from_the_clip_asked_for(

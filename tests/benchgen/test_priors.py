@@ -102,8 +102,11 @@ def test_profiles_registry_and_metadata():
     from eval.suite import PRIOR_PROFILES
 
     assert PRIOR_PROFILES == tuple(PROFILES)
-    choice = next(p for p in make_cmd.params if p.name == "priors").type
-    assert tuple(choice.choices) == tuple(PROFILES)
+    from benchgen.cli import BUILTIN_PRIORS
+
+    assert BUILTIN_PRIORS == tuple(PROFILES)
+    param = next(p for p in make_cmd.params if p.name == "priors").type
+    assert [param.convert(n, None, None) for n in PROFILES] == list(PROFILES)
     assert get_profile() is REALISTIC
     with pytest.raises(KeyError):
         get_profile("perfect")

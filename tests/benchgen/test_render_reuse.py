@@ -232,3 +232,93 @@ def test_scale_key_follows_what_step_3_reads(clips):
     assert k != scale_key(
         SimpleNamespace(**{**vars(job), "state": {"render_key": "s"}}), [0.125, 2.0], t
     )
+
+
+def test_profile_file_changes_only_its_family(clips, tmp_path):
+    """A profile file (realistic with harsh's disparity shift) makes a clip of the same render
+    whose depth prior differs from the realistic sibling's while its tracks, flow and inputs are
+    the same bytes; a file that repeats harsh's parameters gives harsh's priors bytes."""
+    import dataclasses
+
+    import yaml
+
+    from benchgen.priors import HARSH
+
+    shift = tmp_path / "shift.yaml"
+    shift.write_text("base: realistic\ndepth_disp_shift: 0.08\n")
+    like_harsh = tmp_path / "like-harsh.yaml"
+    params = {k: v for k, v in dataclasses.asdict(HARSH).items() if k != "name"}
+    like_harsh.write_text(yaml.safe_dump({"base": "oracle", **params}))
+    made = {}
+    for name, prof in (
+        ("realistic", "realistic"),
+        ("shift", str(shift)),
+        ("harsh", "harsh"),
+        ("like-harsh", str(like_harsh)),
+    ):
+        made[name] = make(
+            clips.root / f"syn-exp-3-priors-{name}" / "tiny-lamp-box",
+            spp=4,
+            crf="hdrnerf",
+            priors=prof,
+            render_from=[clips.base],
+        )
+    real, sh = made["realistic"], made["shift"]
+    meta = Clip.open(sh).meta
+    assert meta.priors["profile"] == "shift" and meta.priors["params"]["depth_disp_shift"] == 0.08
+    assert meta.generator["priors"].startswith("shift@")
+    # (3 frames: no flow pairs, so no flow prior)
+    assert not (real / "priors" / "flow.npz").exists() and not (sh / "priors" / "flow.npz").exists()
+    for rel in (("input",), ("priors", "tracks.npz")):
+        for n in _files(real, rel):
+            assert (real / n).read_bytes() == (sh / n).read_bytes(), n
+    depth = _files(real, ("priors", "depth"))
+    assert depth and any((real / n).read_bytes() != (sh / n).read_bytes() for n in depth)
+    for n in _files(made["harsh"], ("priors",)):
+        assert (made["harsh"] / n).read_bytes() == (made["like-harsh"] / n).read_bytes(), n
+
+
+def test_profile_file_errors_name_the_file_and_key(tmp_path):
+    from benchgen.priors import REALISTIC, load_profile
+    from m4dgs.core.errors import InputError
+
+    ok = tmp_path / "ok.yaml"
+    ok.write_text("base: realistic\ntrack_jitter_px: 1.5\ndepth_scale_stops: [1, 3]\n")
+    p = load_profile(ok)
+    assert p.name == "ok" and p.track_jitter_px == 1.5 and p.depth_scale_stops == (1.0, 3.0)
+    assert p.depth_noise_rel == REALISTIC.depth_noise_rel
+    for text, what in [
+        ("base: nope\n", "base"),
+        ("track_jiter_px: 1\n", "track_jiter_px"),
+        ("track_jitter_px: -1\n", "track_jitter_px"),
+        ("track_jitter_px: yes\n", "track_jitter_px"),
+        ("track_vis_window: 2.5\n", "track_vis_window"),
+        ("depth_scale_stops: [3, 1]\n", "depth_scale_stops"),
+        ("name: harsh\n", "name"),
+        ("- 1\n", "mapping"),
+    ]:
+        bad = tmp_path / "bad.yaml"
+        bad.write_text(text)
+        with pytest.raises(InputError) as e:
+            load_profile(bad)
+        assert str(bad) in str(e.value) and what in str(e.value), (text, str(e.value))
+
+
+def test_cli_takes_a_profile_file_and_refuses_a_bad_one(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    import benchgen.make as bm
+    from benchgen.cli import main as benchgen_main
+
+    seen = []
+    monkeypatch.setattr(bm, "make_suite", lambda *a, **kw: seen.append(kw["priors"]) or [])
+    prof = tmp_path / "p.yaml"
+    prof.write_text("base: harsh\nflow_noise_px: 0.5\n")
+    r = CliRunner().invoke(benchgen_main, ["make", "--suite", "tiny", "--priors", str(prof)])
+    assert r.exit_code == 0, r.output
+    assert seen == [str(prof)]
+    prof.write_text("flow_noize_px: 0.5\n")
+    r = CliRunner().invoke(benchgen_main, ["make", "--suite", "tiny", "--priors", str(prof)])
+    assert r.exit_code != 0 and "flow_noize_px" in r.output and seen == [str(prof)]
+    r = CliRunner().invoke(benchgen_main, ["make", "--suite", "tiny", "--priors", "medium"])
+    assert r.exit_code != 0 and "neither a built-in profile" in r.output
