@@ -319,6 +319,8 @@ def load_profile(path) -> PriorProfile:
         if kind.startswith("Tuple"):
             if not (isinstance(v, (list, tuple)) and len(v) == 2):
                 raise InputError(f"{p}: {k}: expected [low, high], got {v!r}")
+            if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+                raise InputError(f"{p}: {k}: expected two numbers, got {v!r}")
             v = tuple(float(x) for x in v)
             ok = all(math.isfinite(x) and x >= 0 for x in v) and v[0] <= v[1]
             if not ok:
@@ -329,6 +331,8 @@ def load_profile(path) -> PriorProfile:
             raise InputError(f"{p}: {k}: expected a number, got {v!r}")
         elif not (math.isfinite(v) and v >= 0):
             raise InputError(f"{p}: {k}: expected a finite number >= 0, got {v!r}")
+        elif k.endswith(("_prob", "_pull")) and v > 1:
+            raise InputError(f"{p}: {k}: a probability / fraction in [0, 1], got {v!r}")
         elif "int" in kind:
             if float(v) != int(v):
                 raise InputError(f"{p}: {k}: expected a whole number, got {v!r}")

@@ -294,6 +294,9 @@ def test_profile_file_errors_name_the_file_and_key(tmp_path):
         ("track_jitter_px: yes\n", "track_jitter_px"),
         ("track_vis_window: 2.5\n", "track_vis_window"),
         ("depth_scale_stops: [3, 1]\n", "depth_scale_stops"),
+        ("depth_scale_stops: [a, 1]\n", "depth_scale_stops"),
+        ("track_vis_flip_prob: 1.5\n", "track_vis_flip_prob"),
+        ("depth_emitter_pull: 2\n", "depth_emitter_pull"),
         ("name: harsh\n", "name"),
         ("- 1\n", "mapping"),
     ]:
