@@ -1,0 +1,123 @@
+"""Where a run's HDR PSNR error sits: the share of the mu-law squared error (the HDR PSNR metric's
+own tone mapping, eval.metrics.hdr_tonemap_pair) in the brightest 1 % of the ground truth's pixels
+and in pixels the clip never recorded unclipped, and the prediction's scale in the mid-tones.
+
+    python bench/hdr_error_bands.py RUN_DIR [RUN_DIR ...] [--json OUT.json]
+
+Per run (its clip from run.json, test frames from renders/test/hdr): HDR PSNR of the pooled error
+(close to, not equal to, `metrics.json` hdr_psnr, which averages per-image PSNR); the share of the
+squared error in the brightest 1 % of each frame's pixels (by the ground truth's max channel); the
+share in "never observed" pixels, whose brightest channel times the shortest training exposure
+time is past the exposure at which the clip's response reaches code 254.5 (saturated in every
+training frame), and the fraction of values those are; and the median prediction / ground truth
+luminance ratio over the 20th-90th percentile of each frame's luminance (a global scale error
+shows there, a highlight error does not). Used to read the crf suite's HDR PSNR differences
+(docs/results-notes.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Dict
+
+import numpy as np
+
+
+def error_bands(
+    pred: np.ndarray, gt: np.ndarray, saturation_exposure: float, dt_min: float
+) -> Dict:
+    """Sums for one frame. pred, gt: [H, W, 3] linear HDR; saturation_exposure: H * dt at which
+    the response saturates; dt_min: the shortest observed exposure time. Returns {sq_err, n,
+    sq_err_top1, sq_err_never, n_never, mid_ratio}."""
+    from eval.metrics import hdr_tonemap_pair
+
+    p, g = hdr_tonemap_pair(pred, gt)
+    e = ((p - g) ** 2)[0].numpy()  # [H, W, 3]
+    peak = gt.max(-1)
+    top = peak >= np.quantile(peak, 0.99)
+    never = peak * dt_min > saturation_exposure
+    lum_g, lum_p = gt.mean(-1), pred.mean(-1)
+    mid = (lum_g > np.quantile(lum_g, 0.2)) & (lum_g < np.quantile(lum_g, 0.9)) & (lum_g > 0)
+    return {
+        "sq_err": float(e.sum()),
+        "n": int(e.size),
+        "sq_err_top1": float(e[top].sum()),
+        "sq_err_never": float(e[never].sum()),
+        "n_never": int(never.sum()) * 3,
+        "mid_ratio": float(np.median(lum_p[mid] / lum_g[mid])) if mid.any() else float("nan"),
+    }
+
+
+def run_bands(run_dir) -> Dict:
+    """error_bands over a run's test frames, pooled; the clip is the one run.json names."""
+    from m4dgs.clip import Clip
+    from m4dgs.core import io as mio
+    from m4dgs.core.crf import get_crf
+
+    run = Path(run_dir)
+    if not (run / "run.json").is_file():
+        raise ValueError(f"{run}: not a run folder (no run.json)")
+    info = json.loads((run / "run.json").read_text())
+    clip_root = (run / info["clip"]).resolve() if "clip" in info else Path(info["clip_abs"])
+    if not (clip_root / "clip.json").exists():
+        clip_root = Path(info["clip_abs"])
+    clip = Clip.open(clip_root)
+    crf = get_crf(clip.meta.crf)
+    saturation = float(np.min(crf.inverse_rgb(np.full(3, 254.5 / 255.0))))
+    dt_min = float(min(clip.meta.exposures.train_dt))
+    sums, ratios = (
+        {"sq_err": 0.0, "n": 0, "sq_err_top1": 0.0, "sq_err_never": 0.0, "n_never": 0},
+        [],
+    )
+    frames = sorted((run / "renders" / "test" / "hdr").glob("*.exr"))
+    if not frames:
+        raise ValueError(f"{run}: no renders/test/hdr/*.exr")
+    for p in frames:
+        b = error_bands(mio.read_exr(p), clip.load_gt_hdr(int(p.stem)), saturation, dt_min)
+        ratios.append(b.pop("mid_ratio"))
+        for k in sums:
+            sums[k] += b[k]
+    mse = sums["sq_err"] / sums["n"]
+    return {
+        "run": str(run),
+        "crf": clip.meta.crf,
+        "frames": len(frames),
+        "pooled_hdr_psnr": -10 * math.log10(mse) if mse > 0 else float("inf"),
+        "share_top1": sums["sq_err_top1"] / sums["sq_err"] if sums["sq_err"] else 0.0,
+        "share_never_observed": sums["sq_err_never"] / sums["sq_err"] if sums["sq_err"] else 0.0,
+        "never_observed_fraction": sums["n_never"] / sums["n"],
+        "mid_tone_scale": float(np.median(ratios)),
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("runs", nargs="+", help="run folders (with run.json and renders/test/hdr)")
+    ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
+    args = ap.parse_args(argv)
+    rows = [run_bands(r) for r in args.runs]
+    head = ("run", "crf", "PSNR", "top 1%", "never", "of vals", "mid x")
+    print("{:50s} {:14s} {:>6s} {:>7s} {:>6s} {:>8s} {:>6s}".format(*head))
+    for r in rows:
+        cells = (
+            r["run"][-50:],
+            r["crf"],
+            r["pooled_hdr_psnr"],
+            r["share_top1"],
+            r["share_never_observed"],
+            100 * r["never_observed_fraction"],
+            r["mid_tone_scale"],
+        )
+        print("{:50s} {:14s} {:6.2f} {:7.2f} {:6.2f} {:7.2f}% {:6.3f}".format(*cells))
+    if args.json:
+        from m4dgs.core.io import write_json
+
+        write_json(args.json, {"rows": rows})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
