@@ -37,3 +37,19 @@ def tiny_clip_oracle(tmp_path_factory):
 def tiny_clip_realistic(tmp_path_factory):
     """tiny-flag-arm with the realistic prior profile."""
     return _make(tmp_path_factory, "tiny-flag-arm", "realistic")
+
+
+@pytest.fixture
+def load_bench():
+    """load_bench(name): import the script bench/<name>.py as a module (bench/ is not a package)."""
+    import importlib.util
+    from pathlib import Path
+
+    def load(name: str):
+        path = Path(__file__).resolve().parents[1] / "bench" / f"{name}.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod
+
+    return load

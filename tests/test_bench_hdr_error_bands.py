@@ -3,23 +3,11 @@ brightest 1 %, none of it there, a global scale, and on a run folder of a tiny c
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location(
-        "hdr_error_bands", ROOT / "bench" / "hdr_error_bands.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _frame(seed=0):
@@ -27,8 +15,8 @@ def _frame(seed=0):
     return (rng.lognormal(0.0, 1.5, size=(40, 50, 1)) * np.ones((1, 1, 3))).astype(np.float32)
 
 
-def test_error_in_the_highlights_only():
-    b = _bench()
+def test_error_in_the_highlights_only(load_bench):
+    b = load_bench("hdr_error_bands")
     gt = _frame()
     peak = gt.max(-1)
     top = peak >= np.quantile(peak, 0.99)
@@ -45,8 +33,8 @@ def test_error_in_the_highlights_only():
     assert r2["sq_err_never"] <= r2["sq_err_top1"] + 1e-12
 
 
-def test_global_scale_shows_in_the_mid_tones():
-    b = _bench()
+def test_global_scale_shows_in_the_mid_tones(load_bench):
+    b = load_bench("hdr_error_bands")
     gt = _frame(1)
     r = b.error_bands(gt * 1.1, gt, saturation_exposure=1e9, dt_min=0.125)
     assert r["mid_ratio"] == pytest.approx(1.1, rel=1e-5)
@@ -56,12 +44,12 @@ def test_global_scale_shows_in_the_mid_tones():
     assert -10 * np.log10(r["sq_err"] / r["n"]) == pytest.approx(hdr_psnr(gt * 1.1, gt), abs=1e-6)
 
 
-def test_run_bands_on_a_run_folder(tiny_clip_oracle, tmp_path):
+def test_run_bands_on_a_run_folder(tiny_clip_oracle, tmp_path, load_bench):
     """A run folder whose test renders are the ground truth: no error anywhere, scale 1."""
     from m4dgs.clip import Clip
     from m4dgs.core import io as mio
 
-    b = _bench()
+    b = load_bench("hdr_error_bands")
     clip = Clip.open(tiny_clip_oracle)
     run = tmp_path / "run"
     (run / "renders" / "test" / "hdr").mkdir(parents=True)

@@ -4,7 +4,6 @@ on an analytic case, and clips of different renders are refused."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import shutil
@@ -14,20 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
 
-
-def _bench():
-    spec = importlib.util.spec_from_file_location(
-        "prior_swap_bench", ROOT / "bench" / "prior_swap_bench.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_combinations_and_names():
-    b = _bench()
+def test_combinations_and_names(load_bench):
+    b = load_bench("prior_swap_bench")
     single = b.combinations("single")
     assert single == [(), ("depth",), ("tracks",), ("flow",), ("depth", "tracks", "flow")]
     every = b.combinations("all")
@@ -50,11 +38,11 @@ def test_combinations_and_names():
 
 
 def test_assembled_clip_takes_each_family_from_the_clip_asked_for(
-    tiny_clip_realistic, tiny_clip_oracle, tmp_path
+    tiny_clip_realistic, tiny_clip_oracle, tmp_path, load_bench
 ):
     from m4dgs.clip import Clip
 
-    b = _bench()
+    b = load_bench("prior_swap_bench")
     base, other = Path(tiny_clip_realistic), Path(tiny_clip_oracle)
     out = b.assemble_clip(base, other, ("depth",), tmp_path / "c")
     assert (out / "priors" / "depth").resolve() == (other / "priors" / "depth").resolve()
@@ -74,8 +62,8 @@ def test_assembled_clip_takes_each_family_from_the_clip_asked_for(
     assert (out / "priors" / "depth").resolve() == (other / "priors" / "depth").resolve()
 
 
-def test_clips_of_another_render_are_refused(tiny_clip_realistic, tmp_path):
-    b = _bench()
+def test_clips_of_another_render_are_refused(tiny_clip_realistic, tmp_path, load_bench):
+    b = load_bench("prior_swap_bench")
     other = tmp_path / "other" / "tiny-flag-arm"
     shutil.copytree(tiny_clip_realistic, other, symlinks=True)
     meta = json.loads((other / "clip.json").read_text())
@@ -87,13 +75,13 @@ def test_clips_of_another_render_are_refused(tiny_clip_realistic, tmp_path):
     b.assemble_clip(tiny_clip_realistic, other, (), tmp_path / "c")
 
 
-def test_scores_of_the_true_cameras(tiny_clip_realistic, tmp_path):
+def test_scores_of_the_true_cameras(tiny_clip_realistic, tmp_path, load_bench):
     """The ground-truth cameras and masks as a camera initialisation: zero focal error, ATE and
     RPE, IoU 1."""
     from m4dgs.clip import Clip
     from m4dgs.run import save_torch
 
-    b = _bench()
+    b = load_bench("prior_swap_bench")
     clip = Clip.open(tiny_clip_realistic)
     cams = clip.load_gt_cameras()
     sel = [cams.frames.tolist().index(g) for g in clip.train_frames]
@@ -128,14 +116,16 @@ def test_scores_of_the_true_cameras(tiny_clip_realistic, tmp_path):
     assert b.score_camera_init(tiny_clip_realistic, run)["rpe_trans"] > 0.01
 
 
-def test_main_runs_the_trainers_camera_init(tiny_clip_realistic, tiny_clip_oracle, tmp_path):
+def test_main_runs_the_trainers_camera_init(
+    tiny_clip_realistic, tiny_clip_oracle, tmp_path, load_bench
+):
     """The whole bench on one tiny scene: the base combination's camera initialisation is the one
     `Trainer.run_phase` computes on the realistic clip itself (bit for bit), and a resumed bench
     recomputes nothing."""
     from m4dgs.run import load_torch
     from m4dgs.training.pipeline import Trainer
 
-    b = _bench()
+    b = load_bench("prior_swap_bench")
     scene = Path(tiny_clip_realistic).name
     args = [
         "--base",
