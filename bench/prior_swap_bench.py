@@ -32,8 +32,6 @@ import sys
 from pathlib import Path
 from typing import Dict, List, Sequence, Tuple
 
-import numpy as np
-
 FAMILIES = ("depth", "tracks", "flow")
 PRIOR_FILES = {"depth": "depth", "tracks": "tracks.npz", "flow": "flow.npz"}
 
@@ -118,8 +116,11 @@ def assemble_clip(base: Path, other: Path, families: Sequence[str], out: Path) -
 
 def score_camera_init(clip_root: Path, run_root: Path) -> Dict[str, float]:
     """Focal error (%), ATE, RPE and dynamic-mask IoU of a run's model/camera_init.pt against the
-    clip's ground truth."""
+    clip's ground truth. ATE / RPE over the training frames (the ones the initialisation
+    estimates; eval's ate_ba also counts the test frames interpolated between them); the mask IoU
+    is eval's (`eval.score.mask_metrics`)."""
     from eval.metrics.geometry import ate, rpe
+    from eval.score import mask_metrics
     from m4dgs.clip import Clip
     from m4dgs.run import load_torch
 
@@ -132,15 +133,13 @@ def score_camera_init(clip_root: Path, run_root: Path) -> Dict[str, float]:
     f_gt = float(cams.K[sel[0], 0, 0])
     est = ci["c2w"].double().numpy()
     r = rpe(est, gt_c2w)
-    gm = np.stack([clip.load_gt_dynamic_mask(g) for g in frames]).astype(bool)
-    pm = ci["masks"].numpy().astype(bool)
-    union = (gm | pm).sum()
+    masks = mask_metrics(Path(run_root), clip) or {}
     return {
         "focal_err_pct": 100 * abs(float(ci["K"][0, 0]) / f_gt - 1),
         "ate": float(ate(est, gt_c2w)),
         "rpe_trans": float(r["rpe_trans"]),
         "rpe_rot_deg": float(r["rpe_rot"]),
-        "mask_iou": float((gm & pm).sum() / union) if union else 1.0,
+        "mask_iou": masks.get("mask_iou"),
     }
 
 
@@ -155,6 +154,10 @@ def run_combo(clip_root: Path, run_root: Path, preset: str, progress: bool) -> N
     trainer.run_phase("camera_init")
 
 
+def _nan(x) -> float:
+    return float("nan") if x is None else float(x)
+
+
 def format_table(rows: List[dict]) -> str:
     head = f"{'scene':26s} {'priors from other':22s} {'f err%':>7s} {'ATE':>8s} {'RPE-t':>8s} "
     head += f"{'RPE-r':>7s} {'IoU':>6s}"
@@ -162,7 +165,7 @@ def format_table(rows: List[dict]) -> str:
     for r in rows:
         lines.append(
             f"{r['scene']:26s} {r['combo']:22s} {r['focal_err_pct']:7.2f} {r['ate']:8.4f} "
-            f"{r['rpe_trans']:8.4f} {r['rpe_rot_deg']:7.3f} {r['mask_iou']:6.3f}"
+            f"{r['rpe_trans']:8.4f} {r['rpe_rot_deg']:7.3f} {_nan(r['mask_iou']):6.3f}"
         )
     lines.append(
         "ATE in GT units after Sim(3) alignment; RPE-t GT units, RPE-r degrees per frame; IoU = "

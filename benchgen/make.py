@@ -39,7 +39,7 @@ import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -465,10 +465,10 @@ def scale_key(job: _Job, train_dt, targets: PlacementTargets) -> str:
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def _scale_source(job: _Job, key: str) -> Optional[Path]:
-    """The clip this clip's render came from (resume state `render_source`) when that clip is
-    finished and its HDR scale was chosen with the same scale_key; else None (clips made before
-    scale keys existed included)."""
+def _scale_source(job: _Job, key: str) -> Optional[Tuple[Path, dict]]:
+    """(folder, resume state) of the clip this clip's render came from (resume state
+    `render_source`) when that clip is finished and its HDR scale was chosen with the same
+    scale_key; else None (clips made before scale keys existed included)."""
     rel = job.state.get("render_source")
     if rel is None:
         return None
@@ -481,7 +481,7 @@ def _scale_source(job: _Job, key: str) -> Optional[Path]:
         return None
     if not all((src / "gt" / "hdr" / frame_name(g, "exr")).exists() for g in job.frames):
         return None
-    return src
+    return src, src_state
 
 
 def _apply_hdr_scale(job: _Job, writer: ClipWriter, meta: ClipMeta, train_dt, targets) -> None:
@@ -501,11 +501,11 @@ def _apply_hdr_scale(job: _Job, writer: ClipWriter, meta: ClipMeta, train_dt, ta
             # inputs are the same bytes (the unit frames rebuilt from its gt/hdr differ from the
             # rendered ones by float32 rounding, and a scale chosen again from them moves a few
             # 8-bit codes by one)
-            src_state = mio.read_json(source / ".benchgen" / "state.json")
+            src, src_state = source
             (out / "gt" / "hdr").mkdir(parents=True, exist_ok=True)
             for g in job.frames:
                 name = frame_name(g, "exr")
-                shutil.copy2(source / "gt" / "hdr" / name, out / "gt" / "hdr" / name)
+                shutil.copy2(src / "gt" / "hdr" / name, out / "gt" / "hdr" / name)
             scale, report = float(src_state["hdr_scale"]), src_state["hdr_scale_report"]
         else:
             # HDR frames without a scale in the resume state are an interrupted copy from a

@@ -309,7 +309,7 @@ def load_profile(path) -> PriorProfile:
     if name in PROFILES:
         raise InputError(f"{p}: name: {name!r} is a built-in profile's name; choose another")
     fields = {f.name: f for f in dataclasses.fields(PriorProfile)}
-    unknown = sorted(k for k in d if k not in fields or k == "name")
+    unknown = sorted(k for k in d if k not in fields)
     if unknown:
         raise InputError(f"{p}: unknown prior parameter(s) {unknown}; docs/priors.md lists them")
     base = PROFILES[base_name]

@@ -365,7 +365,7 @@ def _cameras(run_dir: Path, clip: Clip, name: str) -> Dict[str, Optional[float]]
     return {"ate": ate(ce, cg), "rpe_trans": r["rpe_trans"], "rpe_rot": r["rpe_rot"]}
 
 
-def _mask_metrics(run_dir: Path, clip: Clip) -> Optional[Dict[str, Optional[float]]]:
+def mask_metrics(run_dir: Path, clip: Clip) -> Optional[Dict[str, Optional[float]]]:
     """Precision / recall / IoU of the run's dynamic masks (model/camera_init.pt "masks" [T, H, W],
     training-frame order) against the gt dynamic masks, pooled over all pixels of all training
     frames; None without either."""
@@ -869,7 +869,7 @@ def _score_cameras_and_masks(job: _Job, m: dict) -> List[str]:
     m.update(ate_ba=cba["ate"], rpe_trans_ba=cba["rpe_trans"], rpe_rot_ba=cba["rpe_rot"])
     if m["ate"] is not None or m["ate_ba"] is not None:
         keys += ["ate", "rpe", "cameras_all_frames"]
-    mk = _mask_metrics(job.run_dir, job.clip)
+    mk = mask_metrics(job.run_dir, job.clip)
     if mk is not None:
         m.update(mk)
         keys.append("dyn_masks")
