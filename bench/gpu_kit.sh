@@ -6,7 +6,8 @@
 #   .gpu/clip/  one clip without its ground truth (input/ and priors/: ~27 MB at the small preset)
 # and print the command to run there. Needs network to PyPI here.
 #
-#   bash bench/gpu_kit.sh CLIP_DIR [PYTHON_VERSION]     e.g. bash bench/gpu_kit.sh ROOT/clips/syn-exp-3/lamp-room-orbit
+#   [OLD=COMMIT] bash bench/gpu_kit.sh CLIP_DIR [PYTHON_VERSION]     e.g. bash bench/gpu_kit.sh ROOT/clips/syn-exp-3/lamp-room-orbit
+#   .gpu/old/   with OLD set: that commit's m4dgs/ and bench/, for gpu_session.sh's side-by-side slot D
 set -euo pipefail
 cd "$(dirname "$0")/.."
 clip=${1:?usage: bash bench/gpu_kit.sh CLIP_DIR [PYTHON_VERSION]}
@@ -27,6 +28,13 @@ name=$(basename "$clip")
 mkdir -p ".gpu/clip/$name"
 cp "$clip/clip.json" ".gpu/clip/$name/"
 cp -r "$clip/input" "$clip/priors" ".gpu/clip/$name/"
+# OLD=COMMIT: that commit's code beside this tree's, for gpu_session.sh's side-by-side slot D
+if [ -n "${OLD:-}" ]; then
+  mkdir -p .gpu/old
+  git archive "$OLD" m4dgs bench | tar -x -C .gpu/old
+  git rev-parse --short "$OLD" > .gpu/old/COMMIT
+  du -sh .gpu/old
+fi
 du -sh .gpu/whl .gpu/clip
 cat <<EOF
 
@@ -35,7 +43,7 @@ Packed. On the CUDA machine (device run, carry [".gpu"], timeout 600), one comma
 set -o pipefail; bash bench/gpu_session.sh 2>&1 | tee \$OUT/log.txt
 
 (its time slots and what each measures: the head of bench/gpu_session.sh; what the GPU sessions measured:
-docs/performance.md, "The GPU path"; what is still to measure there: slot B's profile of a GPU step). The
+docs/performance.md, "The GPU path": a GPU step is bound by its ~1,900 kernel launches; slot D times a change side by side). The
 full-length paper run instead (measured once: 11.0 min of phases on an H100; a session's whole device budget), two
 calls, the second at once on the warm machine (it resumes the run; with time left, T_PP > 0 times its FPS and
 profiles it):

@@ -21,6 +21,12 @@
 # finished it. Run it with STEPS_A=env T_B=0 T_C=0 to spend a call on slot P alone (a slot given 0 s is skipped);
 # $OUT/paper.txt says where the run stands (status.json: its seconds per phase), and once it is finished slot
 # P2 (T_PP) writes $OUT/paper.json: the FPS of the paper-scale model and a profile of its late stage 2.
+#
+# Slot D (T_D seconds; runs when .gpu/old holds another commit's code, packed by `OLD=COMMIT bash bench/gpu_kit.sh`):
+# a side-by-side timing of a code change on this GPU. bench/step_bench.py on slot B's run (stage 2 from its final
+# model, AB_STEPS timed steps), with the packed commit's code and with this tree's in ABBA order (old new, new old,
+# ...: a drift over the slot falls on both alike), AB_ROUNDS times each;
+# the printed ms/step lines come back in $OUT/ab.txt.
 set -u
 T0=$(date +%s)
 el() { echo "[gpu_session] $(($(date +%s) - T0)) s: $*"; }
@@ -67,6 +73,16 @@ if [ "${T_C:-100}" != 0 ]; then
   timeout -k 5 "${T_C:-100}" python3 bench/gpu_check.py "$C" --out "$GPU_RUN/c" --preset small --steps jobs --jobs "${JOBS:-1,2,4}" --jobs-iters "${JOBS_ITERS:-300}"
   pkill -f train_bench.py
   cp "$GPU_RUN/c/gpu_check.json" "$OUT/c.json" 2>/dev/null
+fi
+if [ -d .gpu/old/m4dgs ] && [ "${T_D:-120}" != 0 ] && [ -f "$GPU_RUN/b/run/model/final.pt" ]; then
+  el "slot D: step_bench, $(cat .gpu/old/COMMIT 2>/dev/null) against this tree, ${AB_ROUNDS:-2} rounds, ${T_D:-120} s"
+  start=$(python3 -c "import sys; from m4dgs.training.config import load_yaml; s=load_yaml(sys.argv[1]).stage2; print(max(s.iterations // 2, min(s.tlr_start_step(), s.iterations - ${AB_STEPS:-40} - 5)))" "$GPU_RUN/b/run/config.yaml")
+  ab() { PYTHONPATH=$GPU_RUN/site:$1 python3 "$1/bench/step_bench.py" "$C" "$GPU_RUN/b/run" --preset "${PRESET:-paper}" \
+    --stage stage2 --from-final --start "$start" --steps "${AB_STEPS:-40}" --device cuda 2>&1 | grep ms/step | sed "s|^|$2 |"; }
+  ( for r in $(seq "${AB_ROUNDS:-2}"); do if [ $((r % 2)) = 1 ]; then ab "$PWD/.gpu/old" old; ab "$PWD" new; else ab "$PWD" new; ab "$PWD/.gpu/old" old; fi; done ) > "$OUT/ab.txt" &
+  abpid=$!
+  ( sleep "${T_D:-120}"; kill $abpid 2>/dev/null; pkill -f step_bench.py ) & wait $abpid
+  cat "$OUT/ab.txt"
 fi
 nvidia-smi --query-gpu=name,memory.used,memory.total --format=csv
 el "done"

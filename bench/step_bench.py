@@ -13,6 +13,10 @@ compare commits that set up the optimisers differently). Five warm-up steps, the
 steps; prints milliseconds per step and, with --cprofile, the functions that take the time, with
 --torch-profile the operations (on CUDA also their GPU time and the host-device synchronisations: a
 step that waits for the GPU several times is bound by those waits, not by the kernels).
+With --count-ops, the tensor operations a step dispatches (views apart: they launch no kernel), by
+the m4dgs function that called them (backward's operations fall on the function that called
+backward): on CUDA nearly every such operation is at least one kernel launch, and a step of many
+small launches is bound by the host, not by the GPU.
 
 Compare commits side by side: check out each commit in its own worktree and run the same command
 with PYTHONPATH set to it, one after the other, on an otherwise idle machine.
@@ -25,13 +29,16 @@ import cProfile
 import os
 import pstats
 import shutil
+import sys
 import tempfile
 import time
+from collections import Counter
 from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import torch  # noqa: E402
+from torch.utils._python_dispatch import TorchDispatchMode  # noqa: E402
 
 from m4dgs.core.io import read_exr  # noqa: E402
 from m4dgs.core.threads import kernel_threads, use_threads  # noqa: E402
@@ -41,6 +48,45 @@ from m4dgs.training.exposure import training_exposures  # noqa: E402
 from m4dgs.training.pipeline import Trainer  # noqa: E402
 from m4dgs.training.stage1 import VideoStage, build_appearance  # noqa: E402
 from m4dgs.training.stage2 import WorldInit, WorldStage  # noqa: E402
+
+PKG = str(Path(__file__).resolve().parents[1] / "m4dgs")
+
+
+class OpCounter(TorchDispatchMode):
+    """Counts the tensor operations dispatched while active: `ops[caller]` and `views[caller]`,
+    where caller is "file:function" of the innermost frame under `package` (a folder path) on the
+    Python stack, "other" when none is."""
+
+    def __init__(self, package: str = PKG):
+        super().__init__()
+        self.package = package
+        self.ops: Counter = Counter()
+        self.views: Counter = Counter()
+
+    def _caller(self) -> str:
+        f = sys._getframe(2)
+        while f is not None:
+            name = f.f_code.co_filename
+            if name.startswith(self.package):
+                rel = name[len(self.package) :].lstrip("/")
+                return f"{rel}:{f.f_code.co_name}"
+            f = f.f_back
+        return "other"
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        (self.views if func.is_view else self.ops)[self._caller()] += 1
+        return func(*args, **(kwargs or {}))
+
+
+def print_op_counts(counter: OpCounter, steps: int, top: int = 25) -> None:
+    """Per-step counts, the callers with the most operations first."""
+    total = sum(counter.ops.values())
+    print(
+        f"tensor operations per step: {total / steps:.0f} "
+        f"(and {sum(counter.views.values()) / steps:.0f} views), by caller:"
+    )
+    for where, n in counter.ops.most_common(top):
+        print(f"  {n / steps:8.1f}  {100 * n / total:5.1f}%  {where}")
 
 
 def make_stage(
@@ -137,6 +183,12 @@ def main() -> None:
         help="print the top operations by self CPU time (torch profiler) over the timed steps",
     )
     ap.add_argument(
+        "--count-ops",
+        action="store_true",
+        help="count the tensor operations of the timed steps by calling m4dgs function (not timed: "
+        "the counting slows the steps)",
+    )
+    ap.add_argument(
         "--device",
         default="cpu",
         choices=["cpu", "cuda"],
@@ -175,6 +227,9 @@ def main() -> None:
             acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if cuda else [])
             tprof = profile(activities=acts)
             tprof.__enter__()
+        counter = OpCounter() if a.count_ops else None
+        if counter is not None:
+            counter.__enter__()
         sync()
         t0 = time.perf_counter()
         if prof:
@@ -182,6 +237,8 @@ def main() -> None:
         for it in range(start + 5, start + 5 + a.steps):
             st.step(it)
         sync()
+        if counter is not None:
+            counter.__exit__(None, None, None)
         if prof:
             prof.disable()
         dt = time.perf_counter() - t0
@@ -196,6 +253,8 @@ def main() -> None:
         )
         if prof:
             pstats.Stats(prof).sort_stats("cumulative").print_stats(30)
+        if counter is not None:
+            print_op_counts(counter, a.steps)
         if tprof is not None:
             ev = tprof.key_averages()
             print(ev.table(sort_by="self_cpu_time_total", row_limit=30))

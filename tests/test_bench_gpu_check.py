@@ -128,7 +128,10 @@ def test_step_bench_times_both_stages_of_a_finished_run(tiny_clip_realistic, tmp
     for extra, stage in (
         (["--stage", "stage1", "--start", "5"], "stage1 steps 10..12"),
         (["--stage", "stage2", "--start", "5", "--torch-profile"], "stage2 steps 10..12"),
-        (["--stage", "stage2", "--start", "5", "--from-final"], "stage2 steps 10..12"),
+        (
+            ["--stage", "stage2", "--start", "5", "--from-final", "--count-ops"],
+            "stage2 steps 10..12",
+        ),
     ):
         p = subprocess.run(base + extra, cwd=ROOT, capture_output=True, text=True, timeout=600)
         assert p.returncode == 0, p.stdout + p.stderr
@@ -136,6 +139,8 @@ def test_step_bench_times_both_stages_of_a_finished_run(tiny_clip_realistic, tmp
         assert "ms/step" in line and "1 torch / 2 kernel threads" in line, line
         if "--torch-profile" in extra:
             assert "Self CPU" in p.stdout
+        if "--count-ops" in extra:
+            assert "tensor operations per step" in p.stdout and "training/stage.py:step" in p.stdout
     assert sorted(str(p.relative_to(run)) for p in run.rglob("*")) == before
 
 
