@@ -22,7 +22,8 @@ a trajectory is a (regularised, masked) linear least-squares problem per Gaussia
 
 from __future__ import annotations
 
-from typing import Optional, Union
+import numbers
+from typing import Optional, Sequence, Union
 
 import torch
 
@@ -81,12 +82,17 @@ def tangents(ctrl: Tensor, knots: Tensor) -> Tensor:
 
 
 def _as_times(t: Union[Tensor, float, int], like: Tensor) -> tuple[Tensor, bool]:
-    scalar = not torch.is_tensor(t) or t.dim() == 0
+    scalar = t.dim() == 0 if torch.is_tensor(t) else isinstance(t, numbers.Real)
     tt = torch.as_tensor(t, dtype=like.dtype, device=like.device).reshape(-1)
     return tt, scalar
 
 
-def evaluate(ctrl: Tensor, knots: Tensor, t: Union[Tensor, float, int]) -> Tensor:
+def evaluate(
+    ctrl: Tensor,
+    knots: Tensor,
+    t: Union[Tensor, float, int, Sequence[float]],
+    memo: Optional["BasisMemo"] = None,
+) -> Tensor:
     """Evaluate the spline of each Gaussian at times t (differentiable wrt ctrl).
 
     The spline is linear in the control points, so this is one matrix product of the control
@@ -99,24 +105,62 @@ def evaluate(ctrl: Tensor, knots: Tensor, t: Union[Tensor, float, int]) -> Tenso
     Args:
         ctrl: [N, K, D] control points.
         knots: [K] increasing knot times.
-        t: [T] times, or a scalar time (clamped to [knots[0], knots[-1]]).
+        t: [T] times (a tensor or a sequence of numbers), or a scalar time (clamped to
+            [knots[0], knots[-1]]).
+        memo: keeps the product matrix of times given on the host (numbers, sequences, CPU
+            tensors) for the next call with the same knots and times (`BasisMemo`); the result is
+            the same bit for bit.
     Returns:
         [N, T, D] positions, or [N, D] for a scalar t.
     """
+    found = memo.plan(ctrl, knots, t) if memo is not None else None
+    if found is not None:
+        plan, scalar = found
+        out = apply_plan(ctrl, plan)
+        return out[:, 0] if scalar else out
     tt, scalar = _as_times(t, ctrl)
     out = apply_basis(ctrl, basis_matrix(knots.to(device=ctrl.device, dtype=ctrl.dtype), tt))
     return out[:, 0] if scalar else out
 
 
-def apply_basis(coeffs: Tensor, basis: Tensor) -> Tensor:
-    """out[n, t] = sum_k basis[t, k] coeffs[n, k] as ONE matrix product of coeffs viewed as [N, K D]
-    with the [K D, T D] matrix basis^T (x) I_D (forward and backward stay contiguous; an einsum
-    permutes and copies the coefficients first).
+def product_plan(basis: Tensor, coeffs: Tensor) -> tuple[Tensor, int, int]:
+    """The matrix and the coefficient range of `apply_basis` for `basis` [T, K] and coefficients
+    shaped like `coeffs` [N, K, D]: (m [(hi - lo) D, T D], lo, hi).
 
     On the CPU only the coefficients of the basis's nonzero column range enter the product (a
     spline at a few nearby times reads 4-6 of its K control points): a column slice of the [N, K D]
     view, which the matrix product reads in place, so forward and backward touch a fraction of the
-    coefficients.
+    coefficients. The column range is read on the host to slice with it: on CUDA that would be a
+    device sync per spline evaluation, where the full product is cheap, so only CPU tensors are
+    narrowed."""
+    _, k, d = coeffs.shape
+    lo, hi = 0, k
+    if coeffs.device.type == "cpu":
+        cols = torch.nonzero(basis.detach().abs().sum(0)).flatten()
+        if 0 < cols.numel() and (cols[-1] - cols[0] + 1) < k:
+            lo, hi = int(cols[0]), int(cols[-1]) + 1
+            basis = basis[:, lo:hi]
+    eye = torch.eye(d, dtype=coeffs.dtype, device=coeffs.device)
+    m = (basis.to(coeffs.dtype).t()[:, None, :, None] * eye[None, :, None, :]).reshape(
+        (hi - lo) * d, -1
+    )
+    return m, lo, hi
+
+
+def apply_plan(coeffs: Tensor, plan: tuple[Tensor, int, int]) -> Tensor:
+    """coeffs [N, K, D] through a `product_plan` (m, lo, hi): [N, T, D]."""
+    m, lo, hi = plan
+    n, k, d = coeffs.shape
+    if hi - lo < k:
+        coeffs = coeffs[:, lo:hi]
+    return (coeffs.reshape(n, (hi - lo) * d) @ m).reshape(n, m.shape[1] // d, d)
+
+
+def apply_basis(coeffs: Tensor, basis: Tensor) -> Tensor:
+    """out[n, t] = sum_k basis[t, k] coeffs[n, k] as ONE matrix product of coeffs viewed as [N, K D]
+    with the [K D, T D] matrix basis^T (x) I_D (forward and backward stay contiguous; an einsum
+    permutes and copies the coefficients first); on the CPU narrowed to the basis's nonzero
+    columns (`product_plan`).
 
     Args:
         coeffs: [N, K, D] per-Gaussian coefficients (spline control points, polynomial terms).
@@ -124,20 +168,70 @@ def apply_basis(coeffs: Tensor, basis: Tensor) -> Tensor:
     Returns:
         [N, T, D].
     """
-    n, k, d = coeffs.shape
-    # the column range is read on the host to slice with it: on CUDA that would be a device sync per
-    # spline evaluation, where the full product is cheap, so only CPU tensors are narrowed
-    cols = (
-        torch.nonzero(basis.detach().abs().sum(0)).flatten()
-        if coeffs.device.type == "cpu"
-        else basis.new_zeros(0)
-    )
-    if 0 < cols.numel() and (cols[-1] - cols[0] + 1) < k:
-        lo, hi = int(cols[0]), int(cols[-1]) + 1
-        coeffs, basis, k = coeffs[:, lo:hi], basis[:, lo:hi], hi - lo
-    eye = torch.eye(d, dtype=coeffs.dtype, device=coeffs.device)
-    m = (basis.to(coeffs.dtype).t()[:, None, :, None] * eye[None, :, None, :]).reshape(k * d, -1)
-    return (coeffs.reshape(n, k * d) @ m).reshape(n, basis.shape[0], d)
+    return apply_plan(coeffs, product_plan(basis, coeffs))
+
+
+class BasisMemo:
+    """The basis rows and product plans (`product_plan`) of spline evaluations at times given on
+    the host, kept per knot vector, coefficient width, dtype and device.
+
+    Training evaluates its splines at the same frame times step after step (the frame, its TLR
+    neighbours, the smoothness window); each evaluation otherwise rebuilds its [T, K] basis term by
+    term from the knots, some 40 small tensor operations, each a kernel launch on a GPU (where a
+    training step is bound by its launches, docs/performance.md). A set of times seen before costs
+    no operation; a new set of known times costs the stacking of their rows and the plan. The rows
+    of `basis_matrix` do not depend on the other times of the call (no reduction runs across
+    times), so the result is the same bit for bit as without the memo.
+
+    A memo belongs to one model (its Gaussians hold one). It keeps the knot tensors it has seen,
+    so their identity stays unique, and their version, so knots changed in place miss. Times
+    given as CUDA tensors are not memoised (reading them for a key would wait for the device).
+    When it holds `max_entries` rows and plans, the memo starts over."""
+
+    def __init__(self, max_entries: int = 4096):
+        self.max_entries = int(max_entries)
+        self.plans: dict = {}
+        self.rows: dict = {}
+        self._knots: dict = {}
+
+    @staticmethod
+    def host_times(t) -> Optional[tuple[tuple, bool]]:
+        """(times as floats, scalar) of t, or None when t is a tensor off the CPU."""
+        if torch.is_tensor(t):
+            if t.device.type != "cpu":
+                return None
+            return tuple(t.reshape(-1).tolist()), t.dim() == 0
+        if isinstance(t, numbers.Real):
+            return (float(t),), True
+        return tuple(float(v) for v in t), False
+
+    def plan(self, ctrl: Tensor, knots: Tensor, t) -> Optional[tuple[tuple, bool]]:
+        """(the product plan of ctrl's shape at times t, scalar), or None when t is not on the
+        host."""
+        ht = self.host_times(t)
+        if ht is None:
+            return None
+        times, scalar = ht
+        dev = ctrl.device
+        base = (id(knots), knots._version, ctrl.dtype, dev.type, dev.index)
+        key = base + (ctrl.shape[-1], times)
+        plan = self.plans.get(key)
+        if plan is None:
+            if len(self.plans) + len(self.rows) >= self.max_entries:
+                self.plans.clear()
+                self.rows.clear()
+                self._knots.clear()
+            self._knots[id(knots)] = knots
+            missing = sorted({v for v in times if base + (v,) not in self.rows})
+            if missing:
+                kk = knots.to(device=dev, dtype=ctrl.dtype)
+                tt = torch.as_tensor(missing, dtype=ctrl.dtype, device=dev)
+                for v, row in zip(missing, basis_matrix(kk, tt)):
+                    self.rows[base + (v,)] = row
+            basis = torch.stack([self.rows[base + (v,)] for v in times])
+            plan = product_plan(basis, ctrl)
+            self.plans[key] = plan
+        return plan, scalar
 
 
 def evaluate_reference(ctrl: Tensor, knots: Tensor, t: Union[Tensor, float, int]) -> Tensor:

@@ -171,6 +171,7 @@ class VideoGaussians(nn.Module):
             }
         )
         self.register_buffer("knots", knots.to(device=ctrl.device, dtype=ctrl.dtype))
+        self.spline_memo = spline.BasisMemo()  # the basis of frame times, built once
         self.num_frames = int(num_frames)
         self.scale_kind = scale_kind
         self.scale_max = float(scale_max)
@@ -184,7 +185,7 @@ class VideoGaussians(nn.Module):
 
     def positions(self, t: TimeLike) -> Tensor:
         """Video-space means at frame time t: [N, 3] (scalar t) or [N, T, 3]."""
-        return spline.evaluate(self.params["ctrl"], self.knots, t)
+        return spline.evaluate(self.params["ctrl"], self.knots, t, self.spline_memo)
 
     def quats(self, t: TimeLike, normalize: bool = True) -> Tensor:
         """Rotation quaternions (wxyz) at frame time t: [N, 4] or [N, T, 4] (unit unless
@@ -275,6 +276,7 @@ class WorldGaussians(nn.Module):
         self.dynamic["opacities"] = nn.Parameter(self.dynamic["opacities"].detach().reshape(-1))
         ref = self.dynamic["ctrl"]
         self.register_buffer("knots", knots.to(device=ref.device, dtype=ref.dtype))
+        self.spline_memo = spline.BasisMemo()  # the basis of frame times, built once
         self.num_frames = int(num_frames)
         self.scale_kind = scale_kind
         self.scale_max = float(scale_max)
@@ -307,7 +309,7 @@ class WorldGaussians(nn.Module):
 
     def positions(self, t: TimeLike) -> Tensor:
         """World means of the union at time t: [N, 3] (scalar t) or [N, T, 3]."""
-        dyn = spline.evaluate(self.dynamic["ctrl"], self.knots, t)
+        dyn = spline.evaluate(self.dynamic["ctrl"], self.knots, t, self.spline_memo)
         stat = self.static["means"]
         if dyn.dim() == 3:
             stat = stat[:, None].expand(-1, dyn.shape[1], -1)

@@ -139,13 +139,14 @@ class Trajectories:
     rot: Tensor
     knots: Tensor
     num_frames: int
+    memo: Optional[spline.BasisMemo] = None  # the model's (its Gaussians' spline_memo)
 
     @property
     def count(self) -> int:
         return self.ctrl.shape[0]
 
     def positions(self, t) -> Tensor:
-        return spline.evaluate(self.ctrl, self.knots, t)
+        return spline.evaluate(self.ctrl, self.knots, t, self.memo)
 
 
 class KnnCache:
@@ -364,7 +365,10 @@ def assemble(stage, it: int) -> LossOutput:
             times = torch.arange(lo, hi, dtype=torch.float32, device=stage.device)
             if times.numel() >= 3:
                 # [W, n, 3] / [W, n, 4]
-                pos = spline.evaluate(traj.ctrl[sub], traj.knots, times).transpose(0, 1)
+                # the window's times from the host too (a key for the memo without a device read)
+                host_times = [float(v) for v in range(lo, hi)]
+                pos = spline.evaluate(traj.ctrl[sub], traj.knots, host_times, traj.memo)
+                pos = pos.transpose(0, 1)
                 q = rot.poly_evaluate(
                     traj.rot[sub], rot.normalize_time(times, traj.num_frames), normalize=True
                 ).transpose(0, 1)

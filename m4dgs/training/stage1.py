@@ -157,7 +157,7 @@ class VideoStage(Stage):
 
     def trajectories(self) -> Trajectories:
         g = self.gauss
-        return Trajectories(g.params["ctrl"], g.params["rot"], g.knots, g.num_frames)
+        return Trajectories(g.params["ctrl"], g.params["rot"], g.knots, g.num_frames, g.spline_memo)
 
     def gaussian_sets(self) -> List[GaussianSet]:
         return [

@@ -227,7 +227,9 @@ class WorldStage(Stage):
 
     def trajectories(self) -> Trajectories:
         g = self.gauss
-        return Trajectories(g.dynamic["ctrl"], g.dynamic["rot"], g.knots, g.num_frames)
+        return Trajectories(
+            g.dynamic["ctrl"], g.dynamic["rot"], g.knots, g.num_frames, g.spline_memo
+        )
 
     def stage_terms(
         self, it: int, sample: FrameSample, r: RenderResult, camera: CameraModel

@@ -193,3 +193,76 @@ def test_fit_single_knot_and_resample():
     assert err_ls < err_s and err_ls < 1e-2
     with pytest.raises(ValueError):
         spline.resample_control_points(traj, times, knots, method="nope")
+
+
+class _CountOps(torch.utils._python_dispatch.TorchDispatchMode):
+    """The tensor operations dispatched while active, views apart."""
+
+    def __init__(self):
+        super().__init__()
+        self.n = 0
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.n += 0 if func.is_view else 1
+        return func(*args, **(kwargs or {}))
+
+
+@pytest.mark.parametrize("d", [3, 4])
+def test_basis_memo_gives_the_same_bits_and_gradients(d):
+    """Every way of giving times on the host, first call (rows and plan built) and later calls
+    (found), times that share rows with earlier sets: values and ctrl gradients equal bit for bit
+    to the evaluation without a memo, which the reference tests above check against the formula."""
+    g = torch.Generator().manual_seed(3)
+    knots = spline.make_knots(23, 4)
+    ctrl = torch.randn(50, knots.numel(), d, generator=g, requires_grad=True)
+    memo = spline.BasisMemo()
+    cases = [7.0, 7, [7.0, 8.0, 6.0], (8.0, 6.0, 21.5), torch.tensor(5.0), torch.arange(3, 9.0)]
+    for t in cases + cases:
+        a = spline.evaluate(ctrl, knots, t)
+        b = spline.evaluate(ctrl, knots, t, memo)
+        assert a.shape == b.shape and torch.equal(a, b)
+        w = torch.randn(a.shape, generator=g)
+        (ga,) = torch.autograd.grad((a * w).sum(), ctrl)
+        (gb,) = torch.autograd.grad((b * w).sum(), ctrl)
+        assert torch.equal(ga, gb)
+    # a list of times is a set of times (it was read as one scalar time before the memo)
+    assert spline.evaluate(ctrl, knots, [1.0, 2.0]).shape == (50, 2, d)
+    ref = spline.evaluate_reference(ctrl, knots, torch.tensor([1.0, 2.0]))
+    assert torch.allclose(spline.evaluate(ctrl, knots, [1.0, 2.0], memo), ref, atol=1e-6)
+
+
+def test_basis_memo_costs_one_product_once_built():
+    knots = spline.make_knots(30, 4)
+    ctrl = torch.randn(40, knots.numel(), 3)
+    memo = spline.BasisMemo()
+    times = [10.0, 11.0, 9.0]
+    with _CountOps() as without:
+        spline.evaluate(ctrl, knots, times)
+    spline.evaluate(ctrl, knots, times, memo)
+    with _CountOps() as found:
+        spline.evaluate(ctrl, knots, times, memo)
+    with _CountOps() as known_rows:
+        spline.evaluate(ctrl, knots, [11.0, 9.0], memo)
+    # without: the basis term by term and the product matrix; found: the narrowed coefficients'
+    # copy and the product; known rows: the stacking and the product matrix, no basis
+    assert without.n > 30
+    assert found.n <= 3
+    assert found.n < known_rows.n < without.n / 2
+
+
+def test_basis_memo_misses_on_other_knots_and_device_times():
+    ctrl = torch.randn(10, 6, 3)
+    memo = spline.BasisMemo(max_entries=8)
+    knots = spline.make_knots(21, 4)
+    a = spline.evaluate(ctrl, knots, 9.0, memo)
+    knots.mul_(0.5)  # changed in place: the version moves, the memo must not answer
+    b = spline.evaluate(ctrl, knots, 9.0, memo)
+    assert torch.equal(b, spline.evaluate(ctrl, knots, 9.0)) and not torch.equal(a, b)
+    other = spline.make_knots(21, 4) * 0.25
+    assert torch.equal(spline.evaluate(ctrl, other, 9.0, memo), spline.evaluate(ctrl, other, 9.0))
+    # times on a device other than the CPU give no key (reading them would wait for the device)
+    assert spline.BasisMemo.host_times(torch.zeros(3, device="meta")) is None
+    # the memo starts over when full
+    for v in range(20):
+        spline.evaluate(ctrl, knots, float(v % 10), memo)
+        assert len(memo.plans) + len(memo.rows) <= 8
