@@ -23,6 +23,7 @@ import torch
 
 from m4dgs.core.knn import knn
 from m4dgs.core.rotation import relative_rotation_angle
+from m4dgs.core.tensors import gather_rows
 
 ARAP_K = 5  # paper appendix: k = 5
 
@@ -50,8 +51,8 @@ def arap_loss(
     """
     if nbr_idx is None:
         nbr_idx, _ = knn(pos_t, k)
-    d_t = _safe_norm(pos_t[:, None, :] - pos_t[nbr_idx])  # [N, k]
-    d_tp = _safe_norm(pos_tp[:, None, :] - pos_tp[nbr_idx])
+    d_t = _safe_norm(pos_t[:, None, :] - gather_rows(pos_t, nbr_idx))  # [N, k]
+    d_tp = _safe_norm(pos_tp[:, None, :] - gather_rows(pos_tp, nbr_idx))
     return ((d_t - d_tp) ** 2).mean()
 
 

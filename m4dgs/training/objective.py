@@ -29,6 +29,7 @@ from m4dgs.core import camera as cam
 from m4dgs.core import rotation as rot
 from m4dgs.core import spline
 from m4dgs.core.knn import knn
+from m4dgs.core.tensors import gather_rows
 from m4dgs.losses.geometry import depth_loss, flow_from_destination_map, flow_loss, track_loss
 from m4dgs.losses.motion import smoothness_terms as motion_smoothness
 from m4dgs.losses.photometric import rgb_loss, unit_exposure_loss
@@ -231,8 +232,9 @@ def arap_term(pos_t: Tensor, pos_t2: Tensor, nbr: Tensor, sub: Tensor, extent: f
     """ARAP on the subset `sub` of Gaussians: squared change of the distances to their k nearest
     neighbours (indices `nbr` [N, k] into the full set) between t and t2, over extent^2."""
     idx = nbr[sub]  # [n, k]
-    d_t = (pos_t[sub][:, None] - pos_t[idx]).norm(dim=-1)
-    d_t2 = (pos_t2[sub][:, None] - pos_t2[idx]).norm(dim=-1)
+    # gathers whose gradient does not depend on the thread count (repeated neighbour indices)
+    d_t = (gather_rows(pos_t, sub)[:, None] - gather_rows(pos_t, idx)).norm(dim=-1)
+    d_t2 = (gather_rows(pos_t2, sub)[:, None] - gather_rows(pos_t2, idx)).norm(dim=-1)
     return "arap", ((d_t - d_t2) ** 2).mean() / extent**2
 
 
