@@ -1005,6 +1005,19 @@ CONTROLS: Tuple[Control, ...] = (
         Effect("control-reproj-priors", "no-reproj-oracle", "full-oracle", "oracle priors"),
     ),
     Control(
+        "reproj-scale",
+        "Ablation (d): is the reprojection loss's small effect the small schedule? (the paper's "
+        "4K + 11K against 3K + 2.5K)",
+        "scale",
+        Effect("paper-ablation", "no-reproj", "full", "small schedule"),
+        Effect(
+            "control-scale",
+            "no-reproj-paper-schedule",
+            "full-paper-schedule",
+            "the paper's schedule",
+        ),
+    ),
+    Control(
         "depth-loss-prior",
         "Priors: is the gain without the depth loss the benchmark's depth prior? (exact depth, "
         "tracks and flow realistic)",
@@ -1042,6 +1055,16 @@ CONTROLS: Tuple[Control, ...] = (
             ),
         )
         for k in (1, 2)
+    ),
+    Control(
+        "exposure-scale",
+        "Exposure perturbation: is the small cost of ±0.75 EV the small schedule? (the paper's "
+        "4K + 11K against 3K + 2.5K)",
+        "scale",
+        Effect("exposure-noise", "ev-0.75", "ev-0", "small schedule"),
+        Effect(
+            "control-scale", "ev-0.75-paper-schedule", "full-paper-schedule", "the paper's schedule"
+        ),
     ),
 )
 

@@ -1079,6 +1079,7 @@ def test_campaign_file_errors_name_the_field(tmp_path):
         "control-video-init-prior-parts",
         "control-depth-loss",
         "control-reproj-priors",
+        "control-scale",
         "paper-main",
         *appendix,
         "crf",
@@ -1087,21 +1088,21 @@ def test_campaign_file_errors_name_the_field(tmp_path):
         "exposure-noise-draw",
         "control-depth-loss",
         "control-reproj-priors",
+        "control-scale",
     ]
-    assert c.steps[2].scenes is None and c.steps[2].seeds == 1 and c.steps[16].scenes is None
+    assert c.steps[2].scenes is None and c.steps[2].seeds == 1 and c.steps[17].scenes is None
     # breadth first: each appendix suite's first seed on the four scenes, then every suite's second
-    assert [s.seeds for s in c.steps[4:13]] == [1] * 9 and c.steps[14].seeds == c.steps[
-        15
-    ].seeds == 1
+    assert [s.seeds for s in c.steps[4:13]] == [1] * 9
+    assert c.steps[14].seeds == c.steps[15].seeds == c.steps[16].seeds == 1
     assert all(
-        s.seeds == 2 for i, s in enumerate(c.steps) if not (i in (2, 14, 15) or 4 <= i <= 12)
+        s.seeds == 2 for i, s in enumerate(c.steps) if not (i in (2, 14, 15, 16) or 4 <= i <= 12)
     )
     assert all(
         c.steps[i].scenes == four
-        for i in (4, 5, 6, 7, 8, 10, 11, 12, 14, 15, 17, 18, 19, 20, 21, 23, 24, 25, 26, 27)
+        for i in (4, 5, 6, 7, 8, 10, 11, 12, 14, 15, 16, 18, 19, 20, 21, 22, 24, 25, 26, 27, 28, 29)
     )
     assert (
-        c.steps[9].scenes == c.steps[22].scenes == ["conveyor-occlusion-orbit", "robot-arm-dolly"]
+        c.steps[9].scenes == c.steps[23].scenes == ["conveyor-occlusion-orbit", "robot-arm-dolly"]
     )
     good = {"preset": "tiny", "steps": [{"suite": "tiny"}]}
     assert parse_campaign(good, "f.yaml").steps[0].seeds == 1
