@@ -186,13 +186,26 @@ class BasisMemo:
     A memo belongs to one model (its Gaussians hold one). It keeps the knot tensors it has seen,
     so their identity stays unique, and their version, so knots changed in place miss. Times
     given as CUDA tensors are not memoised (reading them for a key would wait for the device).
-    When it holds `max_entries` rows and plans, the memo starts over."""
+    When it holds `max_entries` rows and plans, the memo starts over. A copied or pickled memo
+    (a copied model) starts empty: its keys name the original's knot tensors."""
 
     def __init__(self, max_entries: int = 4096):
         self.max_entries = int(max_entries)
         self.plans: dict = {}
         self.rows: dict = {}
         self._knots: dict = {}
+
+    def __copy__(self) -> "BasisMemo":
+        return BasisMemo(self.max_entries)
+
+    def __deepcopy__(self, _memo) -> "BasisMemo":
+        return BasisMemo(self.max_entries)
+
+    def __getstate__(self) -> dict:
+        return {"max_entries": self.max_entries}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["max_entries"])
 
     @staticmethod
     def host_times(t) -> Optional[tuple[tuple, bool]]:

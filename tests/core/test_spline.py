@@ -266,3 +266,27 @@ def test_basis_memo_misses_on_other_knots_and_device_times():
     for v in range(20):
         spline.evaluate(ctrl, knots, float(v % 10), memo)
         assert len(memo.plans) + len(memo.rows) <= 8
+
+
+def test_a_copied_model_starts_with_an_empty_memo():
+    import copy
+    import pickle
+
+    from m4dgs.model.gaussians import VideoGaussians
+
+    knots = spline.make_knots(9, 4)
+    n, k = 5, knots.numel()
+    g = VideoGaussians(
+        torch.randn(n, k, 3),
+        torch.randn(n, 2, 4),
+        torch.zeros(n, 3),
+        torch.zeros(n),
+        torch.zeros(n, 3),
+        knots,
+        9,
+    )
+    want = g.positions([1.0, 2.0])
+    assert len(g.spline_memo.plans) == 1
+    for c in (copy.deepcopy(g), pickle.loads(pickle.dumps(g))):
+        assert c.spline_memo is not g.spline_memo and not c.spline_memo.plans
+        assert torch.equal(c.positions([1.0, 2.0]), want)
