@@ -81,7 +81,12 @@ if [ -d .gpu/old/m4dgs ] && [ "${T_D:-120}" != 0 ] && [ -f "$GPU_RUN/b/run/model
     --stage stage2 --from-final --start "$start" --steps "${AB_STEPS:-40}" --device cuda 2>&1 | grep ms/step | sed "s|^|$2 |"; }
   ( for r in $(seq "${AB_ROUNDS:-2}"); do if [ $((r % 2)) = 1 ]; then ab "$PWD/.gpu/old" old; ab "$PWD" new; else ab "$PWD" new; ab "$PWD/.gpu/old" old; fi; done ) > "$OUT/ab.txt" &
   abpid=$!
-  ( sleep "${T_D:-120}"; kill $abpid 2>/dev/null; pkill -f step_bench.py ) & wait $abpid
+  # the time limit's watcher writes nowhere (so it never holds the caller's pipe open) and goes when the slot ends
+  # (the fourth session's first call waited 80 s on a watcher's sleep after slot D had finished)
+  ( sleep "${T_D:-120}"; kill $abpid 2>/dev/null; pkill -f step_bench.py ) >/dev/null 2>&1 &
+  watcher=$!
+  wait $abpid
+  pkill -P $watcher 2>/dev/null; kill $watcher 2>/dev/null
   cat "$OUT/ab.txt"
 fi
 nvidia-smi --query-gpu=name,memory.used,memory.total --format=csv
