@@ -264,14 +264,20 @@ def _fps_scale(run: Path, device: str, counts) -> dict:
     return res
 
 
-def _profile(clip: str, run: Path, a, device: str) -> dict:
-    """bench/step_bench.py --torch-profile on `run` (stage 2 from its final model, at the middle of
-    its stage 2 or, when TLR starts later, at TLR's first step) on `device`; the printed lines are
-    kept."""
+def profile_start(run: Path, steps: int) -> int:
+    """The stage-2 step a step benchmark of `steps` timed steps (after 5 warm-up ones) starts at on
+    a finished run: the middle of its stage 2 or, when TLR starts later, TLR's first step (three
+    renders a step), kept inside the stage."""
     from m4dgs.training.config import load_yaml
 
-    s2 = load_yaml(run / "config.yaml").stage2
-    start = max(s2.iterations // 2, min(s2.tlr_start_step(), s2.iterations - a.profile_steps - 5))
+    s2 = load_yaml(Path(run) / "config.yaml").stage2
+    return max(s2.iterations // 2, min(s2.tlr_start_step(), s2.iterations - steps - 5))
+
+
+def _profile(clip: str, run: Path, a, device: str) -> dict:
+    """bench/step_bench.py --torch-profile on `run` (stage 2 from its final model, from
+    `profile_start`) on `device`; the printed lines are kept."""
+    start = profile_start(run, a.profile_steps)
     cmd = [sys.executable, str(ROOT / "bench" / "step_bench.py"), clip, str(run)]
     cmd += ["--preset", a.preset, "--variant", a.variant, "--stage", "stage2", "--from-final"]
     cmd += ["--start", str(start), "--steps", str(a.profile_steps), "--device", device]

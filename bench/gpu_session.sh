@@ -76,7 +76,7 @@ if [ "${T_C:-100}" != 0 ]; then
 fi
 if [ -d .gpu/old/m4dgs ] && [ "${T_D:-120}" != 0 ] && [ -f "$GPU_RUN/b/run/model/final.pt" ]; then
   el "slot D: step_bench, $(cat .gpu/old/COMMIT 2>/dev/null) against this tree, ${AB_ROUNDS:-2} rounds, ${T_D:-120} s"
-  start=$(python3 -c "import sys; from m4dgs.training.config import load_yaml; s=load_yaml(sys.argv[1]).stage2; print(max(s.iterations // 2, min(s.tlr_start_step(), s.iterations - ${AB_STEPS:-40} - 5)))" "$GPU_RUN/b/run/config.yaml")
+  start=$(python3 -c "import sys; sys.path.insert(0, 'bench'); from gpu_check import profile_start; print(profile_start(sys.argv[1], int(sys.argv[2])))" "$GPU_RUN/b/run" "${AB_STEPS:-40}")
   ab() { PYTHONPATH=$GPU_RUN/site:$1 python3 "$1/bench/step_bench.py" "$C" "$GPU_RUN/b/run" --preset "${PRESET:-paper}" \
     --stage stage2 --from-final --start "$start" --steps "${AB_STEPS:-40}" --device cuda 2>&1 | grep ms/step | sed "s|^|$2 |"; }
   ( for r in $(seq "${AB_ROUNDS:-2}"); do if [ $((r % 2)) = 1 ]; then ab "$PWD/.gpu/old" old; ab "$PWD" new; else ab "$PWD" new; ab "$PWD/.gpu/old" old; fi; done ) > "$OUT/ab.txt" &

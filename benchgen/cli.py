@@ -52,22 +52,20 @@ class PriorsParam(click.ParamType):
         v = str(value)
         if v in BUILTIN_PRIORS:
             return v
-        if v.endswith((".yaml", ".yml", ".json")):
-            from .priors import load_profile
+        from .priors import PROFILE_FILE_SUFFIXES, load_profile
 
-            if not Path(v).is_file():
-                self.fail(f"{v!r}: no such profile file", param, ctx)
-            try:
-                load_profile(v)
-            except InputError as e:
-                self.fail(str(e), param, ctx)
-            return v
-        self.fail(
-            f"{v!r} is neither a built-in profile ({', '.join(BUILTIN_PRIORS)}) nor a "
-            ".yaml / .json profile file",
-            param,
-            ctx,
-        )
+        if not v.endswith(PROFILE_FILE_SUFFIXES):
+            self.fail(
+                f"{v!r} is neither a built-in profile ({', '.join(BUILTIN_PRIORS)}) nor a "
+                ".yaml / .json profile file",
+                param,
+                ctx,
+            )
+        try:
+            load_profile(v)  # a missing file is named by its read error
+        except InputError as e:
+            self.fail(str(e), param, ctx)
+        return v
 
 
 @main.command()

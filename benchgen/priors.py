@@ -287,7 +287,7 @@ def load_profile(path) -> PriorProfile:
     """A profile from a YAML or JSON file: a mapping with `name` (default: the file's stem),
     `base` (a named profile, default realistic) and any PriorProfile parameters, which replace the
     base's (e.g. `{base: realistic, depth_disp_shift: 0.08}`: realistic with harsh's disparity
-    shift). Raises ValueError naming the file and the offending key or value."""
+    shift). Raises InputError (a ValueError) naming the file and the offending key or value."""
     import yaml
 
     from m4dgs.core.errors import InputError
