@@ -384,6 +384,12 @@ def mask_metrics(run_dir: Path, clip: Clip) -> Optional[Dict[str, Optional[float
     gt = np.stack([clip.load_gt_dynamic_mask(g) for g in train])
     if gt.shape != est.shape:
         raise ValueError(f"{p}: 'masks' is {est.shape[1:]}, the clip's gt masks are {gt.shape[1:]}")
+    return mask_scores(est, gt)
+
+
+def mask_scores(est: np.ndarray, gt: np.ndarray) -> Dict[str, Optional[float]]:
+    """Precision / recall / IoU of boolean masks `est` against `gt` (same shape), pixel counts
+    pooled over the whole array; None where a count it divides by is 0."""
     tp = float(np.logical_and(est, gt).sum())
     n_est, n_gt, union = float(est.sum()), float(gt.sum()), float(np.logical_or(est, gt).sum())
     return {

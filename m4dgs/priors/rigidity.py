@@ -89,6 +89,14 @@ def static_flow(depth_i: Tensor, K: Tensor, c2w_i: Tensor, c2w_j: Tensor) -> Tup
     return (cam.project_pinhole(xj, K.to(dt)) - pix).float(), ok & (xj[..., 2] > 1e-9)
 
 
+def segment_distance(p: Tensor, a: Tensor, b: Tensor) -> Tensor:
+    """[...] Euclidean distance from points p [..., 2] to the segments a..b [..., 2] (a point where
+    a == b)."""
+    ab = b - a
+    t = ((p - a) * ab).sum(-1) / (ab * ab).sum(-1).clamp_min(1e-12)
+    return (p - (a + t.clamp(0, 1)[..., None] * ab)).norm(dim=-1)
+
+
 def reprojection_error_maps(
     depth: Tensor,
     depth_scale: Tensor,
@@ -98,6 +106,7 @@ def reprojection_error_maps(
     flow_valid: Tensor,
     pairs: Sequence[Tuple[int, int]],
     combine: str = "mean",
+    depth_tolerance: float = 0.0,
 ) -> Tuple[Tensor, Tensor]:
     """Per-training-frame rigidity error maps.
 
@@ -107,6 +116,11 @@ def reprojection_error_maps(
         4] bundle-adjusted cameras. flow: [P, H, W, 2] prior flow F_{i->j} in pixels; flow_valid:
         [P, H, W] bool. pairs: [P] (i, j) training-frame indices. combine: "mean" or "max" over the
         pairs whose source is frame t.
+        depth_tolerance: delta >= 0. With 0 the error is the distance from the flow's end point to
+        the static prediction; with delta > 0 it is the distance to the segment of the epipolar line
+        that static points of depth z / (1 + delta) .. z (1 + delta) land on, so a depth prior wrong
+        by up to that factor is no error. Not used by the trainer: it trades the recall of motion
+        along the epipolar lines for precision (measured: bench/mask_bench.py, docs/method.md).
     Returns:
         error [T, H, W] float32 pixels (0 where no pair is valid), valid [T, H, W] bool (some pair
         valid). Frames that are the source of no pair copy the nearest such frame's maps.
@@ -116,10 +130,20 @@ def reprojection_error_maps(
         raise ValueError(f"flow has {flow.shape[0]} pairs, `pairs` lists {len(pairs)}")
     err = torch.zeros(T, H, W, dtype=torch.float32, device=depth.device)
     cnt = torch.zeros(T, H, W, dtype=torch.float32, device=depth.device)
+    if not depth_tolerance >= 0:
+        raise ValueError(f"depth_tolerance must be >= 0, got {depth_tolerance}")
     for p, (i, j) in enumerate(pairs):
-        pred, ok = static_flow(depth[i] * depth_scale[i].to(depth.dtype), K, c2w[i], c2w[j])
+        z = depth[i] * depth_scale[i].to(depth.dtype)
+        pred, ok = static_flow(z, K, c2w[i], c2w[j])
         v = ok & flow_valid[p].bool().to(ok.device)
-        e = torch.where(v, (flow[p].to(pred) - pred).norm(dim=-1), torch.zeros_like(pred[..., 0]))
+        f = flow[p].to(pred)
+        d = (f - pred).norm(dim=-1)
+        if depth_tolerance > 0:
+            near, ok_n = static_flow(z / (1 + depth_tolerance), K, c2w[i], c2w[j])
+            far, ok_f = static_flow(z * (1 + depth_tolerance), K, c2w[i], c2w[j])
+            # where the nearer end falls behind camera j, the point distance stays
+            d = torch.where(ok_n & ok_f, segment_distance(f, near, far), d)
+        e = torch.where(v, d, torch.zeros_like(d))
         if combine == "mean":
             err[i] += e
         elif combine == "max":

@@ -18,6 +18,7 @@ from m4dgs.priors.rigidity import (
     relative_threshold_masks,
     reprojection_error_maps,
     rigidity_masks,
+    segment_distance,
     static_flow,
 )
 from m4dgs.training.config import preset
@@ -127,6 +128,37 @@ def test_rigidity_masks_see_motion_along_epipolar_lines_the_epipolar_test_misses
     e, _, _ = pair_error_map(flow[0].numpy(), valid[0].numpy(), EpipolarConfig())
     epi = dynamic_masks(e[None], 1.0)[0]
     assert float((epi & gt).sum() / gt.sum()) < 0.1  # the square's flow stays on its epipolar line
+
+
+def test_segment_distance_by_hand():
+    a = torch.tensor([[-1.0, 0.0]] * 4)
+    b = torch.tensor([[1.0, 0.0], [1.0, 0.0], [1.0, 0.0], [-1.0, 0.0]])  # the last one a point
+    p = torch.tensor([[0.0, 1.0], [3.0, 0.0], [-4.0, -4.0], [2.0, 4.0]])
+    np.testing.assert_allclose(segment_distance(p, a, b).numpy(), [1.0, 2.0, 5.0, 5.0], atol=1e-6)
+
+
+def test_depth_tolerance_forgives_a_wrong_depth_prior_and_not_motion_beyond_it():
+    """Sideways translation t_x: a static point at depth z flows by -f t_x / z, so the depths z /
+    1.1 .. 1.1 z cover the flows -1.1 f t_x / z .. -f t_x / (1.1 z). A depth prior 5 % too far
+    (z' = 1.05 z) still covers the true flow (no error); the square's +4 px along the epipolar line
+    leaves the range about z' by 4 - f t_x / z + f t_x / (1.1 z') px."""
+    prior, scale, K, c2w, flow, valid, pairs, gt = _sliding_square_scene(motion=4.0, noise=0.0)
+    wrong = prior * 1.05
+    e0, _ = reprojection_error_maps(wrong, scale, K, c2w, flow, valid, pairs, combine="max")
+    e1, ok = reprojection_error_maps(
+        wrong, scale, K, c2w, flow, valid, pairs, combine="max", depth_tolerance=0.1
+    )
+    assert ok.all()
+    assert float(e0[0][~gt].median()) > 0.1  # without the tolerance the depth error is an error
+    assert float(e1[0][~gt].abs().max()) < 1e-3 and float(e1[1:].abs().max()) < 1e-3
+    z = (prior[0] * 2.0)[gt].numpy()  # the true depth of frame 0 (the prior is depth / 2)
+    f_tx = float(K[0, 0]) * 0.15  # pair (0, 1): camera 1 sits 0.15 to the right
+    expected = 4.0 - f_tx / z + f_tx / (1.1 * 1.05 * z)
+    np.testing.assert_allclose(e1[0][gt].numpy(), expected, atol=2e-3)
+    # the segment holds the tolerance-free prediction: the error can only fall
+    assert bool((e1 <= e0 + 1e-5).all())
+    with pytest.raises(ValueError, match="depth_tolerance"):
+        reprojection_error_maps(prior, scale, K, c2w, flow, valid, pairs, depth_tolerance=-0.1)
 
 
 def test_relative_threshold_floor_and_frames_without_pairs():
