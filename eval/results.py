@@ -969,6 +969,24 @@ CONTROLS: Tuple[Control, ...] = (
         ),
     ),
     Control(
+        "video-init-motion-masks",
+        "Ablation (a): is (a)'s lead the track and flow priors, with the masks held to the "
+        "paper's? (exact tracks and flow against realistic, epipolar masks in both)",
+        "benchmark",
+        Effect(
+            "control-video-init-masks",
+            "no-video-init-epipolar",
+            "full-epipolar",
+            "realistic priors, epipolar masks",
+        ),
+        Effect(
+            "control-video-init-masks",
+            "no-video-init-exact-motion-epipolar",
+            "full-exact-motion-epipolar",
+            "exact tracks and flow, epipolar masks",
+        ),
+    ),
+    Control(
         "video-init-scale",
         "Ablation (a): is (a)'s lead the small schedule? (the paper's 4K + 11K against 15K)",
         "scale",

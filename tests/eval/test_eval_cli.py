@@ -1089,7 +1089,9 @@ def test_campaign_file_errors_name_the_field(tmp_path):
         "control-depth-loss",
         "control-reproj-priors",
         "control-scale",
+        "control-video-init-masks",
     ]
+    assert c.steps[30].scenes == ["lamp-room-orbit", "pendulum-lamp-handheld"]
     assert c.steps[2].scenes is None and c.steps[2].seeds == 1 and c.steps[17].scenes is None
     # breadth first: each appendix suite's first seed on the four scenes, then every suite's second
     assert [s.seeds for s in c.steps[4:13]] == [1] * 9
