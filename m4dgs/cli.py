@@ -297,6 +297,15 @@ def variants(preset):
     "--max-frames", default=None, type=click.IntRange(min=3), help="Keep at most this many frames."
 )
 @click.option(
+    "--width",
+    default=None,
+    type=click.IntRange(min=16),
+    help="Resize the frames to this width, the height keeping the aspect ratio (the paper trains "
+    "at 864x480; training time grows with the pixel count). Tracks and flow given at the "
+    "original size are scaled with them; depth is resized at any size. Default: the frames' own "
+    "size.",
+)
+@click.option(
     "--fps",
     default=30.0,
     show_default=True,
@@ -324,6 +333,7 @@ def import_clip_cmd(
     flow,
     every,
     max_frames,
+    width,
     fps,
     name,
     out_dir,
@@ -339,6 +349,7 @@ def import_clip_cmd(
         video=video,
         every=every,
         max_frames=max_frames,
+        width=width,
         exposures=exposures,
         depth=depth,
         depth_kind=depth_kind,

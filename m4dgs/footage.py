@@ -20,7 +20,11 @@ frame and point tracks; this module writes one from what a user has:
   (m4dgs.priors.epipolar.tracks_from_flow);
 - flow (optional): a folder of `<a>_<b>.flo` (Middlebury) or `<a>_<b>.npy` ([H, W, 2]) files between
   frame positions a and b, written as the clip's flow prior (validity: a forward-backward check
-  where both directions are given, else everywhere).
+  where both directions are given, else everywhere);
+- a new width (optional, `--width`): the frames are resized (area averaging when smaller), the
+  height keeping the aspect ratio; tracks and flow given at the source frames' size are scaled with
+  them (positions and vectors in continuous pixel coordinates, whose pixel edges sit at integers,
+  scale exactly by the size ratio), depth is resized as it is at any size.
 
 Every frame is a training frame (a real clip has no test frames or ground truth); the camera
 response is unknown (crf null) and the unit-exposure value is the paper's 0.5 for real footage. The
@@ -69,6 +73,7 @@ class ImportOptions:
     video: Optional[Path] = None  # or a video file
     every: int = 1  # keep every n-th frame
     max_frames: Optional[int] = None
+    width: Optional[int] = None  # resize the frames to this width (the height keeps the aspect)
     exposures: Optional[Path] = None  # exposure-time file; None: EXIF
     depth: Optional[Path] = None
     depth_kind: str = "depth"  # depth | disparity
@@ -222,6 +227,19 @@ def _resize(a: np.ndarray, h: int, w: int) -> np.ndarray:
     return cv2.resize(a.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
 
 
+def resize_frames(frames: List[np.ndarray], width: int) -> List[np.ndarray]:
+    """Frames [H, W, 3] uint8 resized to `width` x round(H width / W) (area averaging when
+    smaller, bilinear when larger)."""
+    import cv2
+
+    H, W = frames[0].shape[:2]
+    h = max(1, int(round(H * width / W)))
+    if (h, width) == (H, W):
+        return frames
+    interp = cv2.INTER_AREA if width < W else cv2.INTER_LINEAR
+    return [cv2.resize(f, (width, h), interpolation=interp) for f in frames]
+
+
 def _load_array(path: Path, what: str) -> np.ndarray:
     if path.suffix == ".npy":
         return np.load(path)
@@ -289,9 +307,12 @@ def read_depth(opt: ImportOptions, T: int, H: int, W: int) -> np.ndarray:
     return np.stack(out).astype(np.float32)
 
 
-def read_tracks(opt: ImportOptions, T: int, H: int, W: int) -> Optional[TrackSet]:
+def read_tracks(
+    opt: ImportOptions, T: int, H: int, W: int, source: Optional[Tuple[int, int]] = None
+) -> Optional[TrackSet]:
     """Given tracks [T, N, 2] + visibility [T, N] as a TrackSet (clip layout [N, T, 2], pixel
-    centres at +0.5), or None when no --tracks."""
+    centres at +0.5), or None when no --tracks. source: (height, width) of the frames the tracks
+    were given on, when the clip's (H, W) differs (--width): positions are scaled by the ratio."""
     if opt.tracks is None:
         return None
     p = Path(opt.tracks)
@@ -317,6 +338,8 @@ def read_tracks(opt: ImportOptions, T: int, H: int, W: int) -> Optional[TrackSet
         raise InputError(f"{p}: visibility of shape {vis.shape}; expected {tr.shape[:2]}")
     vis = (vis > 0.5) if vis.dtype != bool else vis
     xy = tr - float(opt.track_pixel_centre) + 0.5  # clip convention: first pixel centre at 0.5
+    if source is not None and tuple(source) != (H, W):
+        xy = xy * np.array([W / source[1], H / source[0]])
     inside = (xy[..., 0] >= 0) & (xy[..., 0] < W) & (xy[..., 1] >= 0) & (xy[..., 1] < H)
     vis = vis & inside & np.isfinite(xy).all(-1)
     xy = np.where(vis[..., None], xy, 0.0)
@@ -342,8 +365,12 @@ def read_flo(path: Path) -> np.ndarray:
     return data.reshape(h, w, 2).copy()
 
 
-def read_flow(opt: ImportOptions, T: int, H: int, W: int) -> Optional[FlowSet]:
-    """Given flow files `<a>_<b>.flo|.npy` (frame positions) as a FlowSet, or None."""
+def read_flow(
+    opt: ImportOptions, T: int, H: int, W: int, source: Optional[Tuple[int, int]] = None
+) -> Optional[FlowSet]:
+    """Given flow files `<a>_<b>.flo|.npy` (frame positions) as a FlowSet, or None. source:
+    (height, width) of the frames before --width: flow of that size is resized to (H, W) and its
+    vectors scaled by the size ratio."""
     if opt.flow is None:
         return None
     folder = Path(opt.flow)
@@ -356,8 +383,11 @@ def read_flow(opt: ImportOptions, T: int, H: int, W: int) -> Optional[FlowSet]:
         if not (0 <= a < T and 0 <= b < T) or a == b:
             raise InputError(f"{p}: frame positions out of range 0..{T - 1}")
         f = read_flo(p) if p.suffix == ".flo" else np.asarray(np.load(p), np.float32)
+        src = tuple(source) if source is not None else (H, W)
+        if f.shape != (H, W, 2) and f.shape != (*src, 2):
+            raise InputError(f"{p}: flow of shape {f.shape}; expected {(*src, 2)}")
         if f.shape != (H, W, 2):
-            raise InputError(f"{p}: flow of shape {f.shape}; expected {(H, W, 2)}")
+            f = _resize(f, H, W) * np.array([W / src[1], H / src[0]], np.float32)
         flows[(a, b)] = f
     if not flows:
         raise InputError(f"{folder}: no <a>_<b>.flo or <a>_<b>.npy flow files")
@@ -420,6 +450,11 @@ def import_clip(out, opt: ImportOptions, force: bool = False) -> Path:
         raise InputError(f"{out}: a clip is already there; use --force to replace it")
     frames, names = read_frames(opt)
     T = len(frames)
+    src_hw = frames[0].shape[:2]
+    if opt.width is not None:
+        if int(opt.width) < 16:
+            raise InputError(f"--width {opt.width}: expected at least 16 pixels")
+        frames = resize_frames(frames, int(opt.width))
     H, W = frames[0].shape[:2]
     if opt.exposures is not None:
         dts = read_exposures(opt.exposures, names)
@@ -442,8 +477,8 @@ def import_clip(out, opt: ImportOptions, force: bool = False) -> Path:
     alternating = len(levels) <= 8
     train_dt = [lv / unit for lv in level_of] if alternating else [d / unit for d in dts]
     depth = read_depth(opt, T, H, W)
-    tracks = read_tracks(opt, T, H, W)
-    flow = read_flow(opt, T, H, W)
+    tracks = read_tracks(opt, T, H, W, src_hw)
+    flow = read_flow(opt, T, H, W, src_hw)
     if tracks is None:
         tracks = dis_tracks(frames, train_dt, opt)
     meta = ClipMeta(
@@ -468,6 +503,7 @@ def import_clip(out, opt: ImportOptions, force: bool = False) -> Path:
             "exposure_source": source,
             "exposure_unit_seconds": unit,
             "exposure_seconds": [float(d) for d in dts],
+            "resized_from": [int(src_hw[0]), int(src_hw[1])] if src_hw != (H, W) else None,
         },
         priors={k: v for k, v in opt.report.items()},
     )

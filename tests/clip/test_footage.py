@@ -177,3 +177,55 @@ def test_a_refused_clip_leaves_no_run_folder(tiny_clip_realistic, tmp_path):
     with pytest.raises(InputError):
         train(clip_dir, tmp_path / "mine", preset="tiny", overrides=SHORT, progress=False)
     assert (tmp_path / "mine").is_dir()
+
+
+def test_width_resizes_frames_and_scales_tracks_and_flow(tiny_clip_realistic, tmp_path):
+    """--width half the frames' width: each frame is the mean of its 2x2 blocks, track positions
+    (continuous pixel coordinates, pixel edges at integers) halve, a constant flow of (2, -1) px
+    becomes (1, -0.5) px, and depth comes at the new size."""
+    clip, frames, times, depth = strip(tiny_clip_realistic, tmp_path)
+    H, W = clip.height, clip.width
+    assert H % 2 == 0 and W % 2 == 0
+    src = clip.load_tracks_prior()
+    np.savez(
+        tmp_path / "tracks.npz",
+        tracks=np.transpose(src.tracks, (1, 0, 2)) - 0.5,  # [T, N, 2], integer pixel centres
+        visibility=src.visible.T,
+    )
+    flow = tmp_path / "flow"
+    flow.mkdir()
+    f = np.broadcast_to(np.array([2.0, -1.0], np.float32), (H, W, 2))
+    np.save(flow / "0_1.npy", f)
+    np.save(flow / "1_0.npy", -f)
+    opt = ImportOptions(
+        frames=frames,
+        exposures=times,
+        depth=depth,
+        tracks=tmp_path / "tracks.npz",
+        flow=flow,
+        width=W // 2,
+    )
+    new = Clip.open(import_clip(tmp_path / "half", opt))
+    new.validate()
+    assert (new.width, new.height) == (W // 2, H // 2)
+    assert new.meta.generator["resized_from"] == [H, W]
+    for i, g in enumerate(clip.train_frames):
+        blocks = clip.load_ldr(g).astype(np.float64).reshape(H // 2, 2, W // 2, 2, 3).mean((1, 3))
+        assert np.abs(new.load_ldr(i).astype(np.float64) - blocks).max() <= 1.0
+        assert new.load_depth_prior(i).shape == (H // 2, W // 2)
+    got = new.load_tracks_prior()
+    v = got.visible
+    x, y = src.tracks[..., 0], src.tracks[..., 1]  # outside the frame: invisible, as unscaled
+    vis = src.visible & (x >= 0) & (x < W) & (y >= 0) & (y < H)
+    keep = vis.sum(1) >= 2
+    assert np.array_equal(v, vis[keep])
+    assert np.allclose(got.tracks[v], src.tracks[keep][v] / 2, atol=1e-5)
+    fs = new.load_flow_prior()
+    assert fs.pairs.tolist() == [[0, 1], [1, 0]] and fs.flow.shape == (2, H // 2, W // 2, 2)
+    assert np.allclose(fs.flow[0], [1.0, -0.5], atol=1e-6) and fs.valid.all()
+    # flow of neither size names the file and the size it expects
+    np.save(flow / "0_1.npy", np.zeros((H, W + 2, 2), np.float32))
+    with pytest.raises(InputError, match=rf"0_1.npy: flow of shape .*expected \({H}, {W}, 2\)"):
+        import_clip(tmp_path / "bad", opt)
+    r = CliRunner().invoke(main, ["import-clip", "--width", "8", "--out", str(tmp_path / "x")])
+    assert r.exit_code == 2 and "--width" in r.output
