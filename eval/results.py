@@ -1007,6 +1007,27 @@ CONTROLS: Tuple[Control, ...] = (
         Effect("control-tlr", "no-tlr", "full-tlr-0.1", "TLR weight 0.1"),
     ),
     Control(
+        "tlr-weight-priors",
+        "TLR at the paper's weight: is its PSNR cost the benchmark's priors? (oracle against "
+        "realistic priors)",
+        "benchmark",
+        Effect("control-tlr-priors", "full-tlr-0.1", "full", "realistic priors"),
+        Effect("control-tlr-priors", "full-tlr-0.1-oracle", "full-oracle", "oracle priors"),
+    ),
+    Control(
+        "tlr-weight-scale",
+        "TLR at the paper's weight: is its PSNR cost the small schedule? (the paper's 4K + 11K "
+        "against 3K + 2.5K)",
+        "scale",
+        Effect("control-tlr", "full-tlr-0.1", "full", "small schedule"),
+        Effect(
+            "control-tlr-scale",
+            "full-tlr-0.1-paper-schedule",
+            "full-paper-schedule",
+            "the paper's schedule",
+        ),
+    ),
+    Control(
         "reproj-schedule",
         "Ablation (d): is the reprojection loss's small effect its schedule? (throughout stage 2, "
         "the paper's text, against its first 700 steps)",
