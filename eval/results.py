@@ -1007,6 +1007,14 @@ CONTROLS: Tuple[Control, ...] = (
         Effect("control-tlr", "no-tlr", "full-tlr-0.1", "TLR weight 0.1"),
     ),
     Control(
+        "track-loss-priors",
+        "Priors: is the track loss's missing cost the benchmark's priors? (oracle against "
+        "realistic priors)",
+        "benchmark",
+        Effect("control-track-loss", "no-track-loss", "full", "realistic priors"),
+        Effect("control-track-loss", "no-track-loss-oracle", "full-oracle", "oracle priors"),
+    ),
+    Control(
         "tlr-weight-priors",
         "TLR at the paper's weight: is its PSNR cost the benchmark's priors? (oracle against "
         "realistic priors)",

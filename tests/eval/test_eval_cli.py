@@ -1092,9 +1092,10 @@ def test_campaign_file_errors_name_the_field(tmp_path):
         "control-video-init-masks",
         "control-tlr-priors",
         "control-tlr-scale",
+        "control-track-loss",
     ]
     assert c.steps[30].scenes == ["lamp-room-orbit", "pendulum-lamp-handheld"]
-    assert c.steps[31].scenes == c.steps[32].scenes == four
+    assert c.steps[31].scenes == c.steps[32].scenes == c.steps[33].scenes == four
     assert c.steps[2].scenes is None and c.steps[2].seeds == 1 and c.steps[17].scenes is None
     # breadth first: each appendix suite's first seed on the four scenes, then every suite's second
     assert [s.seeds for s in c.steps[4:13]] == [1] * 9
