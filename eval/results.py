@@ -1196,8 +1196,11 @@ def _interval_text(iv, fmt: str) -> str:
     return f"{format(iv.mean, '+' + fmt)} ± {half}{dag} (n = {iv.n})"
 
 
-def controls_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
-    """The "Controls" section: one table per control whose two effects have data."""
+def controls_markdown(
+    rows: List[dict], notes_link: Optional[str], figure: Optional[str] = None
+) -> str:
+    """The "Controls" section: one table per control whose two effects have data, after the
+    overview figure (`controls_figure`; `figure`: its link) when there is one."""
     from .suite import metric_columns
 
     cols = metric_columns()
@@ -1222,6 +1225,16 @@ def controls_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
         ),
         "",
     ]
+    if figure:
+        lines += [
+            "Overview (LDR-OE PSNR and HDR-TAE): each control's base effect (grey) and the same "
+            "effect under the control (blue), mean and 95 % interval, joined by an arrow; the "
+            "blue marker is filled where the change survives Holm's correction. Labels are the "
+            "controls' keys, named in each section below.",
+            "",
+            f"![{CONTROLS_FIGURE[:-4]}]({figure})",
+            "",
+        ]
     present = {r["suite"] for r in rows if r.get("status") == SCORED}
     for c in CONTROLS:
         lines += [f"### {c.title}", ""]
@@ -1235,9 +1248,9 @@ def controls_markdown(rows: List[dict], notes_link: Optional[str]) -> str:
             ]
             continue
         lines += [
-            f"Arm: {c.arm}. Base: `{c.base.row}` - `{c.base.ref}` in `{c.base.suite}` "
-            f"({c.base.condition}); control: `{c.control.row}` - `{c.control.ref}` in "
-            f"`{c.control.suite}` ({c.control.condition}).",
+            f"Arm: {c.arm} (key `{c.key}`). Base: `{c.base.row}` - `{c.base.ref}` in "
+            f"`{c.base.suite}` ({c.base.condition}); control: `{c.control.row}` - "
+            f"`{c.control.ref}` in `{c.control.suite}` ({c.control.condition}).",
             "",
         ]
         for column, what in (("code", "code"), ("generator", "generator")):
@@ -1607,6 +1620,81 @@ def finding_figure(f: Finding, res: List[ComparisonResult], out_png) -> Optional
     return _save(fig, out_png)
 
 
+CONTROLS_FIGURE = "controls.png"
+CONTROLS_FIGURE_METRICS = ("ldr_oe_psnr", "hdr_tae")
+
+
+def controls_figure_data(rows: List[dict]) -> List[Tuple[Control, Dict[str, ControlResult]]]:
+    """What `controls_figure` draws: (control, {metric: ControlResult}) over CONTROLS_FIGURE_METRICS
+    for the controls with both effects in some metric; Holm's correction over all the control's
+    metrics, as its table has it."""
+    out = []
+    for c in CONTROLS:
+        res = {r.metric: r for r in evaluate_control(c, rows)}
+        res = {
+            m: res.get(m, ControlResult(m, None, None, None, NO_DATA))
+            for m in CONTROLS_FIGURE_METRICS
+        }
+        if any(r.base is not None and r.control is not None for r in res.values()):
+            out.append((c, res))
+    return out
+
+
+def controls_figure(rows: List[dict], out_png) -> Optional[Path]:
+    """Forest plot of the controls whose two effects have data (`controls_figure_data`): a panel
+    per metric of CONTROLS_FIGURE_METRICS, per control its base effect (grey) and the effect under
+    the control (blue), each mean and 95 % interval, an arrow from one mean to the other, the blue
+    marker filled where the change survives Holm's correction. None when no control has both
+    effects."""
+    from matplotlib.ticker import MaxNLocator
+
+    from .suite import metric_columns
+
+    results = controls_figure_data(rows)
+    if not results:
+        return None
+    cols = metric_columns()
+    plt = _plt()
+    fig, axes = plt.subplots(
+        1, len(CONTROLS_FIGURE_METRICS), figsize=(9.0, 0.5 * len(results) + 1.3), squeeze=False
+    )
+    for k, (ax, m) in enumerate(zip(axes[0], CONTROLS_FIGURE_METRICS)):
+        col = cols[m]
+        for y, (_, res) in enumerate(results):
+            r = res[m]
+            for iv, dy, color in ((r.base, -0.15, "0.55"), (r.control, 0.15, "tab:blue")):
+                if iv is None or iv.mean is None:
+                    continue
+                if iv.low is not None:
+                    ax.plot([iv.low, iv.high], [y + dy] * 2, color=color, lw=1.2)
+                filled = iv is r.base or r.reading_holm not in (NO_CHANGE, NO_DATA)
+                ax.plot(
+                    [iv.mean], [y + dy], "o", ms=5, color=color,
+                    markerfacecolor=color if filled else "white",
+                )  # fmt: skip
+            if r.base is not None and r.control is not None and r.base.mean is not None:
+                ax.annotate(
+                    "",
+                    xy=(r.control.mean, y + 0.15),
+                    xytext=(r.base.mean, y - 0.15),
+                    arrowprops={"arrowstyle": "->", "color": "0.3", "lw": 0.8},
+                )
+        ax.axvline(0.0, color="0.5", lw=0.8, ls="--")
+        ax.set_yticks(range(len(results)))
+        ax.set_yticklabels([f"{c.key} ({c.arm})" for c, _ in results] if k == 0 else [], fontsize=7)
+        ax.set_ylim(len(results) - 0.5, -0.5)
+        name = ((col.group + " ") if col.group else "") + col.header
+        ax.set_xlabel(f"Δ {name} (row - ref)", fontsize=7)
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=4))
+        ax.tick_params(axis="x", labelsize=7)
+        ax.grid(axis="x", alpha=0.3)
+    fig.suptitle(
+        "Controls: the effect as found (grey) and under the control (blue); mean, 95 % interval",
+        fontsize=8,
+    )
+    return _save(fig, out_png)
+
+
 def finding_figures(rows: List[dict], fig_dir) -> Dict[str, Path]:
     """{finding key: PNG} for every finding whose suite has scored runs, named
     finding_<key>.png in fig_dir."""
@@ -1813,6 +1901,8 @@ def _is_results_figure(name: str) -> bool:
     shipped suite (eval/suites/*.yaml)."""
     from .suite import suites_dir
 
+    if name == CONTROLS_FIGURE:
+        return True
     if name.startswith(FINDING_FIGURE_PREFIX) and name.endswith(".png"):
         return name[len(FINDING_FIGURE_PREFIX) : -len(".png")] in {f.key for f in FINDINGS}
     for kind in sorted(FIGURE_KINDS, key=len, reverse=True):
@@ -1919,7 +2009,10 @@ def render_results(
     figs += list(ffigs.values())
     links = {k: _rel(p, out_dir) for k, p in ffigs.items()}
     lines.append(findings_markdown(rows, notes_link, links))
-    lines += ["", controls_markdown(rows, notes_link)]
+    cfig = controls_figure(rows, Path(figures_dir) / CONTROLS_FIGURE) if figures_dir else None
+    if cfig is not None:
+        figs.append(cfig)
+    lines += ["", controls_markdown(rows, notes_link, _rel(cfig, out_dir) if cfig else None)]
     text = "\n".join(lines).rstrip("\n") + "\n"
     mio.write_bytes_atomic(out_md, text.encode())
     if figures_dir:

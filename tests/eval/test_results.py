@@ -962,6 +962,21 @@ def test_controls_are_differences_in_differences(tmp_path):
     split = _section(text, "video-init-split")
     assert "not enough data" in split and "`control-video-init`" in split
     assert "Different code versions" not in text
+    # the overview figure draws the controls with data, each effect as its table states it, the
+    # marker filled exactly where the table's "after Holm" reads a change
+    data = R.controls_figure_data(rows)
+    assert [c.key for c, _ in data] == ["video-init-priors", "video-init-scale"]
+    for c, res in data:
+        r = res["ldr_oe_psnr"]
+        cells = _table_row(text, c.key, "LDR-OE PSNR")
+        assert _parse_interval(cells[1])[0] == pytest.approx(r.base.mean, abs=0.006)
+        assert _parse_interval(cells[2])[0] == pytest.approx(r.control.mean, abs=0.006)
+        assert (r.reading_holm not in (R.NO_CHANGE, R.NO_DATA)) == (cells[5] != R.NO_CHANGE)
+    png = R.controls_figure(rows, tmp_path / "controls.png")
+    assert png.read_bytes()[:4] == b"\x89PNG" and R._is_results_figure("controls.png")
+    assert R.controls_figure([], tmp_path / "none.png") is None
+    linked = R.controls_markdown(rows, None, "figures/controls.png")
+    assert "![controls](figures/controls.png)" in linked and "![" not in text
 
 
 def test_controls_flag_different_code_versions(tmp_path):
