@@ -36,6 +36,8 @@ import click
 from m4dgs.core import io as mio
 from m4dgs.core.errors import ReportingGroup
 
+from .pairs import DEFAULT_METRICS as DEFAULT_PAIR_METRICS
+
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # Each command imports the modules it runs when it runs: `eval --help` and the listing commands stay
@@ -745,6 +747,49 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
     for name, c in summary.items():
         click.echo(f"{name}: {c['scored']} scored, {c['missing']} without metrics.json", err=True)
     click.echo(f"wrote {csv_path}", err=True)
+
+
+@main.command()
+@click.argument("suite")
+@click.option(
+    "--ref",
+    default=None,
+    help="Reference row (default: the suite file's reference row).",
+)
+@click.option(
+    "--rows",
+    "row_names",
+    default=None,
+    help="Comma-separated rows to compare with --ref (default: every other row of the suite in "
+    "the CSV).",
+)
+@click.option(
+    "--metrics",
+    default=",".join(DEFAULT_PAIR_METRICS),
+    show_default=True,
+    help="Comma-separated metric columns of the CSV (e.g. hdr_tce, track_epe, mask_iou).",
+)
+@click.option(
+    "--csv",
+    "csv_path",
+    default="results/runs.csv",
+    show_default=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="Runs CSV written by `export`.",
+)
+def pairs(suite, ref, row_names, metrics, csv_path):
+    """Print the paired differences row - ref of SUITE per (scene, seed) from the runs CSV, with
+    their mean and 95 % interval: the per-scene values the hand-written results notes quote."""
+    from .pairs import pairs_markdown
+    from .results import read_runs_csv
+
+    names = [n.strip() for n in row_names.split(",") if n.strip()] if row_names else None
+    mets = [m.strip() for m in metrics.split(",") if m.strip()]
+    try:
+        text = pairs_markdown(read_runs_csv(csv_path), suite, ref, names, mets)
+    except ValueError as e:
+        raise click.UsageError(f"{csv_path}: {e}") from e
+    click.echo(text)
 
 
 @main.command()
