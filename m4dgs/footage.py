@@ -11,8 +11,8 @@ frame and point tracks; this module writes one from what a user has:
   generator.exposure_unit_seconds), so the levels sit around 1 like benchgen's;
 - depth (required): one [T, H, W] .npy/.npz, or a folder with one file per frame (.npy, .npz, .exr,
   16-bit .png or .tif; sorted by name), depth or disparity (inverse depth, as many monocular models
-  write); resized to the frames (bilinear) when its size differs; any scale (the bundle adjustment
-  estimates one per frame);
+  write); resized to the frames when its size differs (larger: the mean of the valid depths under
+  each frame pixel; smaller: bilinear); any scale (the bundle adjustment estimates one per frame);
 - tracks (optional): [T, N, 2] pixel positions and [T, N] visibility (the layout of CoTracker-style
   trackers) in an .npz (keys tracks + visibility / visible / vis) or two .npy files; without them
   long tracks are chained through OpenCV DIS optical flow between consecutive frames (brightness
@@ -219,12 +219,24 @@ def exposure_levels(dts: Sequence[float], rtol: float = 0.02) -> List[float]:
 # --------------------------------------------------------------------------------------------------
 # priors
 # --------------------------------------------------------------------------------------------------
-def _resize(a: np.ndarray, h: int, w: int) -> np.ndarray:
+def _resize(a: np.ndarray, h: int, w: int, valid: Optional[np.ndarray] = None) -> np.ndarray:
+    """[H0, W0(, C)] map resized to (h, w): the mean over each output pixel's footprint when both
+    sides shrink (area averaging; with `valid` [H0, W0] bool, over its valid pixels only, 0 where
+    it has none), bilinear otherwise."""
     import cv2
 
+    a = a.astype(np.float32)
     if a.shape[:2] == (h, w):
-        return a.astype(np.float32)
-    return cv2.resize(a.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+        return a
+    if h > a.shape[0] or w > a.shape[1]:
+        return cv2.resize(a, (w, h), interpolation=cv2.INTER_LINEAR)
+    if valid is None:
+        return cv2.resize(a, (w, h), interpolation=cv2.INTER_AREA)
+    m = valid.astype(np.float32)
+    num = cv2.resize(a * (m if a.ndim == 2 else m[..., None]), (w, h), interpolation=cv2.INTER_AREA)
+    den = cv2.resize(m, (w, h), interpolation=cv2.INTER_AREA)
+    den = den if a.ndim == 2 else den[..., None]
+    return np.where(den > 1e-6, num / np.maximum(den, 1e-6), 0.0).astype(np.float32)
 
 
 def resize_frames(frames: List[np.ndarray], width: int) -> List[np.ndarray]:
@@ -298,7 +310,7 @@ def read_depth(opt: ImportOptions, T: int, H: int, W: int) -> np.ndarray:
         d = np.maximum(d, 0.0)
         if not (d > 0).any():
             raise InputError(f"{p}: depth map {i} has no positive value")
-        out.append(_resize(d, H, W))
+        out.append(_resize(d, H, W, valid=d > 0))
     opt.report["depth"] = {
         "source": str(p),
         "kind": opt.depth_kind,

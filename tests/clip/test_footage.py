@@ -229,3 +229,24 @@ def test_width_resizes_frames_and_scales_tracks_and_flow(tiny_clip_realistic, tm
         import_clip(tmp_path / "bad", opt)
     r = CliRunner().invoke(main, ["import-clip", "--width", "8", "--out", str(tmp_path / "x")])
     assert r.exit_code == 2 and "--width" in r.output
+
+
+def test_larger_depth_maps_shrink_to_the_mean_of_their_valid_depths():
+    """A depth map twice the frames' size: each frame pixel gets the mean of the valid (> 0) depths
+    of its 2x2 block, 0 where the block has none; a smaller map is interpolated bilinearly."""
+    from m4dgs.footage import _resize
+
+    d = np.array(
+        [
+            [1.0, 3.0, 0.0, 0.0],
+            [5.0, 0.0, 0.0, 0.0],
+            [2.0, 2.0, 8.0, 4.0],
+            [2.0, 2.0, 0.0, 6.0],
+        ]
+    )
+    got = _resize(d, 2, 2, valid=d > 0)
+    assert np.allclose(got, [[3.0, 0.0], [2.0, 6.0]])
+    # without a mask (flow), a plain block mean
+    assert np.allclose(_resize(d, 2, 2), [[2.25, 0.0], [2.0, 4.5]])
+    up = _resize(np.array([[1.0, 3.0]]), 1, 4)  # bilinear, pixel centres at +0.5
+    assert np.allclose(up, [[1.0, 1.5, 2.5, 3.0]])
