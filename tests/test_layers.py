@@ -36,6 +36,7 @@ LAYERS = {
     "eval.suite": "eval-driver",
     "eval.cli": "eval-driver",
     "eval.results": "eval-driver",
+    "eval.pairs": "eval-driver",
     "eval.campaign": "eval-driver",
     "eval.frames": "eval-driver",
     "eval.__main__": "eval-driver",
