@@ -8,8 +8,9 @@ the committed CSV, so that every number in the notes can be checked with one com
 
 For each row: per metric, the mean of d = row - ref over the (scene, seed) runs both rows have,
 with the same Student-t 95 % interval as the tables' paired differences (`eval.stats.mean_ci`, †
-where it excludes 0), then d of each pair, in the order of the header (scenes by name, then
-seeds)."""
+where it excludes 0); the same over scenes (d averaged over each scene's seeds first, the interval
+over the scene means, as the findings' "over scenes" column); then d of each pair, in the order of
+the header (scenes by name, then seeds)."""
 
 from __future__ import annotations
 
@@ -33,6 +34,14 @@ def pair_differences(
 
 def _fmt(metric: str, fmts: Dict[str, str]) -> str:
     return fmts.get(metric, ".4f")
+
+
+def _summary(iv, f: str) -> str:
+    """mean ± half († where the interval excludes 0) (n), or n/a."""
+    if iv.mean is None:
+        return "n/a"
+    half = "n/a" if iv.half is None else format(iv.half, f)
+    return f"{iv.mean:+{f}} ± {half}{'†' if iv.excludes_zero else ''} ({iv.n})"
 
 
 def pairs_markdown(
@@ -73,20 +82,24 @@ def pairs_markdown(
         out += [
             f"{suite}: {name} - {ref}",
             "",
-            "| metric | mean ± 95 % (n) | " + " | ".join(f"{s} / {sd}" for s, sd in keys) + " |",
-            "|:---|---:|" + "---:|" * len(keys),
+            "| metric | mean ± 95 % (n) | over scenes (n) | "
+            + " | ".join(f"{s} / {sd}" for s, sd in keys)
+            + " |",
+            "|:---|---:|---:|" + "---:|" * len(keys),
         ]
         for m in metrics:
             d = pair_differences(rows, suite, name, ref, m)
-            iv = mean_ci(d.values())
             f = _fmt(m, fmts)
-            if iv.mean is None:
-                summary = "n/a"
-            else:
-                half = "n/a" if iv.half is None else format(iv.half, f)
-                summary = f"{iv.mean:+{f}} ± {half}{'†' if iv.excludes_zero else ''} ({iv.n})"
+            per_scene: Dict[str, List[float]] = {}
+            for (scene, _), v in d.items():
+                per_scene.setdefault(scene, []).append(v)
+            scenes = mean_ci(sum(v) / len(v) for v in per_scene.values())
             cells = [f"{d[k]:+{f}}" if k in d else "" for k in keys]
             header = ((cols[m].group + " ") if cols[m].group else "") + cols[m].header
-            out.append(f"| {header} | {summary} | " + " | ".join(cells) + " |")
+            out.append(
+                f"| {header} | {_summary(mean_ci(d.values()), f)} | {_summary(scenes, f)} | "
+                + " | ".join(cells)
+                + " |"
+            )
         out.append("")
     return "\n".join(out)
