@@ -155,17 +155,39 @@ def job_cost(job) -> Tuple[Optional[str], int, int]:
     return stage1_plan(job.preset, job.variant, job.overrides, str(job.clip_dir))
 
 
+def job_training_key(job) -> str:
+    """The share key of a job's whole training (m4dgs.training.variants.training_key)."""
+    from m4dgs.training.variants import training_key
+
+    return training_key(job.preset, job.variant, job.overrides, str(job.clip_dir))
+
+
 def todo_iterations(statuses: Sequence[dict]) -> List[int]:
     """Per step (in campaign order), the iterations still to train, counting a stage 1 that rows
     share once: not at all when a finished job of the campaign has it (it is in the share
-    folder), else for the first job that needs it."""
-    have = {k for s in statuses for done, k, _, _ in s["job_costs"] if done and k}
+    folder), else for the first job that needs it; and a whole training that jobs of different
+    suites share (the same clip, variant, overrides and seed: e.g. a control's row that repeats
+    another suite's run) not at all when a finished run under ROOT has it, else once.
+
+    `job_costs` entries: (finished, stage-1 key, stage-1 iterations, stage-2 iterations[,
+    training key, finished with its run folder under ROOT]); without the last two a job shares
+    only its stage 1, and a finished one counts as under ROOT."""
+    have = {c[1] for s in statuses for c in s["job_costs"] if c[0] and c[1]}
+    trained = {
+        c[4] for s in statuses for c in s["job_costs"] if len(c) > 5 and c[4] and c[0] and c[5]
+    }
     out = []
     for s in statuses:
         n = 0
-        for done, key, s1, s2 in s["job_costs"]:
+        for c in s["job_costs"]:
+            done, key, s1, s2 = c[:4]
+            run_key = c[4] if len(c) > 4 else None
             if done:
                 continue
+            if run_key is not None:
+                if run_key in trained:
+                    continue
+                trained.add(run_key)
             n += s2
             if key is None or key not in have:
                 n += s1
@@ -210,7 +232,8 @@ def step_status(
     recorded training seconds per iteration of each finished run (run.json `train_seconds`, or
     the CSV's `train_minutes`: the method's cost, shared phases counted at their producer's
     time), and per job (finished, stage-1 share key, stage-1 iterations, stage-2 iterations) for
-    todo_iterations (todo_iterations here counts every job in full)."""
+    todo_iterations (todo_iterations here counts every job in full), with its whole-training
+    share key and whether it finished with a run folder under ROOT."""
     from .runner import job_list
 
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
@@ -222,7 +245,7 @@ def step_status(
         row = recorded.get(job_key(j))
         done = (row is not None and not run.exists()) or (run / "metrics.json").exists()
         key, s1, s2 = job_cost(j)
-        costs.append((done, key, s1, s2))
+        costs.append((done, key, s1, s2, job_training_key(j), (run / "metrics.json").exists()))
         if row is not None and not run.exists():  # a run folder, even unscored, wins
             scored += 1
             in_csv += 1
@@ -307,9 +330,12 @@ def run_campaign(
     for i, st in enumerate(campaign.steps, 1):
         if i == 1 or dry_run:
             s = statuses[i - 1]
-        else:  # earlier steps have run since: this step's state now
-            s = step_status(st, root, campaign.preset, recorded)
-            s["todo_iterations"] = todo_iterations([s])[0]
+        else:  # earlier steps have run since: this step's state now (theirs too, for sharing)
+            statuses[:i] = [
+                step_status(x, root, campaign.preset, recorded) for x in campaign.steps[:i]
+            ]
+            s = statuses[i - 1]
+            s["todo_iterations"] = todo_iterations(statuses[:i])[-1]
         summary = dict(suite=st.suite, scenes=st.scenes, seeds=st.seeds, ran=False, **s)
         where = "all scenes" if st.scenes is None else ",".join(st.scenes)
         eta = ""
@@ -375,6 +401,6 @@ def run_campaign(
         say(
             f"[campaign {campaign.name}] estimate: ~{left:.1f} h of training left at --jobs {jobs} "
             f"(median {rate:.3f} s per iteration over {len(rates)} scored run(s) in this root or "
-            "the CSV; a stage 1 that rows share counted once)"
+            "the CSV; a stage 1 that rows share counted once, a run another suite repeats too)"
         )
     return out

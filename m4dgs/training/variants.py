@@ -209,3 +209,16 @@ def stage1_plan(
         return None, 0, int(cfg.stage2.iterations)
     key = phase_keys(to_dict(cfg), {"clip": str(clip)}, variant)["stage1"]
     return key, int(cfg.stage1.iterations), int(cfg.stage2.iterations)
+
+
+def training_key(
+    preset: str, variant: str, overrides: Optional[Mapping[str, Any]] = None, clip: str = ""
+) -> str:
+    """The share key of a run's whole training (its stage-2 phase key: every field of every phase
+    up to stage 2, and the variant): two runs with one key train once, the second finding the
+    first's model in the share folder (`clip` stands for the clip, as in stage1_plan)."""
+    from m4dgs.training.config import to_dict
+    from m4dgs.training.phases import phase_keys
+
+    cfg = variant_config(preset, variant, overrides)
+    return phase_keys(to_dict(cfg), {"clip": str(clip)}, variant)["stage2"]

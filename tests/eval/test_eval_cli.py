@@ -1311,6 +1311,54 @@ tables:
 """
 
 
+def test_campaign_estimate_counts_a_run_repeated_in_another_suite_once(tmp_path):
+    """A control's row that repeats another suite's run (same clip, variant, overrides, seed) has
+    that run's training key: it costs nothing when the run is finished under ROOT (the share folder
+    holds its model), is counted once when neither has run, and a finished run known only from the
+    CSV (no run folder, so nothing in the share folder) does not count as shared. Counted from the
+    budgets (m4dgs.training.variants.budget)."""
+    from eval.campaign import Step, job_cost, job_training_key, step_status, todo_iterations
+    from eval.runner import job_list
+    from m4dgs.training.variants import budget
+
+    a, b = tmp_path / "t3.yaml", tmp_path / "t4.yaml"
+    a.write_text(SHARE_SUITE_YAML)
+    b.write_text(
+        SHARE_SUITE_YAML.replace("name: t3", "name: t4").split("rows:")[0]
+        + "rows:\n  - {name: full-again, label: Ours, variant: full}\n"
+        + "  - {name: tlr, label: w, variant: full, overrides: {stage2.loss.lambda_tlr: 0.5}}\n"
+        + 'tables:\n  - {title: "Main", columns: paper}\n'
+    )
+    out = tmp_path / "exp"
+    ja, jb = job_list(a, out, "tiny"), job_list(b, out, "tiny")
+    ka = {(j.scene, j.row): job_training_key(j) for j in ja}
+    kb = {(j.scene, j.row): job_training_key(j) for j in jb}
+    lamp, flag = "tiny-lamp-box", "tiny-flag-arm"
+    assert kb[(lamp, "full-again")] == ka[(lamp, "full")]  # the same training
+    assert kb[(lamp, "tlr")] not in ka.values()  # a stage-2 weight: another training ...
+    assert job_cost(jb[1])[0] == job_cost(ja[0])[0]  # ... on full's stage 1
+    assert ka[(lamp, "no-reproj")] != ka[(lamp, "full")]  # shares stage 1 only
+    assert kb[(flag, "full-again")] != kb[(lamp, "full-again")]
+    s1, s2, _ = budget("tiny", "full")
+
+    def status(path):
+        return step_status(Step(suite=str(path), scenes=None, seeds=1), out, "tiny")
+
+    # nothing finished: t4 after t3 trains only its two tlr rows' stage 2 (full-again is t3's full)
+    assert todo_iterations([status(a), status(b)])[1] == 2 * s2
+    # t4 first: every row of it trains, the tlr rows on their full-again's stage 1
+    assert todo_iterations([status(b), status(a)])[0] == 2 * (s1 + s2) + 2 * s2
+    # lamp's full finished under ROOT: t4's lamp full-again costs nothing, even before t3 runs
+    assert (ja[0].scene, ja[0].row) == (lamp, "full")
+    Path(ja[0].run_dir).mkdir(parents=True)
+    (Path(ja[0].run_dir) / "metrics.json").write_text("{}")
+    assert todo_iterations([status(b), status(a)])[0] == (s1 + s2) + 2 * s2
+    # t3's fulls known only from the CSV: no model in the share folder, so full-again trains
+    # (its stage 1 counts as shared, as for any finished job: todo_iterations' docstring)
+    costs = [(j.row == "full", *job_cost(j), job_training_key(j), False) for j in ja]
+    assert todo_iterations([dict(status(a), job_costs=costs), status(b)])[1] == 4 * s2
+
+
 def test_campaign_estimate_counts_a_shared_stage_1_once(tmp_path):
     """job_cost: rows that change only V2W or stage 2 ((b), (d)) share full's stage-1 key, a row
     that changes stage 1 ((e) w/o TLR), another trainer seed or another clip does not, a row
