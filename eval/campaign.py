@@ -150,16 +150,20 @@ def job_cost(job) -> Tuple[Optional[str], int, int]:
     (m4dgs.training.variants.stage1_plan with the job's clip folder standing for the clip): the
     key groups the jobs whose stage 1 is one computation shared through ROOT/.shared; None for a
     variant without stage 1."""
-    from m4dgs.training.variants import stage1_plan
-
-    return stage1_plan(job.preset, job.variant, job.overrides, str(job.clip_dir))
+    return job_plan(job)[:3]
 
 
 def job_training_key(job) -> str:
     """The share key of a job's whole training (m4dgs.training.variants.training_key)."""
-    from m4dgs.training.variants import training_key
+    return job_plan(job)[3]
 
-    return training_key(job.preset, job.variant, job.overrides, str(job.clip_dir))
+
+def job_plan(job) -> Tuple[Optional[str], int, int, str]:
+    """job_cost's three values and job_training_key, from one resolution of the job's
+    configuration (m4dgs.training.variants.run_plan)."""
+    from m4dgs.training.variants import run_plan
+
+    return run_plan(job.preset, job.variant, job.overrides, str(job.clip_dir))
 
 
 def todo_iterations(statuses: Sequence[dict]) -> List[int]:
@@ -244,8 +248,8 @@ def step_status(
         run = Path(j.run_dir)
         row = recorded.get(job_key(j))
         done = (row is not None and not run.exists()) or (run / "metrics.json").exists()
-        key, s1, s2 = job_cost(j)
-        costs.append((done, key, s1, s2, job_training_key(j), (run / "metrics.json").exists()))
+        key, s1, s2, tkey = job_plan(j)
+        costs.append((done, key, s1, s2, tkey, (run / "metrics.json").exists()))
         if row is not None and not run.exists():  # a run folder, even unscored, wins
             scored += 1
             in_csv += 1
@@ -330,11 +334,10 @@ def run_campaign(
     for i, st in enumerate(campaign.steps, 1):
         if i == 1 or dry_run:
             s = statuses[i - 1]
-        else:  # earlier steps have run since: this step's state now (theirs too, for sharing)
-            statuses[:i] = [
-                step_status(x, root, campaign.preset, recorded) for x in campaign.steps[:i]
-            ]
-            s = statuses[i - 1]
+        else:  # earlier steps have run since: this step's state now
+            s = statuses[i - 1] = step_status(st, root, campaign.preset, recorded)
+            # the earlier steps' statuses from the start still name what they share: a stage 1 or
+            # a training they had to do was counted there, so this step counts it once at most
             s["todo_iterations"] = todo_iterations(statuses[:i])[-1]
         summary = dict(suite=st.suite, scenes=st.scenes, seeds=st.seeds, ran=False, **s)
         where = "all scenes" if st.scenes is None else ",".join(st.scenes)

@@ -8,28 +8,18 @@ the committed CSV, so that every number in the notes can be checked with one com
 
 For each row: per metric, the mean of d = row - ref over the (scene, seed) runs both rows have,
 with the same Student-t 95 % interval as the tables' paired differences (`eval.stats.mean_ci`, †
-where it excludes 0); the same over scenes (d averaged over each scene's seeds first, the interval
-over the scene means, as the findings' "over scenes" column); then d of each pair, in the order of
-the header (scenes by name, then seeds)."""
+where it excludes 0); the same over scenes (`eval.stats.scene_mean_ci`: d averaged over each
+scene's seeds first, the interval over the scene means, as the findings' "over scenes"
+column); then d of each pair, in the order of the header (scenes by name, then seeds)."""
 
 from __future__ import annotations
 
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Optional, Sequence
 
-from .stats import by_key, mean_ci
+from .results import SCORED, pair_differences
+from .stats import mean_ci, scene_mean_ci
 
-SCORED = "scored"
 DEFAULT_METRICS = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "ldr_train_psnr")
-
-
-def pair_differences(
-    rows: List[dict], suite: str, row: str, ref: str, metric: str
-) -> Dict[Tuple[str, int], float]:
-    """{(scene, seed): row - ref} of one metric over the scored CSV rows of `suite`."""
-    mine = [r for r in rows if r["suite"] == suite and r.get("status") == SCORED]
-    a = by_key([r for r in mine if r["row"] == row], metric)
-    b = by_key([r for r in mine if r["row"] == ref], metric)
-    return {k: a[k] - b[k] for k in sorted(a) if k in b}
 
 
 def _fmt(metric: str, fmts: Dict[str, str]) -> str:
@@ -75,10 +65,8 @@ def pairs_markdown(
     fmts = {m: cols[m].fmt for m in metrics}
     out = []
     for name in wanted:
-        keys = sorted(
-            set().union(*(pair_differences(rows, suite, name, ref, m) for m in metrics)),
-            key=lambda k: (str(k[0]), k[1]),
-        )
+        diffs = {m: pair_differences(rows, suite, name, ref, m) for m in metrics}
+        keys = sorted(set().union(*diffs.values()), key=lambda k: (str(k[0]), k[1]))
         out += [
             f"{suite}: {name} - {ref}",
             "",
@@ -88,18 +76,11 @@ def pairs_markdown(
             "|:---|---:|---:|" + "---:|" * len(keys),
         ]
         for m in metrics:
-            d = pair_differences(rows, suite, name, ref, m)
+            d = diffs[m]
             f = _fmt(m, fmts)
-            per_scene: Dict[str, List[float]] = {}
-            for (scene, _), v in d.items():
-                per_scene.setdefault(scene, []).append(v)
-            scenes = mean_ci(sum(v) / len(v) for v in per_scene.values())
             cells = [f"{d[k]:+{f}}" if k in d else "" for k in keys]
             header = ((cols[m].group + " ") if cols[m].group else "") + cols[m].header
-            out.append(
-                f"| {header} | {_summary(mean_ci(d.values()), f)} | {_summary(scenes, f)} | "
-                + " | ".join(cells)
-                + " |"
-            )
+            pooled, scenes = _summary(mean_ci(d.values()), f), _summary(scene_mean_ci(d), f)
+            out.append(f"| {header} | {pooled} | {scenes} | " + " | ".join(cells) + " |")
         out.append("")
     return "\n".join(out)

@@ -1130,14 +1130,22 @@ class ControlResult:
     reading_holm: str = NO_DATA
 
 
-def _effect_by_key(e: Effect, rows: List[dict], metric: str) -> Dict[tuple, float]:
-    """{(scene, seed): row - ref} of one metric over the scored CSV rows of e's suite."""
+def pair_differences(
+    rows: List[dict], suite: str, row: str, ref: str, metric: str
+) -> Dict[tuple, float]:
+    """{(scene, seed): row - ref} of one metric over the scored CSV rows of `suite`, in key
+    order (the Controls' effects and `m4dgs-eval pairs`)."""
     from .stats import by_key
 
-    mine = [r for r in rows if r["suite"] == e.suite and r.get("status") == SCORED]
-    a = by_key([r for r in mine if r["row"] == e.row], metric)
-    b = by_key([r for r in mine if r["row"] == e.ref], metric)
-    return {k: a[k] - b[k] for k in a if k in b}
+    mine = [r for r in rows if r["suite"] == suite and r.get("status") == SCORED]
+    a = by_key([r for r in mine if r["row"] == row], metric)
+    b = by_key([r for r in mine if r["row"] == ref], metric)
+    return {k: a[k] - b[k] for k in sorted(a) if k in b}
+
+
+def _effect_by_key(e: Effect, rows: List[dict], metric: str) -> Dict[tuple, float]:
+    """{(scene, seed): row - ref} of one metric over the scored CSV rows of e's suite."""
+    return pair_differences(rows, e.suite, e.row, e.ref, metric)
 
 
 def control_reading(base, change, significant: Optional[bool] = None) -> str:

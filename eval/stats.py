@@ -128,10 +128,21 @@ def scene_paired_diff(
     def ok(v):
         return v is not None and not (isinstance(v, float) and math.isnan(v))
 
+    diffs = {
+        k: float(values[k]) - float(reference[k])
+        for k in values
+        if k in reference and ok(values[k]) and ok(reference[k])
+    }
+    return scene_mean_ci(diffs, level)
+
+
+def scene_mean_ci(diffs: Mapping[Hashable, float], level: float = LEVEL) -> Interval:
+    """Interval of the mean over scenes of {(scene, seed): difference}: each scene's (keys[0])
+    differences averaged first, the Student-t interval over those scene means (scene_paired_diff's
+    second half)."""
     per: Dict[Hashable, list] = {}
-    for k in values:
-        if k in reference and ok(values[k]) and ok(reference[k]):
-            per.setdefault(k[0], []).append(float(values[k]) - float(reference[k]))
+    for k, d in diffs.items():
+        per.setdefault(k[0], []).append(float(d))
     return mean_ci([sum(d) / len(d) for d in per.values()], level)
 
 

@@ -386,6 +386,7 @@ def read_flow(
     if opt.flow is None:
         return None
     folder = Path(opt.flow)
+    src = tuple(source) if source is not None else (H, W)
     flows: Dict[Tuple[int, int], np.ndarray] = {}
     for p in sorted(folder.iterdir()):
         m = re.fullmatch(r"(\d+)_(\d+)\.(flo|npy)", p.name)
@@ -395,7 +396,6 @@ def read_flow(
         if not (0 <= a < T and 0 <= b < T) or a == b:
             raise InputError(f"{p}: frame positions out of range 0..{T - 1}")
         f = read_flo(p) if p.suffix == ".flo" else np.asarray(np.load(p), np.float32)
-        src = tuple(source) if source is not None else (H, W)
         if f.shape != (H, W, 2) and f.shape != (*src, 2):
             raise InputError(f"{p}: flow of shape {f.shape}; expected {(*src, 2)}")
         if f.shape != (H, W, 2):

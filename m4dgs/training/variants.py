@@ -201,14 +201,7 @@ def stage1_plan(
     (m4dgs.training.phases.phase_keys over the resolved configuration; `clip` stands for the
     clip, the rest of the real key's context being the same for the runs of one experiment
     root). The key is None for a variant without stage 1."""
-    from m4dgs.training.config import to_dict
-    from m4dgs.training.phases import phase_keys
-
-    cfg = variant_config(preset, variant, overrides)
-    if not cfg.ablation.use_video_init:
-        return None, 0, int(cfg.stage2.iterations)
-    key = phase_keys(to_dict(cfg), {"clip": str(clip)}, variant)["stage1"]
-    return key, int(cfg.stage1.iterations), int(cfg.stage2.iterations)
+    return run_plan(preset, variant, overrides, clip)[:3]
 
 
 def training_key(
@@ -217,8 +210,19 @@ def training_key(
     """The share key of a run's whole training (its stage-2 phase key: every field of every phase
     up to stage 2, and the variant): two runs with one key train once, the second finding the
     first's model in the share folder (`clip` stands for the clip, as in stage1_plan)."""
+    return run_plan(preset, variant, overrides, clip)[3]
+
+
+def run_plan(
+    preset: str, variant: str, overrides: Optional[Mapping[str, Any]] = None, clip: str = ""
+) -> Tuple[Optional[str], int, int, str]:
+    """stage1_plan's (stage-1 key, stage-1 iterations, stage-2 iterations) and training_key,
+    from one resolution of the configuration."""
     from m4dgs.training.config import to_dict
     from m4dgs.training.phases import phase_keys
 
     cfg = variant_config(preset, variant, overrides)
-    return phase_keys(to_dict(cfg), {"clip": str(clip)}, variant)["stage2"]
+    keys = phase_keys(to_dict(cfg), {"clip": str(clip)}, variant)
+    if not cfg.ablation.use_video_init:
+        return None, 0, int(cfg.stage2.iterations), keys["stage2"]
+    return keys["stage1"], int(cfg.stage1.iterations), int(cfg.stage2.iterations), keys["stage2"]
