@@ -1,4 +1,5 @@
-"""Shared fixtures: tiny clips rendered once per test session with the real generator (benchgen)."""
+"""Shared fixtures: tiny clips rendered once per test session with the real generator (benchgen),
+torch on one thread, the tensors of a checkpoint by path, bench scripts as modules."""
 
 from __future__ import annotations
 
@@ -53,3 +54,32 @@ def load_bench():
         return mod
 
     return load
+
+
+@pytest.fixture
+def one_thread():
+    """torch on one thread for the test (runs repeat bit for bit only for a fixed thread count)."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def _tensors(obj, prefix=""):
+    import torch
+
+    if torch.is_tensor(obj):
+        yield prefix, obj
+    elif isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _tensors(v, f"{prefix}.{k}" if prefix else str(k))
+
+
+@pytest.fixture
+def checkpoint_tensors():
+    """checkpoint_tensors(path): {dotted path: tensor} of every tensor of a saved model."""
+    from m4dgs.run import load_torch
+
+    return lambda path: dict(_tensors(load_torch(path)))

@@ -43,25 +43,8 @@ OVERRIDES = {
 }
 
 
-def _tensors(obj, prefix=""):
-    """Every tensor of a nested checkpoint, by dotted path."""
-    if torch.is_tensor(obj):
-        yield prefix, obj
-    elif isinstance(obj, dict):
-        for k, v in obj.items():
-            yield from _tensors(v, f"{prefix}.{k}" if prefix else str(k))
-
-
-@pytest.fixture
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def test_killed_and_resumed_run_equals_the_uninterrupted_one(
-    tiny_clip_realistic, tmp_path, monkeypatch, one_thread
+    tiny_clip_realistic, tmp_path, monkeypatch, one_thread, checkpoint_tensors
 ):
     ref = train(
         tiny_clip_realistic, tmp_path / "ref", preset="tiny", overrides=OVERRIDES, progress=False
@@ -102,14 +85,16 @@ def test_killed_and_resumed_run_equals_the_uninterrupted_one(
         and any(k.endswith(("_split", "_clone")) and v for k, v in r.items())
         for r in log
     )
-    a = dict(_tensors(load_torch(ref / "model" / "final.pt")))
-    b = dict(_tensors(load_torch(run / "model" / "final.pt")))
+    a = checkpoint_tensors(ref / "model" / "final.pt")
+    b = checkpoint_tensors(run / "model" / "final.pt")
     assert a.keys() == b.keys() and len(a) > 10
     different = [k for k in a if not torch.equal(a[k], b[k])]
     assert not different, different
 
 
-def test_torch_on_one_thread_and_kernels_on_two_is_reproducible(tiny_clip_realistic, tmp_path):
+def test_torch_on_one_thread_and_kernels_on_two_is_reproducible(
+    tiny_clip_realistic, tmp_path, checkpoint_tensors
+):
     """The split `m4dgs train` uses (m4dgs.core.threads: torch 1, compiled kernels N) repeats a
     seed bit for bit: each tile is composited by one thread, the rasterizer's backward reduces in
     list order and the projection's camera gradient in thread order (docs/reliability.md)."""
@@ -122,7 +107,7 @@ def test_torch_on_one_thread_and_kernels_on_two_is_reproducible(tiny_clip_realis
             out = train(
                 tiny_clip_realistic, tmp_path / name, preset="tiny", overrides=ov, progress=False
             )
-        models.append(dict(_tensors(load_torch(out / "model" / "final.pt"))))
+        models.append(checkpoint_tensors(out / "model" / "final.pt"))
     # the same run with its phases called one by one (as bench/train_bench.py times them)
     from m4dgs.training.pipeline import PHASES, Trainer
 
@@ -130,7 +115,7 @@ def test_torch_on_one_thread_and_kernels_on_two_is_reproducible(tiny_clip_realis
         tr = Trainer(tiny_clip_realistic, tmp_path / "c", "tiny", "full", ov, "cpu", progress=False)
         for phase in PHASES[:-2]:  # camera_init .. stage2 (the renders do not change the model)
             tr.run_phase(phase)
-    models.append(dict(_tensors(load_torch(tmp_path / "c" / "model" / "final.pt"))))
+    models.append(checkpoint_tensors(tmp_path / "c" / "model" / "final.pt"))
     a = models[0]
     assert len(a) > 10
     for b in models[1:]:

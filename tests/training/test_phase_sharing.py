@@ -10,7 +10,7 @@ import json
 import pytest
 import torch
 
-from m4dgs.run import RunDir, load_torch
+from m4dgs.run import RunDir
 from m4dgs.training import phases
 from m4dgs.training.config import PRESETS, apply_overrides, preset, to_dict
 from m4dgs.training.pipeline import train
@@ -129,24 +129,8 @@ SHORT = {
 }
 
 
-def _tensors(obj, prefix=""):
-    if torch.is_tensor(obj):
-        yield prefix, obj
-    elif isinstance(obj, dict):
-        for k, v in obj.items():
-            yield from _tensors(v, f"{prefix}.{k}" if prefix else str(k))
-
-
-@pytest.fixture
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def test_shared_phases_give_the_run_what_it_would_compute(
-    tiny_clip_realistic, tmp_path, one_thread
+    tiny_clip_realistic, tmp_path, one_thread, checkpoint_tensors
 ):
     share = tmp_path / "shared"
 
@@ -180,8 +164,8 @@ def test_shared_phases_give_the_run_what_it_would_compute(
 
     # ... and ends bit for bit where the same row computed alone ends
     alone = run("no-reproj-alone", "no-reproj", share_dir=None)
-    a = dict(_tensors(load_torch(alone.path("model", "final.pt"))))
-    b = dict(_tensors(load_torch(shared.path("model", "final.pt"))))
+    a = checkpoint_tensors(alone.path("model", "final.pt"))
+    b = checkpoint_tensors(shared.path("model", "final.pt"))
     assert a.keys() == b.keys() and len(a) > 10
     different = [k for k in a if not torch.equal(a[k], b[k])]
     assert not different, different
@@ -192,8 +176,8 @@ def test_shared_phases_give_the_run_what_it_would_compute(
     st = again.status()
     assert sorted(st["shared_phases"]) == sorted(phases.SHARED_PHASES) and st["stage"] == "done"
     assert st["shared_phases"]["stage2"]["from"] == str(full.root.resolve())
-    a = dict(_tensors(load_torch(full.path("model", "final.pt"))))
-    b = dict(_tensors(load_torch(again.path("model", "final.pt"))))
+    a = checkpoint_tensors(full.path("model", "final.pt"))
+    b = checkpoint_tensors(again.path("model", "final.pt"))
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
     assert again.path("cameras.json").read_bytes() == full.path("cameras.json").read_bytes()
     s2 = [r for r in again.read_log() if r.get("stage") == "stage2"]
