@@ -219,6 +219,224 @@ def make(
         click.echo(str(p))
 
 
+@main.command("from-hdr")
+@click.option(
+    "--hdr",
+    "hdr_dir",
+    required=True,
+    type=click.Path(file_okay=False, exists=True),
+    help="Folder of linear HDR frames (.exr or .hdr, sorted by name with numbers in numeric "
+    "order), e.g. one of the HDR videos the paper's Syn-Exp-3 was made from.",
+)
+@click.option(
+    "--out",
+    required=True,
+    type=click.Path(file_okay=False),
+    help="Clip folder to write (written beside it first and moved into place when complete).",
+)
+@click.option(
+    "--depth",
+    default=None,
+    type=click.Path(exists=True),
+    help="Depth prior of the training frames (the PNGs of OUT/input/ldr/, which --ldr-only "
+    "writes first): one [T, H, W] .npy/.npz or a folder with one .npy/.npz/.exr/16-bit "
+    ".png/.tif per frame, from a monocular depth model; one map per HDR frame also works (the "
+    "training ones are taken). Required unless --ldr-only.",
+)
+@click.option(
+    "--depth-kind",
+    type=click.Choice(["depth", "disparity"]),
+    default="depth",
+    show_default=True,
+    help="What --depth holds: depth, or disparity (inverse depth).",
+)
+@click.option(
+    "--tracks",
+    default=None,
+    type=click.Path(dir_okay=False, exists=True),
+    help="Point tracks over the training frames [T, N, 2] in pixels (.npz with 'tracks' and "
+    "'visibility', or .npy). Default: tracks chained through DIS flow.",
+)
+@click.option(
+    "--visibility",
+    default=None,
+    type=click.Path(dir_okay=False, exists=True),
+    help="[T, N] visibility .npy for a --tracks .npy (default: all visible).",
+)
+@click.option(
+    "--track-pixel-centre",
+    type=click.Choice(["0", "0.5"]),
+    default="0",
+    show_default=True,
+    help="Coordinate of the first pixel's centre in the given tracks.",
+)
+@click.option(
+    "--flow",
+    default=None,
+    type=click.Path(file_okay=False, exists=True),
+    help="Optional flow prior: <a>_<b>.flo or .npy files between training-frame positions a and b "
+    "(0 = the first training frame).",
+)
+@click.option(
+    "--gt-flow",
+    default=None,
+    type=click.Path(file_okay=False, exists=True),
+    help="Flow computed on the ground-truth HDR frames between consecutive training frames "
+    "(positions a_b and b_a, the --flow layout; e.g. RAFT, as the paper did), written as the "
+    "clip's gt/flow.npz for HDR-TAE. Default: eval computes DIS flow on the ground truth.",
+)
+@click.option(
+    "--exposures",
+    "num_exposures",
+    type=click.Choice(["2", "3"]),
+    default="3",
+    show_default=True,
+    help="Observed exposure levels: 3 = {0.125, 2, 32} (novel {0.5, 8}), 2 = two levels "
+    "(docs/exposure.md).",
+)
+@click.option("--observed", default=None, help="Override the observed levels, e.g. '0.125,2,32'.")
+@click.option("--novel", default=None, help="Override the novel (test-only) levels, e.g. '0.5,8'.")
+@click.option(
+    "--schedule",
+    type=click.Choice(["alternating", "random-order", "random-values"]),
+    default="alternating",
+    show_default=True,
+    help="Exposure schedule of the training frames.",
+)
+@click.option(
+    "--crf",
+    default="hdrnerf",
+    show_default=True,
+    help="Camera response the frames are tone-mapped with (docs/exposure.md): hdrnerf (the "
+    "paper's), srgb-shoulder, aces-filmic, hdrnerf-g1.8, hdrnerf-g2.4, hdrnerf-rgb.",
+)
+@click.option(
+    "--scale",
+    type=float,
+    default=None,
+    help="HDR scale (the frames are multiplied by it before tone mapping). Default: chosen for "
+    "the exposure-placement targets, as benchgen make does (docs/exposure.md).",
+)
+@click.option(
+    "--every",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Keep every n-th HDR frame.",
+)
+@click.option(
+    "--max-frames",
+    type=click.IntRange(min=6),
+    default=None,
+    help="Keep at most this many HDR frames.",
+)
+@click.option(
+    "--width",
+    type=click.IntRange(min=16),
+    default=None,
+    help="Resize the frames to this width (area averaging; the height keeps the aspect ratio). "
+    "Default: their own size.",
+)
+@click.option(
+    "--fps",
+    type=click.FloatRange(min=0, min_open=True),
+    default=30.0,
+    show_default=True,
+    help="Frame rate written to clip.json.",
+)
+@click.option("--name", default=None, help="Clip name (default: the --out folder name).")
+@click.option(
+    "--seed",
+    default=0,
+    show_default=True,
+    type=int,
+    help="Seed of the random schedules (unused by alternating).",
+)
+@click.option(
+    "--ldr-only",
+    is_flag=True,
+    help="Write only the training frames (OUT/input/ldr/, no clip.json) for the depth model and "
+    "tracker to run on; then run again with --depth.",
+)
+@click.option(
+    "--allow-misplaced",
+    is_flag=True,
+    help="Keep a clip that misses its exposure-placement targets with a warning instead of "
+    "failing.",
+)
+@click.option("--force", is_flag=True, help="Replace a clip already at --out.")
+def from_hdr(
+    hdr_dir,
+    out,
+    depth,
+    depth_kind,
+    tracks,
+    visibility,
+    track_pixel_centre,
+    flow,
+    gt_flow,
+    num_exposures,
+    observed,
+    novel,
+    schedule,
+    crf,
+    scale,
+    every,
+    max_frames,
+    width,
+    fps,
+    name,
+    seed,
+    ldr_only,
+    allow_misplaced,
+    force,
+):
+    """An evaluation clip from an HDR video, the paper's Syn-Exp-3 recipe: even frames train,
+    odd frames test, the training frames tone-mapped at alternating exposures, the test frames at
+    every observed and novel exposure, the HDR frames kept as ground truth (docs/clip-format.md,
+    "From an HDR video"). Then: m4dgs train --clip OUT; m4dgs-eval score RUN."""
+    from pathlib import Path as P
+
+    from .from_hdr import HdrVideoOptions, clip_from_hdr_video
+    from .make import PlacementError
+
+    opt = HdrVideoOptions(
+        hdr=P(hdr_dir),
+        depth=None if depth is None else P(depth),
+        depth_kind=depth_kind,
+        tracks=None if tracks is None else P(tracks),
+        visibility=None if visibility is None else P(visibility),
+        track_pixel_centre=float(track_pixel_centre),
+        flow=None if flow is None else P(flow),
+        gt_flow=None if gt_flow is None else P(gt_flow),
+        exposures=int(num_exposures),
+        observed=_levels(observed),
+        novel=_levels(novel),
+        schedule=schedule,
+        crf=crf,
+        scale=scale,
+        every=every,
+        max_frames=max_frames,
+        width=width,
+        fps=fps,
+        name=name,
+        seed=seed,
+        ldr_only=ldr_only,
+        allow_misplaced=allow_misplaced,
+    )
+    try:
+        path = clip_from_hdr_video(out, opt, force=force)
+    except PlacementError as e:
+        raise click.ClickException(str(e)) from None
+    if ldr_only:
+        click.echo(
+            f"{path}/input/ldr: the training frames; run a depth model (and a tracker) on them, "
+            "then run this command again with --depth"
+        )
+    else:
+        click.echo(str(path))
+
+
 @main.command("list")
 def list_cmd():
     """List the shipped suites and scene specs."""

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -173,3 +173,16 @@ def schedule_train_dt(num_train: int, settings: ExposureSettings, seed: int = 0)
 def exposure_gap_ev(dt_a: float, dt_b: float) -> float:
     """|log2(dt_a / dt_b)|: exposure difference in stops (EV)."""
     return abs(math.log2(float(dt_a) / float(dt_b)))
+
+
+def dynamic_range_stops(hdr_frames: Iterable[np.ndarray]) -> float:
+    """log2 of the ratio between the 99.99th and 0.01th percentiles of positive luminance (Rec. 709
+    weights) over the given linear HDR frames [H, W, 3] (clip.json gt.dynamic_range_stops)."""
+    lum = np.concatenate(
+        [(0.2126 * h[..., 0] + 0.7152 * h[..., 1] + 0.0722 * h[..., 2]).ravel() for h in hdr_frames]
+    )
+    lum = lum[lum > 0]
+    if lum.size == 0:
+        return 0.0
+    lo, hi = np.percentile(lum, [0.01, 99.99])
+    return float(np.log2(hi / max(lo, 1e-12)))

@@ -58,7 +58,13 @@ from m4dgs.core import io as mio
 from m4dgs.core.crf import clip_crf, tonemap_ldr
 from m4dgs.core.errors import InputError
 
-from .exposure import ExposureSettings, exposure_gap_ev, schedule_train_dt, test_levels
+from .exposure import (
+    ExposureSettings,
+    dynamic_range_stops,
+    exposure_gap_ev,
+    schedule_train_dt,
+    test_levels,
+)
 from .placement import PlacementTargets, choose_hdr_scale, measure_placement
 from .priors import (
     PriorProfile,
@@ -652,7 +658,7 @@ def _record_clip_stats(job: _Job, meta: ClipMeta, hdr_train: Dict[int, np.ndarra
             ]
         )
     )
-    meta.gt["dynamic_range_stops"] = _dynamic_range_stops(hdr_train)
+    meta.gt["dynamic_range_stops"] = dynamic_range_stops(hdr_train.values())
 
 
 def _finish(job: _Job, writer: ClipWriter, meta: ClipMeta, targets, allow_misplaced) -> None:
@@ -714,22 +720,6 @@ def _frames_by_level(
             [mio.read_exr(out.joinpath(*UNIT_HDR_DIR, frame_name(g, "exr"))) for g in gs]
         )
     return res
-
-
-def _dynamic_range_stops(hdr_frames: Dict[int, np.ndarray]) -> float:
-    """log2 of the ratio between the 99.99th and 0.01th percentiles of positive luminance over the
-    training frames."""
-    lum = np.concatenate(
-        [
-            (0.2126 * h[..., 0] + 0.7152 * h[..., 1] + 0.0722 * h[..., 2]).ravel()
-            for h in hdr_frames.values()
-        ]
-    )
-    lum = lum[lum > 0]
-    if lum.size == 0:
-        return 0.0
-    lo, hi = np.percentile(lum, [0.01, 99.99])
-    return float(np.log2(hi / max(lo, 1e-12)))
 
 
 def sibling_clips(root, scene: str) -> List[Path]:

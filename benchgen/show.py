@@ -92,7 +92,8 @@ def contact_sheet(clip: Clip, path) -> Path:
             gt = clip.test_frames[0]
             for lv in m.exposures.novel[:2]:
                 panels.append((clip.load_gt_ldr(lv, gt), f"test g={gt} novel dt={lv:g}"))
-        panels.append((clip.load_gt_depth(g0), f"gt depth g={g0}"))
+        if clip.has_gt_part("depth"):
+            panels.append((clip.load_gt_depth(g0), f"gt depth g={g0}"))
     panels.append((clip.load_depth_prior(g0), f"prior depth g={g0}"))
     if clip.has_gt and (clip.root / "gt/flow.npz").exists():
         fs = clip.load_gt_flow()
@@ -114,7 +115,7 @@ def contact_sheet(clip: Clip, path) -> Path:
     ts = clip.load_tracks_prior()
     img = clip.load_ldr(train[-1]).astype(np.float32) / 255.0
     panels.append((img, "prior tracks (last frame)", ts))
-    if clip.has_gt:
+    if clip.has_gt and clip.has_gt_part("masks/dynamic"):
         panels.append((clip.load_gt_dynamic_mask(g0).astype(np.float32), f"dynamic mask g={g0}"))
 
     cols = 4

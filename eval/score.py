@@ -12,9 +12,10 @@ LPIPS weights, no model, no file):
   extra), pu21_psnr, hdr_flip (only with flip=True: slow); HDR training frames: hdr_train_psnr /
   hdr_train_ssim.
 - HDR-TAE on the rendered TRAINING frames with the exact ground-truth flow and visibility between
-  consecutive training frames (gt/flow.npz); without it (real clips) DIS flow on the tone-mapped
-  renders. hdr_tae_interior (the same without occlusion-edge pixels, gt depth); hdr_tce (the
-  renders' change between consecutive training frames against the ground truth's, same flow and
+  consecutive training frames (gt/flow.npz; a clip made from an HDR video: the flow given with it,
+  else DIS flow on its ground-truth HDR frames); without ground truth (real clips) DIS flow on the
+  tone-mapped renders. hdr_tae_interior (the same without occlusion-edge pixels, gt depth); hdr_tce
+  (the renders' change between consecutive training frames against the ground truth's, same flow and
   visibility: 0 for a perfect prediction, the clip's HDR-TAE floor for one frozen in time; gt HDR
   needed); hdr_tae_train_test (all frames, DIS flow; optional), hdr_t_std.
 - Cameras (cameras.json and cameras_ba.json vs gt/cameras.json, Sim(3) over all common frames): ate,
@@ -766,24 +767,36 @@ def _score_hdr(job: _Job, m: dict, flip: bool) -> List[str]:
 
 
 def _gt_flows(clip: Clip):
-    """flow_fn(a, b, Ha, Hb) -> (F_ab, F_ba, V_ab, V_ba) from the clip's exact flow (gt/flow.npz),
-    or None without it."""
-    if not (clip.has_gt and (clip.root / "gt/flow.npz").exists()):
+    """(flow_fn, convention key) for HDR-TAE and TCE, flow_fn(a, b, Ha, Hb) -> (F_ab, F_ba, V_ab,
+    V_ba) the same for every method: the clip's gt/flow.npz (exact for a benchgen render; given with
+    the clip for one made from an HDR video), else, when the clip has ground-truth HDR, OpenCV DIS
+    on it (visibility from forward-backward consistency); None without ground truth."""
+    if not clip.has_gt:
         return None
-    fs = clip.load_gt_flow()
+    if clip.has_gt_part("flow.npz"):
+        fs = clip.load_gt_flow()
 
-    def flows(a, b, ha, hb):
-        fab, vab = fs.get(a, b)
-        fba, vba = fs.get(b, a)
-        return fab, fba, vab, vba
+        def flows(a, b, ha, hb):
+            fab, vab = fs.get(a, b)
+            fba, vba = fs.get(b, a)
+            return fab, fba, vab, vba
 
-    return flows
+        given = (clip.meta.generator or {}).get("tool") == "benchgen from-hdr"
+        return flows, "hdr_tae_given_flow" if given else "hdr_tae_gt_flow"
+    if not all(clip.has_gt_part(f"hdr/{frame_name(g, 'exr')}") for g in clip.train_frames):
+        return None
+
+    def gt_dis(a, b, ha, hb):
+        return _dis_flows(a, b, clip.load_gt_hdr(a), clip.load_gt_hdr(b))
+
+    return gt_dis, "hdr_tae_gt_dis_flow"
 
 
 def _score_tce(job: _Job, m: dict, flows=None) -> List[str]:
     """hdr_tce of the training renders against the ground truth (exact flow and gt HDR needed)."""
     clip, train = job.clip, job.clip.train_frames
-    flows = flows if flows is not None else _gt_flows(clip)
+    if flows is None:
+        flows = (_gt_flows(clip) or (None, None))[0]
     if flows is None or not job.has_all("train/hdr", train, "exr"):
         return []
     if not all((clip.root / "gt/hdr" / frame_name(g, "exr")).exists() for g in train):
@@ -829,10 +842,11 @@ def _score_temporal(job: _Job, m: dict, tae_train_test: bool) -> List[str]:
     keys: List[str] = []
     if not job.has_all("train/hdr", train, "exr"):
         return keys
-    flows = _gt_flows(clip)
-    if flows is not None:
+    gt = _gt_flows(clip)
+    if gt is not None:
+        flows, flow_key = gt
         m["hdr_tae"] = _tae_pairwise(train, job.load_train_hdr, flows)
-        keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_gt_flow"]
+        keys += ["hdr_tae", "hdr_tae_train", flow_key]
         keys += _score_tce(job, m, flows)
         if all((clip.root / "gt/depth" / frame_name(g, "exr")).exists() for g in train):
             # the same pairs without occlusion-edge pixels (gt depth)
@@ -890,7 +904,7 @@ def _score_depth_and_dynamic(job: _Job, m: dict) -> List[str]:
     if not (clip.has_gt and test):
         return keys
     dpaths = [job.render("test/depth", g, "exr") for g in test]
-    if all(p.exists() for p in dpaths):
+    if clip.has_gt_part("depth") and all(p.exists() for p in dpaths):
         m["depth_absrel"] = depth_absrel(
             np.stack([read_render_exr(p) for p in dpaths]),
             np.stack([clip.load_gt_depth(g) for g in test]),

@@ -14,7 +14,8 @@ evaluation::
       [P, 2] int64
                                 (a, b global indices; both directions are separate pairs), flow [P,
                                 H, W, 2] float32 F_{a->b}, valid [P, H, W] bool
-      gt/                       evaluation only; absent for real clips
+      gt/                       evaluation only; absent for real clips; a clip made from an HDR
+                                video (benchgen from-hdr) has only hdr/, ldr/ and flow.npz
         hdr/<g>.exr             linear HDR radiance, every frame (train and test), [H, W, 3] float32
         ldr/<level>/<g>.png     test frames at every observed and novel level (<level> =
         level_name(dt)) depth/<g>.exr           z-depth, every frame cameras.json
@@ -31,9 +32,11 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import shutil
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any, Dict, Iterator, List, Optional, Sequence
 
 import numpy as np
 
@@ -479,6 +482,12 @@ class Clip:
     def has_gt(self) -> bool:
         return (self.root / "gt").is_dir()
 
+    def has_gt_part(self, part: str) -> bool:
+        """Whether gt/<part> (a file or folder: "depth", "cameras.json", "masks/dynamic",
+        "flow.npz", "tracks.npz") is there. A benchgen render has every part; a clip made from an
+        HDR video (`benchgen from-hdr`) only gt/hdr, gt/ldr and gt/flow.npz."""
+        return (self.root / "gt" / part).exists()
+
     @property
     def width(self) -> int:
         return self.meta.width
@@ -641,17 +650,22 @@ class Clip:
         if self.has_flow_prior():
             self.load_flow_prior()
         if self.has_gt:
+            # gt/hdr and gt/ldr always; depth, masks and cameras where the clip has them (a clip
+            # made from an HDR video has none), flow and tracks where present
             for g in self.meta.frames:
                 self.load_gt_hdr(g)
-                self.load_gt_depth(g)
-                self.load_gt_dynamic_mask(g)
+                if self.has_gt_part("depth"):
+                    self.load_gt_depth(g)
+                if self.has_gt_part("masks/dynamic"):
+                    self.load_gt_dynamic_mask(g)
             for level in self.meta.exposures.observed + self.meta.exposures.novel:
                 for g in self.test_frames:
                     self.load_gt_ldr(level, g)
-            self.load_gt_cameras()
-            if (self.root / "gt/flow.npz").exists():
+            if self.has_gt_part("cameras.json"):
+                self.load_gt_cameras()
+            if self.has_gt_part("flow.npz"):
                 self.load_gt_flow()
-            if (self.root / "gt/tracks.npz").exists():
+            if self.has_gt_part("tracks.npz"):
                 self.load_gt_tracks()
 
 
@@ -732,3 +746,24 @@ class ClipWriter:
         p = self.root / "clip.json"
         mio.write_json(p, self.meta.to_dict())
         return p
+
+
+@contextmanager
+def staged_clip(out, meta: ClipMeta) -> Iterator[ClipWriter]:
+    """A ClipWriter into a hidden folder beside `out`: when the block ends it is finalized
+    (clip.json from the writer's meta) and renamed into place, replacing whatever `out` held; when
+    the block raises it is removed. A refused or interrupted write leaves nothing half-made."""
+    out = Path(out)
+    tmp = out.parent / f".{out.name}.writing"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    try:
+        w = ClipWriter(tmp, meta)
+        yield w
+        w.finalize()
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if out.exists():
+        shutil.rmtree(out)
+    tmp.rename(out)

@@ -36,7 +36,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -45,11 +44,11 @@ import numpy as np
 
 from m4dgs.clip import (
     ClipMeta,
-    ClipWriter,
     Exposures,
     FlowSet,
     Split,
     TrackSet,
+    staged_clip,
 )
 from m4dgs.core.errors import InputError
 from m4dgs.core.io import ldr_to_8bit, read_image
@@ -274,10 +273,12 @@ def read_depth(opt: ImportOptions, T: int, H: int, W: int) -> np.ndarray:
     p = Path(opt.depth)
     if p.is_dir():
         files = list_images(p, DEPTH_EXTS)
-        if len(files) < T * max(int(opt.every), 1) and len(files) != T:
+        step = max(int(opt.every), 1)
+        # one per kept frame, or one per source frame (then the same every-n-th ones)
+        if len(files) != T and len(files[::step]) < T:
             raise InputError(f"{p}: {len(files)} depth files for {T} frames")
-        if len(files) != T:  # one per source frame: take the same every-n-th ones
-            files = files[:: max(int(opt.every), 1)][:T]
+        if len(files) != T:
+            files = files[::step][:T]
         maps = []
         for f in files:
             if f.suffix in (".npy", ".npz"):
@@ -291,7 +292,7 @@ def read_depth(opt: ImportOptions, T: int, H: int, W: int) -> np.ndarray:
             raise InputError(f"{p}: depth array of shape {arr.shape}; expected [T, H, W]")
         if arr.shape[0] != T:
             step = max(int(opt.every), 1)
-            if arr.shape[0] >= T * step:
+            if len(arr[::step]) >= T:
                 arr = arr[::step][:T]
             else:
                 raise InputError(f"{p}: {arr.shape[0]} depth maps for {T} frames")
@@ -519,22 +520,11 @@ def import_clip(out, opt: ImportOptions, force: bool = False) -> Path:
         },
         priors={k: v for k, v in opt.report.items()},
     )
-    tmp = out.parent / f".{out.name}.importing"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    try:
-        w = ClipWriter(tmp, meta)
+    with staged_clip(out, meta) as w:
         for g, img in enumerate(frames):
             w.write_input_ldr(g, img)
             w.write_prior_depth(g, depth[g])
         w.write_prior_tracks(tracks)
         if flow is not None:
             w.write_prior_flow(flow)
-        w.finalize()
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    if out.exists():
-        shutil.rmtree(out)
-    tmp.rename(out)
     return out

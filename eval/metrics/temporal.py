@@ -53,6 +53,12 @@ CONVENTIONS = {
     "bilinear backward "
     "warp with border padding; mean over visible pixels, both directions, consecutive pairs",
     "hdr_tae_gt_flow": "HDR-TAE flow: exact ground-truth flow and visibility",
+    "hdr_tae_given_flow": "HDR-TAE flow: the flow given with the clip (gt/flow.npz of a clip made "
+    "from an HDR video, e.g. RAFT on the ground truth), visibility from its forward-backward "
+    "consistency",
+    "hdr_tae_gt_dis_flow": "HDR-TAE flow: OpenCV DIS (preset medium) on the 8-bit mu-law "
+    "tone-mapped ground-truth HDR frames (the same flow for every method), visibility from "
+    "forward-backward consistency",
     "hdr_tae_dis_flow": "HDR-TAE flow: OpenCV DIS (preset medium) on 8-bit mu-law tone-mapped "
     "HDR, visibility from "
     "forward-backward consistency",

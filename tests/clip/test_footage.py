@@ -250,3 +250,19 @@ def test_larger_depth_maps_shrink_to_the_mean_of_their_valid_depths():
     assert np.allclose(_resize(d, 2, 2), [[2.25, 0.0], [2.0, 4.5]])
     up = _resize(np.array([[1.0, 3.0]]), 1, 4)  # bilinear, pixel centres at +0.5
     assert np.allclose(up, [[1.0, 1.5, 2.5, 3.0]])
+
+
+def test_depth_of_every_source_frame_with_every_n(tmp_path):
+    """9 source frames kept every 2nd are 5 frames (0, 2, 4, 6, 8): 9 depth maps, one per source
+    frame, give those 5 (it once asked for 2 x 5 = 10)."""
+    from m4dgs.footage import read_depth
+
+    (tmp_path / "d").mkdir()
+    for i in range(9):
+        np.save(tmp_path / "d" / f"{i}.npy", np.full((4, 6), i + 1.0))
+    np.save(tmp_path / "all.npy", np.stack([np.full((4, 6), i + 1.0) for i in range(9)]))
+    for src in (tmp_path / "d", tmp_path / "all.npy"):
+        d = read_depth(ImportOptions(depth=src, every=2), 5, 4, 6)
+        assert d[:, 0, 0].tolist() == [1.0, 3.0, 5.0, 7.0, 9.0]
+    with pytest.raises(InputError, match="depth"):
+        read_depth(ImportOptions(depth=tmp_path / "d", every=2), 6, 4, 6)
