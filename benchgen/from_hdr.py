@@ -132,23 +132,6 @@ def _frames_by_level(hdr, train, train_dt, test, observed) -> Dict[float, np.nda
     return res
 
 
-def _count_inputs(path: Path) -> Optional[int]:
-    """How many depth maps a --depth path holds (files of a folder, or the first axis of an array
-    file); None when it cannot tell."""
-    from m4dgs.footage import DEPTH_EXTS, _load_array, list_images
-
-    if path.is_dir():
-        return len(list_images(path, DEPTH_EXTS))
-    if path.is_file() and path.suffix in (".npy", ".npz"):
-        return int(np.squeeze(np.asarray(_load_array(path, "depth"))).shape[0])
-    return None
-
-
-def _positions_to_frames(fs: FlowSet, train: Sequence[int]) -> FlowSet:
-    idx = np.asarray(train, np.int64)
-    return FlowSet(idx[np.asarray(fs.pairs, np.int64)], fs.flow, fs.valid)
-
-
 def _hdr_tae_floor(hdr, train, fs: FlowSet) -> Optional[float]:
     """HDR-TAE of the ground-truth training sequence with the clip's gt flow (None when a
     consecutive pair lacks a direction)."""
@@ -176,7 +159,9 @@ def clip_from_hdr_video(out, opt: HdrVideoOptions, force: bool = False) -> Path:
     from m4dgs.footage import (
         DEPTH_HELP,
         ImportOptions,
+        count_depth_maps,
         dis_tracks,
+        positions_to_frames,
         read_depth,
         read_flow,
         read_tracks,
@@ -237,7 +222,7 @@ def clip_from_hdr_video(out, opt: HdrVideoOptions, force: bool = False) -> Path:
             "the priors elsewhere"
         )
     T = len(train)
-    n_depth = _count_inputs(Path(opt.depth))
+    n_depth = count_depth_maps(Path(opt.depth))
     io_opt = ImportOptions(
         depth=Path(opt.depth),
         depth_kind=opt.depth_kind,
@@ -255,7 +240,7 @@ def clip_from_hdr_video(out, opt: HdrVideoOptions, force: bool = False) -> Path:
         tracks = dis_tracks([ldr_train[g] for g in train], train_dt, io_opt)
     tracks = TrackSet(tracks.tracks, tracks.visible, np.asarray(train, np.int64))
     if flow is not None:
-        flow = _positions_to_frames(flow, train)
+        flow = positions_to_frames(flow, train)
     gt_flow, gt_flow_note = (
         None,
         {
@@ -265,7 +250,7 @@ def clip_from_hdr_video(out, opt: HdrVideoOptions, force: bool = False) -> Path:
         },
     )
     if opt.gt_flow is not None:
-        gt_flow = _positions_to_frames(
+        gt_flow = positions_to_frames(
             read_flow(ImportOptions(flow=Path(opt.gt_flow)), T, H, W), train
         )
         gt_flow_note = {"source": str(opt.gt_flow), "pairs": int(len(gt_flow.pairs))}

@@ -85,7 +85,7 @@ def contact_sheet(clip: Clip, path) -> Path:
     for dt, g in sorted(seen.items())[:3]:
         panels.append((clip.load_ldr(g), f"input g={g} dt={dt:g}"))
     g0 = train[min(1, len(train) - 1)]
-    if clip.has_gt:
+    if clip.has_gt and clip.has_gt_part("hdr"):
         hdr = clip.load_gt_hdr(g0)
         panels.append((mu_law_view(hdr), f"gt HDR (mu-law) g={g0}"))
         if clip.test_frames:

@@ -225,7 +225,8 @@ def image_grid(
     runs: (label, run_dir) pairs; a run lacking a render shows a blank cell.
     """
     clip = Clip.open(clip_dir)
-    if not clip.has_gt or not clip.test_frames:
+    # None for a clip without ground-truth HDR (real footage split into training and test frames)
+    if not clip.has_gt or not clip.test_frames or not clip.has_gt_part("hdr"):
         return None
     g0, obs, nov = pick_frame_and_levels(clip)
     g = g0 if g is None else g

@@ -6,7 +6,8 @@ LPIPS weights, no model, no file):
 
 - LDR test frames at every OBSERVED level (ldr_oe_*) and every NOVEL level (ldr_ne_*): psnr, ssim,
   lpips; the mean over frames then over levels (equal frame counts, so the mean over all images);
-  `per_level` has each level.
+  `per_level` has each level. Real footage with held-out test frames (exposures.test_dt): each test
+  frame at its own level only, the levels weighted by their frame counts (the mean over images).
 - LDR training frames against the input video (ldr_train_*; the paper's GFlow comparison).
 - HDR test frames: hdr_psnr / hdr_ssim / hdr_lpips (mu-law, GT-max), hdr_psnr_ownmax (labelled
   extra), pu21_psnr, hdr_flip (only with flip=True: slow); HDR training frames: hdr_train_psnr /
@@ -439,7 +440,7 @@ def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
             true_crf.rgb(np.repeat(np.exp2(z)[:, None], learned.shape[1], 1)), np.float64
         )
         out["crf_rmse"] = float(np.sqrt(np.mean((learned - true_rgb) ** 2)))
-        if clip.has_gt and clip.train_frames:
+        if clip.has_gt and clip.has_gt_part("hdr") and clip.train_frames:
             frames = (clip.load_gt_hdr(g) for g in clip.train_frames)
             ranges = observed_exposure_range(frames, clip.meta.exposures.train_dt, true_crf)
 
@@ -694,17 +695,28 @@ def _score_ldr_levels(job: _Job, m: dict) -> dict:
         return per_level
     for kind, levels in (("observed", ex.observed), ("novel", ex.novel)):
         for lv in levels:
-            preds = [job.render(f"test/ldr/{level_name(lv)}", g, "png") for g in test]
-            gts = [(lambda g=g, lv=lv: clip.load_gt_ldr(lv, g)) for g in test]
+            # a real clip's test frame has ground truth at its own exposure only
+            frames = [g for g in test if lv in clip.meta.test_levels_of(g)]
+            if not frames:
+                continue
+            preds = [job.render(f"test/ldr/{level_name(lv)}", g, "png") for g in frames]
+            gts = [(lambda g=g, lv=lv: clip.load_gt_ldr(lv, g)) for g in frames]
             res = _score_ldr_set(preds, gts, job.roundtrip, job.lpips_w)
             res["kind"] = kind
             per_level[level_name(lv)] = res
+    # the mean over levels; with a test frame per captured exposure (real clips) the levels hold
+    # different frame counts, so the mean over images (levels weighted by their counts)
+    weighted = ex.test_dt is not None
     for pre, kind in (("ldr_oe", "observed"), ("ldr_ne", "novel")):
         lv = [v for v in per_level.values() if v["kind"] == kind]
         if lv:
-            m[f"{pre}_psnr"] = _mean(v["psnr"] for v in lv)
-            m[f"{pre}_ssim"] = _mean(v["ssim"] for v in lv)
-            m[f"{pre}_lpips"] = _mean(v["lpips"] for v in lv) if job.lpips_w is not None else None
+            for k in ("psnr", "ssim", "lpips"):
+                if k == "lpips" and job.lpips_w is None:
+                    m[f"{pre}_lpips"] = None
+                elif weighted:
+                    m[f"{pre}_{k}"] = _weighted([(v[k], v["frames"]) for v in lv])
+                else:
+                    m[f"{pre}_{k}"] = _mean(v[k] for v in lv)
     return per_level
 
 
@@ -729,7 +741,7 @@ def _score_ldr_train(job: _Job, m: dict) -> None:
 def _score_hdr(job: _Job, m: dict, flip: bool) -> List[str]:
     """HDR test frames (mu-law PSNR/SSIM/LPIPS, own-max PSNR, PU21, FLIP) and training frames."""
     clip = job.clip
-    if not clip.has_gt:
+    if not (clip.has_gt and clip.has_gt_part("hdr")):
         return []
     keys = ["hdr_mu_law", "hdr_mu_law_own", "pu21"]
     test, train = clip.test_frames, clip.train_frames

@@ -314,6 +314,17 @@ def variants(preset):
 )
 @click.option("--name", default=None, help="Clip name (default: the --out folder name).")
 @click.option(
+    "--split",
+    type=click.Choice(["all", "alternate"]),
+    default="all",
+    show_default=True,
+    help="all: every frame trains (nothing to score but the training frames, the paper's "
+    "Real-Exp-2). alternate: even frames train and odd frames are held out as test frames, "
+    "scored at the exposure they were captured at (LDR-OE; the paper's Real-Exp-3); --depth may "
+    "then hold a map per frame (the training ones are taken), --tracks and --flow refer to the "
+    "training frames.",
+)
+@click.option(
     "--out",
     "out_dir",
     required=True,
@@ -336,6 +347,7 @@ def import_clip_cmd(
     width,
     fps,
     name,
+    split,
     out_dir,
     force,
 ):
@@ -359,6 +371,7 @@ def import_clip_cmd(
         flow=flow,
         fps=fps,
         name=name,
+        split=split,
     )
     p = import_clip(out_dir, opt, force=force)
     click.echo(str(p))

@@ -84,6 +84,11 @@ class Exposures:
     observed: List[float]  # observed exposure levels (the ones used for training; LDR-OE)
     novel: List[float]  # novel exposure levels (test only; LDR-NE); empty for real clips
     schedule: str = "alternating"  # alternating | random-order | random-values | real
+    # real footage split into training and test frames (`m4dgs import-clip --split alternate`, the
+    # paper's Real-Exp-3): the exposure each test frame was captured at, aligned with split.test;
+    # its only ground truth is that LDR frame (gt/ldr/<level>/<g>.png). None: test frames have gt
+    # at every observed and novel level (synthetic)
+    test_dt: Optional[List[float]] = None
 
 
 @dataclass
@@ -118,8 +123,19 @@ class ClipMeta:
     def train_dt_of(self, g: int) -> float:
         return self.exposures.train_dt[self.split.train.index(g)]
 
+    def test_levels_of(self, g: int) -> List[float]:
+        """The levels test frame g has ground-truth LDR at: its captured exposure for a real clip
+        with test frames (exposures.test_dt), else every observed and novel level."""
+        ex = self.exposures
+        if ex.test_dt is not None:
+            return [ex.test_dt[self.split.test.index(g)]]
+        return list(ex.observed) + list(ex.novel)
+
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        d = dataclasses.asdict(self)
+        if d["exposures"].get("test_dt") is None:  # clip.json of synthetic clips as before
+            d["exposures"].pop("test_dt", None)
+        return d
 
     @staticmethod
     def from_dict(d: dict, path="clip.json") -> "ClipMeta":
@@ -214,6 +230,20 @@ def _parse_meta(d: dict, path) -> ClipMeta:
                     f"exposures.train_dt[{i}]",
                     f"{dt!r} is none of the observed levels {observed} (schedule alternating)",
                 )
+    test_dt = ex.get("test_dt")
+    if test_dt is not None:
+        test_dt = _positive_float_list(test_dt, path, "exposures.test_dt", allow_empty=True)
+        if len(test_dt) != len(test):
+            raise ClipError(
+                path, "exposures.test_dt", f"has {len(test_dt)} values for {len(test)} test frames"
+            )
+        for i, dt in enumerate(test_dt):
+            if not any(abs(dt - o) <= 1e-6 * max(dt, o) for o in observed):
+                raise ClipError(
+                    path,
+                    f"exposures.test_dt[{i}]",
+                    f"{dt!r} is none of the observed levels {observed}",
+                )
     crf = d.get("crf")
     if crf is not None and str(crf) not in crf_names():
         raise ClipError(path, "crf", f"unknown camera response {crf!r} (known: {crf_names()})")
@@ -235,7 +265,11 @@ def _parse_meta(d: dict, path) -> ClipMeta:
         frames=frames,
         split=Split(train=train, test=test),
         exposures=Exposures(
-            train_dt=train_dt, observed=observed, novel=novel, schedule=str(schedule)
+            train_dt=train_dt,
+            observed=observed,
+            novel=novel,
+            schedule=str(schedule),
+            test_dt=test_dt,
         ),
         crf=d.get("crf"),
         unit_exposure_value=float(uev),
@@ -484,8 +518,9 @@ class Clip:
 
     def has_gt_part(self, part: str) -> bool:
         """Whether gt/<part> (a file or folder: "depth", "cameras.json", "masks/dynamic",
-        "flow.npz", "tracks.npz") is there. A benchgen render has every part; a clip made from an
-        HDR video (`benchgen from-hdr`) only gt/hdr, gt/ldr and gt/flow.npz."""
+        "flow.npz", "tracks.npz", "hdr") is there. A benchgen render has every part; a clip made
+        from an HDR video (`benchgen from-hdr`) only gt/hdr, gt/ldr and gt/flow.npz; real footage
+        split into training and test frames (`m4dgs import-clip --split alternate`) only gt/ldr."""
         return (self.root / "gt" / part).exists()
 
     @property
@@ -653,13 +688,14 @@ class Clip:
             # gt/hdr and gt/ldr always; depth, masks and cameras where the clip has them (a clip
             # made from an HDR video has none), flow and tracks where present
             for g in self.meta.frames:
-                self.load_gt_hdr(g)
+                if self.has_gt_part("hdr"):
+                    self.load_gt_hdr(g)
                 if self.has_gt_part("depth"):
                     self.load_gt_depth(g)
                 if self.has_gt_part("masks/dynamic"):
                     self.load_gt_dynamic_mask(g)
-            for level in self.meta.exposures.observed + self.meta.exposures.novel:
-                for g in self.test_frames:
+            for g in self.test_frames:
+                for level in self.meta.test_levels_of(g):
                     self.load_gt_ldr(level, g)
             if self.has_gt_part("cameras.json"):
                 self.load_gt_cameras()

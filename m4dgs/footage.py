@@ -82,6 +82,9 @@ class ImportOptions:
     flow: Optional[Path] = None
     fps: float = 30.0
     name: Optional[str] = None
+    # "all": every frame trains (no test frames); "alternate": even frames train, odd frames are
+    # test frames scored at their own exposure (the paper's Real-Exp-3 protocol)
+    split: str = "all"
     # DIS chains: one seed every track_grid pixels (None: 8, fewer on images under 128 px) ...
     track_grid: Optional[int] = None
     track_seed_every: int = 4  # ... in every track_seed_every-th frame of a chain
@@ -266,6 +269,17 @@ def _load_array(path: Path, what: str) -> np.ndarray:
     raise InputError(f"{path}: expected .npy or .npz")
 
 
+def count_depth_maps(path: Path) -> Optional[int]:
+    """How many depth maps a --depth path holds (the files of a folder, or the first axis of an
+    array file); None when it cannot tell."""
+    path = Path(path)
+    if path.is_dir():
+        return len(list_images(path, DEPTH_EXTS))
+    if path.is_file() and path.suffix in (".npy", ".npz"):
+        return int(np.squeeze(np.asarray(_load_array(path, "depth"))).shape[0])
+    return None
+
+
 def read_depth(opt: ImportOptions, T: int, H: int, W: int) -> np.ndarray:
     """[T, H, W] float32 depth (> 0 where valid, 0 where unknown)."""
     if opt.depth is None:
@@ -421,6 +435,12 @@ def read_flow(
     return FlowSet(np.asarray(pairs, np.int64), np.stack(fl), np.stack(valid).astype(bool))
 
 
+def positions_to_frames(fs: FlowSet, frames: Sequence[int]) -> FlowSet:
+    """A FlowSet indexed by positions 0..T-1 among `frames` re-indexed by those global frames."""
+    idx = np.asarray(frames, np.int64)
+    return FlowSet(idx[np.asarray(fs.pairs, np.int64)], fs.flow, fs.valid)
+
+
 def dis_tracks(frames: List[np.ndarray], dts: Sequence[float], opt: ImportOptions) -> TrackSet:
     """Long tracks chained through DIS flow between consecutive frames (brightness normalised by the
     exposure times, forward-backward checked)."""
@@ -488,24 +508,56 @@ def import_clip(out, opt: ImportOptions, force: bool = False) -> Path:
     unit = float(np.exp(np.mean(np.log(levels))))
     level_of = [min(levels, key=lambda lv: abs(math.log(lv / d))) for d in dts]
     alternating = len(levels) <= 8
-    train_dt = [lv / unit for lv in level_of] if alternating else [d / unit for d in dts]
-    depth = read_depth(opt, T, H, W)
-    tracks = read_tracks(opt, T, H, W, src_hw)
-    flow = read_flow(opt, T, H, W, src_hw)
+    all_dt = [lv / unit for lv in level_of] if alternating else [d / unit for d in dts]
+    if opt.split == "all":
+        train, test = list(range(T)), []
+    elif opt.split == "alternate":
+        if not alternating:
+            raise InputError(
+                f"--split alternate: the exposure times form {len(levels)} levels; a test frame is "
+                "scored at its own exposure, which must be one the training frames have (at most 8 "
+                "levels)"
+            )
+        train, test = list(range(0, T, 2)), list(range(1, T, 2))
+        if len(train) < 3 or not test:
+            raise InputError(f"--split alternate: {T} frames; it needs at least 6")
+        missing = sorted({all_dt[g] for g in test} - {all_dt[g] for g in train})
+        if missing:
+            g = next(g for g in test if all_dt[g] in missing)
+            raise InputError(
+                f"--split alternate: test frame {g} ({names[g]}) was captured at an exposure no "
+                "training frame has; its LDR-OE would compare against an unobserved level"
+            )
+    else:
+        raise InputError(f"--split {opt.split!r}: expected all or alternate")
+    train_dt = [all_dt[g] for g in train]
+    # depth: one map per training frame, or (alternate split) per kept or source frame, of which
+    # the training ones are taken
+    n_depth = count_depth_maps(opt.depth) if opt.depth is not None else None
+    if test and n_depth is not None and n_depth != len(train) and n_depth >= T:
+        depth = read_depth(opt, T, H, W)[train]
+    else:
+        depth = read_depth(opt, len(train), H, W)
+    tracks = read_tracks(opt, len(train), H, W, src_hw)
+    flow = read_flow(opt, len(train), H, W, src_hw)
     if tracks is None:
-        tracks = dis_tracks(frames, train_dt, opt)
+        tracks = dis_tracks([frames[g] for g in train], train_dt, opt)
+    tracks = TrackSet(tracks.tracks, tracks.visible, np.asarray(train, np.int64))
+    if flow is not None:
+        flow = positions_to_frames(flow, train)
     meta = ClipMeta(
         name=opt.name or out.name,
         width=W,
         height=H,
         fps=float(opt.fps),
         frames=list(range(T)),
-        split=Split(list(range(T)), []),
+        split=Split(train, test),
         exposures=Exposures(
             train_dt=train_dt,
             observed=sorted(set(train_dt)),
             novel=[],
             schedule="alternating" if alternating else "real",
+            test_dt=[all_dt[g] for g in test] if test else None,
         ),
         crf=None,
         unit_exposure_value=REAL_UNIT_EXPOSURE_VALUE,
@@ -520,10 +572,17 @@ def import_clip(out, opt: ImportOptions, force: bool = False) -> Path:
         },
         priors={k: v for k, v in opt.report.items()},
     )
+    if test:
+        meta.gt["source"] = (
+            "real footage, --split alternate: each test frame's own LDR frame at its exposure "
+            "(gt/ldr/<level>/), nothing else"
+        )
     with staged_clip(out, meta) as w:
-        for g, img in enumerate(frames):
-            w.write_input_ldr(g, img)
-            w.write_prior_depth(g, depth[g])
+        for i, g in enumerate(train):
+            w.write_input_ldr(g, frames[g])
+            w.write_prior_depth(g, depth[i])
+        for g in test:
+            w.write_gt_ldr(all_dt[g], g, frames[g])
         w.write_prior_tracks(tracks)
         if flow is not None:
             w.write_prior_flow(flow)

@@ -266,3 +266,87 @@ def test_depth_of_every_source_frame_with_every_n(tmp_path):
         assert d[:, 0, 0].tolist() == [1.0, 3.0, 5.0, 7.0, 9.0]
     with pytest.raises(InputError, match="depth"):
         read_depth(ImportOptions(depth=tmp_path / "d", every=2), 6, 4, 6)
+
+
+def alternating_capture(clip_dir, root):
+    """Every frame of the tiny clip as a camera would have captured it with exposures cycling
+    through the observed levels (training frames: the input; test frames: their gt LDR at the
+    level the cycle gives), the exposure times in seconds and the gt depth of every frame."""
+    clip = Clip.open(clip_dir)
+    obs = clip.meta.exposures.observed
+    frames, depth = root / "frames", root / "depth"
+    frames.mkdir(parents=True)
+    depth.mkdir()
+    lines, levels = [], {}
+    for g in clip.meta.frames:
+        if g in clip.train_frames:
+            dt, img = clip.meta.train_dt_of(g), clip.load_ldr(g)
+        else:
+            dt = obs[g % len(obs)]
+            img = clip.load_gt_ldr(dt, g)
+        levels[g] = dt
+        Image.fromarray(img).save(frames / f"c{g:02d}.png")
+        lines.append(f"c{g:02d}.png {dt / 100.0}")
+        np.save(depth / f"{g:02d}.npy", clip.load_gt_depth(g))
+    (root / "times.txt").write_text("\n".join(lines) + "\n")
+    return clip, frames, root / "times.txt", depth, levels
+
+
+def test_alternate_split_holds_out_odd_frames_scored_at_their_own_exposure(
+    tiny_clip_realistic, tmp_path
+):
+    from eval.score import score_run
+
+    clip, frames, times, depth, levels = alternating_capture(tiny_clip_realistic, tmp_path)
+    out = tmp_path / "mine"
+    r = CliRunner().invoke(
+        main,
+        ["import-clip", "--frames", str(frames), "--exposures", str(times), "--depth", str(depth)]
+        + ["--split", "alternate", "--out", str(out)],
+    )
+    assert r.exit_code == 0, r.output
+    new = Clip.open(out, validate="full")
+    G = clip.meta.num_frames
+    assert new.train_frames == list(range(0, G, 2)) and new.test_frames == list(range(1, G, 2))
+    unit = float(np.exp(np.mean(np.log(sorted(set(levels.values()))))))
+    assert new.meta.exposures.test_dt == pytest.approx([levels[g] / unit for g in new.test_frames])
+    assert new.has_gt and not new.has_gt_part("hdr") and new.meta.exposures.novel == []
+    for g in new.test_frames:
+        (lv,) = new.meta.test_levels_of(g)
+        assert np.array_equal(
+            new.load_gt_ldr(lv, g), np.asarray(Image.open(frames / f"c{g:02d}.png"))
+        )
+    for g in new.train_frames:  # one depth map per frame given: the training ones taken
+        assert np.allclose(new.load_depth_prior(g), clip.load_gt_depth(g), rtol=1e-6)
+    assert list(new.load_tracks_prior().frames) == new.train_frames
+
+    run = train(out, tmp_path / "run", preset="tiny", overrides=SHORT, progress=False)
+    m = score_run(run)
+    # LDR-OE: the mean over the test images, each against its own frame (PSNR by hand)
+    ps = []
+    for g in new.test_frames:
+        (lv,) = new.meta.test_levels_of(g)
+        pred = np.asarray(
+            Image.open(run / "renders/test/ldr" / f"{lv:g}" / frame_name(g, "png")), np.float64
+        )
+        gt = new.load_gt_ldr(lv, g).astype(np.float64)
+        ps.append(-10.0 * np.log10(np.mean((pred / 255.0 - gt / 255.0) ** 2)))
+    assert m["ldr_oe_psnr"] == pytest.approx(float(np.mean(ps)), abs=1e-6)
+    assert sorted(m["per_level"]) == sorted(
+        {f"{new.meta.test_levels_of(g)[0]:g}" for g in new.test_frames}
+    )
+    assert m["ldr_ne_psnr"] is None and m["hdr_psnr"] is None
+    assert "hdr_tae_dis_flow" in m["conventions"] and m["hdr_tae"] is not None
+
+
+def test_alternate_split_refuses_a_test_exposure_no_training_frame_has(
+    tiny_clip_realistic, tmp_path
+):
+    clip, frames, times, depth, levels = alternating_capture(tiny_clip_realistic, tmp_path)
+    lines = times.read_text().splitlines()
+    lines[3] = lines[3].split()[0] + " 0.5"  # test frame 3 at a level of its own
+    times.write_text("\n".join(lines) + "\n")
+    opt = ImportOptions(frames=frames, exposures=times, depth=depth, split="alternate")
+    with pytest.raises(InputError, match=r"test frame 3 \(c03\.png\)"):
+        import_clip(tmp_path / "mine", opt)
+    assert not (tmp_path / "mine").exists()
