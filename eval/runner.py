@@ -44,7 +44,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
 from m4dgs.core import io as mio
-from m4dgs.core.errors import M4DGSError
+from m4dgs.core.errors import InputError, M4DGSError
 from m4dgs.core.lock import file_lock
 
 from .suite import EvalSuite, load_eval_suite, scene_suite_names, suites_dir
@@ -178,7 +178,11 @@ def job_list(
                             r.label,
                             r.variant,
                             ov,
-                            str(out / "clips" / sid / scene),
+                            str(
+                                s.clip_folder / scene
+                                if s.clip_folder is not None
+                                else out / "clips" / sid / scene
+                            ),
                             str(out / "runs" / s.name / scene / seed_run_name(r.name, seed)),
                             preset,
                             str(out),
@@ -211,10 +215,12 @@ def make_job_clip(job: Job, progress: bool = False) -> Path:
     clip_dir = Path(job.clip_dir)
     if (clip_dir / "clip.json").exists():
         return clip_dir
+    s = load_eval_suite(job.suite)
+    if s.clip_folder is not None:
+        raise InputError(f"{clip_dir}: no clip.json (the suite's scenes are existing clips)")
     # deferred: benchgen.make loads the renderer stack (~2 s), needed only when a clip is missing
     from benchgen.make import make_clip, sibling_clips
 
-    s = load_eval_suite(job.suite)
     setting = s.clips[job.setting]
     bs = load_suite(s.scenes)
     scene_path = {p.stem: p for p in bs.scenes}[job.scene]

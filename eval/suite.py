@@ -3,7 +3,9 @@
 A suite file names
 
 - ``scenes``: the benchgen scene suite (``syn-exp-3``, ``tiny``, or a path to a benchgen suite
-  YAML);
+  YAML), or ``{clips: FOLDER}``: clips that already exist (your own, from ``m4dgs import-clip`` or
+  ``benchgen from-hdr``), one scene per subfolder holding a clip.json, used as they are (FOLDER
+  relative to the suite file; no clip settings beyond the default then);
 - ``clips``: named clip settings (optional; default one setting ``default`` = the scene suite as it
   is). A setting may
   change the exposure ``schedule`` (alternating | random-order | random-values), the prior
@@ -139,6 +141,8 @@ class EvalSuite:
     reference: Optional[str] = (
         None  # row of the paired differences in the tables (default: the row named "full")
     )
+    # `scenes: {clips: FOLDER}`: existing clips, one per subfolder, used instead of made ones
+    clip_folder: Optional[Path] = None
 
     def row(self, name: str) -> Row:
         for r in self.rows:
@@ -382,6 +386,21 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
     if not isinstance(clips_d, dict):
         raise SuiteError(path, "clips", "expected a mapping of setting name -> settings")
     clips = {str(k): _parse_clip(str(k), v, path) for k, v in clips_d.items()}
+    scenes, clip_folder = d["scenes"], None
+    if isinstance(scenes, dict):
+        if set(scenes) != {"clips"} or not isinstance(scenes["clips"], str):
+            raise SuiteError(path, "scenes", "expected a scene suite name or {clips: FOLDER}")
+        clip_folder = Path(scenes["clips"]).expanduser()
+        if not clip_folder.is_absolute():
+            clip_folder = Path(str(path)).resolve().parent / clip_folder
+        made = [k for k, c in clips.items() if c != ClipSetting(k)]
+        if made:
+            raise SuiteError(
+                path,
+                f"clips.{made[0]}",
+                "a setting of how clips are made, but scenes names existing clips ({clips: ...})",
+            )
+        scenes = clip_folder.name
     if not isinstance(d["rows"], list) or not d["rows"]:
         raise SuiteError(path, "rows", "expected a non-empty list")
     rows, seen = [], set()
@@ -461,12 +480,13 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
     return EvalSuite(
         name,
         str(d.get("description", "")),
-        str(d["scenes"]),
+        str(scenes),
         clips,
         rows,
         tables,
         Path(str(path)),
         None if reference is None else str(reference),
+        clip_folder,
     )
 
 
@@ -479,8 +499,21 @@ def load_eval_suite(name_or_path) -> EvalSuite:
 
 
 def scene_suite_names(suite: EvalSuite) -> List[str]:
-    """Scene names of the suite's benchgen scene suite."""
-    return load_suite(suite.scenes).scene_names
+    """Scene names of the suite's benchgen scene suite, or the clip subfolders of its clip folder
+    (sorted)."""
+    if suite.clip_folder is None:
+        return load_suite(suite.scenes).scene_names
+    folder = suite.clip_folder
+    names = (
+        sorted(p.name for p in folder.iterdir() if (p / "clip.json").is_file())
+        if folder.is_dir()
+        else []
+    )
+    if not names:
+        raise SuiteError(
+            suite.path, "scenes.clips", f"{folder}: no clip folders (subfolders with a clip.json)"
+        )
+    return names
 
 
 def known_variants() -> Optional[List[str]]:
