@@ -4,11 +4,14 @@ Any method that renders frames can be scored against a benchgen clip with every 
 run gets from its frames; no m4dgs model is needed. The prediction folder (docs/eval.md, "Scoring
 another method's frames"):
 
-    DIR/test/hdr/<g>.exr                HDR of every test frame (required), linear, in the clip's
+    DIR/test/hdr/<g>.exr                HDR of every test frame (required where the clip has
+                                        ground-truth HDR), linear, in the clip's
                                         radiance units: LDR = CRF(HDR x dt) with clip.json's
                                         exposure times (.exr, .hdr or float .tif/.tiff)
     DIR/test/ldr/<level>/<g>.<ext>      LDR of every test frame at every observed and novel level
-                                        of clip.json (required); <level> as the clip names it
+                                        of clip.json (required; real footage with held-out test
+                                        frames: at the level each was captured at, clip.json
+                                        exposures.test_dt); <level> as the clip names it
                                         (m4dgs.clip.level_name: 0.125, 0.5, 2, 8, 32); .png (8 or
                                         16 bit), .exr or .tif/.tiff (8, 16 bit or float in [0, 1])
     DIR/train/hdr/<g>.exr               optional: HDR of every training frame (hdr_train_*,
@@ -71,12 +74,17 @@ def plan_inputs(clip: Clip, pred: Path) -> Dict[str, List[Tuple[Path, str]]]:
     test, train = clip.test_frames, clip.train_frames
     if not test:
         raise InputError(f"{clip.root}/clip.json: the clip has no test frames to score")
+    # a clip without ground-truth HDR (real footage with held-out test frames) scores LDR only,
+    # each test frame at the level its ground truth has (Clip.meta.test_levels_of)
+    hdr_gt = clip.has_gt_part("hdr")
     groups: Dict[str, Tuple[Path, List[int], tuple, str, bool]] = {
-        "test/hdr": (pred / "test/hdr", test, HDR_EXTS, "exr", True),
+        "test/hdr": (pred / "test/hdr", test, HDR_EXTS, "exr", hdr_gt),
     }
     for lv in list(ex.observed) + list(ex.novel):
-        sub = f"test/ldr/{level_name(lv)}"
-        groups[sub] = (pred / sub, test, LDR_EXTS, "png", True)
+        frames_lv = [g for g in test if lv in clip.meta.test_levels_of(g)]
+        if frames_lv:
+            sub = f"test/ldr/{level_name(lv)}"
+            groups[sub] = (pred / sub, frames_lv, LDR_EXTS, "png", True)
     groups["train/hdr"] = (pred / "train/hdr", train, HDR_EXTS, "exr", False)
     groups["train/ldr"] = (pred / "train/ldr", train, LDR_EXTS, "png", False)
     groups["test/depth"] = (pred / "test/depth", test, ("exr",), "exr", False)

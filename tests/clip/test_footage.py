@@ -4,6 +4,7 @@ video input and .flo flow files are read as their formats define them."""
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import imageio.v2 as iio
@@ -295,6 +296,7 @@ def alternating_capture(clip_dir, root):
 def test_alternate_split_holds_out_odd_frames_scored_at_their_own_exposure(
     tiny_clip_realistic, tmp_path
 ):
+    from eval.cli import main as eval_main
     from eval.score import score_run
 
     clip, frames, times, depth, levels = alternating_capture(tiny_clip_realistic, tmp_path)
@@ -337,6 +339,23 @@ def test_alternate_split_holds_out_odd_frames_scored_at_their_own_exposure(
     )
     assert m["ldr_ne_psnr"] is None and m["hdr_psnr"] is None
     assert "hdr_tae_dis_flow" in m["conventions"] and m["hdr_tae"] is not None
+    # another method's frames, LDR only at each test frame's own level: the same LDR-OE
+    pred = tmp_path / "pred"
+    for g in new.test_frames:
+        (lv,) = new.meta.test_levels_of(g)
+        d = pred / "test/ldr" / f"{lv:g}"
+        d.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(
+            run / "renders/test/ldr" / f"{lv:g}" / frame_name(g, "png"), d / frame_name(g, "png")
+        )
+    r = CliRunner().invoke(
+        eval_main,
+        ["score-frames", "--clip", str(out), "--pred", str(pred), "--name", "other"]
+        + ["--out", str(tmp_path / "other")],
+    )
+    assert r.exit_code == 0, r.output
+    other = json.loads((tmp_path / "other" / "metrics.json").read_text())
+    assert other["ldr_oe_psnr"] == pytest.approx(m["ldr_oe_psnr"], abs=1e-9)
 
 
 def test_alternate_split_refuses_a_test_exposure_no_training_frame_has(
