@@ -14,8 +14,10 @@ evaluation::
       [P, 2] int64
                                 (a, b global indices; both directions are separate pairs), flow [P,
                                 H, W, 2] float32 F_{a->b}, valid [P, H, W] bool
-      gt/                       evaluation only; absent for real clips; a clip made from an HDR
-                                video (benchgen from-hdr) has only hdr/, ldr/ and flow.npz
+      gt/                       evaluation only; absent for real clips, only ldr/ (each test
+                                frame at exposures.test_dt) for real ones with held-out test frames;
+                                a clip made from an HDR video (benchgen from-hdr) has only hdr/,
+                                ldr/ and flow.npz
         hdr/<g>.exr             linear HDR radiance, every frame (train and test), [H, W, 3] float32
         ldr/<level>/<g>.png     test frames at every observed and novel level (<level> =
         level_name(dt)) depth/<g>.exr           z-depth, every frame cameras.json
