@@ -194,3 +194,19 @@ def test_given_gt_flow_sets_the_floor_and_the_clip_trains_and_scores(video, tmp_
     (tmp_path / "run2" / "run.json").write_text(json.dumps(cfg))
     m2 = score_run(tmp_path / "run2", clip=plain.root)
     assert "hdr_tae_gt_dis_flow" in m2["conventions"] and math.isfinite(m2["hdr_tae"])
+
+
+def test_a_benchgen_clip_s_own_hdr_gives_back_its_inputs(video, tmp_path):
+    """benchgen make tone-maps its (scaled) gt/hdr with the same response, split and alternating
+    schedule: from-hdr on those frames at scale 1 writes the same PNGs byte for byte, and the scale
+    it chooses itself from them is 1 (the same placement targets on the same frames)."""
+    src, root = video
+    clip = make(root, tmp_path / "c", scale=1.0)
+    assert list(clip.train_dt) == list(src.train_dt)
+    for g in src.train_frames:
+        assert np.array_equal(clip.load_ldr(g), src.load_ldr(g))
+    for g in src.test_frames:
+        for lv in (0.125, 0.5, 2.0, 8.0, 32.0):
+            assert np.array_equal(clip.load_gt_ldr(lv, g), src.load_gt_ldr(lv, g))
+    auto = make(root, tmp_path / "a")
+    assert auto.meta.hdr_scale == pytest.approx(1.0, rel=1e-3)
