@@ -262,9 +262,9 @@ def variants(preset):
     "--tracks",
     default=None,
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    help="Point tracks [T, N, 2] in pixels: an .npz with 'tracks' and 'visibility' (or "
-    "'visible'), or an .npy (visibility: --visibility). Default: long tracks chained through "
-    "DIS optical flow with a forward-backward check.",
+    help="Point tracks [T, N, 2] in pixels ([T, N, 3] x, y, depth tracks are read as x, y): an "
+    ".npz with 'tracks' and 'visibility' (or 'visible'), or an .npy (visibility: --visibility). "
+    "Default: long tracks chained through DIS optical flow with a forward-backward check.",
 )
 @click.option(
     "--visibility",

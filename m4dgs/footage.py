@@ -356,8 +356,11 @@ def read_tracks(
     else:
         raise InputError(f"{p}: tracks must be .npz (tracks + visibility) or .npy")
     tr = np.squeeze(tr)
+    three_d = tr.ndim == 3 and tr.shape[-1] == 3  # 3D trackers (SpatialTracker): x, y, depth
+    if three_d:
+        tr = tr[..., :2]
     if tr.ndim != 3 or tr.shape[-1] != 2 or tr.shape[0] != T:
-        raise InputError(f"{p}: tracks of shape {tr.shape}; expected [T={T}, N, 2]")
+        raise InputError(f"{p}: tracks of shape {tr.shape}; expected [T={T}, N, 2] (or [T, N, 3])")
     if vis is None:
         vis = np.ones(tr.shape[:2], bool)
     vis = np.squeeze(vis)
@@ -372,6 +375,8 @@ def read_tracks(
     xy = np.where(vis[..., None], xy, 0.0)
     keep = vis.sum(0) >= 2
     opt.report["tracks"] = {"source": str(p), "num": int(keep.sum()), "given": int(tr.shape[1])}
+    if three_d:
+        opt.report["tracks"]["third_column"] = "dropped (x, y, depth tracks; depth from --depth)"
     return TrackSet(
         np.transpose(xy[:, keep], (1, 0, 2)).astype(np.float32),
         np.transpose(vis[:, keep], (1, 0)),

@@ -93,6 +93,14 @@ def test_given_tracks_keep_their_positions(tiny_clip_realistic, tmp_path):
     assert np.array_equal(got.visible, vis[keep])
     v = got.visible
     assert np.allclose(got.tracks[v], src.tracks[keep][v], atol=1e-5)
+    # 3D tracks (x, y, depth; SpatialTracker's layout): the same 2D tracks
+    xyz = np.concatenate([tr, np.full(tr.shape[:2] + (1,), 7.0)], -1)
+    np.savez(tmp_path / "tracks3.npz", tracks=xyz, visibility=src.visible.T)
+    opt3 = ImportOptions(
+        frames=frames, exposures=times, depth=depth, tracks=tmp_path / "tracks3.npz"
+    )
+    got3 = Clip.open(import_clip(tmp_path / "mine3", opt3)).load_tracks_prior()
+    assert np.array_equal(got3.tracks, got.tracks) and np.array_equal(got3.visible, got.visible)
 
 
 def test_errors_name_what_is_missing_and_leave_nothing(tiny_clip_realistic, tmp_path):
