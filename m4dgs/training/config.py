@@ -159,6 +159,10 @@ class LossConfig:
     # tlr_start_step says which densification)
     tlr_start: Optional[int] = None
     tlr_occlusion_ratio: float = 1.1  # authors' code: depth-order occlusion test at 1.1x depth
+    # TLR's gradient reaches the neighbour frame's render too (sec. 3.3.3 stops the gradient of the
+    # rendered flow only; off: the neighbour render carries no gradient, as this code always did;
+    # docs/method.md, departure 8)
+    tlr_neighbour_grad: bool = False
 
 
 def _stage1_loss() -> LossConfig:

@@ -260,15 +260,17 @@ def tlr_term(
     hdr: Tensor,
     neighbours: Sequence[Tuple[Tensor, Tensor, Tensor, Tensor, Tensor]],
     occlusion_ratio: float,
+    neighbour_grad: bool = False,
 ) -> Term:
     """Temporal luminance regularisation of the HDR render at t, averaged over its neighbours, each
     (hdr_nb [H, W, 3], depth_nb [H, W], flow [H, W, 2], flow_valid [H, W], depth_ref [H, W]): the
     neighbour's render and depth, the rendered flow to it and the depth of each pixel's point at the
-    neighbour's time (depth-order occlusion test at occlusion_ratio)."""
+    neighbour's time (depth-order occlusion test at occlusion_ratio). neighbour_grad: the gradient
+    also reaches the neighbour's render (`loss.tlr_neighbour_grad`)."""
     terms = []
     for hdr_nb, depth_nb, flow, fvalid, zref in neighbours:
         valid = fvalid & tlr_valid_mask(flow, depth_nb, zref, ratio=occlusion_ratio)
-        terms.append(tlr_loss(hdr, hdr_nb, flow, valid))
+        terms.append(tlr_loss(hdr, hdr_nb, flow, valid, detach_neighbour=not neighbour_grad))
     return "tlr", torch.stack(terms).mean()
 
 
@@ -381,13 +383,15 @@ def assemble(stage, it: int) -> LossOutput:
         alpha = r.alpha.detach()
         nbrs = []
         for n_idx, k in enumerate(s.tlr_neighbours):
-            with torch.no_grad():
+            # the neighbour's render carries no gradient unless loss.tlr_neighbour_grad (its camera
+            # never does)
+            with torch.set_grad_enabled(lc.tlr_neighbour_grad):
                 rn = stage.render_view(float(k), k, camera, detach_camera=True)
             dm = r.dest[base + n_idx].detach()
             flow, fvalid = camera.flow(dm, alpha, k, detach=True)
             zref = camera.depth_at(dm / alpha.clamp_min(1e-6)[..., None], k)
             nbrs.append((rn.hdr, rn.depth, flow, fvalid, zref))
-        add(tlr_term(r.hdr, nbrs, lc.tlr_occlusion_ratio))
+        add(tlr_term(r.hdr, nbrs, lc.tlr_occlusion_ratio, lc.tlr_neighbour_grad))
     for term in stage.stage_terms(it, s, r, camera):
         add(term)
     if cfg.tonemap.lambda_monotonic > 0:

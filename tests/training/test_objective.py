@@ -248,6 +248,36 @@ def test_stage1_gradients_reach_the_intended_parameters(data):
     assert "tonemap" not in reach["tlr"] and {"color", "features"} <= reach["tlr"]
 
 
+def test_tlr_neighbour_gradient_option(data):
+    """loss.tlr_neighbour_grad: off (default), the TLR gradient is that of the term with the
+    neighbour renders held constant; on, the neighbour renders' own gradient is added. Both against
+    the term rebuilt by hand; the two gradients differ."""
+    it, got = 10_000, {}
+    for flag in (False, True):
+        st = video_stage(
+            data, **{"stage1.loss.flow_prob": 0.0, "stage1.loss.tlr_neighbour_grad": flag}
+        )
+        draw = replay_sample(st, it)
+        i, j = draw["i"], draw["j"]
+        feats = st.gauss.params["features"]
+        g_auto = torch.autograd.grad(st.losses(it).terms["tlr"], feats)[0]
+        nbrs = [k for k in (i - 1, i + 1) if 0 <= k < T]
+        r = st.render(float(i), [float(j)] + [float(k) for k in nbrs])
+        terms = []
+        for n_idx, k in enumerate(nbrs):
+            rn = st.render(float(k))
+            dm, alpha = r.dest[1 + n_idx].detach(), r.alpha.detach()
+            flow, fv = flow_from_destination_map(dm, alpha=alpha)
+            z = (dm / alpha.clamp_min(1e-6)[..., None])[..., 2]
+            valid = fv & tlr_valid_mask(flow, rn.depth.detach(), z, ratio=1.1)
+            nb = rn.hdr if flag else rn.hdr.detach()
+            terms.append(tlr_loss(r.hdr, nb, flow, valid, detach_neighbour=False))
+        g_hand = torch.autograd.grad(torch.stack(terms).mean(), feats)[0]
+        torch.testing.assert_close(g_auto, g_hand, rtol=1e-5, atol=1e-9)
+        got[flag] = g_auto
+    assert float((got[True] - got[False]).abs().max()) > 1e-3 * float(got[False].abs().max())
+
+
 def test_stage1_step_densifies_through_the_strategy_and_records(data):
     st = video_stage(data)
     rec = st.step(0)
