@@ -1023,6 +1023,14 @@ CONTROLS: Tuple[Control, ...] = (
         Effect("control-tlr-priors", "full-tlr-0.1-oracle", "full-oracle", "oracle priors"),
     ),
     Control(
+        "tlr-weight-grad",
+        "TLR at the paper's weight: is its PSNR cost the neighbour renders' stopped gradient? "
+        "(with the gradient against without)",
+        "method",
+        Effect("control-tlr-grad", "full-tlr-0.1", "full", "neighbours without gradient"),
+        Effect("control-tlr-grad", "full-tlr-0.1-grad", "full-grad", "neighbours with gradient"),
+    ),
+    Control(
         "tlr-weight-scale",
         "TLR at the paper's weight: is its PSNR cost the small schedule? (the paper's 4K + 11K "
         "against 3K + 2.5K)",
