@@ -83,3 +83,17 @@ def checkpoint_tensors():
     from m4dgs.run import load_torch
 
     return lambda path: dict(_tensors(load_torch(path)))
+
+
+@pytest.fixture
+def short_training():
+    """Overrides that cut a tiny-preset training to seconds (12 + 12 iterations, short bundle
+    adjustment, tone-mapper pretraining and V2W refit): for tests that need a finished run, not a
+    good one."""
+    return {
+        "stage1.iterations": 12,
+        "stage2.iterations": 12,
+        "camera_init.ba_steps": 20,
+        "tonemap.pretrain_steps": 10,
+        "v2w.scale_refit_steps": 5,
+    }

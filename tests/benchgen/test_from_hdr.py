@@ -19,14 +19,6 @@ from m4dgs.clip import Clip, frame_name
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError
 
-SHORT = {
-    "stage1.iterations": 12,
-    "stage2.iterations": 12,
-    "camera_init.ba_steps": 20,
-    "tonemap.pretrain_steps": 10,
-    "v2w.scale_refit_steps": 5,
-}
-
 
 def hdrnerf_codes(h: np.ndarray, dt: float) -> np.ndarray:
     """The paper's Syn-Exp-3 tone mapping (appendix, "Datasets"), by hand, in float64."""
@@ -163,7 +155,9 @@ def test_bad_input_is_named(video, tmp_path):
     assert "--scale" in r.output
 
 
-def test_given_gt_flow_sets_the_floor_and_the_clip_trains_and_scores(video, tmp_path):
+def test_given_gt_flow_sets_the_floor_and_the_clip_trains_and_scores(
+    video, tmp_path, short_training
+):
     from eval.score import score_run
     from m4dgs.training.pipeline import train
 
@@ -181,7 +175,9 @@ def test_given_gt_flow_sets_the_floor_and_the_clip_trains_and_scores(video, tmp_
     clip = make(root, tmp_path / "c", gt_flow=flow_dir)
     assert clip.has_gt_part("flow.npz")
     assert math.isfinite(clip.meta.gt["hdr_tae_floor"])
-    run = train(clip.root, tmp_path / "run", preset="tiny", overrides=SHORT, progress=False)
+    run = train(
+        clip.root, tmp_path / "run", preset="tiny", overrides=short_training, progress=False
+    )
     m = score_run(run)
     assert m["ldr_oe_psnr"] > 5 and m["hdr_psnr"] > 5 and math.isfinite(m["hdr_tae"])
     assert "hdr_tae_given_flow" in m["conventions"]

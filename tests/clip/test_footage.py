@@ -20,14 +20,6 @@ from m4dgs.footage import ImportOptions, exposure_levels, import_clip, read_flo
 from m4dgs.run import RunDir
 from m4dgs.training.pipeline import train
 
-SHORT = {
-    "stage1.iterations": 12,
-    "stage2.iterations": 12,
-    "camera_init.ba_steps": 20,
-    "tonemap.pretrain_steps": 10,
-    "v2w.scale_refit_steps": 5,
-}
-
 
 def strip(clip_dir, root):
     """The clip's input frames (renamed to a camera's file names), an exposure-time file in
@@ -46,7 +38,7 @@ def strip(clip_dir, root):
     return clip, frames, root / "times.txt", depth
 
 
-def test_stripped_benchgen_clip_imports_and_trains(tiny_clip_realistic, tmp_path):
+def test_stripped_benchgen_clip_imports_and_trains(tiny_clip_realistic, tmp_path, short_training):
     clip, frames, times, depth = strip(tiny_clip_realistic, tmp_path)
     out = tmp_path / "mine"
     r = CliRunner().invoke(
@@ -73,7 +65,7 @@ def test_stripped_benchgen_clip_imports_and_trains(tiny_clip_realistic, tmp_path
     assert ts.tracks.shape[0] > 50 and ts.visible.sum(1).max() >= 4
     assert new.meta.priors["tracks"]["max_length"] >= 4
     # ... and the clip trains
-    run = train(out, tmp_path / "run", preset="tiny", overrides=SHORT, progress=False)
+    run = train(out, tmp_path / "run", preset="tiny", overrides=short_training, progress=False)
     assert RunDir(run).done
 
 
@@ -174,17 +166,17 @@ def test_flo_files_and_exposure_levels(tmp_path):
     )
 
 
-def test_a_refused_clip_leaves_no_run_folder(tiny_clip_realistic, tmp_path):
+def test_a_refused_clip_leaves_no_run_folder(tiny_clip_realistic, tmp_path, short_training):
     clip_dir = tmp_path / "clip"
     shutil.copytree(tiny_clip_realistic, clip_dir)
     (clip_dir / "priors/tracks.npz").unlink()
     with pytest.raises(InputError, match="tracks"):
-        train(clip_dir, tmp_path / "run", preset="tiny", overrides=SHORT, progress=False)
+        train(clip_dir, tmp_path / "run", preset="tiny", overrides=short_training, progress=False)
     assert not (tmp_path / "run").exists()
     # a folder that was there before is kept
     (tmp_path / "mine").mkdir()
     with pytest.raises(InputError):
-        train(clip_dir, tmp_path / "mine", preset="tiny", overrides=SHORT, progress=False)
+        train(clip_dir, tmp_path / "mine", preset="tiny", overrides=short_training, progress=False)
     assert (tmp_path / "mine").is_dir()
 
 
@@ -302,7 +294,7 @@ def alternating_capture(clip_dir, root):
 
 
 def test_alternate_split_holds_out_odd_frames_scored_at_their_own_exposure(
-    tiny_clip_realistic, tmp_path
+    tiny_clip_realistic, tmp_path, short_training
 ):
     from eval.cli import main as eval_main
     from eval.score import score_run
@@ -330,7 +322,7 @@ def test_alternate_split_holds_out_odd_frames_scored_at_their_own_exposure(
         assert np.allclose(new.load_depth_prior(g), clip.load_gt_depth(g), rtol=1e-6)
     assert list(new.load_tracks_prior().frames) == new.train_frames
 
-    run = train(out, tmp_path / "run", preset="tiny", overrides=SHORT, progress=False)
+    run = train(out, tmp_path / "run", preset="tiny", overrides=short_training, progress=False)
     m = score_run(run)
     # LDR-OE: the mean over the test images, each against its own frame (PSNR by hand)
     ps = []

@@ -14,22 +14,14 @@ from eval.cli import main
 from eval.runner import job_list
 from eval.suite import SuiteError, load_eval_suite, scene_suite_names
 
-SHORT = {
-    "stage1.iterations": 12,
-    "stage2.iterations": 12,
-    "camera_init.ba_steps": 20,
-    "tonemap.pretrain_steps": 10,
-    "v2w.scale_refit_steps": 5,
-}
 
-
-def write_suite(path, folder="clips", **extra):
+def write_suite(path, folder="clips", short=None, **extra):
     d = {
         "name": "mine",
         "scenes": {"clips": folder},
         "rows": [
-            {"name": "static-hdr", "variant": "static-hdr", "overrides": SHORT},
-            {"name": "full", "variant": "full", "overrides": SHORT},
+            {"name": "static-hdr", "variant": "static-hdr", "overrides": short or {}},
+            {"name": "full", "variant": "full", "overrides": short or {}},
         ],
         "tables": [{"title": "my clips", "columns": "ablation"}],
         **extra,
@@ -38,12 +30,12 @@ def write_suite(path, folder="clips", **extra):
     return path
 
 
-def test_a_suite_of_existing_clips_runs_and_tabulates(tiny_clip_oracle, tmp_path):
+def test_a_suite_of_existing_clips_runs_and_tabulates(tiny_clip_oracle, tmp_path, short_training):
     clips = tmp_path / "clips"
     clips.mkdir()
     shutil.copytree(tiny_clip_oracle, clips / "flag-arm")
     (clips / "notes").mkdir()  # not a clip: ignored
-    suite = write_suite(tmp_path / "mine.yaml")
+    suite = write_suite(tmp_path / "mine.yaml", short=short_training)
     s = load_eval_suite(suite)
     assert scene_suite_names(s) == ["flag-arm"]
     jobs = job_list(s, tmp_path / "root", preset="tiny")
