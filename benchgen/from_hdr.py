@@ -92,7 +92,9 @@ def read_hdr_frames(
     files = list_images(Path(opt.hdr), HDR_EXTS)[:: max(int(opt.every), 1)]
     if opt.max_frames:
         files = files[: int(opt.max_frames)]
-    frames = []
+    if opt.width is not None and int(opt.width) < 16:
+        raise InputError(f"--width {opt.width}: expected at least 16 pixels")
+    frames, size = [], None
     for p in files:
         px, kind = mio.read_image(p)
         if kind != "float":
@@ -105,20 +107,21 @@ def read_hdr_frames(
             raise InputError(
                 f"{p}: field 'pixels': negative radiance ({int((px < 0).sum())} values)"
             )
+        if size is None:
+            size = px.shape
+        elif px.shape != size:
+            raise InputError(
+                f"{p}: {px.shape[1]}x{px.shape[0]} pixels, the first frame is {size[1]}x{size[0]}"
+            )
+        if opt.width is not None:  # one frame at a time: a long 4K video need not fit in memory
+            h = max(1, int(round(size[0] * int(opt.width) / size[1])))
+            px = np.maximum(_resize(px, h, int(opt.width)), 0.0)
         frames.append(px)
-    shapes = {f.shape for f in frames}
-    if len(shapes) > 1:
-        raise InputError(f"{opt.hdr}: frames of different sizes {sorted(shapes)}")
     if len(frames) < 6:
         raise InputError(
             f"{opt.hdr}: {len(frames)} frame(s); a clip needs at least 6 (3 training, 3 test)"
         )
-    H0, W0 = frames[0].shape[:2]
-    if opt.width is not None:
-        if int(opt.width) < 16:
-            raise InputError(f"--width {opt.width}: expected at least 16 pixels")
-        h = max(1, int(round(H0 * int(opt.width) / W0)))
-        frames = [np.maximum(_resize(f, h, int(opt.width)), 0.0) for f in frames]
+    H0, W0 = size[:2]
     return frames, [p.name for p in files], (H0, W0)
 
 
@@ -198,7 +201,9 @@ def clip_from_hdr_video(out, opt: HdrVideoOptions, force: bool = False) -> Path:
         if not (float(opt.scale) > 0 and np.isfinite(float(opt.scale))):
             raise InputError(f"--scale {opt.scale}: expected a finite number > 0")
         scale, scale_report = float(opt.scale), {"scale": float(opt.scale), "given": True}
-    hdr = [(fr * np.float32(scale)).astype(np.float32) for fr in frames]
+    hdr = frames
+    for fr in hdr:  # in place: the unit frames are not needed again
+        fr *= np.float32(scale)
     ldr_train = {g: tonemap_ldr(hdr[g], dt, f) for g, dt in zip(train, train_dt)}
 
     if opt.ldr_only:

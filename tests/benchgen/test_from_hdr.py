@@ -206,3 +206,14 @@ def test_a_benchgen_clip_s_own_hdr_gives_back_its_inputs(video, tmp_path):
             assert np.array_equal(clip.load_gt_ldr(lv, g), src.load_gt_ldr(lv, g))
     auto = make(root, tmp_path / "a")
     assert auto.meta.hdr_scale == pytest.approx(1.0, rel=1e-3)
+
+
+def test_width_area_averages_the_hdr_frames(video, tmp_path):
+    src, root = video
+    clip = make(root, tmp_path / "half", scale=2.0, width=src.width // 2)
+    assert (clip.width, clip.height) == (src.width // 2, src.height // 2)
+    assert clip.meta.generator["resized_from"] == [src.height, src.width]
+    for g in (0, 1):
+        h = src.load_gt_hdr(g).astype(np.float64) * 2.0
+        blocks = h.reshape(src.height // 2, 2, src.width // 2, 2, 3).mean(axis=(1, 3))
+        assert np.allclose(clip.load_gt_hdr(g), blocks, rtol=1e-5, atol=1e-6)
