@@ -26,8 +26,12 @@ frame and point tracks; this module writes one from what a user has:
   them (positions and vectors in continuous pixel coordinates, whose pixel edges sit at integers,
   scale exactly by the size ratio), depth is resized as it is at any size.
 
-Every frame is a training frame (a real clip has no test frames or ground truth); the camera
-response is unknown (crf null) and the unit-exposure value is the paper's 0.5 for real footage. The
+Every frame is a training frame (a real clip has no test frames or ground truth) unless `split` is
+"alternate": then the odd frames are held out as test frames, each kept as its own ground truth at
+the exposure it was captured at (gt/ldr/<level>/<g>.png, clip.json exposures.test_dt; the paper's
+Real-Exp-3 protocol), and depth may be given per frame (the training ones are taken) while tracks
+and flow refer to the training frames. The camera response is unknown (crf null) and the
+unit-exposure value is the paper's 0.5 for real footage. The
 clip is written into a temporary folder and renamed into place when complete, so a failed import
 leaves nothing half-made."""
 
