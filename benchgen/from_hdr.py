@@ -334,9 +334,9 @@ def _check_placement(out: Path, placement: dict, opt: HdrVideoOptions) -> None:
     msg = (
         f"{out}: at {how} the clip misses its exposure-placement targets (clip.json "
         f"gt.placement): " + "; ".join(bad) + ". Try another --scale (clip.json hdr_scale is the "
-        "one used), other --observed levels, or pass --allow-misplaced to keep the clip anyway."
+        "one used) or other --observed levels"
     )
     if opt.allow_misplaced:
-        print("warning: " + msg, file=sys.stderr)
+        print(f"warning: {msg}; kept (--allow-misplaced).", file=sys.stderr)
         return
-    raise PlacementError(msg)
+    raise PlacementError(msg + ", or pass --allow-misplaced to keep the clip anyway.")
