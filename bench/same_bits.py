@@ -45,27 +45,13 @@ def train_with(checkout: Path, clip: Path, out: Path, preset: str, sets) -> None
         raise SystemExit(f"training with {checkout} failed:\n{r.stderr[-3000:]}")
 
 
-def tensors(obj, prefix=""):
-    """(dotted path, tensor) of every tensor in a nested checkpoint."""
-    import torch
-
-    if torch.is_tensor(obj):
-        yield prefix, obj
-    elif isinstance(obj, dict):
-        for k, v in obj.items():
-            yield from tensors(v, f"{prefix}.{k}" if prefix else str(k))
-    elif isinstance(obj, (list, tuple)):
-        for i, v in enumerate(obj):
-            yield from tensors(v, f"{prefix}[{i}]")
-
-
 def compare_models(a_path: Path, b_path: Path) -> tuple[int, list]:
     """(tensors compared, names of those that differ or exist on one side only)."""
     import torch
 
-    from m4dgs.run import load_torch
+    from m4dgs.run import checkpoint_tensors, load_torch
 
-    a, b = dict(tensors(load_torch(a_path))), dict(tensors(load_torch(b_path)))
+    a, b = checkpoint_tensors(load_torch(a_path)), checkpoint_tensors(load_torch(b_path))
     differ = sorted(set(a) ^ set(b))
     differ += [
         k

@@ -40,6 +40,21 @@ def load_torch(path, map_location="cpu") -> Any:
     return torch.load(path, map_location=map_location, weights_only=False)
 
 
+def checkpoint_tensors(obj, prefix: str = "") -> Dict[str, torch.Tensor]:
+    """{dotted path: tensor} of every tensor in a nested checkpoint (dicts, lists, tuples), e.g.
+    "params.means" or "optimizers.ctrl.state.0.exp_avg"; for comparing two saved models."""
+    out: Dict[str, torch.Tensor] = {}
+    if torch.is_tensor(obj):
+        out[prefix] = obj
+    elif isinstance(obj, dict):
+        for k, v in obj.items():
+            out.update(checkpoint_tensors(v, f"{prefix}.{k}" if prefix else str(k)))
+    elif isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            out.update(checkpoint_tensors(v, f"{prefix}[{i}]"))
+    return out
+
+
 class RunDir:
     def __init__(self, root):
         self.root = Path(root)

@@ -67,22 +67,12 @@ def one_thread():
     torch.set_num_threads(n)
 
 
-def _tensors(obj, prefix=""):
-    import torch
-
-    if torch.is_tensor(obj):
-        yield prefix, obj
-    elif isinstance(obj, dict):
-        for k, v in obj.items():
-            yield from _tensors(v, f"{prefix}.{k}" if prefix else str(k))
-
-
 @pytest.fixture
 def checkpoint_tensors():
     """checkpoint_tensors(path): {dotted path: tensor} of every tensor of a saved model."""
-    from m4dgs.run import load_torch
+    from m4dgs.run import checkpoint_tensors, load_torch
 
-    return lambda path: dict(_tensors(load_torch(path)))
+    return lambda path: checkpoint_tensors(load_torch(path))
 
 
 @pytest.fixture

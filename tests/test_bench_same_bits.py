@@ -18,11 +18,13 @@ def test_a_checkout_against_itself_and_planted_differences(
     assert sb.main(argv + sum((["--set", s] for s in sets), [])) == 0
     assert "same bits" in capsys.readouterr().out
     # a planted difference in one tensor and in one logged value
-    from m4dgs.run import load_torch, save_torch
+    from m4dgs.run import checkpoint_tensors, load_torch, save_torch
 
     final = tmp_path / "runs/new/model/final.pt"
     ck = load_torch(final)
-    name, t = next((k, v) for k, v in sb.tensors(ck) if v.is_floating_point() and v.numel())
+    name, t = next(
+        (k, v) for k, v in checkpoint_tensors(ck).items() if v.is_floating_point() and v.numel()
+    )
     t.view(-1)[0] += 1.0
     save_torch(final, ck)
     n, differ = sb.compare_models(tmp_path / "runs/old/model/final.pt", final)
