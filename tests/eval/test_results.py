@@ -564,6 +564,21 @@ def test_export_merge_results_readme(tmp_path):
     assert "[docs/results.md](docs/results.md)" in block and "10 of 10 runs scored" in block
     t = table_after(block, "Syn-Exp-3 test frames (paper Table 1)")
     assert check_table(t, rows, "paper-main", main_labels, "full") == 5
+    # the findings at a glance, under the README's table and atop results.md's findings: the
+    # ablation finding's counts are those of the scipy Holm verdicts above; 6 pairs at most
+    # (robot-arm-dolly's no-reproj lacks seed 1); a finding without runs says so
+    glance = (
+        "| Each ablation row costs quality (paper Table 3) | `paper-ablation` | 3 x 2 | 6 "
+        f"| {holm_verdicts.count('agrees')} | {holm_verdicts.count('disagrees')} "
+        f"| {holm_verdicts.count('not significant')} | {holm_verdicts.count('paper tie')} | 0 "
+        f"| {inside} of 20 |"
+    )
+    assert holm_verdicts.count("agrees") and holm_verdicts.count("paper tie")
+    assert glance in block and glance in text
+    assert "[the findings tables](docs/results.md#findings)" in block
+    assert text.index(glance) < text.index("### The full method beats each baseline")
+    none = "| `control-points` | no runs | 0 | 0 | 0 | 0 | 0 | 16 | n/a |"
+    assert none in block and none in text
     snap = {p: p.read_bytes() for p in [readme, docs / "results.md", *figs.iterdir()]}
     r = cli.invoke(main, args)
     assert r.exit_code == 0, r.output
