@@ -57,6 +57,7 @@ from m4dgs.clip import (
 from m4dgs.core import io as mio
 from m4dgs.core.crf import clip_crf, tonemap_ldr
 from m4dgs.core.errors import InputError
+from m4dgs.core.host import host_info
 
 from .exposure import (
     ExposureSettings,
@@ -250,6 +251,10 @@ def make_clip(
     _write_priors(job, writer, meta, train_dt)  # 5
     _record_clip_stats(job, meta, hdr_train)
     meta.generator["seconds"] = round(time.perf_counter() - t_start, 2)
+    # where it was finished (a resumed or reused render may come from another machine)
+    from .render import renderer_info
+
+    meta.generator["host"] = {**host_info(), **renderer_info()}
     _finish(job, writer, meta, targets, allow_misplaced)  # 6
     return job.out
 

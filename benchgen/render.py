@@ -213,6 +213,28 @@ def pick_variant() -> str:
     return variant
 
 
+def renderer_info() -> dict:
+    """{"mitsuba", "drjit", "oidn", "variant"}: the package versions the renders and the denoiser
+    come from, and the Mitsuba variant this process picked (None when it rendered nothing, e.g. a
+    clip whose renders were all resumed or reused). Clip.json records it with the host
+    (m4dgs.core.host): the LLVM variant and the denoiser pick kernels for the host CPU, so a clip
+    regenerated on another machine can differ in its last digits (docs/reliability.md)."""
+    from importlib import metadata
+
+    def version(pkg):
+        try:
+            return metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            return None
+
+    return {
+        "mitsuba": version("mitsuba"),
+        "drjit": version("drjit"),
+        "oidn": version("pyoidn"),
+        "variant": _CHOSEN_VARIANT,
+    }
+
+
 # --------------------------------------------------------------------------------------------------
 # Camera conversion
 # --------------------------------------------------------------------------------------------------

@@ -39,6 +39,7 @@ from m4dgs.core import camera as cam
 from m4dgs.core import spline
 from m4dgs.core.device import peak_memory_mib, resolve_device
 from m4dgs.core.errors import InputError
+from m4dgs.core.host import host_info
 from m4dgs.core.io import read_exr, write_exr, write_json, write_png
 from m4dgs.core.lock import FolderLock
 from m4dgs.core.threads import kernel_threads
@@ -160,6 +161,8 @@ class Trainer:
             # the m4dgs sources the run was trained with (m4dgs.training.phases.code_fingerprint):
             # exported beside the metrics, so a table can tell runs of different code apart
             "code": code_fingerprint(),
+            # where it ran: across machines a seed need not repeat bit for bit (m4dgs.core.host)
+            "host": host_info(self.device),
             **extra,
         }
         write_json(self.run.path("run.json"), info)

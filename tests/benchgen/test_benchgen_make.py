@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import hashlib
 
+import mitsuba as mi
 import numpy as np
 import pytest
+import torch
 
 from benchgen.make import make_clip as _make_clip
 from benchgen.suite import builtin_scenes_dir
@@ -83,6 +85,10 @@ def test_same_seed_is_byte_identical_and_resume_skips(tiny_clip_realistic, tmp_p
     clip2 = Clip.open(again)
     rels = _inputs_and_priors(first)
     assert _digest(first.root, rels) == _digest(clip2.root, rels)
+    # clip.json says where it was made: the Mitsuba variant that rendered it and the host
+    host = clip2.meta.generator["host"]
+    assert host["variant"] in ("llvm_ad_rgb", "scalar_rgb") and host["mitsuba"] == mi.__version__
+    assert host["cpu_capability"] == torch.backends.cpu.get_cpu_capability()
     # a finished clip with the same settings is returned untouched
     before = (again / "clip.json").stat().st_mtime_ns
     make_clip(

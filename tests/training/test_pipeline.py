@@ -92,6 +92,10 @@ def test_pipeline_runs_resumes_and_renders(tiny_clip_realistic, tmp_path, monkey
     assert info["train_seconds"] > 0 and info["num_gaussians"] > 0
     # the fingerprint of the sources it was trained with (the one the phase-sharing keys use)
     assert info["code"] == code_fingerprint() and len(info["code"]) == 64
+    # and where it ran: the instruction set torch dispatched on, no GPU on the CPU
+    host = info["host"]
+    assert host["cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    assert host["torch"] == torch.__version__ and host["gpu"] is None
     cams = json.loads((run / "cameras.json").read_text())
     assert len(cams["c2w"]) == clip.meta.num_frames
     # tiny preset: union of the epipolar and rigidity masks, cameras re-adjusted once on them
