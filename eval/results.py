@@ -900,7 +900,9 @@ def findings_glance_markdown(rows: List[dict], details_link: Optional[str] = Non
     where = f"[the findings tables]({details_link})" if details_link else "the tables below"
     lines = [
         "**The paper's findings at a glance** (verdicts after Holm's correction over each "
-        f"finding's comparisons; every comparison with its interval: {where}):",
+        "finding's comparisons; the last column counts the comparisons whose paper Δ lies inside "
+        "our 95 % interval, so that our runs do not rule out an effect of the paper's size; "
+        f"every comparison with its interval: {where}):",
         "",
         "| finding of the paper | suite | scenes x seeds | pairs | agree | disagree "
         "| not significant | paper tie | not enough data | paper's Δ inside ours |",
