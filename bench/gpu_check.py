@@ -40,7 +40,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -52,6 +51,7 @@ if str(ROOT) not in sys.path:
 
 import torch  # noqa: E402
 
+from m4dgs.core.host import host_info  # noqa: E402
 from m4dgs.core.threads import cpu_budget  # noqa: E402
 
 STEPS = ("env", "tests", "train", "fps", "fps_scale", "profile", "jobs")
@@ -66,12 +66,12 @@ def _save(out: Path, res: dict) -> None:
 
 def _env(device: str) -> dict:
     """Versions and the seconds of the first gsplat rasterization (its CUDA build)."""
+    host = host_info(torch.device(device))  # python, torch, CPU model and dispatch, GPU name
     info = {
-        "python": platform.python_version(),
-        "torch": torch.__version__,
+        **host,
         "cuda": torch.version.cuda,
         "device": device,
-        "device_name": torch.cuda.get_device_name(0) if device == "cuda" else platform.processor(),
+        "device_name": host["gpu"] or host["cpu"],
     }
     try:
         import gsplat

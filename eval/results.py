@@ -753,6 +753,13 @@ def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
     return out
 
 
+def evaluate_findings(rows: List[dict]) -> Dict[str, List[ComparisonResult]]:
+    """{finding key: evaluate_finding} of every finding whose suite has a scored run: what the
+    findings tables, their figures and the glance table read (computed once per page)."""
+    present = {r["suite"] for r in rows if r.get("status") == SCORED}
+    return {f.key: evaluate_finding(f, rows) for f in FINDINGS if f.suite in present}
+
+
 def paper_inside(res: ComparisonResult) -> Optional[bool]:
     """Whether the paper's Δ lies inside our interval (None without a paper Δ or an interval). A
     "not significant" verdict with the paper's Δ outside our interval says more than "too few
@@ -780,15 +787,19 @@ def _paper_diff_text(v: float, fmt: str) -> str:
 
 
 def findings_markdown(
-    rows: List[dict], notes_link: Optional[str], figures: Optional[Dict[str, str]] = None
+    rows: List[dict],
+    notes_link: Optional[str],
+    figures: Optional[Dict[str, str]] = None,
+    evaluated: Optional[Dict[str, List[ComparisonResult]]] = None,
 ) -> str:
     """The Findings section; figures: {finding key: link of its forest plot} to show under its
-    table."""
+    table; evaluated: evaluate_findings(rows) when the caller has it."""
     from .paper import load_paper_values
     from .suite import metric_columns
 
     cols = metric_columns()
-    present = {r["suite"] for r in rows if r.get("status") == SCORED}
+    if evaluated is None:
+        evaluated = evaluate_findings(rows)
     lines = [
         "## Findings",
         "",
@@ -813,14 +824,14 @@ def findings_markdown(
         "mean, and the controls run for disagreements, are written by hand"
         + (f" in [{Path(notes_link).name}]({notes_link})." if notes_link else "."),
         "",
-        findings_glance_markdown(rows),
+        findings_glance_markdown(rows, evaluated),
     ]
     for f in FINDINGS:
         lines += [f"### {f.title}", ""]
-        if f.suite not in present:
+        if f.key not in evaluated:
             lines += [f"**not enough data**: no scored run of suite `{f.suite}` in the CSV.", ""]
             continue
-        res = evaluate_finding(f, rows)
+        res = evaluated[f.key]
         src = load_paper_values()[f.paper].source if f.paper else None
         lines += [
             f"Suite `{f.suite}`" + (f"; paper values: {src}." if src else "."),
@@ -891,12 +902,16 @@ def findings_markdown(
     return "\n".join(lines)
 
 
-def findings_glance_markdown(rows: List[dict], details_link: Optional[str] = None) -> str:
+def findings_glance_markdown(
+    rows: List[dict],
+    evaluated: Dict[str, List[ComparisonResult]],
+    details_link: Optional[str] = None,
+) -> str:
     """One line per finding of the paper: how many (scene, seed) pairs stand behind it and its
     verdicts after Holm's correction within the finding (as in its findings table), so that a
-    reader sees at once what the runs so far support; details_link: where the findings tables
-    are (None: below). Findings whose suite has no scored run say so."""
-    present = {r["suite"] for r in rows if r.get("status") == SCORED}
+    reader sees at once what the runs so far support; evaluated: evaluate_findings(rows);
+    details_link: where the findings tables are (None: below). Findings whose suite has no scored
+    run say so."""
     where = f"[the findings tables]({details_link})" if details_link else "the tables below"
     lines = [
         "**The paper's findings at a glance** (verdicts after Holm's correction over each "
@@ -909,11 +924,11 @@ def findings_glance_markdown(rows: List[dict], details_link: Optional[str] = Non
         "|:---|:---|:---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for f in FINDINGS:
-        if f.suite not in present:
+        if f.key not in evaluated:
             n = len(f.comparisons) * len(f.metrics)
             lines.append(f"| {f.title} | `{f.suite}` | no runs | 0 | 0 | 0 | 0 | 0 | {n} | n/a |")
             continue
-        res = evaluate_finding(f, rows)
+        res = evaluated[f.key]
         mine = [r for r in rows if r["suite"] == f.suite and r.get("status") == SCORED]
         holm = [r.verdict_holm for r in res]
         pairs = max((r.ours.n for r in res if r.ours is not None), default=0)
@@ -1750,15 +1765,14 @@ def controls_figure(rows: List[dict], out_png) -> Optional[Path]:
     return _save(fig, out_png)
 
 
-def finding_figures(rows: List[dict], fig_dir) -> Dict[str, Path]:
-    """{finding key: PNG} for every finding whose suite has scored runs, named
-    finding_<key>.png in fig_dir."""
-    present = {r["suite"] for r in rows if r.get("status") == SCORED}
+def finding_figures(evaluated: Dict[str, List[ComparisonResult]], fig_dir) -> Dict[str, Path]:
+    """{finding key: PNG} for every finding of `evaluated` (evaluate_findings: those whose suite
+    has scored runs), named finding_<key>.png in fig_dir."""
     out = {}
     for f in FINDINGS:
-        if f.suite in present:
+        if f.key in evaluated:
             p = finding_figure(
-                f, evaluate_finding(f, rows), Path(fig_dir) / f"{FINDING_FIGURE_PREFIX}{f.key}.png"
+                f, evaluated[f.key], Path(fig_dir) / f"{FINDING_FIGURE_PREFIX}{f.key}.png"
             )
             if p is not None:
                 out[f.key] = p
@@ -1901,10 +1915,12 @@ def readme_block(
     csv_name: str,
     floors: Optional[dict] = None,
     rows: Optional[List[dict]] = None,
+    evaluated: Optional[Dict[str, List[ComparisonResult]]] = None,
 ) -> str:
     """The README's results block (between the markers); `floors` (read_floors_csv) adds the
     line on the clips' HDR-TAE floor under the table, `rows` (the runs CSV) the findings at a
-    glance (findings_glance_markdown) under it."""
+    glance (findings_glance_markdown; `evaluated`: evaluate_findings(rows) when the caller has
+    it) under it."""
     head = [
         README_START,
         "<!-- generated by `m4dgs-eval results`; do not edit between the markers -->",
@@ -1942,7 +1958,9 @@ def readme_block(
         if ft:
             body.append(ft)
     if rows and any(r.get("status") == SCORED for r in rows):
-        glance = findings_glance_markdown(rows, f"{results_link}#findings")
+        if evaluated is None:
+            evaluated = evaluate_findings(rows)
+        glance = findings_glance_markdown(rows, evaluated, f"{results_link}#findings")
         body += ["", glance.rstrip("\n")]
     return "\n".join(head + [""] + body + ["", README_END])
 
@@ -2068,10 +2086,11 @@ def render_results(
         fp = suite_result_figures(datas[n], curves, figures_dir) if figures_dir else []
         figs += fp
         lines += [suite_section(datas[n], fp, out_dir, floors), ""]
-    ffigs = finding_figures(rows, figures_dir) if figures_dir else {}
+    evaluated = evaluate_findings(rows)
+    ffigs = finding_figures(evaluated, figures_dir) if figures_dir else {}
     figs += list(ffigs.values())
     links = {k: _rel(p, out_dir) for k, p in ffigs.items()}
-    lines.append(findings_markdown(rows, notes_link, links))
+    lines.append(findings_markdown(rows, notes_link, links, evaluated))
     cfig = controls_figure(rows, Path(figures_dir) / CONTROLS_FIGURE) if figures_dir else None
     if cfig is not None:
         figs.append(cfig)
@@ -2089,7 +2108,12 @@ def render_results(
     if readme:
         rp = Path(readme)
         block = readme_block(
-            datas.get(MAIN_SUITE), _rel(out_md, rp.parent), csv_path.as_posix(), floors, rows
+            datas.get(MAIN_SUITE),
+            _rel(out_md, rp.parent),
+            csv_path.as_posix(),
+            floors,
+            rows,
+            evaluated,
         )
         old = rp.read_text(encoding="utf-8")
         new = replace_readme_block(old, block, rp)

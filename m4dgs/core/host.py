@@ -31,21 +31,27 @@ def cpu_model() -> str:
     return platform.processor() or ""
 
 
+def cpu_capability() -> str:
+    """The instruction set torch's CPU kernels dispatch on ("AVX2", "AVX512", ...; "DEFAULT" where
+    torch cannot say): what the C++ rasterizer's build flags follow (m4dgs.raster.cpu_backend)
+    and what rounds differently from one CPU to another."""
+    try:
+        return torch.backends.cpu.get_cpu_capability()
+    except Exception:  # very old torch / unusual platform
+        return "DEFAULT"
+
+
 def host_info(device: Optional[torch.device] = None) -> dict:
     """{"machine", "cpu", "cpu_capability", "python", "numpy", "torch", "gpu"} of this process:
     the CPU architecture and model, the instruction set torch's CPU kernels dispatch on, the
     versions, and the CUDA device's name when `device` is one (else None). JSON-ready."""
-    try:
-        capability = torch.backends.cpu.get_cpu_capability()
-    except Exception:  # pragma: no cover - very old torch / unusual platform
-        capability = ""
     gpu = None
     if device is not None and torch.device(device).type == "cuda":
         gpu = torch.cuda.get_device_name(torch.device(device))
     return {
         "machine": platform.machine(),
         "cpu": cpu_model(),
-        "cpu_capability": capability,
+        "cpu_capability": cpu_capability(),
         "python": platform.python_version(),
         "numpy": np.__version__,
         "torch": torch.__version__,

@@ -21,6 +21,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from m4dgs.core.host import cpu_capability
 from m4dgs.core.threads import kernel_threads
 
 from .binning import TILE_SIZE, TileBins
@@ -46,11 +47,7 @@ EXT_NAME = "m4dgs_rasterize_cpu"
 def _isa_flags() -> tuple[str, list[str]]:
     """(name suffix, extra compiler flags) for this CPU: AVX2 + FMA where torch detects AVX2 (or
     AVX512)."""
-    try:
-        capability = torch.backends.cpu.get_cpu_capability()
-    except Exception:  # very old torch / unusual platform
-        capability = "DEFAULT"
-    if capability in ("AVX2", "AVX512"):
+    if cpu_capability() in ("AVX2", "AVX512"):
         return "_avx2", ["-mavx2", "-mfma"]
     return "", []
 
