@@ -130,7 +130,7 @@ SHORT = {
 
 
 def test_shared_phases_give_the_run_what_it_would_compute(
-    tiny_clip_realistic, tmp_path, one_thread, checkpoint_tensors
+    tiny_clip_realistic, tmp_path, one_thread, checkpoint_tensors, monkeypatch
 ):
     share = tmp_path / "shared"
 
@@ -204,3 +204,11 @@ def test_shared_phases_give_the_run_what_it_would_compute(
     assert "shared_phases" not in kernels2.status()
     info = json.loads(kernels2.path("run.json").read_text())
     assert (info["torch_threads"], info["kernel_threads"]) == (1, 2)
+    # nor does a machine whose torch kernels dispatch on another instruction set (they round
+    # differently: docs/reliability.md, "Across machines")
+    torch.set_num_threads(1)
+    import m4dgs.training.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "cpu_capability", lambda: "AVX512-elsewhere")
+    avx = run("other-cpu", "full")
+    assert "shared_phases" not in avx.status()
