@@ -882,6 +882,14 @@ def results(csv_path, out_md, figures_dir, no_figures, readme, no_readme, title,
         + (f"; updated {res['readme']}" if res["readme"] else ""),
         err=True,
     )
+    for name, pm in res["partial_metrics"].items():
+        click.echo(
+            f"warning: suite {name}: some scored runs lack metrics their rows report elsewhere: "
+            + ", ".join(f"{k} in {h} of {n} runs" for k, (h, n) in pm.items())
+            + " (scored before the metric existed, or rows written back by an older export: "
+            "re-export them with `m4dgs-eval export` while their run folders exist)",
+            err=True,
+        )
 
 
 if __name__ == "__main__":  # pragma: no cover

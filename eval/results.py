@@ -474,6 +474,23 @@ class SuiteData:
                 out[r.get("preset") or "?"] = out.get(r.get("preset") or "?", 0) + 1
         return dict(sorted(out.items()))
 
+    def partial_metrics(self) -> Dict[str, Tuple[int, int]]:
+        """{metric: (runs that have it, scored runs of the rows that have it in some run)} for the
+        metrics that some scored runs of a row have and others of the same row lack: a run scored
+        before the metric existed, or a row written back by an export that did not know it. A
+        metric that a row never has (LPIPS without weights, tracks of a row without them) is not
+        partial."""
+        out: Dict[str, Tuple[int, int]] = {}
+        for k in metric_keys():
+            by_row: Dict[str, List[bool]] = {}
+            for e in self.scored:
+                by_row.setdefault(e["row"], []).append(e["metrics"].get(k) is not None)
+            reported = [v for v in by_row.values() if any(v)]
+            have, total = sum(sum(v) for v in reported), sum(len(v) for v in reported)
+            if have < total:
+                out[k] = (have, total)
+        return out
+
     def provenance(self, column: str) -> Dict[str, int]:
         """{value: number of scored runs} of a provenance column ("code", "generator",
         "torch_threads"); runs whose CSV row does not say count under "not recorded"."""
@@ -1895,6 +1912,15 @@ def suite_section(
     ft = floors_text(data, floors or {})
     if ft:
         lines.append(ft)
+    pm = data.partial_metrics()
+    if pm:
+        lines.append(
+            "- Metrics some runs lack (scored before the metric existed, or written back by an "
+            "export that did not know it): "
+            + ", ".join(f"`{k}` in {h} of {n} runs" for k, (h, n) in pm.items())
+            + "; the tables show n/a for it where a row lacks a run's value, the findings pair "
+            "only the runs that have it"
+        )
     if sm["left_out"]:
         lines.append(_partial_text(data))
     lines += [
@@ -2104,7 +2130,12 @@ def render_results(
         for old_fig in Path(figures_dir).glob("*.png"):
             if old_fig.resolve() not in made and _is_results_figure(old_fig.name):
                 old_fig.unlink()
-    res = {"suites": names, "figures": [str(p) for p in figs], "readme": None}
+    res = {
+        "suites": names,
+        "figures": [str(p) for p in figs],
+        "readme": None,
+        "partial_metrics": {n: d.partial_metrics() for n, d in datas.items() if d.partial_metrics()},
+    }
     if readme:
         rp = Path(readme)
         block = readme_block(

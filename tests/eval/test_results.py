@@ -699,6 +699,43 @@ def test_results_of_a_suite_in_progress(tmp_path):
         assert unbold(body[labels[name]]["LDR-OE PSNR↑"]) == f"{m:.2f} ± {h:.2f}"
 
 
+def test_results_warns_of_runs_that_lack_a_metric_their_row_reports(tmp_path):
+    """A row whose runs have a metric in some runs and not in others (a run scored before the
+    metric existed, or written back by an older export) is named on the page and in a warning; a
+    metric that a row never has (here HDR-TCE of static-hdr) is not."""
+    from eval.results import SCORED, write_runs_csv
+
+    csvp, out = tmp_path / "runs.csv", tmp_path / "results.md"
+    args = ["results", "--csv", str(csvp), "--out", str(out), "--no-readme", "--no-figures"]
+
+    def row(scene, name, seed, tce):
+        r = {"suite": "paper-main", "scene": scene, "row": name, "seed": seed, "label": name}
+        r.update(variant=name, preset="small", status=SCORED, ldr_convention="ldr_png")
+        r.update({k: 25.0 + seed for k in METRICS}, hdr_tce=tce)
+        return r
+
+    rows = [row(sc, n, s, 0.01) for sc in MAIN_SCENES for n in MAIN_ROWS for s in (0, 1)]
+    for r in rows:
+        if r["row"] == "static-hdr":
+            r["hdr_tce"] = None
+    write_runs_csv(csvp, rows)
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    assert "warning" not in r.output and "Metrics some runs lack" not in out.read_text()
+    # an export that did not know hdr_tce wrote back full's and world-only's seed-1 runs
+    for r in rows:
+        if r["row"] in ("full", "world-only") and r["seed"] == 1:
+            r["hdr_tce"] = None
+    write_runs_csv(csvp, rows)
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    # 4 runs (2 rows x 2 scenes at seed 1) of the 16 of the four rows that report it lack it
+    assert "warning: suite paper-main: some scored runs lack" in r.output
+    assert "hdr_tce in 12 of 16 runs" in r.output
+    assert "- Metrics some runs lack" in out.read_text()
+    assert "`hdr_tce` in 12 of 16 runs" in out.read_text()
+
+
 @pytest.mark.parametrize(
     "v, text",
     [
