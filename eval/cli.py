@@ -777,7 +777,14 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
     type=click.Path(exists=True, dir_okay=False),
     help="Runs CSV written by `export`.",
 )
-def pairs(suite, ref, row_names, metrics, csv_path):
+@click.option(
+    "--by-seed",
+    is_flag=True,
+    help="Also the mean and interval at each trainer seed alone, and a one-way ANOVA of the "
+    "differences across scenes (F, p): whether the effect differs between scenes by more than its "
+    "seeds scatter, i.e. whether a per-scene pattern of one seed replicated.",
+)
+def pairs(suite, ref, row_names, metrics, csv_path, by_seed):
     """Print the paired differences row - ref of SUITE per (scene, seed) from the runs CSV, with
     their mean and 95 % interval: the per-scene values the hand-written results notes quote."""
     from .pairs import pairs_markdown
@@ -786,7 +793,7 @@ def pairs(suite, ref, row_names, metrics, csv_path):
     names = [n.strip() for n in row_names.split(",") if n.strip()] if row_names else None
     mets = [m.strip() for m in metrics.split(",") if m.strip()]
     try:
-        text = pairs_markdown(read_runs_csv(csv_path), suite, ref, names, mets)
+        text = pairs_markdown(read_runs_csv(csv_path), suite, ref, names, mets, by_seed=by_seed)
     except ValueError as e:
         raise click.UsageError(f"{csv_path}: {e}") from e
     click.echo(text)

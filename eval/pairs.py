@@ -10,14 +10,19 @@ For each row: per metric, the mean of d = row - ref over the (scene, seed) runs 
 with the same Student-t 95 % interval as the tables' paired differences (`eval.stats.mean_ci`, †
 where it excludes 0); the same over scenes (`eval.stats.scene_mean_ci`: d averaged over each
 scene's seeds first, the interval over the scene means, as the findings' "over scenes"
-column); then d of each pair, in the order of the header (scenes by name, then seeds)."""
+column); then d of each pair, in the order of the header (scenes by name, then seeds).
+
+With `by_seed` (`--by-seed`), for reading a second seed against the first: the mean and interval
+of d at each trainer seed alone, and whether the effect differs between scenes by more than its
+seeds scatter (`eval.stats.scene_heterogeneity`: the one-way ANOVA of d with the scene as the
+factor, F and p; a per-scene pattern seen at one seed has replicated when p is small)."""
 
 from __future__ import annotations
 
 from typing import Dict, List, Optional, Sequence
 
 from .results import SCORED, pair_differences
-from .stats import mean_ci, scene_mean_ci
+from .stats import mean_ci, scene_heterogeneity, scene_mean_ci
 
 DEFAULT_METRICS = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "ldr_train_psnr")
 
@@ -34,15 +39,24 @@ def _summary(iv, f: str) -> str:
     return f"{iv.mean:+{f}} ± {half}{'†' if iv.excludes_zero else ''} ({iv.n})"
 
 
+def _heterogeneity_text(h) -> str:
+    """F(df1, df2) = F, p = p; or n/a."""
+    if h is None:
+        return "n/a"
+    return f"F({h.df_between}, {h.df_within}) = {h.f:.2f}, p = {h.p:.3f}"
+
+
 def pairs_markdown(
     rows: List[dict],
     suite: str,
     ref: Optional[str] = None,
     row_names: Optional[Sequence[str]] = None,
     metrics: Sequence[str] = DEFAULT_METRICS,
+    by_seed: bool = False,
 ) -> str:
     """Markdown tables of the paired differences of `row_names` (default: every row of the suite
-    in the CSV but the reference) against `ref` (default: the suite file's reference row).
+    in the CSV but the reference) against `ref` (default: the suite file's reference row); with
+    `by_seed`, also per trainer seed and the F-test of scene differences (module docstring).
     Raises ValueError naming what the CSV lacks."""
     from .suite import load_eval_suite, metric_columns
 
@@ -67,13 +81,16 @@ def pairs_markdown(
     for name in wanted:
         diffs = {m: pair_differences(rows, suite, name, ref, m) for m in metrics}
         keys = sorted(set().union(*diffs.values()), key=lambda k: (str(k[0]), k[1]))
+        seeds = sorted({k[1] for k in keys}) if by_seed else []
+        extra = [f"seed {sd} (n)" for sd in seeds] + (["scenes differ (F-test)"] if by_seed else [])
         out += [
             f"{suite}: {name} - {ref}",
             "",
             "| metric | mean ± 95 % (n) | over scenes (n) | "
+            + "".join(f"{c} | " for c in extra)
             + " | ".join(f"{s} / {sd}" for s, sd in keys)
             + " |",
-            "|:---|---:|---:|" + "---:|" * len(keys),
+            "|:---|---:|---:|" + "---:|" * (len(extra) + len(keys)),
         ]
         for m in metrics:
             d = diffs[m]
@@ -81,6 +98,14 @@ def pairs_markdown(
             cells = [f"{d[k]:+{f}}" if k in d else "" for k in keys]
             header = ((cols[m].group + " ") if cols[m].group else "") + cols[m].header
             pooled, scenes = _summary(mean_ci(d.values()), f), _summary(scene_mean_ci(d), f)
-            out.append(f"| {header} | {pooled} | {scenes} | " + " | ".join(cells) + " |")
+            more = [_summary(mean_ci(v for k, v in d.items() if k[1] == sd), f) for sd in seeds]
+            if by_seed:
+                more.append(_heterogeneity_text(scene_heterogeneity(d)))
+            out.append(
+                f"| {header} | {pooled} | {scenes} | "
+                + "".join(f"{c} | " for c in more)
+                + " | ".join(cells)
+                + " |"
+            )
         out.append("")
     return "\n".join(out)

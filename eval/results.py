@@ -2134,7 +2134,9 @@ def render_results(
         "suites": names,
         "figures": [str(p) for p in figs],
         "readme": None,
-        "partial_metrics": {n: d.partial_metrics() for n, d in datas.items() if d.partial_metrics()},
+        "partial_metrics": {
+            n: d.partial_metrics() for n, d in datas.items() if d.partial_metrics()
+        },
     }
     if readme:
         rp = Path(readme)

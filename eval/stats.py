@@ -146,6 +146,46 @@ def scene_mean_ci(diffs: Mapping[Hashable, float], level: float = LEVEL) -> Inte
     return mean_ci([sum(d) / len(d) for d in per.values()], level)
 
 
+@dataclass(frozen=True)
+class Heterogeneity:
+    """One-way analysis of variance of paired differences across scenes: F = (between-scene mean
+    square) / (within-scene mean square), with df_between = scenes - 1 and df_within = runs -
+    scenes, and p = P(F_{df_between, df_within} >= F)."""
+
+    f: float
+    df_between: int
+    df_within: int
+    p: float
+
+
+def scene_heterogeneity(diffs: Mapping[Hashable, float]) -> Optional[Heterogeneity]:
+    """Does an effect differ between scenes by more than its seeds scatter? {(scene, seed):
+    difference} -> the one-way ANOVA of the differences with the scene (keys[0]) as the factor and
+    the seeds as replicates (scipy.stats.f_oneway's F and p), or None without at least two scenes
+    and one scene with two seeds (no within-scene spread to compare with). A small p says the
+    per-scene pattern is more than seed noise; a large one, that the second seed did not repeat it
+    beyond what one run's draw moves. A within-scene spread of 0 gives F = inf and p = 0 when
+    the scene means differ (p = 1 when they do not)."""
+    per: Dict[Hashable, List[float]] = {}
+    for k, d in diffs.items():
+        if d is not None and not (isinstance(d, float) and math.isnan(d)):
+            per.setdefault(k[0], []).append(float(d))
+    k = len(per)
+    n = sum(len(v) for v in per.values())
+    if k < 2 or n - k < 1:
+        return None
+    grand = sum(sum(v) for v in per.values()) / n
+    ssb = sum(len(v) * (sum(v) / len(v) - grand) ** 2 for v in per.values())
+    ssw = sum(sum((x - sum(v) / len(v)) ** 2 for x in v) for v in per.values())
+    df1, df2 = k - 1, n - k
+    if ssw == 0:
+        return Heterogeneity(math.inf if ssb > 0 else 0.0, df1, df2, 0.0 if ssb > 0 else 1.0)
+    from scipy.stats import f as f_dist
+
+    f = (ssb / df1) / (ssw / df2)
+    return Heterogeneity(f, df1, df2, float(f_dist.sf(f, df1, df2)))
+
+
 # --------------------------------------------------------------------------------------------------
 # agreement with the paper
 # --------------------------------------------------------------------------------------------------

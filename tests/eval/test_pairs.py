@@ -72,3 +72,66 @@ def test_pairs_are_the_paired_differences(tmp_path):
         assert r.exit_code == 2 and needle in r.output and str(csv_path) in r.output, r.output
     with pytest.raises(ValueError, match="no scored run"):
         pairs_markdown([], "paper-ablation")
+
+
+def test_scene_heterogeneity_is_the_one_way_anova_across_scenes():
+    from eval.stats import scene_heterogeneity
+
+    rng = np.random.default_rng(4)
+    # four scenes, two or three seeds each, one scene with one seed only
+    d = {(sc, sd): float(rng.normal(i * 0.3, 0.2)) for i, sc in enumerate("abcd") for sd in (0, 1)}
+    d[("b", 2)] = 0.5
+    d[("e", 0)] = 1.0
+    groups = [[v for k, v in d.items() if k[0] == sc] for sc in "abcde"]
+    want = stats.f_oneway(*groups)
+    h = scene_heterogeneity(d)
+    assert (h.df_between, h.df_within) == (4, 10 - 5)
+    assert h.f == pytest.approx(want.statistic) and h.p == pytest.approx(want.pvalue)
+    # a scene-independent effect plus seed noise: no evidence of scene differences
+    flat = {(sc, sd): 0.4 + (0.1 if sd else -0.1) for sc in "abc" for sd in (0, 1)}
+    assert scene_heterogeneity(flat).p == pytest.approx(1.0)
+    # no within-scene spread: F is infinite when the scene means differ
+    exact = {(sc, sd): float(i) for i, sc in enumerate("ab") for sd in (0, 1)}
+    assert scene_heterogeneity(exact).f == float("inf") and scene_heterogeneity(exact).p == 0.0
+    # one seed per scene, or one scene: nothing to compare with
+    assert scene_heterogeneity({("a", 0): 1.0, ("b", 0): 2.0}) is None
+    assert scene_heterogeneity({("a", 0): 1.0, ("a", 1): 2.0}) is None
+
+
+def test_pairs_by_seed(tmp_path):
+    from eval.cli import main
+    from eval.pairs import pairs_markdown
+    from eval.results import read_runs_csv, write_runs_csv
+
+    csv_path = tmp_path / "runs.csv"
+    write_runs_csv(csv_path, _rows(np.random.default_rng(0)))
+    rows = read_runs_csv(csv_path)
+    text = pairs_markdown(rows, "paper-ablation", metrics=["ldr_oe_psnr"], by_seed=True)
+    head = next(ln for ln in text.splitlines() if ln.startswith("| metric |"))
+    assert "| seed 0 (n) | seed 1 (n) | scenes differ (F-test) |" in head
+    line = next(ln for ln in text.splitlines() if ln.startswith("| LDR-OE PSNR |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    by = {(r["scene"], r["seed"], r["row"]): r["ldr_oe_psnr"] for r in rows if r["row"] != "no-tlr"}
+    keys = [("a-scene", 0), ("a-scene", 1), ("b-scene", 0), ("b-scene", 1), ("c-scene", 0)]
+    d = {k: by[(*k, "no-reproj")] - by[(*k, "full")] for k in keys}
+    for col, seed in ((3, 0), (4, 1)):
+        v = np.array([x for k, x in d.items() if k[1] == seed])
+        half = stats.t.ppf(0.975, len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v))
+        dag = "†" if abs(v.mean()) > half else ""
+        assert cells[col] == f"{v.mean():+.2f} ± {half:.2f}{dag} ({len(v)})"
+    a = stats.f_oneway([d[keys[0]], d[keys[1]]], [d[keys[2]], d[keys[3]]], [d[keys[4]]])
+    assert cells[5] == f"F(2, 2) = {a.statistic:.2f}, p = {a.pvalue:.3f}"
+    assert cells[6:] == [f"{d[k]:+.2f}" for k in keys]
+    r = CliRunner().invoke(
+        main,
+        [
+            "pairs",
+            "paper-ablation",
+            "--csv",
+            str(csv_path),
+            "--metrics",
+            "ldr_oe_psnr",
+            "--by-seed",
+        ],
+    )
+    assert r.exit_code == 0 and r.output.strip() == text.strip()
