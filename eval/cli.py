@@ -785,8 +785,9 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
     "seeds scatter, i.e. whether a per-scene pattern of one seed replicated.",
 )
 def pairs(suite, ref, row_names, metrics, csv_path, by_seed):
-    """Print the paired differences row - ref of SUITE per (scene, seed) from the runs CSV, with
-    their mean and 95 % interval: the per-scene values the hand-written results notes quote."""
+    """Print the paired differences row - ref of SUITE (a built-in suite's name or a suite YAML
+    file) per (scene, seed) from the runs CSV, with their mean and 95 % interval: the per-scene
+    values the hand-written results notes quote."""
     from .pairs import pairs_markdown
     from .results import read_runs_csv
 
@@ -849,7 +850,18 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed):
     help="Hand-written notes linked from the page (default: results-notes.md beside --out, "
     "when it exists).",
 )
-def results(csv_path, out_md, figures_dir, no_figures, readme, no_readme, title, notes):
+@click.option(
+    "--suite",
+    "suite_files",
+    multiple=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="YAML file of a suite of the CSV that is not built in (repeat for several): its section "
+    "then shows the definition, the reference row and the row order. A CSV of only such suites "
+    "gets no sections on the paper's findings and controls.",
+)
+def results(
+    csv_path, out_md, figures_dir, no_figures, readme, no_readme, title, notes, suite_files
+):
     """Regenerate the results page (every suite's tables with intervals, the paper's values and
     the agreement column, figures, findings) and the README's main table from the runs CSV."""
     from .results import render_results
@@ -875,6 +887,8 @@ def results(csv_path, out_md, figures_dir, no_figures, readme, no_readme, title,
         cmd += f" --title {q(title)}"
     if notes_given:
         cmd += f" --notes {q(str(notes))}"
+    for f in suite_files:
+        cmd += f" --suite {q(str(f))}"
     res = render_results(
         csv_path,
         out_md,
@@ -883,6 +897,7 @@ def results(csv_path, out_md, figures_dir, no_figures, readme, no_readme, title,
         notes=notes,
         command=cmd,
         title=title,
+        suite_files=suite_files,
     )
     click.echo(
         f"wrote {out_md} ({len(res['suites'])} suite(s), {len(res['figures'])} figure(s))"

@@ -55,17 +55,32 @@ def pairs_markdown(
     by_seed: bool = False,
 ) -> str:
     """Markdown tables of the paired differences of `row_names` (default: every row of the suite
-    in the CSV but the reference) against `ref` (default: the suite file's reference row); with
+    in the CSV but the reference) against `ref` (default: the suite file's reference row). `suite`
+    is a built-in suite's name or a suite YAML file (its `name` is the CSV's suite); with
     `by_seed`, also per trainer seed and the F-test of scene differences (module docstring).
     Raises ValueError naming what the CSV lacks."""
-    from .suite import load_eval_suite, metric_columns
+    from pathlib import Path
 
+    from .suite import SuiteError, builtin_suites, load_eval_suite, metric_columns
+
+    definition = None
+    if suite not in builtin_suites() and Path(suite).is_file():
+        definition = load_eval_suite(suite)
+        suite = definition.name
     present = [r for r in rows if r["suite"] == suite and r.get("status") == SCORED]
     if not present:
         raise ValueError(f"no scored run of suite {suite!r} in the CSV")
     names = list(dict.fromkeys(r["row"] for r in present))
     if ref is None:
-        ref = load_eval_suite(suite).reference
+        if definition is None:
+            try:
+                definition = load_eval_suite(suite)
+            except SuiteError:
+                raise ValueError(
+                    f"suite {suite!r} is not built in: give its YAML file as SUITE (its reference "
+                    "row is then the default) or the reference row with --ref"
+                ) from None
+        ref = definition.reference
     if ref not in names:
         raise ValueError(f"suite {suite!r} has no scored run of row {ref!r} (rows: {names})")
     wanted = [n for n in names if n != ref] if row_names is None else list(row_names)

@@ -36,7 +36,7 @@ import os
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
 from m4dgs.core import io as mio
 
@@ -502,17 +502,24 @@ class SuiteData:
         return dict(sorted(out.items()))
 
 
-def _load_suite(name: str):
+def _load_suite(name: str, definitions: Optional[Mapping[str, object]] = None):
+    """The suite's definition: from `definitions` ({name: EvalSuite}, suite files given by path),
+    else the built-in suite of that name, else None."""
     from .suite import builtin_suites, load_eval_suite
 
+    if definitions and name in definitions:
+        return definitions[name]
     return load_eval_suite(name) if name in builtin_suites() else None
 
 
-def suite_data(name: str, rows: List[dict]) -> SuiteData:
+def suite_data(
+    name: str, rows: List[dict], definitions: Optional[Mapping[str, object]] = None
+) -> SuiteData:
     """Entries of one suite for the tables: every (seed, clip setting, scene, row) of the grid in
     the order of the suite's job list (so the row order matches `eval table`), a CSV row as a scored
-    entry with its metrics, a missing or absent one without."""
-    s = _load_suite(name)
+    entry with its metrics, a missing or absent one without. definitions: {name: EvalSuite} of
+    suites that are not built in (`m4dgs-eval results --suite FILE`)."""
+    s = _load_suite(name, definitions)
     keys = metric_keys()
     by = {_key(r): r for r in rows if r["suite"] == name}
     present = list(dict.fromkeys(r["scene"] for r in by.values()))
@@ -1881,10 +1888,10 @@ def suite_section(
     desc = data.suite.description if data.suite is not None else "(no suite definition found)"
     lines = [f"## {data.name}", "", desc, ""]
     if data.suite is not None:
-        lines += [
-            f"Definition: [eval/suites/{data.name}.yaml]"
-            f"({_rel(suites_dir() / (data.name + '.yaml'), out_dir)})."
-        ]
+        builtin = suites_dir() / (data.name + ".yaml")
+        path = builtin if data.suite.path.resolve() == builtin.resolve() else data.suite.path
+        shown = f"eval/suites/{data.name}.yaml" if path == builtin else path.as_posix()
+        lines += [f"Definition: [{shown}]({_rel(path, out_dir)})."]
         lines.append("")
     missing = data.missing
     miss_txt = f"{sm['missing']}" + (
@@ -2028,8 +2035,13 @@ def render_results(
     notes=None,
     command: Optional[str] = None,
     title: str = "Results",
+    suite_files: Sequence = (),
 ) -> dict:
     """Write out_md (and the figures, and the README block) from the runs CSV.
+
+    suite_files: YAML files of suites that are not built in (your own rows against full), so that
+    their sections show the definition, the reference row and the row order; a CSV with none of
+    the paper's suites then gets no findings or controls sections (they would all lack data).
 
     figures_dir None: no figures (else PNGs in it named as this page's figures, <suite>_<kind>.png,
     that the page no longer makes are removed). readme: a README path whose marked block is
@@ -2041,7 +2053,12 @@ def render_results(
     curves = read_crf_csv(crf_csv_path(csv_path))
     floors = read_floors_csv(floors_csv_path(csv_path))
     names = suites_in(rows)
-    datas = {n: suite_data(n, rows) for n in names}
+    from .suite import load_eval_suite
+
+    definitions = {d.name: d for d in (load_eval_suite(p) for p in suite_files)}
+    datas = {n: suite_data(n, rows, definitions) for n in names}
+    # a page of only your own suites: the paper's findings and controls would all lack data
+    own_only = bool(names) and not any(_load_suite(n) is not None for n in names)
     notes_link = _rel(notes, out_dir) if notes else None
     csv_link = _rel(csv_path, out_dir)
     cmd = command or f"m4dgs-eval results --csv {csv_path} --out {out_md}"
@@ -2102,7 +2119,7 @@ def render_results(
             )
         lines.append("")
     absent = [n for n in SUITE_ORDER if n not in names]
-    if absent:
+    if absent and not own_only:
         lines += [
             "Suites without runs in the CSV: " + ", ".join(f"`{n}`" for n in absent) + ".",
             "",
@@ -2112,15 +2129,21 @@ def render_results(
         fp = suite_result_figures(datas[n], curves, figures_dir) if figures_dir else []
         figs += fp
         lines += [suite_section(datas[n], fp, out_dir, floors), ""]
-    evaluated = evaluate_findings(rows)
-    ffigs = finding_figures(evaluated, figures_dir) if figures_dir else {}
-    figs += list(ffigs.values())
-    links = {k: _rel(p, out_dir) for k, p in ffigs.items()}
-    lines.append(findings_markdown(rows, notes_link, links, evaluated))
-    cfig = controls_figure(rows, Path(figures_dir) / CONTROLS_FIGURE) if figures_dir else None
-    if cfig is not None:
-        figs.append(cfig)
-    lines += ["", controls_markdown(rows, notes_link, _rel(cfig, out_dir) if cfig else None)]
+    evaluated = {} if own_only else evaluate_findings(rows)
+    if own_only:
+        lines.append(
+            "No suite of this CSV is one of the project's, so the paper's findings and the "
+            "controls of its disagreements are not evaluated here (docs/results.md has them)."
+        )
+    else:
+        ffigs = finding_figures(evaluated, figures_dir) if figures_dir else {}
+        figs += list(ffigs.values())
+        links = {k: _rel(p, out_dir) for k, p in ffigs.items()}
+        lines.append(findings_markdown(rows, notes_link, links, evaluated))
+        cfig = controls_figure(rows, Path(figures_dir) / CONTROLS_FIGURE) if figures_dir else None
+        if cfig is not None:
+            figs.append(cfig)
+        lines += ["", controls_markdown(rows, notes_link, _rel(cfig, out_dir) if cfig else None)]
     text = "\n".join(lines).rstrip("\n") + "\n"
     mio.write_bytes_atomic(out_md, text.encode())
     if figures_dir:

@@ -135,3 +135,74 @@ def test_pairs_by_seed(tmp_path):
         ],
     )
     assert r.exit_code == 0 and r.output.strip() == text.strip()
+
+
+OWN_SUITE = """name: my-idea
+description: full with and without my idea
+scenes: tiny
+reference: base
+rows:
+  - {name: base, label: "full", variant: full}
+  - {name: idea, label: "full + idea", variant: full, overrides: {stage2.loss.lambda_tlr: 0.1}}
+"""
+
+
+def _own_rows():
+    rows = []
+    for scene in ("tiny-lamp-box", "tiny-flag-arm"):
+        for seed in (0, 1):
+            for row, lead in (("base", 0.0), ("idea", 0.25 + seed / 10)):
+                rows.append(
+                    dict(suite="my-idea", scene=scene, row=row, seed=seed, status="scored")
+                    | dict(ldr_oe_psnr=30 + lead, hdr_tae=0.1)
+                )
+    return rows
+
+
+def test_pairs_of_a_suite_that_is_not_built_in(tmp_path):
+    """Your own suite: its YAML file as SUITE gives its reference row; its name alone needs --ref
+    and says so."""
+    from eval.cli import main
+    from eval.results import write_runs_csv
+
+    csv_path, yml = tmp_path / "ideas.csv", tmp_path / "my-idea.yaml"
+    write_runs_csv(csv_path, _own_rows())
+    yml.write_text(OWN_SUITE)
+    base = ["--csv", str(csv_path), "--metrics", "ldr_oe_psnr"]
+    r = CliRunner().invoke(main, ["pairs", str(yml), *base])
+    assert r.exit_code == 0, r.output
+    assert r.output.startswith("my-idea: idea - base")
+    line = next(ln for ln in r.output.splitlines() if ln.startswith("| LDR-OE PSNR |"))
+    assert line.split("|")[2].strip().startswith("+0.30 ± ")  # (0.25 + 0.35) / 2
+    r2 = CliRunner().invoke(main, ["pairs", "my-idea", "--ref", "base", *base])
+    assert r2.exit_code == 0 and r2.output == r.output
+    r3 = CliRunner().invoke(main, ["pairs", "my-idea", *base])
+    assert r3.exit_code == 2 and "not built in: give its YAML file as SUITE" in r3.output
+
+
+def test_results_page_of_your_own_suite(tmp_path):
+    """`results --suite FILE`: the section of a suite that is not built in shows its definition and
+    reference row; a CSV of only such suites gets no findings or controls sections."""
+    from eval.cli import main
+    from eval.results import write_runs_csv
+
+    csv_path, yml, out = tmp_path / "ideas.csv", tmp_path / "my-idea.yaml", tmp_path / "p.md"
+    write_runs_csv(csv_path, _own_rows())
+    yml.write_text(OWN_SUITE)
+    args = ["results", "--csv", str(csv_path), "--out", str(out), "--no-readme", "--no-figures"]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    text = out.read_text()
+    assert "(no suite definition found)" in text and "reference row: `n/a`" in text
+    assert "## Findings" not in text and "## Controls" not in text
+    assert "are not evaluated here" in text and "Suites without runs" not in text
+    r = CliRunner().invoke(main, args + ["--suite", str(yml)])
+    assert r.exit_code == 0, r.output
+    text = out.read_text()
+    assert "full with and without my idea" in text and "reference row: `base`" in text
+    assert "Definition: [" in text and "(my-idea.yaml)" in text
+    assert f"--suite {yml}" in text  # the stated command makes the page as it is
+    # the rows in the suite's order, with the idea's paired difference to its reference
+    body = [ln for ln in text.splitlines() if ln.startswith("| full")]
+    assert [ln.split("|")[1].strip() for ln in body[:2]] == ["full", "full + idea"]
+    assert "+0.30 ± " in body[1]
