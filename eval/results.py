@@ -2157,10 +2157,12 @@ def render_results(
         "suites": names,
         "figures": [str(p) for p in figs],
         "readme": None,
-        "partial_metrics": {
-            n: d.partial_metrics() for n, d in datas.items() if d.partial_metrics()
-        },
+        "partial_metrics": {},
     }
+    for n, d in datas.items():
+        pm = d.partial_metrics()
+        if pm:
+            res["partial_metrics"][n] = pm
     if readme:
         rp = Path(readme)
         block = readme_block(
