@@ -784,7 +784,13 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
     "differences across scenes (F, p): whether the effect differs between scenes by more than its "
     "seeds scatter, i.e. whether a per-scene pattern of one seed replicated.",
 )
-def pairs(suite, ref, row_names, metrics, csv_path, by_seed):
+@click.option(
+    "--holm",
+    is_flag=True,
+    help="Also each comparison's paired t-test p-value adjusted by Holm's method over every "
+    "comparison printed (rows x metrics; † below 0.05), and how many survive.",
+)
+def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm):
     """Print the paired differences row - ref of SUITE (a built-in suite's name or a suite YAML
     file) per (scene, seed) from the runs CSV, with their mean and 95 % interval: the per-scene
     values the hand-written results notes quote."""
@@ -794,7 +800,9 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed):
     names = [n.strip() for n in row_names.split(",") if n.strip()] if row_names else None
     mets = [m.strip() for m in metrics.split(",") if m.strip()]
     try:
-        text = pairs_markdown(read_runs_csv(csv_path), suite, ref, names, mets, by_seed=by_seed)
+        text = pairs_markdown(
+            read_runs_csv(csv_path), suite, ref, names, mets, by_seed=by_seed, holm=holm
+        )
     except ValueError as e:
         raise click.UsageError(f"{csv_path}: {e}") from e
     click.echo(text)

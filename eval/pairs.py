@@ -15,13 +15,18 @@ column); then d of each pair, in the order of the header (scenes by name, then s
 With `by_seed` (`--by-seed`), for reading a second seed against the first: the mean and interval
 of d at each trainer seed alone, and whether the effect differs between scenes by more than its
 seeds scatter (`eval.stats.scene_heterogeneity`: the one-way ANOVA of d with the scene as the
-factor, F and p; a per-scene pattern seen at one seed has replicated when p is small)."""
+factor, F and p; a per-scene pattern seen at one seed has replicated when p is small).
+
+With `holm` (`--holm`): the p-value of each printed comparison's paired t-test adjusted by Holm's
+step-down method over all the comparisons printed (rows x metrics: the family a reading draws its
+verdicts from; `eval.stats.holm`), † where it is below 0.05, and a closing line counting them."""
 
 from __future__ import annotations
 
 from typing import Dict, List, Optional, Sequence
 
 from .results import SCORED, pair_differences
+from .stats import holm as holm_adjust
 from .stats import mean_ci, scene_heterogeneity, scene_mean_ci
 
 DEFAULT_METRICS = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "ldr_train_psnr")
@@ -39,6 +44,14 @@ def _summary(iv, f: str) -> str:
     return f"{iv.mean:+{f}} ± {half}{'†' if iv.excludes_zero else ''} ({iv.n})"
 
 
+ALPHA = 0.05
+
+
+def _p_text(p) -> str:
+    """p with † below ALPHA; n/a without a test."""
+    return "n/a" if p is None else f"{p:.3f}{'†' if p < ALPHA else ''}"
+
+
 def _heterogeneity_text(h) -> str:
     """F(df1, df2) = F, p = p; or n/a."""
     if h is None:
@@ -53,11 +66,13 @@ def pairs_markdown(
     row_names: Optional[Sequence[str]] = None,
     metrics: Sequence[str] = DEFAULT_METRICS,
     by_seed: bool = False,
+    holm: bool = False,
 ) -> str:
     """Markdown tables of the paired differences of `row_names` (default: every row of the suite
     in the CSV but the reference) against `ref` (default: the suite file's reference row). `suite`
     is a built-in suite's name or a suite YAML file (its `name` is the CSV's suite); with
-    `by_seed`, also per trainer seed and the F-test of scene differences (module docstring).
+    `by_seed`, also per trainer seed and the F-test of scene differences; with `holm`, the
+    Holm-adjusted p-values over every printed comparison (module docstring).
     Raises ValueError naming what the CSV lacks."""
     from pathlib import Path
 
@@ -93,19 +108,26 @@ def pairs_markdown(
         raise ValueError(f"unknown metrics {bad} (known: {sorted(cols)})")
     fmts = {m: cols[m].fmt for m in metrics}
     out = []
+    diffs_of = {n: {m: pair_differences(rows, suite, n, ref, m) for m in metrics} for n in wanted}
+    family = [(n, m) for n in wanted for m in metrics]
+    adjusted = dict(
+        zip(family, holm_adjust([mean_ci(diffs_of[n][m].values()).p for n, m in family]))
+    )
     for name in wanted:
-        diffs = {m: pair_differences(rows, suite, name, ref, m) for m in metrics}
+        diffs = diffs_of[name]
         keys = sorted(set().union(*diffs.values()), key=lambda k: (str(k[0]), k[1]))
         seeds = sorted({k[1] for k in keys}) if by_seed else []
         extra = [f"seed {sd} (n)" for sd in seeds] + (["scenes differ (F-test)"] if by_seed else [])
         out += [
             f"{suite}: {name} - {ref}",
             "",
-            "| metric | mean ± 95 % (n) | over scenes (n) | "
+            "| metric | mean ± 95 % (n) | "
+            + ("Holm p | " if holm else "")
+            + "over scenes (n) | "
             + "".join(f"{c} | " for c in extra)
             + " | ".join(f"{s} / {sd}" for s, sd in keys)
             + " |",
-            "|:---|---:|---:|" + "---:|" * (len(extra) + len(keys)),
+            "|:---|---:|---:|" + "---:|" * (len(extra) + len(keys) + int(holm)),
         ]
         for m in metrics:
             d = diffs[m]
@@ -116,6 +138,8 @@ def pairs_markdown(
             more = [_summary(mean_ci(v for k, v in d.items() if k[1] == sd), f) for sd in seeds]
             if by_seed:
                 more.append(_heterogeneity_text(scene_heterogeneity(d)))
+            if holm:
+                pooled += " | " + _p_text(adjusted[(name, m)])
             out.append(
                 f"| {header} | {pooled} | {scenes} | "
                 + "".join(f"{c} | " for c in more)
@@ -123,4 +147,11 @@ def pairs_markdown(
                 + " |"
             )
         out.append("")
+    if holm:
+        tested = [v for v in adjusted.values() if v is not None]
+        out += [
+            f"After Holm's correction over the {len(tested)} comparisons printed (rows x metrics): "
+            f"{sum(v < ALPHA for v in tested)} exclude 0 at a family-wise level of 5 %.",
+            "",
+        ]
     return "\n".join(out)

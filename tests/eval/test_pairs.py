@@ -206,3 +206,65 @@ def test_results_page_of_your_own_suite(tmp_path):
     body = [ln for ln in text.splitlines() if ln.startswith("| full")]
     assert [ln.split("|")[1].strip() for ln in body[:2]] == ["full", "full + idea"]
     assert "+0.30 ± " in body[1]
+
+
+def test_pairs_holm_marks_what_the_sequential_procedure_rejects(tmp_path):
+    """--holm: each comparison's adjusted p-value is marked † exactly where Holm's procedure, run
+    here as a sequence of tests on scipy's paired t-test p-values, rejects at 5 %."""
+    from eval.cli import main
+    from eval.results import write_runs_csv
+
+    rng = np.random.default_rng(7)
+    effects = {"no-video-init": 1.0, "no-occlusion": 0.35, "no-reproj": 0.15, "no-tlr": 0.0}
+    rows = []
+    for scene in ("s1", "s2", "s3", "s4"):
+        for seed in (0, 1):
+            base = 30 + rng.normal(0, 1)
+            for row, eff in [("full", 0.0)] + list(effects.items()):
+                v = base + eff + rng.normal(0, 0.2)
+                rows.append(
+                    dict(suite="paper-ablation", scene=scene, row=row, seed=seed, status="scored")
+                    | dict(ldr_oe_psnr=v, hdr_tae=0.1 + rng.normal(0, 0.001))
+                )
+    csv_path = tmp_path / "runs.csv"
+    write_runs_csv(csv_path, rows)
+    r = CliRunner().invoke(
+        main,
+        [
+            "pairs",
+            "paper-ablation",
+            "--csv",
+            str(csv_path),
+            "--metrics",
+            "ldr_oe_psnr,hdr_tae",
+            "--holm",
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    family, pvals = [], []
+    for row in effects:
+        for m in ("ldr_oe_psnr", "hdr_tae"):
+            a = {(x["scene"], x["seed"]): x[m] for x in rows if x["row"] == row}
+            b = {(x["scene"], x["seed"]): x[m] for x in rows if x["row"] == "full"}
+            keys = sorted(a)
+            family.append((row, m))
+            pvals.append(stats.ttest_rel([a[k] for k in keys], [b[k] for k in keys]).pvalue)
+    from tests.eval.test_results import holm_rejects
+
+    want = dict(zip(family, holm_rejects(pvals)))
+    got, current = {}, None
+    header = {"ldr_oe_psnr": "| LDR-OE PSNR |", "hdr_tae": "| HDR-TAE |"}
+    for ln in r.output.splitlines():
+        if ln.startswith("paper-ablation: "):
+            current = ln.split(": ")[1].split(" - ")[0]
+        for m, h in header.items():
+            if ln.startswith(h):
+                cell = [c.strip() for c in ln.strip("|").split("|")][2]
+                got[(current, m)] = cell.endswith("†")
+                p = float(cell.rstrip("†"))
+                # never below the raw p (printed to 3 decimals)
+                assert p >= pvals[family.index((current, m))] - 0.0005
+    assert got == want and any(want.values()) and not all(want.values())
+    assert (
+        f"over the 8 comparisons printed (rows x metrics): {sum(want.values())} exclude" in r.output
+    )
