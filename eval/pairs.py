@@ -110,9 +110,8 @@ def pairs_markdown(
     out = []
     diffs_of = {n: {m: pair_differences(rows, suite, n, ref, m) for m in metrics} for n in wanted}
     family = [(n, m) for n in wanted for m in metrics]
-    adjusted = dict(
-        zip(family, holm_adjust([mean_ci(diffs_of[n][m].values()).p for n, m in family]))
-    )
+    pooled_of = {(n, m): mean_ci(diffs_of[n][m].values()) for n, m in family}
+    adjusted = dict(zip(family, holm_adjust([pooled_of[k].p for k in family]))) if holm else {}
     for name in wanted:
         diffs = diffs_of[name]
         keys = sorted(set().union(*diffs.values()), key=lambda k: (str(k[0]), k[1]))
@@ -134,7 +133,7 @@ def pairs_markdown(
             f = _fmt(m, fmts)
             cells = [f"{d[k]:+{f}}" if k in d else "" for k in keys]
             header = ((cols[m].group + " ") if cols[m].group else "") + cols[m].header
-            pooled, scenes = _summary(mean_ci(d.values()), f), _summary(scene_mean_ci(d), f)
+            pooled, scenes = _summary(pooled_of[(name, m)], f), _summary(scene_mean_ci(d), f)
             more = [_summary(mean_ci(v for k, v in d.items() if k[1] == sd), f) for sd in seeds]
             if by_seed:
                 more.append(_heterogeneity_text(scene_heterogeneity(d)))

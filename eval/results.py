@@ -1880,8 +1880,14 @@ def floors_text(data: SuiteData, floors: Dict[tuple, Dict[str, Optional[float]]]
 
 
 def suite_section(
-    data: SuiteData, fig_paths: List[Path], out_dir: Path, floors: Optional[dict] = None
+    data: SuiteData,
+    fig_paths: List[Path],
+    out_dir: Path,
+    floors: Optional[dict] = None,
+    partial: Optional[Dict[str, Tuple[int, int]]] = None,
 ) -> str:
+    """The suite's section of the results page; partial: data.partial_metrics() when the caller
+    has it."""
     from .suite import suites_dir
 
     sm = _suite_summary(data)
@@ -1919,7 +1925,7 @@ def suite_section(
     ft = floors_text(data, floors or {})
     if ft:
         lines.append(ft)
-    pm = data.partial_metrics()
+    pm = data.partial_metrics() if partial is None else partial
     if pm:
         lines.append(
             "- Metrics some runs lack (scored before the metric existed, or written back by an "
@@ -2053,12 +2059,13 @@ def render_results(
     curves = read_crf_csv(crf_csv_path(csv_path))
     floors = read_floors_csv(floors_csv_path(csv_path))
     names = suites_in(rows)
-    from .suite import load_eval_suite
+    from .suite import builtin_suites, load_eval_suite
 
     definitions = {d.name: d for d in (load_eval_suite(p) for p in suite_files)}
     datas = {n: suite_data(n, rows, definitions) for n in names}
+    partial = {n: d.partial_metrics() for n, d in datas.items()}
     # a page of only your own suites: the paper's findings and controls would all lack data
-    own_only = bool(names) and not any(_load_suite(n) is not None for n in names)
+    own_only = bool(names) and not set(names) & set(builtin_suites())
     notes_link = _rel(notes, out_dir) if notes else None
     csv_link = _rel(csv_path, out_dir)
     cmd = command or f"m4dgs-eval results --csv {csv_path} --out {out_md}"
@@ -2128,7 +2135,7 @@ def render_results(
     for n in names:
         fp = suite_result_figures(datas[n], curves, figures_dir) if figures_dir else []
         figs += fp
-        lines += [suite_section(datas[n], fp, out_dir, floors), ""]
+        lines += [suite_section(datas[n], fp, out_dir, floors, partial[n]), ""]
     evaluated = {} if own_only else evaluate_findings(rows)
     if own_only:
         lines.append(
@@ -2157,12 +2164,8 @@ def render_results(
         "suites": names,
         "figures": [str(p) for p in figs],
         "readme": None,
-        "partial_metrics": {},
+        "partial_metrics": {n: pm for n, pm in partial.items() if pm},
     }
-    for n, d in datas.items():
-        pm = d.partial_metrics()
-        if pm:
-            res["partial_metrics"][n] = pm
     if readme:
         rp = Path(readme)
         block = readme_block(

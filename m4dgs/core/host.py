@@ -41,13 +41,17 @@ def cpu_capability() -> str:
         return "DEFAULT"
 
 
+def gpu_name(device: Optional[torch.device] = None) -> Optional[str]:
+    """The CUDA device's name when `device` is one, else None."""
+    if device is not None and torch.device(device).type == "cuda":
+        return torch.cuda.get_device_name(torch.device(device))
+    return None
+
+
 def host_info(device: Optional[torch.device] = None) -> dict:
     """{"machine", "cpu", "cpu_capability", "python", "numpy", "torch", "gpu"} of this process:
     the CPU architecture and model, the instruction set torch's CPU kernels dispatch on, the
     versions, and the CUDA device's name when `device` is one (else None). JSON-ready."""
-    gpu = None
-    if device is not None and torch.device(device).type == "cuda":
-        gpu = torch.cuda.get_device_name(torch.device(device))
     return {
         "machine": platform.machine(),
         "cpu": cpu_model(),
@@ -55,5 +59,5 @@ def host_info(device: Optional[torch.device] = None) -> dict:
         "python": platform.python_version(),
         "numpy": np.__version__,
         "torch": torch.__version__,
-        "gpu": gpu,
+        "gpu": gpu_name(device),
     }

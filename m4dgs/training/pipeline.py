@@ -39,7 +39,7 @@ from m4dgs.core import camera as cam
 from m4dgs.core import spline
 from m4dgs.core.device import peak_memory_mib, resolve_device
 from m4dgs.core.errors import InputError
-from m4dgs.core.host import cpu_capability, host_info
+from m4dgs.core.host import cpu_capability, gpu_name, host_info
 from m4dgs.core.io import read_exr, write_exr, write_json, write_png
 from m4dgs.core.lock import FolderLock
 from m4dgs.core.threads import kernel_threads
@@ -471,7 +471,7 @@ class Trainer:
             # another instruction set (AVX2 / AVX512) or another GPU rounds differently, so a share
             # folder on a network disk must not hand one machine's phase to another
             "cpu_capability": cpu_capability(),
-            "gpu": host_info(self.device)["gpu"],
+            "gpu": gpu_name(self.device),
         }
         return phase_keys(to_dict(self.cfg), context, self.variant)
 

@@ -9,6 +9,14 @@ from click.testing import CliRunner
 from scipy import stats
 
 
+def _pairs_cli(csv_path, suite, metrics, *flags):
+    """`m4dgs-eval pairs SUITE --csv CSV --metrics M [flags]` through click's test runner."""
+    from eval.cli import main
+
+    args = ["pairs", suite, "--csv", str(csv_path), "--metrics", metrics, *flags]
+    return CliRunner().invoke(main, args)
+
+
 def _rows(rng):
     rows = []
     for scene in ("b-scene", "a-scene", "c-scene"):
@@ -57,10 +65,7 @@ def test_pairs_are_the_paired_differences(tmp_path):
     tae = next(ln for ln in text.splitlines() if ln.startswith("| HDR-TAE |"))
     assert "+0.0000 ± 0.0000 (5) | +0.0000 ± 0.0000 (3)" in tae  # equal in both rows
     # the command prints the same; bad names are usage errors naming the CSV
-    r = CliRunner().invoke(
-        main,
-        ["pairs", "paper-ablation", "--csv", str(csv_path), "--metrics", "ldr_oe_psnr,hdr_tae"],
-    )
+    r = _pairs_cli(csv_path, "paper-ablation", "ldr_oe_psnr,hdr_tae")
     assert r.exit_code == 0 and r.output.strip() == text.strip()
     for args, needle in (
         (["nope"], "no scored run of suite 'nope'"),
@@ -99,7 +104,6 @@ def test_scene_heterogeneity_is_the_one_way_anova_across_scenes():
 
 
 def test_pairs_by_seed(tmp_path):
-    from eval.cli import main
     from eval.pairs import pairs_markdown
     from eval.results import read_runs_csv, write_runs_csv
 
@@ -122,18 +126,7 @@ def test_pairs_by_seed(tmp_path):
     a = stats.f_oneway([d[keys[0]], d[keys[1]]], [d[keys[2]], d[keys[3]]], [d[keys[4]]])
     assert cells[5] == f"F(2, 2) = {a.statistic:.2f}, p = {a.pvalue:.3f}"
     assert cells[6:] == [f"{d[k]:+.2f}" for k in keys]
-    r = CliRunner().invoke(
-        main,
-        [
-            "pairs",
-            "paper-ablation",
-            "--csv",
-            str(csv_path),
-            "--metrics",
-            "ldr_oe_psnr",
-            "--by-seed",
-        ],
-    )
+    r = _pairs_cli(csv_path, "paper-ablation", "ldr_oe_psnr", "--by-seed")
     assert r.exit_code == 0 and r.output.strip() == text.strip()
 
 
@@ -211,7 +204,6 @@ def test_results_page_of_your_own_suite(tmp_path):
 def test_pairs_holm_marks_what_the_sequential_procedure_rejects(tmp_path):
     """--holm: each comparison's adjusted p-value is marked † exactly where Holm's procedure, run
     here as a sequence of tests on scipy's paired t-test p-values, rejects at 5 %."""
-    from eval.cli import main
     from eval.results import write_runs_csv
 
     rng = np.random.default_rng(7)
@@ -228,18 +220,7 @@ def test_pairs_holm_marks_what_the_sequential_procedure_rejects(tmp_path):
                 )
     csv_path = tmp_path / "runs.csv"
     write_runs_csv(csv_path, rows)
-    r = CliRunner().invoke(
-        main,
-        [
-            "pairs",
-            "paper-ablation",
-            "--csv",
-            str(csv_path),
-            "--metrics",
-            "ldr_oe_psnr,hdr_tae",
-            "--holm",
-        ],
-    )
+    r = _pairs_cli(csv_path, "paper-ablation", "ldr_oe_psnr,hdr_tae", "--holm")
     assert r.exit_code == 0, r.output
     family, pvals = [], []
     for row in effects:
