@@ -491,6 +491,18 @@ class SuiteData:
                 out[k] = (have, total)
         return out
 
+    def seed_noise(self, metric: str):
+        """eval.stats.SeedNoise of one metric over the suite's (scene, row) groups with runs of two
+        or more trainer seeds (every scored run, not only the tables' complete pairs), or None."""
+        from .stats import seed_noise
+
+        groups: Dict[Tuple[str, str], List[float]] = {}
+        for e in self.scored:
+            v = e["metrics"].get(metric)
+            if v is not None:
+                groups.setdefault((e["scene"], e["row"]), []).append(float(v))
+        return seed_noise(groups)
+
     def provenance(self, column: str) -> Dict[str, int]:
         """{value: number of scored runs} of a provenance column ("code", "generator",
         "torch_threads"); runs whose CSV row does not say count under "not recorded"."""
@@ -1879,6 +1891,41 @@ def floors_text(data: SuiteData, floors: Dict[tuple, Dict[str, Optional[float]]]
     )
 
 
+# the headline metrics whose seed noise a suite's section gives, with their names there
+SEED_NOISE_METRICS = {
+    "ldr_oe_psnr": "LDR-OE PSNR",
+    "hdr_psnr": "HDR PSNR",
+    "hdr_tae": "HDR-TAE",
+    "hdr_tce": "HDR-TCE",
+}
+
+
+def seed_noise_text(data: SuiteData) -> Optional[str]:
+    """The section's line on how much a run moves with its trainer seed alone (SuiteData.seed_noise
+    of the headline metrics), or None when no (scene, row) has runs of two seeds."""
+    from .suite import metric_columns
+
+    cols = metric_columns()
+    parts, groups = [], 0
+    for k in SEED_NOISE_METRICS:
+        sn = data.seed_noise(k)
+        if sn is None:
+            continue
+        fmt = cols[k].fmt
+        name = SEED_NOISE_METRICS[k]
+        parts.append(f"{name} {sn.rms_diff:{fmt}} (largest {sn.largest:{fmt}})")
+        groups = max(groups, sn.groups)
+    if not parts:
+        return None
+    return (
+        "- Seed noise (the same scene and row trained with another trainer seed; root mean square "
+        f"difference of two runs, over {groups} (scene, row) groups with two or more seeds): "
+        + ", ".join(parts)
+        + "; one (scene, seed) difference between two rows carries noise of this size (less "
+        "where the two rows share a trained phase), a mean over n pairs about 1/sqrt(n) of it"
+    )
+
+
 def suite_section(
     data: SuiteData,
     fig_paths: List[Path],
@@ -1934,6 +1981,9 @@ def suite_section(
             + "; the tables show n/a for it where a row lacks a run's value, the findings pair "
             "only the runs that have it"
         )
+    sn = seed_noise_text(data)
+    if sn:
+        lines.append(sn)
     if sm["left_out"]:
         lines.append(_partial_text(data))
     lines += [

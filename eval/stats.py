@@ -186,6 +186,40 @@ def scene_heterogeneity(diffs: Mapping[Hashable, float]) -> Optional[Heterogenei
     return Heterogeneity(f, df1, df2, float(f_dist.sf(f, df1, df2)))
 
 
+@dataclass(frozen=True)
+class SeedNoise:
+    """How much one run moves with its trainer seed alone: over the groups (e.g. (scene, row)) that
+    have runs with two or more seeds, `rms_diff` is the root mean square difference between two
+    runs of one group, sqrt(2) * the pooled within-group standard deviation (for two seeds per
+    group: sqrt(mean of (seed 1 - seed 0)^2)); `largest` the largest spread within one group
+    (max - min); `groups` how many groups stand behind it."""
+
+    rms_diff: float
+    largest: float
+    groups: int
+
+
+def seed_noise(values: Mapping[Hashable, Sequence[float]]) -> Optional[SeedNoise]:
+    """{group: [one value per trainer seed]} -> SeedNoise over the groups with two or more values
+    (None where no group has two). The pooled within-group variance is sum over groups of the
+    squared deviations from the group mean, over sum of (values - 1); a difference of two runs
+    of a group has twice that variance when the seed adds independent noise of the same size
+    everywhere."""
+    ss, df, largest, groups = 0.0, 0, 0.0, 0
+    for v in values.values():
+        xs = [float(x) for x in v if x is not None and not (isinstance(x, float) and math.isnan(x))]
+        if len(xs) < 2:
+            continue
+        m = sum(xs) / len(xs)
+        ss += sum((x - m) ** 2 for x in xs)
+        df += len(xs) - 1
+        largest = max(largest, max(xs) - min(xs))
+        groups += 1
+    if not groups:
+        return None
+    return SeedNoise(math.sqrt(2.0 * ss / df), largest, groups)
+
+
 # --------------------------------------------------------------------------------------------------
 # agreement with the paper
 # --------------------------------------------------------------------------------------------------

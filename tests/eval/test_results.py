@@ -736,6 +736,43 @@ def test_results_warns_of_runs_that_lack_a_metric_their_row_reports(tmp_path):
     assert "`hdr_tce` in 12 of 16 runs" in out.read_text()
 
 
+def test_results_section_gives_the_seed_noise_of_its_runs(tmp_path):
+    """The suite's section says how much a run moves with its trainer seed: the root mean square
+    seed-1 minus seed-0 difference over the (scene, row) groups, computed here by hand, and the
+    largest; no line for a suite with one seed."""
+    from eval.results import SCORED, write_runs_csv
+
+    csvp, out = tmp_path / "runs.csv", tmp_path / "results.md"
+    args = ["results", "--csv", str(csvp), "--out", str(out), "--no-readme", "--no-figures"]
+    rng = np.random.default_rng(5)
+
+    def row(scene, name, seed):
+        r = {"suite": "paper-main", "scene": scene, "row": name, "seed": seed, "label": name}
+        r.update(variant=name, preset="small", status=SCORED, ldr_convention="ldr_png")
+        r.update({k: float(rng.uniform(20, 30)) for k in METRICS})
+        return r
+
+    rows = [row(sc, n, 0) for sc in MAIN_SCENES for n in MAIN_ROWS]
+    write_runs_csv(csvp, rows)
+    assert CliRunner().invoke(main, args).exit_code == 0
+    assert "Seed noise" not in out.read_text()
+    rows += [row(sc, n, 1) for sc in MAIN_SCENES for n in MAIN_ROWS]
+    write_runs_csv(csvp, rows)
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    by = {(x["scene"], x["row"], x["seed"]): x for x in rows}
+    d = [
+        by[(sc, n, 1)]["ldr_oe_psnr"] - by[(sc, n, 0)]["ldr_oe_psnr"]
+        for sc in MAIN_SCENES
+        for n in MAIN_ROWS
+    ]
+    rms = math.sqrt(sum(x * x for x in d) / len(d))
+    line = next(x for x in out.read_text().splitlines() if x.startswith("- Seed noise"))
+    groups = len(MAIN_SCENES) * len(MAIN_ROWS)
+    assert f"over {groups} (scene, row) groups" in line
+    assert f"LDR-OE PSNR {rms:.2f} (largest {max(abs(x) for x in d):.2f})" in line
+
+
 @pytest.mark.parametrize(
     "v, text",
     [

@@ -416,3 +416,23 @@ def test_holm_matches_closed_testing_and_a_worked_example():
         pytest.approx(0.04),
     ]
     assert stats.holm([]) == []
+
+
+def test_seed_noise_is_the_rms_seed_difference_and_pools_more_seeds():
+    """Two seeds per group: sqrt(mean((s1 - s0)^2)) computed directly. Three seeds: twice the
+    pooled variance equals the mean squared difference over all pairs within a group (for each
+    group, sum over i<j of (x_i - x_j)^2 = k * sum (x_i - mean)^2)."""
+    rng = np.random.default_rng(3)
+    two = {("s", r): list(rng.normal(30, 1, 2)) for r in range(7)}
+    sn = stats.seed_noise({**two, ("lonely", 0): [29.0], ("blank", 0): [float("nan"), 30.0]})
+    d = np.array([v[1] - v[0] for v in two.values()])
+    assert sn.groups == 7
+    assert sn.rms_diff == pytest.approx(math.sqrt(np.mean(d**2)), rel=1e-12)
+    assert sn.largest == pytest.approx(np.max(np.abs(d)), rel=1e-12)
+    three = {g: list(rng.normal(0, 0.5, 3)) for g in range(5)}
+    sq = [(v[i] - v[j]) ** 2 for v in three.values() for i in range(3) for j in range(i + 1, 3)]
+    # pooled: 2 * sum ss / sum df = 2 * (sum_pairs / 3) / (5 * 2); mean over pairs = sum_pairs / 15
+    sn3 = stats.seed_noise(three)
+    assert sn3.rms_diff**2 == pytest.approx(np.mean(sq), rel=1e-12)
+    assert sn3.largest == pytest.approx(max(np.ptp(v) for v in three.values()))
+    assert stats.seed_noise({"a": [1.0], "b": []}) is None
