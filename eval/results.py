@@ -721,6 +721,9 @@ class ComparisonResult:
     # verdict with that significance
     p_holm: Optional[float] = None
     verdict_holm: str = NO_DATA
+    # do the (scene, seed) differences vary between scenes beyond the seeds' scatter?
+    # (eval.stats.scene_heterogeneity; None without two scenes and a scene with two seeds)
+    heterogeneity: object = None
 
 
 def claim_sign(c: Comparison, metric: str, paper_diff: Optional[float]) -> Tuple[int, str]:
@@ -762,7 +765,7 @@ def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
     """Every (comparison, metric) of a finding on the scored CSV rows of its suite: the paired
     difference over the (scene, seed) runs both rows have (eval.stats.paired_diff)."""
     from .paper import load_paper_values
-    from .stats import by_key, paired_diff, scene_paired_diff
+    from .stats import by_key, paired_diff, scene_heterogeneity, scene_paired_diff
 
     pt = load_paper_values().get(f.paper) if f.paper else None
     mine = [r for r in rows if r["suite"] == f.suite and r.get("status") == SCORED]
@@ -779,12 +782,15 @@ def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
             ours = paired_diff(by_key(a, m), by_key(b, m)) if a and b else None
             if ours is not None and ours.n == 0:
                 ours = None
-            scenes = scene_paired_diff(by_key(a, m), by_key(b, m)) if ours is not None else None
+            va, vb = (by_key(a, m), by_key(b, m)) if ours is not None else ({}, {})
+            scenes = scene_paired_diff(va, vb) if ours is not None else None
+            het = scene_heterogeneity({k: va[k] - vb[k] for k in va if k in vb})
             out.append(
                 ComparisonResult(
                     c, m, pd, sign, src, ours, verdict(sign, ours), scenes, verdict(sign, scenes)
                 )
             )
+            out[-1].heterogeneity = het
     _holm_verdicts(out)
     return out
 
@@ -822,6 +828,16 @@ def _paper_diff_text(v: float, fmt: str) -> str:
     return format(v, "+" + fmt)
 
 
+HETEROGENEITY_ALPHA = 0.05  # "scenes differ" in the findings tables' summary lines
+
+
+def heterogeneity_text(h) -> str:
+    """The findings tables' "scenes differ" cell: p = 0.123 (p < 0.001 below it), n/a for None."""
+    if h is None:
+        return "n/a"
+    return "p < 0.001" if h.p < 0.001 else f"p = {h.p:.3f}"
+
+
 def findings_markdown(
     rows: List[dict],
     notes_link: Optional[str],
@@ -856,7 +872,14 @@ def findings_markdown(
         'rows x metrics), so that the chance of one or more false "agrees" or "disagrees" in a '
         "finding is at most 5 % (`eval.stats.holm`); at 95 % per comparison about one in twenty "
         "comparisons excludes 0 by chance when there is no effect, so read a verdict that does not "
-        "survive Holm as a lead, not a finding. The verdicts are computed from the CSV; what they "
+        "survive Holm as a lead, not a finding. Scenes differ: whether the differences vary "
+        "between scenes by more than between the seeds of one scene (the one-way analysis of "
+        "variance with the scene as the factor and the seeds as replicates, its p-value; "
+        "`eval.stats.scene_heterogeneity`; n/a with one seed). Where they do, the pairs are not "
+        "exchangeable samples of one effect: the first interval still answers for these scenes, "
+        "but only the one over scenes answers for scenes like them. With few scenes the test has "
+        "little power, so a large p is weak evidence of a uniform effect. The verdicts are "
+        "computed from the CSV; what they "
         "mean, and the controls run for disagreements, are written by hand"
         + (f" in [{Path(notes_link).name}]({notes_link})." if notes_link else "."),
         "",
@@ -873,8 +896,8 @@ def findings_markdown(
             f"Suite `{f.suite}`" + (f"; paper values: {src}." if src else "."),
             "",
             "| row | ref | metric | paper Δ | claim | ours Δ | n | verdict | after Holm "
-            "| paper Δ in ours | over scenes | scenes | verdict over scenes |",
-            "|:---|:---|:---|---:|:---|---:|---:|:---|:---|:---|---:|---:|:---|",
+            "| paper Δ in ours | over scenes | scenes | verdict over scenes | scenes differ |",
+            "|:---|:---|:---|---:|:---|---:|---:|:---|:---|:---|---:|---:|:---|---:|",
         ]
         for r in res:
             col = cols[r.metric]
@@ -896,7 +919,7 @@ def findings_markdown(
             lines.append(
                 f"| {r.comparison.row} | {r.comparison.ref} | {name} | {pd} | {claim} | {ours} "
                 f"| {n} | {r.verdict} | {r.verdict_holm} | {inside} | {over} | {k} "
-                f"| {r.verdict_scenes} |"
+                f"| {r.verdict_scenes} | {heterogeneity_text(r.heterogeneity)} |"
             )
         counts = {
             v: sum(r.verdict == v for r in res)
@@ -933,6 +956,23 @@ def findings_markdown(
             f"{over[NO_DATA]} not enough data (fewer than 2 scenes).",
             "",
         ]
+        het = [r for r in res if r.heterogeneity is not None]
+        if het:
+            differ = [r for r in het if r.heterogeneity.p < HETEROGENEITY_ALPHA]
+            split = sum(
+                r.verdict in (AGREES, DISAGREES) and r.verdict_scenes == NOT_SIG for r in differ
+            )
+            lines += [
+                f"Scenes differ (p < {HETEROGENEITY_ALPHA}) in {len(differ)} of the {len(het)} "
+                "comparisons with two or more seeds on some scene"
+                + (
+                    f"; {split} of them resolved over the (scene, seed) pairs and not over scenes"
+                    if differ
+                    else ""
+                )
+                + ".",
+                "",
+            ]
         if figures and f.key in figures:
             lines += [f"![{FINDING_FIGURE_PREFIX}{f.key}]({figures[f.key]})", ""]
     return "\n".join(lines)

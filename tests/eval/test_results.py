@@ -465,7 +465,7 @@ def test_export_merge_results_readme(tmp_path):
         for row, m in fam
     ]
     holm_sig = dict(zip(fam, holm_rejects(pv)))
-    holm_verdicts, raw_verdicts = [], []
+    holm_verdicts, raw_verdicts, het_p = [], [], []
     for row in ABL_ROWS[:-1]:
         for metric in FINDING_METRICS:
             name, fmt, _ = COLS[metric]
@@ -511,10 +511,23 @@ def test_export_merge_results_readme(tmp_path):
                 want2 = "agrees" if (d2 > 0) == (pd > 0) else "disagrees"
             assert cells[12] == want2, (row, metric)
             over_verdicts.append(want2)
+            # scenes differ: scipy's one-way ANOVA of the paired differences, scene as the factor
+            a_ = by_run(rows, "paper-ablation", row, metric)
+            b_ = by_run(rows, "paper-ablation", "full", metric)
+            keys = sorted(set(a_) & set(b_))
+            groups = [
+                [a_[k] - b_[k] for k in keys if k[0] == sc] for sc in sorted({k[0] for k in keys})
+            ]
+            p_f = float(stats.f_oneway(*groups).pvalue)
+            assert cells[13] == ("p < 0.001" if p_f < 0.001 else f"p = {p_f:.3f}"), (row, metric)
+            het_p.append(p_f)
             inside += d - h <= pd <= d + h
             checked += 1
     assert checked == 20
     assert f"the paper's Δ lies inside our interval in {inside} of the 20 comparisons" in text
+    assert (
+        f"Scenes differ (p < 0.05) in {sum(p < 0.05 for p in het_p)} of the 20 comparisons" in text
+    )
     # the finding's forest plot draws what its table says
     from eval.results import FINDINGS, evaluate_finding, finding_points
 
