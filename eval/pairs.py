@@ -10,7 +10,8 @@ For each row: per metric, the mean of d = row - ref over the (scene, seed) runs 
 with the same Student-t 95 % interval as the tables' paired differences (`eval.stats.mean_ci`, †
 where it excludes 0); the same over scenes (`eval.stats.scene_mean_ci`: d averaged over each
 scene's seeds first, the interval over the scene means, as the findings' "over scenes"
-column); then d of each pair, in the order of the header (scenes by name, then seeds).
+column); how many pairs have d > 0 ("> 0": k of n); then d of each pair, in the order of the
+header (scenes by name, then seeds).
 
 With `by_seed` (`--by-seed`), for reading a second seed against the first: the mean and interval
 of d at each trainer seed alone, and whether the effect differs between scenes by more than its
@@ -122,11 +123,11 @@ def pairs_markdown(
             "",
             "| metric | mean ± 95 % (n) | "
             + ("Holm p | " if holm else "")
-            + "over scenes (n) | "
+            + "over scenes (n) | > 0 | "
             + "".join(f"{c} | " for c in extra)
             + " | ".join(f"{s} / {sd}" for s, sd in keys)
             + " |",
-            "|:---|---:|---:|" + "---:|" * (len(extra) + len(keys) + int(holm)),
+            "|:---|---:|---:|---:|" + "---:|" * (len(extra) + len(keys) + int(holm)),
         ]
         for m in metrics:
             d = diffs[m]
@@ -134,7 +135,8 @@ def pairs_markdown(
             cells = [f"{d[k]:+{f}}" if k in d else "" for k in keys]
             header = ((cols[m].group + " ") if cols[m].group else "") + cols[m].header
             pooled, scenes = _summary(pooled_of[(name, m)], f), _summary(scene_mean_ci(d), f)
-            more = [_summary(mean_ci(v for k, v in d.items() if k[1] == sd), f) for sd in seeds]
+            more = [f"{sum(v > 0 for v in d.values())} of {len(d)}"]
+            more += [_summary(mean_ci(v for k, v in d.items() if k[1] == sd), f) for sd in seeds]
             if by_seed:
                 more.append(_heterogeneity_text(scene_heterogeneity(d)))
             if holm:

@@ -61,7 +61,8 @@ def test_pairs_are_the_paired_differences(tmp_path):
     sm = np.array([want[:2].mean(), want[2:4].mean(), want[4]])
     sh = stats.t.ppf(0.975, 2) * sm.std(ddof=1) / np.sqrt(3)
     assert cells[2] == f"{sm.mean():+.2f} ± {sh:.2f}{'†' if abs(sm.mean()) > sh else ''} (3)"
-    assert cells[3:] == [f"{x:+.2f}" for x in want]
+    assert cells[3] == f"{int((want > 0).sum())} of 5"
+    assert cells[4:] == [f"{x:+.2f}" for x in want]
     tae = next(ln for ln in text.splitlines() if ln.startswith("| HDR-TAE |"))
     assert "+0.0000 ± 0.0000 (5) | +0.0000 ± 0.0000 (3)" in tae  # equal in both rows
     # the command prints the same; bad names are usage errors naming the CSV
@@ -112,20 +113,20 @@ def test_pairs_by_seed(tmp_path):
     rows = read_runs_csv(csv_path)
     text = pairs_markdown(rows, "paper-ablation", metrics=["ldr_oe_psnr"], by_seed=True)
     head = next(ln for ln in text.splitlines() if ln.startswith("| metric |"))
-    assert "| seed 0 (n) | seed 1 (n) | scenes differ (F-test) |" in head
+    assert "| over scenes (n) | > 0 | seed 0 (n) | seed 1 (n) | scenes differ (F-test) |" in head
     line = next(ln for ln in text.splitlines() if ln.startswith("| LDR-OE PSNR |"))
     cells = [c.strip() for c in line.strip("|").split("|")]
     by = {(r["scene"], r["seed"], r["row"]): r["ldr_oe_psnr"] for r in rows if r["row"] != "no-tlr"}
     keys = [("a-scene", 0), ("a-scene", 1), ("b-scene", 0), ("b-scene", 1), ("c-scene", 0)]
     d = {k: by[(*k, "no-reproj")] - by[(*k, "full")] for k in keys}
-    for col, seed in ((3, 0), (4, 1)):
+    for col, seed in ((4, 0), (5, 1)):
         v = np.array([x for k, x in d.items() if k[1] == seed])
         half = stats.t.ppf(0.975, len(v) - 1) * v.std(ddof=1) / np.sqrt(len(v))
         dag = "†" if abs(v.mean()) > half else ""
         assert cells[col] == f"{v.mean():+.2f} ± {half:.2f}{dag} ({len(v)})"
     a = stats.f_oneway([d[keys[0]], d[keys[1]]], [d[keys[2]], d[keys[3]]], [d[keys[4]]])
-    assert cells[5] == f"F(2, 2) = {a.statistic:.2f}, p = {a.pvalue:.3f}"
-    assert cells[6:] == [f"{d[k]:+.2f}" for k in keys]
+    assert cells[6] == f"F(2, 2) = {a.statistic:.2f}, p = {a.pvalue:.3f}"
+    assert cells[7:] == [f"{d[k]:+.2f}" for k in keys]
     r = _pairs_cli(csv_path, "paper-ablation", "ldr_oe_psnr", "--by-seed")
     assert r.exit_code == 0 and r.output.strip() == text.strip()
 
