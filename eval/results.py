@@ -787,10 +787,18 @@ def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
             het = scene_heterogeneity({k: va[k] - vb[k] for k in va if k in vb})
             out.append(
                 ComparisonResult(
-                    c, m, pd, sign, src, ours, verdict(sign, ours), scenes, verdict(sign, scenes)
+                    c,
+                    m,
+                    pd,
+                    sign,
+                    src,
+                    ours,
+                    verdict(sign, ours),
+                    scenes,
+                    verdict(sign, scenes),
+                    heterogeneity=het,
                 )
             )
-            out[-1].heterogeneity = het
     _holm_verdicts(out)
     return out
 
