@@ -779,10 +779,10 @@ def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
                 pa, pb = pt.value(c.row, m), pt.value(c.ref, m)
                 pd = None if pa is None or pb is None else pa - pb
             sign, src = claim_sign(c, m, pd)
-            ours = paired_diff(by_key(a, m), by_key(b, m)) if a and b else None
+            va, vb = (by_key(a, m), by_key(b, m)) if a and b else ({}, {})
+            ours = paired_diff(va, vb) if a and b else None
             if ours is not None and ours.n == 0:
                 ours = None
-            va, vb = (by_key(a, m), by_key(b, m)) if ours is not None else ({}, {})
             scenes = scene_paired_diff(va, vb) if ours is not None else None
             het = scene_heterogeneity({k: va[k] - vb[k] for k in va if k in vb})
             out.append(
