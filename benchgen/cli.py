@@ -16,6 +16,7 @@ from pathlib import Path
 
 import click
 
+from benchgen.exposure import SCHEDULES
 from m4dgs.core.errors import InputError, ReportingGroup
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -89,7 +90,7 @@ class PriorsParam(click.ParamType):
 @click.option("--novel", default=None, help="Override the novel (test-only) levels, e.g. '0.5,8'.")
 @click.option(
     "--schedule",
-    type=click.Choice(["alternating", "random-order", "random-values"]),
+    type=click.Choice(list(SCHEDULES)),
     default=None,
     help="Exposure schedule of the training frames (default: the suite's, normally alternating).",
 )
@@ -298,7 +299,7 @@ def make(
 @click.option("--novel", default=None, help="Override the novel (test-only) levels, e.g. '0.5,8'.")
 @click.option(
     "--schedule",
-    type=click.Choice(["alternating", "random-order", "random-values"]),
+    type=click.Choice(list(SCHEDULES)),
     default="alternating",
     show_default=True,
     help="Exposure schedule of the training frames.",

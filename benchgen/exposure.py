@@ -20,6 +20,11 @@ Schedules of the training frames (paper appendix "Other Exposure Schedules"):
   equally often; when the frame count is not a multiple of the level count the extra frames take
   distinct random levels).
 * ``random-values``: log-uniform values between the shortest and the longest observed level.
+* ``random-values-banded`` (not in the paper; a control, docs/exposure.md): the random-order
+  schedule with each frame's value moved off its level by a log-uniform amount within half a stop,
+  reflected back into the observed range at its ends. Every value is new, as in random-values, but
+  each level's band holds as many frames as in the alternating schedule, so the ends of the range
+  (the shortest exposure records the highlights unclipped) are covered as often.
 
 Test frames are rendered at every observed and every novel level (``test_levels``). Exposure-value
 perturbation (paper Table "random exposure perturbation") is a trainer option, never a property of
@@ -33,7 +38,9 @@ from typing import Dict, Iterable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-SCHEDULES = ("alternating", "random-order", "random-values")
+SCHEDULES = ("alternating", "random-order", "random-values", "random-values-banded")
+#: half-width, in stops, of a level's band in the random-values-banded schedule
+BAND_HALF_WIDTH_EV = 0.5
 
 #: observed / novel levels of the presets, keyed by --exposures
 PRESET_LEVELS: Dict[int, Tuple[Tuple[float, ...], Tuple[float, ...]]] = {
@@ -151,6 +158,9 @@ def schedule_train_dt(num_train: int, settings: ExposureSettings, seed: int = 0)
     Generator(seed).permutation of [each level repeated num_train // N_e times] plus
                    num_train % N_e distinct levels drawn without replacement.
     random-values: exp(U(log shortest, log longest)) per frame, numpy Generator(seed).
+    random-values-banded: the random-order list, then log2 of each value moved by
+                   U(-BAND_HALF_WIDTH_EV, +BAND_HALF_WIDTH_EV) and reflected into [log2 shortest,
+                   log2 longest] (the same Generator, after the permutation).
     """
     n = int(num_train)
     if n < 0:
@@ -160,12 +170,21 @@ def schedule_train_dt(num_train: int, settings: ExposureSettings, seed: int = 0)
     if settings.schedule == "alternating":
         return [levels[i % ne] for i in range(n)]
     rng = np.random.default_rng(seed)
-    if settings.schedule == "random-order":
+    if settings.schedule in ("random-order", "random-values-banded"):
         bag = levels * (n // ne)
         extra = rng.choice(ne, size=n % ne, replace=False) if n % ne else np.zeros(0, int)
         bag += [levels[int(i)] for i in extra]
         perm = rng.permutation(len(bag))
-        return [bag[int(i)] for i in perm]
+        order = [bag[int(i)] for i in perm]
+        if settings.schedule == "random-order":
+            return order
+        lo, hi = math.log2(settings.shortest), math.log2(settings.longest)
+        ev = np.log2(np.asarray(order, float)) + rng.uniform(
+            -BAND_HALF_WIDTH_EV, BAND_HALF_WIDTH_EV, size=n
+        )
+        ev = np.where(ev < lo, 2 * lo - ev, ev)
+        ev = np.where(ev > hi, 2 * hi - ev, ev)
+        return [float(v) for v in np.exp2(ev)]
     lo, hi = math.log(settings.shortest), math.log(settings.longest)
     return [float(v) for v in np.exp(rng.uniform(lo, hi, size=n))]
 

@@ -18,6 +18,7 @@ from typing import Any, List, Mapping, Optional, Sequence
 
 import yaml
 
+from benchgen.exposure import SCHEDULES
 from m4dgs.core.checks import is_integer, is_number, unknown_keys
 from m4dgs.core.errors import InputError
 
@@ -762,7 +763,7 @@ SUITE_SCHEMA = Dict(
                         "extra exposure times rendered for test frames only",
                     ),
                     "schedule": F(
-                        Str(["alternating", "random-order", "random-values"]),
+                        Str(list(SCHEDULES)),
                         "alternating",
                         "how observed levels are assigned to training frames",
                     ),

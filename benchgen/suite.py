@@ -25,7 +25,7 @@ class Suite:
     scenes: List[Path]  # resolved scene YAML paths, in order
     observed: List[float]  # observed exposure levels (training frames cycle through them)
     novel: List[float] = field(default_factory=list)  # novel levels (test frames only)
-    schedule: str = "alternating"  # alternating | random-order | random-values
+    schedule: str = "alternating"  # benchgen.exposure.SCHEDULES
     description: str = ""
     path: Path = Path()
     placement: str = (

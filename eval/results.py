@@ -1169,6 +1169,19 @@ CONTROLS: Tuple[Control, ...] = (
         Effect("control-tlr-grad", "full-tlr-0.1-grad", "full-grad", "neighbours with gradient"),
     ),
     Control(
+        "schedule-coverage",
+        "Schedules: is random values' HDR PSNR cost the few frames near the range's ends? "
+        "(values within half a stop of a level against log-uniform values)",
+        "benchmark",
+        Effect("control-schedule-coverage", "random-values", "alternating", "log-uniform values"),
+        Effect(
+            "control-schedule-coverage",
+            "random-values-banded",
+            "alternating",
+            "values within half a stop of a level",
+        ),
+    ),
+    Control(
         "tlr-weight-scale",
         "TLR at the paper's weight: is its PSNR cost the small schedule? (the paper's 4K + 11K "
         "against 3K + 2.5K)",

@@ -8,7 +8,8 @@ A suite file names
   relative to the suite file; no clip settings beyond the default then);
 - ``clips``: named clip settings (optional; default one setting ``default`` = the scene suite as it
   is). A setting may
-  change the exposure ``schedule`` (alternating | random-order | random-values), the prior
+  change the exposure ``schedule`` (alternating | random-order | random-values |
+  random-values-banded), the prior
   ``priors`` profile
   (oracle | realistic | harsh), the ``observed`` / ``novel`` levels, the ``seed`` and the camera
   response ``crf``
@@ -50,7 +51,12 @@ from m4dgs.core import io as mio
 from m4dgs.core.checks import is_integer, is_number, unknown_keys
 from m4dgs.core.errors import InputError
 
-SCHEDULES = ("alternating", "random-order", "random-values")
+SCHEDULES = (
+    "alternating",
+    "random-order",
+    "random-values",
+    "random-values-banded",
+)  # benchgen.exposure's
 # benchgen.priors.PROFILES (a test keeps the two equal; eval does not import benchgen's numerics)
 PRIOR_PROFILES = (
     "oracle",

@@ -85,7 +85,7 @@ class Exposures:
     train_dt: List[float]
     observed: List[float]  # observed exposure levels (the ones used for training; LDR-OE)
     novel: List[float]  # novel exposure levels (test only; LDR-NE); empty for real clips
-    schedule: str = "alternating"  # alternating | random-order | random-values | real
+    schedule: str = "alternating"  # benchgen.exposure.SCHEDULES, or real
     # real footage split into training and test frames (`m4dgs import-clip --split alternate`, the
     # paper's Real-Exp-3): the exposure each test frame was captured at, aligned with split.test;
     # its only ground truth is that LDR frame (gt/ldr/<level>/<g>.png). None: test frames have gt

@@ -197,3 +197,35 @@ def test_random_values_schedule_log_uniform():
     assert dts.mean() == pytest.approx((32 - 0.125) / math.log(256.0), rel=0.1)
     assert schedule_train_dt(10, s, seed=3) == list(dts[:10])
     assert schedule_train_dt(10, s, seed=4) != list(dts[:10])
+
+
+def test_random_values_banded_schedule():
+    """Each value lies within half a stop of the level random-order gives that frame (same seed),
+    inside the observed range; the offsets are uniform on [-0.5, 0.5] stops around the middle level
+    and, reflected at the ends, uniform on [0, 0.5] inward from the end levels."""
+    n = 3000
+    s = exposure_preset(3, schedule="random-values-banded")
+    dts = np.array(schedule_train_dt(n, s, seed=5))
+    order = np.array(schedule_train_dt(n, exposure_preset(3, schedule="random-order"), seed=5))
+    assert dts.min() >= 0.125 and dts.max() <= 32.0
+    off = np.log2(dts) - np.log2(order)
+    assert np.abs(off).max() <= 0.5 + 1e-12
+    assert not np.isin(dts, [0.125, 2.0, 32.0]).any()  # every value is off the levels
+    assert [int((order == v).sum()) for v in (0.125, 2.0, 32.0)] == [1000, 1000, 1000]
+    mid = off[order == 2.0]
+    assert stats.kstest(mid, "uniform", args=(-0.5, 1.0)).pvalue > 0.01
+    assert stats.kstest(off[order == 0.125], "uniform", args=(0.0, 0.5)).pvalue > 0.01
+    assert stats.kstest(-off[order == 32.0], "uniform", args=(0.0, 0.5)).pvalue > 0.01
+    # the ends are covered as in the alternating schedule: a third of the frames within half a stop
+    # of the shortest exposure (random-values: one sixteenth)
+    assert (np.log2(dts) <= -2.5).mean() == pytest.approx(1 / 3, abs=1e-9)
+    assert schedule_train_dt(30, s, seed=5) == schedule_train_dt(30, s, seed=5)
+    assert schedule_train_dt(30, s, seed=5) != schedule_train_dt(30, s, seed=6)
+
+
+def test_schedule_names_agree():
+    """eval validates suite files without importing benchgen's numerics: its list must match."""
+    from benchgen.exposure import SCHEDULES
+    from eval.suite import SCHEDULES as EVAL_SCHEDULES
+
+    assert EVAL_SCHEDULES == SCHEDULES
