@@ -2,7 +2,7 @@
 own tone mapping, eval.metrics.hdr_tonemap_pair) in the brightest 1 % of the ground truth's pixels
 and in pixels the clip never recorded unclipped, and the prediction's scale in the mid-tones.
 
-    python bench/hdr_error_bands.py RUN_DIR [RUN_DIR ...] [--json OUT.json]
+    python bench/hdr_error_bands.py RUN_DIR [RUN_DIR ...] [--ref ROW] [--json OUT.json]
 
 Per run (its clip from run.json, test frames from renders/test/hdr): HDR PSNR of the pooled error
 (close to, not equal to, `metrics.json` hdr_psnr, which averages per-image PSNR); the share of the
@@ -12,16 +12,22 @@ time is past the exposure at which the clip's response reaches code 254.5 (satur
 training frame), and the fraction of values those are; and the median prediction / ground truth
 luminance ratio over the 20th-90th percentile of each frame's luminance (a global scale error
 shows there, a highlight error does not). Used to read the crf suite's HDR PSNR differences
-(docs/results-notes.md)."""
+(docs/results-notes.md).
+
+--ref ROW: each run beside the run of row ROW on the same scene and seed (run folders named
+ROOT/runs/SUITE/SCENE/ROW-seed-K, as `m4dgs-eval run` names them): how many times its squared error
+in the brightest 1 % and in the other 99 % of the pixels is the reference's (the exposure-schedules
+reading, docs/results-notes.md)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import re
 import sys
 from pathlib import Path
-from typing import Dict
+from typing import Dict, List, Tuple
 
 import numpy as np
 
@@ -83,6 +89,8 @@ def run_bands(run_dir) -> Dict:
     mse = sums["sq_err"] / sums["n"]
     return {
         "run": str(run),
+        "mse_top1": sums["sq_err_top1"] / sums["n"],
+        "mse_rest": (sums["sq_err"] - sums["sq_err_top1"]) / sums["n"],
         "crf": clip.meta.crf,
         "frames": len(frames),
         "pooled_hdr_psnr": -10 * math.log10(mse) if mse > 0 else float("inf"),
@@ -93,9 +101,54 @@ def run_bands(run_dir) -> Dict:
     }
 
 
+def run_key(run) -> Tuple[str, str, str]:
+    """(scene, row, seed) of a run folder SCENE/ROW-seed-K; ValueError for another name."""
+    p = Path(run)
+    m = re.fullmatch(r"(.+)-seed-(\d+)", p.name)
+    if not m:
+        raise ValueError(f"{run}: not a run folder named ROW-seed-K")
+    return p.parent.name, m.group(1), m.group(2)
+
+
+def reference_ratios(rows: List[Dict], ref_row: str) -> List[Dict]:
+    """For each row of run_bands whose run is not of row ref_row: {"run", "ref", "top1", "rest"},
+    its mean squared error in the brightest 1 % and in the rest divided by the same of the ref_row
+    run with the same scene and seed (both scored on the same test frames). ValueError when that
+    run is missing."""
+    refs = {}
+    for r in rows:
+        scene, row, seed = run_key(r["run"])
+        if row == ref_row:
+            refs[scene, seed] = r
+    out = []
+    for r in rows:
+        scene, row, seed = run_key(r["run"])
+        if row == ref_row:
+            continue
+        ref = refs.get((scene, seed))
+        if ref is None:
+            raise ValueError(f"{r['run']}: no {ref_row}-seed-{seed} run of {scene} among the runs")
+        out.append(
+            {
+                "run": r["run"],
+                "ref": ref["run"],
+                "top1": r["mse_top1"] / ref["mse_top1"] if ref["mse_top1"] else math.inf,
+                "rest": r["mse_rest"] / ref["mse_rest"] if ref["mse_rest"] else math.inf,
+            }
+        )
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", help="run folders (with run.json and renders/test/hdr)")
+    ap.add_argument(
+        "--ref",
+        default=None,
+        metavar="ROW",
+        help="also each run's error in the brightest 1 %% and in the rest as a multiple of the "
+        "ROW run of the same scene and seed (run folders SCENE/ROW-seed-K)",
+    )
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     args = ap.parse_args(argv)
     rows = [run_bands(r) for r in args.runs]
@@ -112,10 +165,15 @@ def main(argv=None) -> int:
             r["mid_tone_scale"],
         )
         print("{:50s} {:14s} {:6.2f} {:7.2f} {:6.2f} {:7.2f}% {:6.3f}".format(*cells))
+    ratios = reference_ratios(rows, args.ref) if args.ref else []
+    if ratios:
+        print(f"\nsquared error against {args.ref} (same scene and seed): brightest 1 %, rest")
+        for r in ratios:
+            print("{:50s} x{:5.2f}  x{:5.2f}".format(r["run"][-50:], r["top1"], r["rest"]))
     if args.json:
         from m4dgs.core.io import write_json
 
-        write_json(args.json, {"rows": rows})
+        write_json(args.json, {"rows": rows, **({"ratios": ratios} if args.ref else {})})
     return 0
 
 

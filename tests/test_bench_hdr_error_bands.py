@@ -59,9 +59,38 @@ def test_run_bands_on_a_run_folder(tiny_clip_oracle, tmp_path, load_bench):
     r = b.run_bands(run)
     assert r["frames"] == len(clip.test_frames) and r["pooled_hdr_psnr"] == float("inf")
     assert r["share_top1"] == 0 and r["mid_tone_scale"] == pytest.approx(1.0)
+    assert r["mse_top1"] == 0 and r["mse_rest"] == 0
     with pytest.raises(ValueError, match="no run.json"):
         b.run_bands(tmp_path)
     with pytest.raises(ValueError, match="no renders"):
         (tmp_path / "empty" / "renders" / "test" / "hdr").mkdir(parents=True)
         (tmp_path / "empty" / "run.json").write_text((run / "run.json").read_text())
         b.run_bands(tmp_path / "empty")
+
+
+def test_reference_ratios_pair_scene_and_seed(load_bench):
+    """--ref: each run's error beside the reference row's run of the same scene and seed."""
+    b = load_bench("hdr_error_bands")
+
+    def row(path, top1, rest):
+        return {"run": path, "mse_top1": top1, "mse_rest": rest}
+
+    rows = [
+        row("R/runs/s/scene-a/alternating-seed-0", 2.0, 10.0),
+        row("R/runs/s/scene-a/alternating-seed-1", 4.0, 10.0),
+        row("R/runs/s/scene-b/alternating-seed-0", 1.0, 5.0),
+        row("R/runs/s/scene-a/random-values-seed-1", 6.0, 9.0),
+        row("R/runs/s/scene-b/random-values-seed-0", 3.0, 5.0),
+    ]
+    out = {r["run"].split("/", 3)[-1]: r for r in b.reference_ratios(rows, "alternating")}
+    assert set(out) == {"scene-a/random-values-seed-1", "scene-b/random-values-seed-0"}
+    a = out["scene-a/random-values-seed-1"]
+    assert a["ref"].endswith("scene-a/alternating-seed-1")  # its own seed, not seed 0
+    assert (a["top1"], a["rest"]) == (pytest.approx(1.5), pytest.approx(0.9))
+    assert (out["scene-b/random-values-seed-0"]["top1"]) == pytest.approx(3.0)
+    with pytest.raises(ValueError, match="no alternating-seed-1 run of scene-b"):
+        b.reference_ratios(
+            rows + [row("R/runs/s/scene-b/random-values-seed-1", 1, 1)], "alternating"
+        )
+    with pytest.raises(ValueError, match="ROW-seed-K"):
+        b.run_key("R/runs/s/scene-a/latest")
