@@ -400,6 +400,11 @@ def run_campaign(
                 f"({'; '.join(r['id'] for r in bad[:3])}); the finished runs are exported. Run "
                 "the same command again to retry them."
             )
+    if dry_run and rate is None and any(s["todo_iterations"] for s in statuses):
+        say(
+            f"[campaign {campaign.name}] no time estimate: none of its runs has finished yet (the "
+            "estimate is their median recorded seconds per iteration)"
+        )
     if dry_run and left:
         say(
             f"[campaign {campaign.name}] estimate: ~{left:.1f} h of training left at --jobs {jobs} "

@@ -1163,6 +1163,7 @@ def test_campaign_time_estimate_from_recorded_seconds(tmp_path, fake_trainer):
     kw = dict(code=code, log=lines.append, run_kw={"score_kw": {"fps": False}, "progress": False})
     plan = run_campaign(camp, out, csv_path, dry_run=True, jobs=2, **kw)
     assert all("estimate_hours" not in p for p in plan)  # nothing scored yet: no estimate
+    assert any("no time estimate: none of its runs has finished yet" in ln for ln in lines)
     # step 1 trains; step 2 stops at the code guard (the fake runs record no code)
     with pytest.raises(InputError, match="mix code versions"):
         run_campaign(camp, out, csv_path, **kw)
@@ -1176,6 +1177,7 @@ def test_campaign_time_estimate_from_recorded_seconds(tmp_path, fake_trainer):
     assert "estimate_hours" not in plan[0]
     assert plan[1]["estimate_hours"] == pytest.approx(todo * rate / 2 / 3600)
     assert any("h of training left at --jobs 2" in ln for ln in lines)
+    assert not any("no time estimate" in ln for ln in lines)
     assert [ln.split(":")[0].split()[-1] for ln in lines if "] step " in ln] == ["1/2", "2/2"]
 
 
