@@ -14,17 +14,16 @@ luminance ratio over the 20th-90th percentile of each frame's luminance (a globa
 shows there, a highlight error does not). Used to read the crf suite's HDR PSNR differences
 (docs/results-notes.md).
 
---ref ROW: each run beside the run of row ROW on the same scene and seed (run folders named
-ROOT/runs/SUITE/SCENE/ROW-seed-K, as `m4dgs-eval run` names them): how many times its squared error
-in the brightest 1 % and in the other 99 % of the pixels is the reference's (the exposure-schedules
-reading, docs/results-notes.md)."""
+--ref ROW: each run beside the run of row ROW on the same scene and seed (run folders
+ROOT/runs/SUITE/SCENE/ROW for seed 0 and ROW-seed-K for seed K, as `m4dgs-eval run` names them):
+how many times its squared error in the brightest 1 % and in the other 99 % of the pixels is the
+reference's (the exposure-schedules reading, docs/results-notes.md)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import math
-import re
 import sys
 from pathlib import Path
 from typing import Dict, List, Tuple
@@ -101,13 +100,13 @@ def run_bands(run_dir) -> Dict:
     }
 
 
-def run_key(run) -> Tuple[str, str, str]:
-    """(scene, row, seed) of a run folder SCENE/ROW-seed-K; ValueError for another name."""
+def run_key(run) -> Tuple[str, str, int]:
+    """(scene, row, trainer seed) of a run folder SCENE/ROW (seed 0) or SCENE/ROW-seed-K, as
+    `m4dgs-eval run` names them (eval.runner.split_run_name)."""
+    from eval.runner import split_run_name
+
     p = Path(run)
-    m = re.fullmatch(r"(.+)-seed-(\d+)", p.name)
-    if not m:
-        raise ValueError(f"{run}: not a run folder named ROW-seed-K")
-    return p.parent.name, m.group(1), m.group(2)
+    return (p.parent.name, *split_run_name(p.name))
 
 
 def reference_ratios(rows: List[Dict], ref_row: str) -> List[Dict]:
@@ -115,6 +114,8 @@ def reference_ratios(rows: List[Dict], ref_row: str) -> List[Dict]:
     its mean squared error in the brightest 1 % and in the rest divided by the same of the ref_row
     run with the same scene and seed (both scored on the same test frames). ValueError when that
     run is missing."""
+    from eval.runner import seed_run_name
+
     refs = {}
     for r in rows:
         scene, row, seed = run_key(r["run"])
@@ -127,7 +128,8 @@ def reference_ratios(rows: List[Dict], ref_row: str) -> List[Dict]:
             continue
         ref = refs.get((scene, seed))
         if ref is None:
-            raise ValueError(f"{r['run']}: no {ref_row}-seed-{seed} run of {scene} among the runs")
+            name = seed_run_name(ref_row, seed)
+            raise ValueError(f"{r['run']}: no {name} run of {scene} among the runs")
         out.append(
             {
                 "run": r["run"],
@@ -147,7 +149,7 @@ def main(argv=None) -> int:
         default=None,
         metavar="ROW",
         help="also each run's error in the brightest 1 %% and in the rest as a multiple of the "
-        "ROW run of the same scene and seed (run folders SCENE/ROW-seed-K)",
+        "ROW run of the same scene and seed (run folders SCENE/ROW, SCENE/ROW-seed-K)",
     )
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     args = ap.parse_args(argv)

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shlex
 from pathlib import Path
 
@@ -459,10 +458,8 @@ def collect_runs_dir(runs_dir) -> list:
     """Entries of every run under RUNS_DIR with a metrics.json; rows = the variant names (run.json /
     metrics.json), or the run folder names where two runs of one scene and seed share a variant. A
     folder named <row>-seed-<n> is trainer seed n of <row> (m4dgs-eval run --seeds)."""
-    from .runner import SEED_SUFFIX
+    from .runner import split_run_name
     from .score import read_run_info
-
-    seed_re = re.compile(re.escape(SEED_SUFFIX) + r"([0-9]+)$")
 
     entries = []
     for mp in sorted(Path(runs_dir).rglob("metrics.json")):
@@ -472,8 +469,7 @@ def collect_runs_dir(runs_dir) -> list:
         info = read_run_info(rd)
         variant = run_meta.get("variant") or info.get("variant") or rd.name
         scene = run_meta.get("clip_name") or rd.parent.name
-        sm = seed_re.search(rd.name)
-        row, seed = (rd.name[: sm.start()], int(sm.group(1))) if sm else (rd.name, 0)
+        row, seed = split_run_name(rd.name)
         entries.append(
             {
                 "scene": scene,

@@ -39,7 +39,7 @@ import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
@@ -60,6 +60,16 @@ def seed_run_name(row: str, seed: int) -> str:
     """Run folder name of a row's trainer seed: the row name for seed 0 (the layout before seeds
     existed), else `<row>-seed-<seed>`."""
     return row if seed == 0 else f"{row}{SEED_SUFFIX}{seed}"
+
+
+_SEED_NAME_RE = re.compile(re.escape(SEED_SUFFIX) + r"([0-9]+)$")
+
+
+def split_run_name(name: str) -> Tuple[str, int]:
+    """(row, trainer seed) of a run folder name, the inverse of seed_run_name: `<row>-seed-<n>` is
+    seed n of <row>, any other name is seed 0 of the row of that name."""
+    m = _SEED_NAME_RE.search(name)
+    return (name[: m.start()], int(m.group(1))) if m else (name, 0)
 
 
 @dataclass

@@ -92,5 +92,11 @@ def test_reference_ratios_pair_scene_and_seed(load_bench):
         b.reference_ratios(
             rows + [row("R/runs/s/scene-b/random-values-seed-1", 1, 1)], "alternating"
         )
-    with pytest.raises(ValueError, match="ROW-seed-K"):
-        b.run_key("R/runs/s/scene-a/latest")
+    # seed 0's folder is the row's name alone (eval.runner.seed_run_name), any other name too
+    assert b.run_key("R/runs/s/scene-a/latest") == ("scene-a", "latest", 0)
+    plain = [
+        row("R/runs/s/scene-c/alternating", 2.0, 4.0),
+        row("R/runs/s/scene-c/random-values", 5.0, 2.0),
+    ]
+    (c,) = b.reference_ratios(plain, "alternating")
+    assert c["ref"].endswith("scene-c/alternating") and c["top1"] == pytest.approx(2.5)
