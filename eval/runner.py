@@ -558,9 +558,8 @@ def seeds_present(suite, out, preset: str = "small", scenes=None) -> int:
         parent = Path(j.run_dir).parent
         if not parent.is_dir():
             continue
-        pat = re.compile(re.escape(j.row + SEED_SUFFIX) + r"([0-9]+)$")
         for p in parent.iterdir():
-            m = pat.match(p.name)
-            if m and p.is_dir():
-                top = max(top, int(m.group(1)))
+            row, seed = split_run_name(p.name)
+            if row == j.row and p.is_dir():
+                top = max(top, seed)
     return top + 1
