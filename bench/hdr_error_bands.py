@@ -17,7 +17,12 @@ shows there, a highlight error does not). Used to read the crf suite's HDR PSNR 
 --ref ROW: each run beside the run of row ROW on the same scene and seed (run folders
 ROOT/runs/SUITE/SCENE/ROW for seed 0 and ROW-seed-K for seed K, as `m4dgs-eval run` names them):
 how many times its squared error in the brightest 1 % and in the other 99 % of the pixels is the
-reference's (the exposure-schedules reading, docs/results-notes.md)."""
+reference's (the exposure-schedules reading, docs/results-notes.md).
+
+`m4dgs-eval regions RUN --ref RUN --bright-top 0.01` gives the same brightest-1 % ratio (its "hdr"
+row, "bright err x"; lamp-room-orbit's random values at seed 1: x2.36 in both) and splits the rest
+into moving and static pixels, at every LDR level too; this script keeps what that command does
+not have: the never-observed band and the mid-tone scale."""
 
 from __future__ import annotations
 

@@ -15,6 +15,8 @@ score runs, run experiment suites, print paper-style tables.
         the job list as JSON lines (one `python -m eval job ...` per line)
     m4dgs-eval job paper-main --scene S --row R
         run ONE job (cluster fan-out: docs/cluster.md)
+    m4dgs-eval regions RUN [RUN ...] --ref RUN --bright-above 20
+        where each run's test-frame error sits (bright / moving / static pixels)
     m4dgs-eval table tiny
         the suite's tables (Markdown; --format latex|csv) and figures: mean +- 95 % CI over
         scenes x seeds, paired differences to the reference row, the paper's values and
@@ -802,6 +804,103 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm):
     except ValueError as e:
         raise click.UsageError(f"{csv_path}: {e}") from e
     click.echo(text)
+
+
+@main.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
+@click.option(
+    "--ref",
+    "ref_run",
+    default=None,
+    type=click.Path(exists=True, file_okay=False),
+    help="A reference run of the same scene, frames and levels (its clip may differ in priors or "
+    "exposure schedule): also print how each run's change in squared error splits over the "
+    "regions.",
+)
+@click.option(
+    "--clip",
+    "clip_dir",
+    default=None,
+    type=click.Path(exists=True, file_okay=False),
+    help="Clip folder for every run (default: the 'clip' entry of each RUN/run.json); needed for "
+    "a prediction folder of `score-frames`.",
+)
+@click.option(
+    "--bright-above",
+    type=float,
+    default=None,
+    help="The bright region: pixels whose ground-truth HDR (max over channels, clip units) "
+    "exceeds this (e.g. 20 for the scenes' lamps).",
+)
+@click.option(
+    "--bright-top",
+    type=float,
+    default=None,
+    help="The bright region: each frame's brightest fraction of pixels, in (0, 1) (e.g. 0.01); "
+    "instead of --bright-above.",
+)
+@click.option(
+    "--dilate",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Grow the bright region by this many pixels (4-connected steps).",
+)
+@click.option(
+    "--json",
+    "json_path",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Also write every split (and the reference's) to this JSON file.",
+)
+def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path):
+    """Where each run's test-frame error sits: per LDR level and for HDR (mu-law), each region's
+    share of the pixels and of the squared error, and the PSNR with the region left out; regions
+    are bright (--bright-above / --bright-top), the ground truth's dynamic mask, and the rest."""
+    from m4dgs.clip import Clip
+    from m4dgs.core.errors import InputError
+
+    from .regions import (
+        check_comparable,
+        describe_regions,
+        format_extra,
+        format_split,
+        split_run,
+    )
+    from .score import resolve_clip_dir
+
+    if bright_above is not None and bright_top is not None:
+        raise click.UsageError("give --bright-above or --bright-top, not both")
+    if bright_top is not None and not 0.0 < bright_top < 1.0:
+        raise click.UsageError(f"--bright-top must lie in (0, 1), got {bright_top}")
+    opts = dict(bright_above=bright_above, bright_top=bright_top, dilate=dilate)
+    caches: dict = {}
+
+    def one(run):
+        clip = Clip.open(resolve_clip_dir(run, clip_dir))
+        return clip, split_run(run, clip, masks_cache=caches.setdefault(str(clip.root), {}), **opts)
+
+    try:
+        ref = None
+        if ref_run is not None:
+            ref_clip, ref = one(ref_run)
+        out = []
+        for run in runs:
+            clip, res = one(run)
+            if ref is not None:
+                check_comparable(ref_clip, clip)
+            out.append(res)
+    except InputError as e:
+        raise click.ClickException(str(e)) from e
+    click.echo(describe_regions(bright_above, bright_top, dilate))
+    for res in out:
+        click.echo(f"\n{res['run']} (clip {res['clip_name']}, {res['test_frames']} test frames)\n")
+        click.echo(format_split(res))
+        if ref is not None:
+            click.echo(f"\nagainst {ref['run']}:\n")
+            click.echo(format_extra(res, ref))
+    if json_path:
+        mio.write_json(json_path, {"runs": out, "ref": ref})
 
 
 @main.command()

@@ -1,0 +1,339 @@
+"""Where a run's test-frame error sits: its squared error split over disjoint pixel regions.
+
+A score says how far a run is off; this says where. Each test frame's pixels are split into three
+disjoint regions read from the clip's ground truth:
+
+- ``bright``: pixels whose ground-truth HDR value (the maximum over channels, clip units) exceeds
+  ``bright_above``, or, with ``bright_top``, the frame's brightest fraction of pixels by that value;
+  grown by ``dilate`` pixels (4-connected steps) so that a lamp's antialiased rim goes with it;
+- ``dynamic``: the ground truth's dynamic mask (``gt/masks/dynamic``), less ``bright``;
+- ``static``: the rest.
+
+Per domain (each LDR test level, 8-bit codes scaled to [0, 1] as the renders are written, and the
+HDR frames in the mu-law domain normalised by the ground truth's maximum, the HDR PSNR's convention,
+docs/metrics.md) it gives each region's share of the pixels and of the squared error, and the PSNR
+with the region left out (per frame, capped, then the mean over frames, as the scores average).
+Beside a reference run of the same scene, frames and levels it gives how the change in squared
+error splits over the regions. `m4dgs-eval regions` prints it (docs/eval.md).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Sequence
+
+import numpy as np
+
+from m4dgs.clip import Clip, frame_name, level_name
+from m4dgs.core import io as mio
+from m4dgs.core.errors import InputError
+
+from .metrics._util import psnr_from_mse
+from .metrics.hdr import hdr_tonemap_pair
+from .score import PSNR_CAP_DB, read_render_exr, resolve_clip_dir
+
+REGIONS = ("bright", "dynamic", "static")
+
+
+def region_masks(
+    gt_hdr: np.ndarray,
+    dynamic: Optional[np.ndarray] = None,
+    *,
+    bright_above: Optional[float] = None,
+    bright_top: Optional[float] = None,
+    dilate: int = 0,
+) -> Dict[str, np.ndarray]:
+    """Disjoint boolean masks [H, W] covering the frame, keyed by REGIONS.
+
+    gt_hdr: [H, W, C] linear ground truth. dynamic: [H, W] bool ground-truth dynamic mask, or None
+    (no dynamic region). bright_above / bright_top (at most one; neither: an empty bright region):
+    a threshold on max over channels of gt_hdr, or the fraction in (0, 1) of the frame's pixels
+    with the largest such value (ties at the cut included). dilate: grow the bright region by this
+    many 4-connected steps.
+    """
+    if bright_above is not None and bright_top is not None:
+        raise ValueError("give bright_above or bright_top, not both")
+    if dilate < 0:
+        raise ValueError(f"dilate must be >= 0, got {dilate}")
+    peak = np.asarray(gt_hdr, dtype=np.float64)
+    peak = peak.max(axis=-1) if peak.ndim == 3 else peak
+    if bright_above is not None:
+        bright = peak > float(bright_above)
+    elif bright_top is not None:
+        if not 0.0 < float(bright_top) < 1.0:
+            raise ValueError(f"bright_top must lie in (0, 1), got {bright_top}")
+        k = max(1, int(math.ceil(float(bright_top) * peak.size)))
+        cut = np.partition(peak.ravel(), peak.size - k)[peak.size - k]
+        bright = peak >= cut
+    else:
+        bright = np.zeros(peak.shape, dtype=bool)
+    if dilate and bright.any():
+        from scipy.ndimage import binary_dilation
+
+        bright = binary_dilation(bright, iterations=int(dilate))
+    if dynamic is None:
+        dyn = np.zeros(peak.shape, dtype=bool)
+    else:
+        dyn = np.asarray(dynamic, dtype=bool)
+        if dyn.shape != peak.shape:
+            raise ValueError(f"dynamic mask {dyn.shape} does not match the frame {peak.shape}")
+    dyn = dyn & ~bright
+    return {"bright": bright, "dynamic": dyn, "static": ~(bright | dyn)}
+
+
+def region_sse(pred: np.ndarray, gt: np.ndarray, masks: Dict[str, np.ndarray]) -> Dict[str, float]:
+    """Sum of squared errors over each region's pixels and all channels. pred, gt: [H, W, C]
+    float in [0, 1]; masks: [H, W] bool per region."""
+    err = ((np.asarray(pred, np.float64) - np.asarray(gt, np.float64)) ** 2).sum(axis=-1)
+    return {r: float(err[m].sum()) for r, m in masks.items()}
+
+
+def psnr_without(pred: np.ndarray, gt: np.ndarray, left_out: np.ndarray) -> float:
+    """PSNR (peak 1, capped at the scores' cap) over the pixels outside `left_out` ([H, W] bool);
+    NaN when nothing is left. pred, gt: [H, W, C] float in [0, 1]."""
+    keep = ~np.asarray(left_out, dtype=bool)
+    if not keep.any():
+        return math.nan
+    d = np.asarray(pred, np.float64)[keep] - np.asarray(gt, np.float64)[keep]
+    return min(psnr_from_mse(float((d**2).mean()), 1.0), PSNR_CAP_DB)
+
+
+class _Domain:
+    """Accumulates one domain (a test level or the HDR frames) over frames."""
+
+    def __init__(self):
+        self.frames = 0
+        self.pixels = {r: 0 for r in REGIONS}
+        self.sse = {r: 0.0 for r in REGIONS}
+        self.psnr: List[float] = []
+        self.without: Dict[str, List[float]] = {r: [] for r in REGIONS}
+
+    def add(self, pred: np.ndarray, gt: np.ndarray, masks: Dict[str, np.ndarray]) -> None:
+        self.frames += 1
+        for r, v in region_sse(pred, gt, masks).items():
+            self.sse[r] += v
+        for r in REGIONS:
+            self.pixels[r] += int(masks[r].sum())
+            self.without[r].append(psnr_without(pred, gt, masks[r]))
+        self.psnr.append(psnr_without(pred, gt, np.zeros_like(masks["static"])))
+
+    def result(self) -> dict:
+        def mean(v):
+            v = [x for x in v if not math.isnan(x)]
+            return float(np.mean(v)) if v else None
+
+        return {
+            "frames": self.frames,
+            "pixels": dict(self.pixels),
+            "sse": dict(self.sse),
+            "psnr": mean(self.psnr),
+            "psnr_without": {r: mean(v) for r, v in self.without.items()},
+        }
+
+
+def _renders_root(run: Path) -> Path:
+    """RUN/renders for a run folder; RUN itself for a prediction folder (score-frames layout)."""
+    return run / "renders" if (run / "renders" / "test").is_dir() else run
+
+
+def _ldr01(img: np.ndarray) -> np.ndarray:
+    return np.asarray(img, np.float64) / 255.0
+
+
+def split_run(
+    run,
+    clip=None,
+    *,
+    bright_above: Optional[float] = None,
+    bright_top: Optional[float] = None,
+    dilate: int = 0,
+    masks_cache: Optional[dict] = None,
+    progress: Optional[Callable[[str], None]] = None,
+) -> dict:
+    """The region split of one run's test renders (RUN/renders/test/{ldr/<level>,hdr}/<frame>).
+
+    Returns {"run", "clip", "test_frames", "regions" (the options), "domains": {name: {"kind"
+    ("observed", "novel", "hdr"), "frames", "pixels" {region: count}, "sse" {region: float},
+    "psnr", "psnr_without" {region: dB}}}}, the domains named "ldr <level>" and "hdr", plus
+    "LDR-OE" / "LDR-NE" (the levels' pixels and errors summed, their PSNRs averaged over levels, as
+    ldr_oe_psnr is). masks_cache: a dict shared between calls on the same ground truth.
+    """
+    run = Path(run)
+    clip_obj = clip if isinstance(clip, Clip) else Clip.open(resolve_clip_dir(run, clip))
+    if not clip_obj.has_gt:
+        raise InputError(f"{clip_obj.root / 'gt'}: the clip has no ground truth to split against")
+    test = clip_obj.test_frames
+    if not test:
+        raise InputError(f"{clip_obj.root / 'clip.json'}: split: the clip has no test frames")
+    root = _renders_root(run)
+    has_dyn = (clip_obj.root / "gt/masks/dynamic").is_dir()
+    cache = {} if masks_cache is None else masks_cache
+
+    def masks_of(g: int) -> Dict[str, np.ndarray]:
+        if g not in cache:
+            dyn = clip_obj.load_gt_dynamic_mask(g) if has_dyn else None
+            cache[g] = region_masks(
+                clip_obj.load_gt_hdr(g),
+                dyn,
+                bright_above=bright_above,
+                bright_top=bright_top,
+                dilate=dilate,
+            )
+        return cache[g]
+
+    def need(p: Path) -> Path:
+        if not p.exists():
+            raise InputError(
+                f"{p}: missing render (render the run's test frames first: m4dgs render)"
+            )
+        return p
+
+    ex = clip_obj.meta.exposures
+    domains: Dict[str, dict] = {}
+    for kind, levels in (("observed", ex.observed), ("novel", ex.novel)):
+        for lv in levels:
+            frames = [g for g in test if lv in clip_obj.meta.test_levels_of(g)]
+            if not frames:
+                continue
+            acc = _Domain()
+            for g in frames:
+                p = mio.read_png(need(root / "test/ldr" / level_name(lv) / frame_name(g, "png")))
+                acc.add(_ldr01(p), _ldr01(clip_obj.load_gt_ldr(lv, g)), masks_of(g))
+            domains[f"ldr {level_name(lv)}"] = dict(acc.result(), kind=kind)
+            if progress:
+                progress(f"{run.name}: ldr {level_name(lv)}")
+    if clip_obj.has_gt_part("hdr"):
+        acc = _Domain()
+        for g in test:
+            tp, tg = hdr_tonemap_pair(
+                read_render_exr(need(root / "test/hdr" / frame_name(g, "exr"))),
+                clip_obj.load_gt_hdr(g),
+            )
+            acc.add(tp[0].numpy(), tg[0].numpy(), masks_of(g))
+        domains["hdr"] = dict(acc.result(), kind="hdr")
+    for name, kind in (("LDR-OE", "observed"), ("LDR-NE", "novel")):
+        parts = [d for d in domains.values() if d["kind"] == kind]
+        if parts:
+            domains[name] = _pool(parts, kind)
+    return {
+        "run": str(run),
+        "clip": str(clip_obj.root),
+        "clip_name": clip_obj.meta.name,
+        "test_frames": len(test),
+        "regions": {"bright_above": bright_above, "bright_top": bright_top, "dilate": dilate},
+        "domains": domains,
+    }
+
+
+def _pool(parts: Sequence[dict], kind: str) -> dict:
+    """Levels pooled: pixels and errors summed, PSNRs the mean over levels (as ldr_oe_psnr)."""
+
+    def mean(v):
+        v = [x for x in v if x is not None]
+        return float(np.mean(v)) if v else None
+
+    return {
+        "kind": f"{kind} (levels pooled)",
+        "frames": sum(d["frames"] for d in parts),
+        "pixels": {r: sum(d["pixels"][r] for d in parts) for r in REGIONS},
+        "sse": {r: sum(d["sse"][r] for d in parts) for r in REGIONS},
+        "psnr": mean(d["psnr"] for d in parts),
+        "psnr_without": {r: mean(d["psnr_without"][r] for d in parts) for r in REGIONS},
+    }
+
+
+def check_comparable(a: Clip, b: Clip) -> None:
+    """Raise InputError unless two clips are of one scene with the same frame size, test frames and
+    levels, so that their runs' errors can be compared pixel for pixel. Their ground truths may
+    still differ in scale (benchgen places each clip's exposure range on its own schedule) and
+    their priors in anything: each run is split against its own clip's ground truth."""
+    for what, x, y in (
+        ("name", a.meta.name, b.meta.name),
+        ("frame size", (a.width, a.height), (b.width, b.height)),
+        ("test frames", a.test_frames, b.test_frames),
+        ("observed levels", list(a.meta.exposures.observed), list(b.meta.exposures.observed)),
+        ("novel levels", list(a.meta.exposures.novel), list(b.meta.exposures.novel)),
+    ):
+        if x != y:
+            raise InputError(
+                f"{b.root / 'clip.json'}: {what} {y} differs from {a.root}'s ({x}); a reference "
+                "run must be of the same scene, frames and levels"
+            )
+
+
+def _pct(x: Optional[float]) -> str:
+    return "n/a" if x is None or math.isnan(x) else f"{100.0 * x:.1f}"
+
+
+def _db(x: Optional[float], signed: bool = False) -> str:
+    if x is None or math.isnan(x):
+        return "n/a"
+    return f"{x:+.2f}" if signed else f"{x:.2f}"
+
+
+def _share(part: float, whole: float) -> Optional[float]:
+    return part / whole if whole > 0 else None
+
+
+def format_split(res: dict) -> str:
+    """One run's split as a Markdown table (a row per domain)."""
+    head = ["domain", "frames", "PSNR"]
+    for r in REGIONS:
+        head += [f"{r} px %", f"{r} err %", f"w/o {r}"]
+    lines = ["| " + " | ".join(head) + " |", "|:---" + "|---:" * (len(head) - 1) + "|"]
+    for name, d in res["domains"].items():
+        px, sse = sum(d["pixels"].values()), sum(d["sse"].values())
+        row = [name, str(d["frames"]), _db(d["psnr"])]
+        for r in REGIONS:
+            row += [
+                _pct(_share(d["pixels"][r], px)),
+                _pct(_share(d["sse"][r], sse)),
+                _db(d["psnr_without"][r]),
+            ]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def format_extra(res: dict, ref: dict) -> str:
+    """How a run's change in squared error against a reference run splits over the regions
+    (Markdown): per domain the PSNR difference, each region's share of the change (a region that
+    moves against the total has a negative share, the others then more than 100 %), the factor
+    its own error grew by, and the PSNR difference with the region left out."""
+    head = ["domain", "Δ PSNR"]
+    for r in REGIONS:
+        head += [f"{r} share of Δ err %", f"{r} err x", f"Δ w/o {r}"]
+    lines = ["| " + " | ".join(head) + " |", "|:---" + "|---:" * (len(head) - 1) + "|"]
+    for name, d in res["domains"].items():
+        e = ref["domains"].get(name)
+        if e is None:
+            continue
+        extra = {r: d["sse"][r] - e["sse"][r] for r in REGIONS}
+        total = sum(extra.values())
+
+        def diff(a, b):
+            return None if a is None or b is None else a - b
+
+        row = [name, _db(diff(d["psnr"], e["psnr"]), signed=True)]
+        for r in REGIONS:
+            growth = d["sse"][r] / e["sse"][r] if e["sse"][r] > 0 else None
+            row += [
+                _pct(extra[r] / total) if total != 0 else "n/a",
+                "n/a" if growth is None else f"{growth:.2f}",
+                _db(diff(d["psnr_without"][r], e["psnr_without"][r]), signed=True),
+            ]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def describe_regions(bright_above, bright_top, dilate) -> str:
+    """One sentence naming the regions as split."""
+    if bright_above is not None:
+        b = f"ground-truth HDR above {bright_above:g}"
+    elif bright_top is not None:
+        b = f"each frame's brightest {100 * bright_top:g} % of pixels"
+    else:
+        b = "none"
+    if dilate and b != "none":
+        b += f", grown by {dilate} px"
+    return f"Regions: bright = {b}; dynamic = gt/masks/dynamic less bright; static = the rest."

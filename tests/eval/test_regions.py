@@ -1,0 +1,172 @@
+"""`m4dgs-eval regions`: a run's squared error split over bright / dynamic / static pixels.
+
+The masks are checked against hand-built answers, the per-region sums against the whole-frame error,
+and an end-to-end split of a prediction with a known error against the scorer's own PSNRs (the
+split's whole-frame PSNR must be the score's; the error must sit where it was put)."""
+
+from __future__ import annotations
+
+import math
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from eval.cli import main
+from eval.frames import score_frames
+from eval.regions import (
+    REGIONS,
+    check_comparable,
+    psnr_without,
+    region_masks,
+    region_sse,
+    split_run,
+)
+from eval.score import PSNR_CAP_DB
+from m4dgs.clip import Clip, frame_name, level_name
+from m4dgs.core import io as mio
+from m4dgs.core.errors import InputError
+
+
+def test_masks_are_disjoint_cover_the_frame_and_follow_the_options():
+    hdr = np.ones((7, 9, 3))
+    hdr[3, 4, 1] = 50.0  # one lamp pixel (one channel is enough: max over channels)
+    dyn = np.zeros((7, 9), bool)
+    dyn[:, :3] = True
+    dyn[3, 4] = True  # a lamp pixel marked dynamic goes to bright
+    m = region_masks(hdr, dyn, bright_above=20.0)
+    assert set(m) == set(REGIONS)
+    total = sum(v.astype(int) for v in m.values())
+    assert (total == 1).all()  # disjoint and covering
+    assert m["bright"].sum() == 1 and m["bright"][3, 4]
+    assert m["dynamic"].sum() == 21 and not m["dynamic"][3, 4]
+    # grown by 2 four-connected steps: the diamond |dy| + |dx| <= 2 (13 pixels)
+    m2 = region_masks(hdr, dyn, bright_above=20.0, dilate=2)
+    yy, xx = np.mgrid[:7, :9]
+    assert np.array_equal(m2["bright"], np.abs(yy - 3) + np.abs(xx - 4) <= 2)
+    # the brightest fraction: ceil(0.05 * 63) = 4 pixels, ties at the cut included
+    ramp = np.arange(63, dtype=float).reshape(7, 9)[..., None].repeat(3, -1)
+    top = region_masks(ramp, None, bright_top=0.05)["bright"]
+    assert top.sum() == 4 and top.ravel()[-4:].all()
+    # neither option: no bright region; no mask: everything else static
+    m0 = region_masks(hdr, None)
+    assert not m0["bright"].any() and not m0["dynamic"].any() and m0["static"].all()
+    with pytest.raises(ValueError):
+        region_masks(hdr, dyn, bright_above=1.0, bright_top=0.1)
+    with pytest.raises(ValueError):
+        region_masks(hdr, np.zeros((3, 3), bool))
+
+
+def test_region_sums_add_up_and_psnr_without_leaves_the_region_out():
+    rng = np.random.default_rng(0)
+    gt = rng.random((6, 8, 3))
+    pred = gt.copy()
+    m = region_masks(np.ones((6, 8, 3)), rng.random((6, 8)) < 0.3)
+    err = rng.normal(0, 0.05, gt.shape)
+    pred = np.clip(gt + err, 0, 1)
+    sse = region_sse(pred, gt, m)
+    assert sum(sse.values()) == pytest.approx(((pred - gt) ** 2).sum())
+    d = (pred - gt)[~m["dynamic"]]
+    assert psnr_without(pred, gt, m["dynamic"]) == pytest.approx(
+        10 * math.log10(1.0 / (d**2).mean())
+    )
+    # an error only inside a region: leaving it out gives the cap; leaving out all: NaN
+    p2 = np.where(m["dynamic"][..., None], gt + 0.1, gt)
+    assert psnr_without(p2, gt, m["dynamic"]) == PSNR_CAP_DB
+    assert math.isnan(psnr_without(p2, gt, np.ones((6, 8), bool)))
+
+
+def _write_pred(clip: Clip, root, codes: int):
+    """Test renders from the ground truth with +`codes` 8-bit codes (clipped) on every LDR level
+    and x1.5 on the HDR frames, both inside the ground truth's dynamic mask only."""
+    ex = clip.meta.exposures
+    for g in clip.test_frames:
+        dyn = clip.load_gt_dynamic_mask(g)[..., None]
+        h = clip.load_gt_hdr(g)
+        mio.write_exr(root / "test/hdr" / frame_name(g, "exr"), np.where(dyn, 1.5 * h, h))
+        for lv in list(ex.observed) + list(ex.novel):
+            gt = clip.load_gt_ldr(lv, g).astype(int)
+            p = np.where(dyn, np.clip(gt + codes, 0, 255), gt).astype(np.uint8)
+            mio.write_png(root / "test/ldr" / level_name(lv) / frame_name(g, "png"), p)
+    return root
+
+
+def test_split_of_a_known_error_matches_the_scorer_and_sits_in_the_dynamic_region(
+    tiny_clip_realistic, tmp_path
+):
+    clip = Clip.open(tiny_clip_realistic)
+    assert any(clip.load_gt_dynamic_mask(g).any() for g in clip.test_frames)
+    pred = _write_pred(clip, tmp_path / "pred", codes=6)
+    run_dir, m = score_frames(tiny_clip_realistic, pred, "dyn-err", tmp_path / "runs" / "dyn-err")
+    res = split_run(run_dir, bright_top=0.01, dilate=1)
+    d = res["domains"]
+    # the whole-frame PSNRs are the scorer's (its code path: eval.score)
+    assert d["LDR-OE"]["psnr"] == pytest.approx(m["ldr_oe_psnr"], abs=1e-9)
+    assert d["LDR-NE"]["psnr"] == pytest.approx(m["ldr_ne_psnr"], abs=1e-9)
+    assert d["hdr"]["psnr"] == pytest.approx(m["hdr_psnr"], abs=1e-9)
+    for lv in clip.meta.exposures.observed:
+        assert d[f"ldr {level_name(lv)}"]["psnr"] == pytest.approx(
+            m["per_level"][level_name(lv)]["psnr"], abs=1e-9
+        )
+    n_px = clip.width * clip.height * len(clip.test_frames)
+    for name, dom in d.items():
+        assert sum(dom["pixels"].values()) == n_px * (
+            len(clip.meta.exposures.observed)
+            if name == "LDR-OE"
+            else len(clip.meta.exposures.novel)
+            if name == "LDR-NE"
+            else 1
+        )
+        # the error was put in dynamic pixels only; bright ones taken out of them are error-free
+        assert dom["sse"]["static"] == 0.0 and dom["sse"]["dynamic"] > 0
+        if dom["sse"]["bright"] == 0.0:
+            assert dom["psnr_without"]["dynamic"] == PSNR_CAP_DB
+    # the brightest 1 % (grown by 1 px) is at least 1 % of every frame
+    assert d["hdr"]["pixels"]["bright"] >= 0.01 * n_px
+
+
+def test_cli_prints_the_split_and_the_extra_error_over_a_reference(tiny_clip_realistic, tmp_path):
+    clip = Clip.open(tiny_clip_realistic)
+    a, _ = score_frames(
+        tiny_clip_realistic, _write_pred(clip, tmp_path / "pa", 2), "a", tmp_path / "runs" / "a"
+    )
+    b, _ = score_frames(
+        tiny_clip_realistic, _write_pred(clip, tmp_path / "pb", 8), "b", tmp_path / "runs" / "b"
+    )
+    out = tmp_path / "split.json"
+    res = CliRunner().invoke(
+        main, ["regions", str(b), "--ref", str(a), "--bright-above", "20", "--json", str(out)]
+    )
+    assert res.exit_code == 0, res.output
+    assert "against" in res.output and "| LDR-OE |" in res.output
+    js = mio.read_json(out)
+    # b's extra error over a is all in the dynamic region: 100 % of the change
+    ra, rb = js["ref"]["domains"]["LDR-OE"], js["runs"][0]["domains"]["LDR-OE"]
+    extra = {r: rb["sse"][r] - ra["sse"][r] for r in REGIONS}
+    assert extra["static"] == 0.0 and extra["dynamic"] > 0
+    bad = CliRunner().invoke(
+        main, ["regions", str(b), "--bright-above", "20", "--bright-top", "0.1"]
+    )
+    assert bad.exit_code != 0 and "not both" in bad.output
+
+
+def test_a_reference_of_another_scene_is_refused(tiny_clip_realistic, tmp_path):
+    clip = Clip.open(tiny_clip_realistic)
+    check_comparable(clip, clip)
+    other = tmp_path / "other"
+    shutil.copytree(tiny_clip_realistic, other)
+    meta = mio.read_json(other / "clip.json")
+    meta["name"] = "another-scene"
+    mio.write_json(other / "clip.json", meta)
+    with pytest.raises(InputError, match="name"):
+        check_comparable(clip, Clip.open(other))
+
+
+def test_a_missing_render_names_the_file(tiny_clip_realistic, tmp_path):
+    clip = Clip.open(tiny_clip_realistic)
+    pred = _write_pred(clip, tmp_path / "pred", 1)
+    g = clip.test_frames[0]
+    (pred / "test/hdr" / frame_name(g, "exr")).unlink()
+    with pytest.raises(InputError, match=frame_name(g, "exr")):
+        split_run(pred, clip)
