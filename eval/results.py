@@ -1237,6 +1237,32 @@ CONTROLS: Tuple[Control, ...] = (
         ),
     ),
     Control(
+        "depth-loss-scale",
+        "Priors: is the depth loss's missing cost the small schedule? (the paper's 4K + 11K "
+        "against 3K + 2.5K)",
+        "scale",
+        Effect("priors", "no-depth-loss", "full", "small schedule"),
+        Effect(
+            "control-loss-scale",
+            "no-depth-loss-paper-schedule",
+            "full-paper-schedule",
+            "the paper's schedule",
+        ),
+    ),
+    Control(
+        "track-loss-scale",
+        "Priors: is the track loss's missing cost the small schedule? (the paper's 4K + 11K "
+        "against 3K + 2.5K)",
+        "scale",
+        Effect("priors", "no-track-loss", "full", "small schedule"),
+        Effect(
+            "control-loss-scale",
+            "no-track-loss-paper-schedule",
+            "full-paper-schedule",
+            "the paper's schedule",
+        ),
+    ),
+    Control(
         "depth-loss-stage",
         "Priors: is the gain without the depth loss stage 2's term? (removed from stage 2 only, "
         "against both stages)",
