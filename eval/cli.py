@@ -876,21 +876,20 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path
     opts = dict(bright_above=bright_above, bright_top=bright_top, dilate=dilate)
     caches: dict = {}
 
-    def one(run):
-        clip = Clip.open(resolve_clip_dir(run, clip_dir))
-        return clip, split_run(run, clip, masks_cache=caches.setdefault(str(clip.root), {}), **opts)
+    def split(run, clip):
+        click.echo(f"splitting {run} ...", err=True)
+        return split_run(run, clip, masks_cache=caches.setdefault(str(clip.root), {}), **opts)
 
     try:
-        ref = None
+        # every clip opened and checked before the first (slow) split
+        clips = [Clip.open(resolve_clip_dir(r, clip_dir)) for r in runs]
         if ref_run is not None:
-            ref_clip, ref = one(ref_run)
-        out = []
-        for run in runs:
-            clip, res = one(run)
-            if ref is not None:
-                check_comparable(ref_clip, clip)
-            out.append(res)
-    except InputError as e:
+            ref_clip = Clip.open(resolve_clip_dir(ref_run, clip_dir))
+            for c in clips:
+                check_comparable(ref_clip, c)
+        ref = split(ref_run, ref_clip) if ref_run is not None else None
+        out = [split(r, c) for r, c in zip(runs, clips)]
+    except (InputError, FileNotFoundError) as e:
         raise click.ClickException(str(e)) from e
     click.echo(describe_regions(bright_above, bright_top, dilate))
     for res in out:

@@ -163,6 +163,16 @@ def test_a_reference_of_another_scene_is_refused(tiny_clip_realistic, tmp_path):
         check_comparable(clip, Clip.open(other))
 
 
+def test_cli_without_a_clip_says_how_to_give_one(tiny_clip_realistic, tmp_path):
+    clip = Clip.open(tiny_clip_realistic)
+    pred = _write_pred(clip, tmp_path / "pred", 1)  # a prediction folder: no run.json
+    res = CliRunner().invoke(main, ["regions", str(pred)])
+    assert res.exit_code != 0 and "run.json" in res.output and "clip folder" in res.output
+    ok = CliRunner().invoke(main, ["regions", str(pred), "--clip", str(tiny_clip_realistic)])
+    assert ok.exit_code == 0, ok.output
+    assert "| ldr " in ok.output and "| hdr |" in ok.output
+
+
 def test_a_missing_render_names_the_file(tiny_clip_realistic, tmp_path):
     clip = Clip.open(tiny_clip_realistic)
     pred = _write_pred(clip, tmp_path / "pred", 1)
