@@ -157,7 +157,8 @@ def split_run(
     ("observed", "novel", "hdr"), "frames", "pixels" {region: count}, "sse" {region: float},
     "psnr", "psnr_without" {region: dB}}}}, the domains named "ldr <level>" and "hdr", plus
     "LDR-OE" / "LDR-NE" (the levels' pixels and errors summed, their PSNRs averaged over levels, as
-    ldr_oe_psnr is). masks_cache: a dict shared between calls on the same ground truth.
+    ldr_oe_psnr is). masks_cache: a dict shared between calls on the same clip with the same
+    region options (the masks of its frames are computed once).
     """
     run = Path(run)
     clip_obj = clip if isinstance(clip, Clip) else Clip.open(resolve_clip_dir(run, clip))
@@ -212,10 +213,13 @@ def split_run(
             )
             acc.add(tp[0].numpy(), tg[0].numpy(), masks_of(g))
         domains["hdr"] = dict(acc.result(), kind="hdr")
+    # a real clip's levels hold different frame counts: its pools weight them by frames, as the
+    # scorer's ldr_oe_psnr does
+    weighted = ex.test_dt is not None
     for name, kind in (("LDR-OE", "observed"), ("LDR-NE", "novel")):
         parts = [d for d in domains.values() if d["kind"] == kind]
         if parts:
-            domains[name] = _pool(parts, kind)
+            domains[name] = _pool(parts, kind, weighted)
     return {
         "run": str(run),
         "clip": str(clip_obj.root),
@@ -226,20 +230,21 @@ def split_run(
     }
 
 
-def _pool(parts: Sequence[dict], kind: str) -> dict:
-    """Levels pooled: pixels and errors summed, PSNRs the mean over levels (as ldr_oe_psnr)."""
+def _pool(parts: Sequence[dict], kind: str, weighted: bool = False) -> dict:
+    """Levels pooled: pixels and errors summed, PSNRs the mean over levels (weighted by their
+    frame counts when `weighted`), as ldr_oe_psnr / ldr_ne_psnr are."""
 
     def mean(v):
-        v = [x for x in v if x is not None]
-        return float(np.mean(v)) if v else None
+        vw = [(x, d["frames"] if weighted else 1) for x, d in zip(v, parts) if x is not None]
+        return float(np.average([x for x, _ in vw], weights=[w for _, w in vw])) if vw else None
 
     return {
         "kind": f"{kind} (levels pooled)",
         "frames": sum(d["frames"] for d in parts),
         "pixels": {r: sum(d["pixels"][r] for d in parts) for r in REGIONS},
         "sse": {r: sum(d["sse"][r] for d in parts) for r in REGIONS},
-        "psnr": mean(d["psnr"] for d in parts),
-        "psnr_without": {r: mean(d["psnr_without"][r] for d in parts) for r in REGIONS},
+        "psnr": mean([d["psnr"] for d in parts]),
+        "psnr_without": {r: mean([d["psnr_without"][r] for d in parts]) for r in REGIONS},
     }
 
 

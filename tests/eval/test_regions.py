@@ -17,6 +17,7 @@ from eval.cli import main
 from eval.frames import score_frames
 from eval.regions import (
     REGIONS,
+    _pool,
     check_comparable,
     psnr_without,
     region_masks,
@@ -75,6 +76,28 @@ def test_region_sums_add_up_and_psnr_without_leaves_the_region_out():
     p2 = np.where(m["dynamic"][..., None], gt + 0.1, gt)
     assert psnr_without(p2, gt, m["dynamic"]) == PSNR_CAP_DB
     assert math.isnan(psnr_without(p2, gt, np.ones((6, 8), bool)))
+
+
+def test_levels_pool_like_the_scores():
+    """Levels pool as ldr_oe_psnr does: a plain mean over levels for a synthetic clip, weighted by
+    frame counts for a real clip (a test frame per captured exposure)."""
+
+    def part(psnr, frames):
+        return {
+            "frames": frames,
+            "pixels": {r: frames for r in REGIONS},
+            "sse": {r: 1.0 for r in REGIONS},
+            "psnr": psnr,
+            "psnr_without": {r: psnr for r in REGIONS},
+        }
+
+    parts = [part(30.0, 1), part(20.0, 3)]
+    assert _pool(parts, "observed")["psnr"] == pytest.approx(25.0)
+    pooled = _pool(parts, "observed", weighted=True)
+    assert pooled["psnr"] == pytest.approx(22.5) and pooled["frames"] == 4
+    assert pooled["sse"]["static"] == 2.0 and pooled["psnr_without"]["bright"] == pytest.approx(
+        22.5
+    )
 
 
 def _write_pred(clip: Clip, root, codes: int):
