@@ -39,6 +39,7 @@ LAYERS = {
     "eval.pairs": "eval-driver",
     "eval.campaign": "eval-driver",
     "eval.frames": "eval-driver",
+    "eval.regions": "eval-driver",
     "eval.__main__": "eval-driver",
 }
 
