@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Sequence
+from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
@@ -31,6 +31,7 @@ from m4dgs.core.errors import InputError
 
 from .metrics._util import psnr_from_mse
 from .metrics.hdr import hdr_tonemap_pair
+from .metrics.image import masked_psnr
 from .score import PSNR_CAP_DB, read_render_exr, resolve_clip_dir
 
 REGIONS = ("bright", "dynamic", "static")
@@ -89,14 +90,26 @@ def region_sse(pred: np.ndarray, gt: np.ndarray, masks: Dict[str, np.ndarray]) -
     return {r: float(err[m].sum()) for r, m in masks.items()}
 
 
+def _capped(mse: float) -> float:
+    """PSNR (peak 1) of a mean squared error, capped at the scores' cap."""
+    return min(psnr_from_mse(mse, 1.0), PSNR_CAP_DB)
+
+
 def psnr_without(pred: np.ndarray, gt: np.ndarray, left_out: np.ndarray) -> float:
-    """PSNR (peak 1, capped at the scores' cap) over the pixels outside `left_out` ([H, W] bool);
-    NaN when nothing is left. pred, gt: [H, W, C] float in [0, 1]."""
-    keep = ~np.asarray(left_out, dtype=bool)
-    if not keep.any():
-        return math.nan
-    d = np.asarray(pred, np.float64)[keep] - np.asarray(gt, np.float64)[keep]
-    return min(psnr_from_mse(float((d**2).mean()), 1.0), PSNR_CAP_DB)
+    """PSNR (peak 1, capped at the scores' cap) over the pixels outside `left_out` ([H, W] bool):
+    the project's masked PSNR of the complement; NaN when nothing is left. pred, gt: [H, W, C]
+    float in [0, 1]."""
+    v = masked_psnr(pred, gt, ~np.asarray(left_out, dtype=bool))
+    return math.nan if v is None else min(v, PSNR_CAP_DB)
+
+
+def _mean(values: Sequence[float], weights: Optional[Sequence[float]] = None) -> Optional[float]:
+    """Mean (weighted) of the values that are not None / NaN; None when none is left."""
+    w = [1.0] * len(values) if weights is None else list(weights)
+    vw = [(x, wi) for x, wi in zip(values, w) if x is not None and not math.isnan(x)]
+    if not vw:
+        return None
+    return float(np.average([x for x, _ in vw], weights=[wi for _, wi in vw]))
 
 
 class _Domain:
@@ -110,25 +123,30 @@ class _Domain:
         self.without: Dict[str, List[float]] = {r: [] for r in REGIONS}
 
     def add(self, pred: np.ndarray, gt: np.ndarray, masks: Dict[str, np.ndarray]) -> None:
+        """One frame: its squared error is computed once; the regions cover the frame, so the
+        error outside a region is the frame's total less the region's (the same value as
+        psnr_without, without a pass per region)."""
+        sse = region_sse(pred, gt, masks)
+        total, channels = sum(sse.values()), np.shape(pred)[-1]
+        n_all = masks["static"].size
         self.frames += 1
-        for r, v in region_sse(pred, gt, masks).items():
-            self.sse[r] += v
+        self.psnr.append(_capped(total / (n_all * channels)))
         for r in REGIONS:
-            self.pixels[r] += int(masks[r].sum())
-            self.without[r].append(psnr_without(pred, gt, masks[r]))
-        self.psnr.append(psnr_without(pred, gt, np.zeros_like(masks["static"])))
+            n = int(masks[r].sum())
+            self.sse[r] += sse[r]
+            self.pixels[r] += n
+            rest = n_all - n
+            self.without[r].append(
+                _capped(max(total - sse[r], 0.0) / (rest * channels)) if rest else math.nan
+            )
 
     def result(self) -> dict:
-        def mean(v):
-            v = [x for x in v if not math.isnan(x)]
-            return float(np.mean(v)) if v else None
-
         return {
             "frames": self.frames,
             "pixels": dict(self.pixels),
             "sse": dict(self.sse),
-            "psnr": mean(self.psnr),
-            "psnr_without": {r: mean(v) for r, v in self.without.items()},
+            "psnr": _mean(self.psnr),
+            "psnr_without": {r: _mean(v) for r, v in self.without.items()},
         }
 
 
@@ -149,7 +167,6 @@ def split_run(
     bright_top: Optional[float] = None,
     dilate: int = 0,
     masks_cache: Optional[dict] = None,
-    progress: Optional[Callable[[str], None]] = None,
 ) -> dict:
     """The region split of one run's test renders (RUN/renders/test/{ldr/<level>,hdr}/<frame>).
 
@@ -202,8 +219,6 @@ def split_run(
                 p = mio.read_png(need(root / "test/ldr" / level_name(lv) / frame_name(g, "png")))
                 acc.add(_ldr01(p), _ldr01(clip_obj.load_gt_ldr(lv, g)), masks_of(g))
             domains[f"ldr {level_name(lv)}"] = dict(acc.result(), kind=kind)
-            if progress:
-                progress(f"{run.name}: ldr {level_name(lv)}")
     if clip_obj.has_gt_part("hdr"):
         acc = _Domain()
         for g in test:
@@ -233,18 +248,14 @@ def split_run(
 def _pool(parts: Sequence[dict], kind: str, weighted: bool = False) -> dict:
     """Levels pooled: pixels and errors summed, PSNRs the mean over levels (weighted by their
     frame counts when `weighted`), as ldr_oe_psnr / ldr_ne_psnr are."""
-
-    def mean(v):
-        vw = [(x, d["frames"] if weighted else 1) for x, d in zip(v, parts) if x is not None]
-        return float(np.average([x for x, _ in vw], weights=[w for _, w in vw])) if vw else None
-
+    w = [d["frames"] for d in parts] if weighted else None
     return {
         "kind": f"{kind} (levels pooled)",
         "frames": sum(d["frames"] for d in parts),
         "pixels": {r: sum(d["pixels"][r] for d in parts) for r in REGIONS},
         "sse": {r: sum(d["sse"][r] for d in parts) for r in REGIONS},
-        "psnr": mean([d["psnr"] for d in parts]),
-        "psnr_without": {r: mean([d["psnr_without"][r] for d in parts]) for r in REGIONS},
+        "psnr": _mean([d["psnr"] for d in parts], w),
+        "psnr_without": {r: _mean([d["psnr_without"][r] for d in parts], w) for r in REGIONS},
     }
 
 

@@ -145,6 +145,20 @@ def test_split_of_a_known_error_matches_the_scorer_and_sits_in_the_dynamic_regio
         assert dom["sse"]["static"] == 0.0 and dom["sse"]["dynamic"] > 0
         if dom["sse"]["bright"] == 0.0:
             assert dom["psnr_without"]["dynamic"] == PSNR_CAP_DB
+    # the PSNR with a region left out, from the frame's error sums, is the masked PSNR of the rest
+    lv = clip.meta.exposures.observed[0]
+    for r in REGIONS:
+        ref = []
+        for g in clip.test_frames:
+            mk = region_masks(
+                clip.load_gt_hdr(g), clip.load_gt_dynamic_mask(g), bright_top=0.01, dilate=1
+            )
+            p = mio.read_png(run_dir / "renders/test/ldr" / level_name(lv) / frame_name(g, "png"))
+            ref.append(psnr_without(p / 255.0, clip.load_gt_ldr(lv, g) / 255.0, mk[r]))
+        ref = [x for x in ref if not math.isnan(x)]
+        assert d[f"ldr {level_name(lv)}"]["psnr_without"][r] == pytest.approx(
+            float(np.mean(ref)), abs=1e-6
+        )
     # the brightest 1 % (grown by 1 px) is at least 1 % of every frame
     assert d["hdr"]["pixels"]["bright"] >= 0.01 * n_px
 
