@@ -1277,6 +1277,27 @@ CONTROLS: Tuple[Control, ...] = (
     ),
     *(
         Control(
+            f"track-loss-stage{sfx}",
+            "Priors: is the track loss's missing cost stage 2's term? (removed from stage 2 only, "
+            f"against both stages; {prior} priors)",
+            "method",
+            Effect(
+                "control-track-loss",
+                f"no-track-loss{sfx}",
+                f"full{sfx}",
+                f"track/flow term removed in both stages ({prior} priors)",
+            ),
+            Effect(
+                "control-track-loss-stage",
+                f"no-track-loss-stage2{sfx}",
+                f"full{sfx}",
+                f"track/flow term removed in stage 2 only ({prior} priors)",
+            ),
+        )
+        for sfx, prior in (("", "realistic"), ("-oracle", "oracle"))
+    ),
+    *(
+        Control(
             f"exposure-draw-{k}",
             "Exposure perturbation: is the small cost of ±0.75 EV one draw of the offsets? "
             f"(draw {k} against draw 0)",

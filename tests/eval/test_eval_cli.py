@@ -1085,6 +1085,7 @@ def test_campaign_file_errors_name_the_field(tmp_path):
         "crf",
         "control-video-init-masks",
         "control-track-loss",
+        "control-track-loss-stage",
         "control-tlr-priors",
         "control-tlr-scale",
         "control-loss-scale",
@@ -1102,11 +1103,11 @@ def test_campaign_file_errors_name_the_field(tmp_path):
     # breadth first: each appendix suite's first seed on the four scenes, then every suite's second
     assert [s.seeds for s in c.steps[4:13]] == [1] * 9
     assert c.steps[14].seeds == c.steps[15].seeds == c.steps[16].seeds == 1
-    assert c.steps[28].seeds == 1  # control-loss-scale's first seed, before the second seeds
+    assert c.steps[29].seeds == 1  # control-loss-scale's first seed, before the second seeds
     assert all(
         s.seeds == 2
         for i, s in enumerate(c.steps)
-        if not (i in (2, 14, 15, 16, 28) or 4 <= i <= 12)
+        if not (i in (2, 14, 15, 16, 29) or 4 <= i <= 12)
     )
     assert all(
         c.steps[i].scenes == four
