@@ -11,10 +11,14 @@ disjoint regions read from the clip's ground truth:
 
 Per domain (each LDR test level, 8-bit codes scaled to [0, 1] as the renders are written, and the
 HDR frames in the mu-law domain normalised by the ground truth's maximum, the HDR PSNR's convention,
-docs/metrics.md) it gives each region's share of the pixels and of the squared error, and the PSNR
-with the region left out (per frame, capped, then the mean over frames, as the scores average).
-Beside a reference run of the same scene, frames and levels it gives how the change in squared
-error splits over the regions. `m4dgs-eval regions` prints it (docs/eval.md).
+docs/metrics.md) it gives each region's share of the pixels and of the squared error, the PSNR of
+the region alone and the PSNR with the region left out (both per frame, capped, then the mean over
+the frames that have such pixels, as the scores average). Beside a reference run of the same scene,
+frames and levels it gives how the change in squared error splits over the regions and the change
+of each PSNR. The two kinds of number pool differently: squared errors are summed over all frames,
+PSNRs averaged over frames, so for a small change a region's error factor and the change of its
+PSNR can point different ways (a few frames' large errors dominate a sum, not a mean of logs); the
+PSNR columns are the ones that move as the scores do. `m4dgs-eval regions` prints it (docs/eval.md).
 """
 
 from __future__ import annotations
@@ -121,6 +125,7 @@ class _Domain:
         self.sse = {r: 0.0 for r in REGIONS}
         self.psnr: List[float] = []
         self.without: Dict[str, List[float]] = {r: [] for r in REGIONS}
+        self.only: Dict[str, List[float]] = {r: [] for r in REGIONS}
 
     def add(self, pred: np.ndarray, gt: np.ndarray, masks: Dict[str, np.ndarray]) -> None:
         """One frame: its squared error is computed once; the regions cover the frame, so the
@@ -139,6 +144,7 @@ class _Domain:
             self.without[r].append(
                 _capped(max(total - sse[r], 0.0) / (rest * channels)) if rest else math.nan
             )
+            self.only[r].append(_capped(sse[r] / (n * channels)) if n else math.nan)
 
     def result(self) -> dict:
         return {
@@ -147,6 +153,7 @@ class _Domain:
             "sse": dict(self.sse),
             "psnr": _mean(self.psnr),
             "psnr_without": {r: _mean(v) for r, v in self.without.items()},
+            "psnr_only": {r: _mean(v) for r, v in self.only.items()},
         }
 
 
@@ -172,9 +179,9 @@ def split_run(
 
     Returns {"run", "clip", "test_frames", "regions" (the options), "domains": {name: {"kind"
     ("observed", "novel", "hdr"), "frames", "pixels" {region: count}, "sse" {region: float},
-    "psnr", "psnr_without" {region: dB}}}}, the domains named "ldr <level>" and "hdr", plus
-    "LDR-OE" / "LDR-NE" (the levels' pixels and errors summed, their PSNRs averaged over levels, as
-    ldr_oe_psnr is). masks_cache: a dict shared between calls on the same clip with the same
+    "psnr", "psnr_only" {region: dB}, "psnr_without" {region: dB}}}}, the domains named
+    "ldr <level>" and "hdr", plus "LDR-OE" / "LDR-NE" (the levels' pixels and errors summed, their
+    PSNRs averaged over levels, as ldr_oe_psnr is). masks_cache: a dict shared between calls on the same clip with the same
     region options (the masks of its frames are computed once).
     """
     run = Path(run)
@@ -256,6 +263,7 @@ def _pool(parts: Sequence[dict], kind: str, weighted: bool = False) -> dict:
         "sse": {r: sum(d["sse"][r] for d in parts) for r in REGIONS},
         "psnr": _mean([d["psnr"] for d in parts], w),
         "psnr_without": {r: _mean([d["psnr_without"][r] for d in parts], w) for r in REGIONS},
+        "psnr_only": {r: _mean([d["psnr_only"][r] for d in parts], w) for r in REGIONS},
     }
 
 
@@ -296,7 +304,7 @@ def format_split(res: dict) -> str:
     """One run's split as a Markdown table (a row per domain)."""
     head = ["domain", "frames", "PSNR"]
     for r in REGIONS:
-        head += [f"{r} px %", f"{r} err %", f"w/o {r}"]
+        head += [f"{r} px %", f"{r} err %", f"{r} alone", f"w/o {r}"]
     lines = ["| " + " | ".join(head) + " |", "|:---" + "|---:" * (len(head) - 1) + "|"]
     for name, d in res["domains"].items():
         px, sse = sum(d["pixels"].values()), sum(d["sse"].values())
@@ -305,6 +313,7 @@ def format_split(res: dict) -> str:
             row += [
                 _pct(_share(d["pixels"][r], px)),
                 _pct(_share(d["sse"][r], sse)),
+                _db(d["psnr_only"][r]),
                 _db(d["psnr_without"][r]),
             ]
         lines.append("| " + " | ".join(row) + " |")
@@ -315,10 +324,11 @@ def format_extra(res: dict, ref: dict) -> str:
     """How a run's change in squared error against a reference run splits over the regions
     (Markdown): per domain the PSNR difference, each region's share of the change (a region that
     moves against the total has a negative share, the others then more than 100 %), the factor
-    its own error grew by, and the PSNR difference with the region left out."""
+    its own summed error grew by, and the PSNR differences of the region alone and with the region
+    left out (means over frames, as the scores: they can differ in sign from the error factor)."""
     head = ["domain", "Δ PSNR"]
     for r in REGIONS:
-        head += [f"{r} share of Δ err %", f"{r} err x", f"Δ w/o {r}"]
+        head += [f"{r} share of Δ err %", f"{r} err x", f"Δ {r} alone", f"Δ w/o {r}"]
     lines = ["| " + " | ".join(head) + " |", "|:---" + "|---:" * (len(head) - 1) + "|"]
     for name, d in res["domains"].items():
         e = ref["domains"].get(name)
@@ -336,6 +346,7 @@ def format_extra(res: dict, ref: dict) -> str:
             row += [
                 _pct(extra[r] / total) if total != 0 else "n/a",
                 "n/a" if growth is None else f"{growth:.2f}",
+                _db(diff(d["psnr_only"][r], e["psnr_only"][r]), signed=True),
                 _db(diff(d["psnr_without"][r], e["psnr_without"][r]), signed=True),
             ]
         lines.append("| " + " | ".join(row) + " |")

@@ -24,6 +24,7 @@ from eval.regions import (
     region_sse,
     split_run,
 )
+from eval.metrics.image import masked_psnr
 from eval.score import PSNR_CAP_DB
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
@@ -89,6 +90,7 @@ def test_levels_pool_like_the_scores():
             "sse": {r: 1.0 for r in REGIONS},
             "psnr": psnr,
             "psnr_without": {r: psnr for r in REGIONS},
+            "psnr_only": {r: psnr for r in REGIONS},
         }
 
     parts = [part(30.0, 1), part(20.0, 3)]
@@ -161,6 +163,25 @@ def test_split_of_a_known_error_matches_the_scorer_and_sits_in_the_dynamic_regio
         )
     # the brightest 1 % (grown by 1 px) is at least 1 % of every frame
     assert d["hdr"]["pixels"]["bright"] >= 0.01 * n_px
+    # the PSNR of a region alone, from the sums, is the masked PSNR of the region
+    for r in REGIONS:
+        ref = []
+        for g in clip.test_frames:
+            mk = region_masks(
+                clip.load_gt_hdr(g), clip.load_gt_dynamic_mask(g), bright_top=0.01, dilate=1
+            )
+            p = mio.read_png(run_dir / "renders/test/ldr" / level_name(lv) / frame_name(g, "png"))
+            if mk[r].any():
+                v = masked_psnr(p / 255.0, clip.load_gt_ldr(lv, g) / 255.0, mk[r])
+                ref.append(min(v, PSNR_CAP_DB))
+        assert d[f"ldr {level_name(lv)}"]["psnr_only"][r] == pytest.approx(
+            float(np.mean(ref)), abs=1e-6
+        )
+    assert d["LDR-OE"]["psnr_only"]["static"] == PSNR_CAP_DB  # no error put there
+    # without a bright region the dynamic region alone is the scorer's dynamic-pixel PSNR
+    d = split_run(run_dir)["domains"]
+    assert d["LDR-OE"]["psnr_only"]["dynamic"] == pytest.approx(m["dyn_ldr_psnr"], abs=1e-9)
+    assert d["LDR-OE"]["psnr_only"]["dynamic"] < PSNR_CAP_DB
 
 
 def test_cli_prints_the_split_and_the_extra_error_over_a_reference(tiny_clip_realistic, tmp_path):
