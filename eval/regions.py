@@ -181,8 +181,8 @@ def split_run(
     ("observed", "novel", "hdr"), "frames", "pixels" {region: count}, "sse" {region: float},
     "psnr", "psnr_only" {region: dB}, "psnr_without" {region: dB}}}}, the domains named
     "ldr <level>" and "hdr", plus "LDR-OE" / "LDR-NE" (the levels' pixels and errors summed, their
-    PSNRs averaged over levels, as ldr_oe_psnr is). masks_cache: a dict shared between calls on the same clip with the same
-    region options (the masks of its frames are computed once).
+    PSNRs averaged over levels, as ldr_oe_psnr is). masks_cache: a dict shared between calls on the
+    same clip with the same region options (the masks of its frames are computed once).
     """
     run = Path(run)
     clip_obj = clip if isinstance(clip, Clip) else Clip.open(resolve_clip_dir(run, clip))

@@ -15,6 +15,7 @@ from click.testing import CliRunner
 
 from eval.cli import main
 from eval.frames import score_frames
+from eval.metrics.image import masked_psnr
 from eval.regions import (
     REGIONS,
     _pool,
@@ -24,7 +25,6 @@ from eval.regions import (
     region_sse,
     split_run,
 )
-from eval.metrics.image import masked_psnr
 from eval.score import PSNR_CAP_DB
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
