@@ -147,36 +147,26 @@ def test_split_of_a_known_error_matches_the_scorer_and_sits_in_the_dynamic_regio
         assert dom["sse"]["static"] == 0.0 and dom["sse"]["dynamic"] > 0
         if dom["sse"]["bright"] == 0.0:
             assert dom["psnr_without"]["dynamic"] == PSNR_CAP_DB
-    # the PSNR with a region left out, from the frame's error sums, is the masked PSNR of the rest
+    # per frame of one level, from the frame's error sums: the PSNR with a region left out is the
+    # masked PSNR of the rest, the PSNR of a region alone the masked PSNR of the region
     lv = clip.meta.exposures.observed[0]
-    for r in REGIONS:
-        ref = []
-        for g in clip.test_frames:
-            mk = region_masks(
-                clip.load_gt_hdr(g), clip.load_gt_dynamic_mask(g), bright_top=0.01, dilate=1
-            )
-            p = mio.read_png(run_dir / "renders/test/ldr" / level_name(lv) / frame_name(g, "png"))
-            ref.append(psnr_without(p / 255.0, clip.load_gt_ldr(lv, g) / 255.0, mk[r]))
-        ref = [x for x in ref if not math.isnan(x)]
-        assert d[f"ldr {level_name(lv)}"]["psnr_without"][r] == pytest.approx(
-            float(np.mean(ref)), abs=1e-6
+    frames = []
+    for g in clip.test_frames:
+        mk = region_masks(
+            clip.load_gt_hdr(g), clip.load_gt_dynamic_mask(g), bright_top=0.01, dilate=1
         )
+        p = mio.read_png(run_dir / "renders/test/ldr" / level_name(lv) / frame_name(g, "png"))
+        frames.append((p / 255.0, clip.load_gt_ldr(lv, g) / 255.0, mk))
+    for r in REGIONS:
+        without = [psnr_without(p, gt, mk[r]) for p, gt, mk in frames]
+        alone = [min(masked_psnr(p, gt, mk[r]), PSNR_CAP_DB) for p, gt, mk in frames if mk[r].any()]
+        got = d[f"ldr {level_name(lv)}"]
+        assert got["psnr_without"][r] == pytest.approx(
+            float(np.mean([x for x in without if not math.isnan(x)])), abs=1e-6
+        )
+        assert got["psnr_only"][r] == pytest.approx(float(np.mean(alone)), abs=1e-6)
     # the brightest 1 % (grown by 1 px) is at least 1 % of every frame
     assert d["hdr"]["pixels"]["bright"] >= 0.01 * n_px
-    # the PSNR of a region alone, from the sums, is the masked PSNR of the region
-    for r in REGIONS:
-        ref = []
-        for g in clip.test_frames:
-            mk = region_masks(
-                clip.load_gt_hdr(g), clip.load_gt_dynamic_mask(g), bright_top=0.01, dilate=1
-            )
-            p = mio.read_png(run_dir / "renders/test/ldr" / level_name(lv) / frame_name(g, "png"))
-            if mk[r].any():
-                v = masked_psnr(p / 255.0, clip.load_gt_ldr(lv, g) / 255.0, mk[r])
-                ref.append(min(v, PSNR_CAP_DB))
-        assert d[f"ldr {level_name(lv)}"]["psnr_only"][r] == pytest.approx(
-            float(np.mean(ref)), abs=1e-6
-        )
     assert d["LDR-OE"]["psnr_only"]["static"] == PSNR_CAP_DB  # no error put there
     # without a bright region the dynamic region alone is the scorer's dynamic-pixel PSNR
     d = split_run(run_dir)["domains"]
