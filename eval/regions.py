@@ -102,7 +102,8 @@ def _capped(mse: float) -> float:
 def psnr_without(pred: np.ndarray, gt: np.ndarray, left_out: np.ndarray) -> float:
     """PSNR (peak 1, capped at the scores' cap) over the pixels outside `left_out` ([H, W] bool):
     the project's masked PSNR of the complement; NaN when nothing is left. pred, gt: [H, W, C]
-    float in [0, 1]."""
+    float in [0, 1]. The direct per-frame form of what _Domain.add derives from the region sums
+    (the tests compare the two)."""
     v = masked_psnr(pred, gt, ~np.asarray(left_out, dtype=bool))
     return math.nan if v is None else min(v, PSNR_CAP_DB)
 
