@@ -17,6 +17,8 @@ score runs, run experiment suites, print paper-style tables.
         run ONE job (cluster fan-out: docs/cluster.md)
     m4dgs-eval regions RUN [RUN ...] --ref RUN --bright-above 20
         where each run's test-frame error sits (bright / moving / static pixels)
+    m4dgs-eval region-pairs SUITE --root ROOT --ref full --rows no-x --seeds 2
+        the same split differenced per (scene, seed) pair, with its mean and 95 % interval
     m4dgs-eval table tiny
         the suite's tables (Markdown; --format latex|csv) and figures: mean +- 95 % CI over
         scenes x seeds, paired differences to the reference row, the paper's values and
@@ -900,6 +902,107 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path
             click.echo(format_extra(res, ref))
     if json_path:
         mio.write_json(json_path, {"runs": out, "ref": ref})
+
+
+@main.command("region-pairs")
+@click.argument("suite")
+@click.option(
+    "--root",
+    required=True,
+    type=click.Path(exists=True, file_okay=False),
+    help="Experiment root of the suite (`m4dgs-eval run --root`): its runs in "
+    "ROOT/runs/<suite>/<scene>/<row>[-seed-n] with their test renders, its clips in ROOT/clips.",
+)
+@click.option("--ref", required=True, help="Reference row.")
+@click.option(
+    "--rows", "row_names", required=True, help="Comma-separated rows to compare with --ref."
+)
+@click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
+@click.option(
+    "--seeds",
+    default=1,
+    show_default=True,
+    type=click.IntRange(min=1),
+    help="Trainer seeds 0..N-1 (a pair per scene and seed).",
+)
+@click.option(
+    "--domain",
+    default="LDR-OE",
+    show_default=True,
+    help="Which split to difference: LDR-OE / LDR-NE (the levels pooled as the scores are), "
+    "'ldr <level>' (e.g. 'ldr 0.125') or hdr.",
+)
+@click.option(
+    "--bright-above",
+    type=float,
+    default=None,
+    help="The bright region: ground-truth HDR (max over channels, clip units) above this.",
+)
+@click.option(
+    "--bright-top",
+    type=float,
+    default=None,
+    help="The bright region: each frame's brightest fraction of pixels, in (0, 1).",
+)
+@click.option(
+    "--dilate",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Grow the bright region by this many pixels (4-connected steps).",
+)
+@click.option(
+    "--json",
+    "json_path",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Also write every pair's differences to this JSON file.",
+)
+def region_pairs(
+    suite, root, ref, row_names, scenes, seeds, domain, bright_above, bright_top, dilate, json_path
+):
+    """Paired region differences over SUITE's (scene, seed) pairs: for each row, how its PSNR of
+    each region alone and with each region left out (as `regions` splits a run) differs from
+    --ref's, per pair and as the mean with its Student-t 95 % interval over the pairs (as
+    `pairs` gives the scores'). Reads the runs' test renders, so it needs the suite's root."""
+    from m4dgs.core.errors import InputError
+
+    from .regions import format_region_pairs, suite_region_pairs
+
+    if bright_above is not None and bright_top is not None:
+        raise click.UsageError("give --bright-above or --bright-top, not both")
+    if bright_top is not None and not 0.0 < bright_top < 1.0:
+        raise click.UsageError(f"--bright-top must lie in (0, 1), got {bright_top}")
+    rows = [n.strip() for n in row_names.split(",") if n.strip()]
+    try:
+        res = suite_region_pairs(
+            suite,
+            root,
+            ref,
+            rows,
+            scenes=_scenes(scenes),
+            seeds=seeds,
+            domain=domain,
+            bright_above=bright_above,
+            bright_top=bright_top,
+            dilate=dilate,
+            log=lambda s: click.echo(s, err=True),
+        )
+    except (InputError, KeyError, ValueError, FileNotFoundError) as e:
+        raise click.ClickException(str(e.args[0]) if isinstance(e, KeyError) else str(e)) from e
+    click.echo(format_region_pairs(res), nl=False)
+    if json_path:
+        mio.write_json(
+            json_path,
+            {
+                **{k: res[k] for k in ("domain", "ref", "regions", "missing")},
+                "pairs": [
+                    {"row": row, "scene": scene, "seed": seed, "diffs": d}
+                    for row, per in res["diffs"].items()
+                    for (scene, seed), d in per.items()
+                ],
+            },
+        )
 
 
 @main.command()

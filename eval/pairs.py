@@ -37,7 +37,7 @@ def _fmt(metric: str, fmts: Dict[str, str]) -> str:
     return fmts.get(metric, ".4f")
 
 
-def _summary(iv, f: str) -> str:
+def interval_text(iv, f: str) -> str:
     """mean ± half († where the interval excludes 0) (n), or n/a."""
     if iv.mean is None:
         return "n/a"
@@ -134,9 +134,14 @@ def pairs_markdown(
             f = _fmt(m, fmts)
             cells = [f"{d[k]:+{f}}" if k in d else "" for k in keys]
             header = ((cols[m].group + " ") if cols[m].group else "") + cols[m].header
-            pooled, scenes = _summary(pooled_of[(name, m)], f), _summary(scene_mean_ci(d), f)
+            pooled, scenes = (
+                interval_text(pooled_of[(name, m)], f),
+                interval_text(scene_mean_ci(d), f),
+            )
             more = [f"{sum(v > 0 for v in d.values())} of {len(d)}"]
-            more += [_summary(mean_ci(v for k, v in d.items() if k[1] == sd), f) for sd in seeds]
+            more += [
+                interval_text(mean_ci(v for k, v in d.items() if k[1] == sd), f) for sd in seeds
+            ]
             if by_seed:
                 more.append(_heterogeneity_text(scene_heterogeneity(d)))
             if holm:

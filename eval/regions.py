@@ -321,6 +321,10 @@ def format_split(res: dict) -> str:
     return "\n".join(lines)
 
 
+def _diff(a: Optional[float], b: Optional[float]) -> Optional[float]:
+    return None if a is None or b is None else a - b
+
+
 def format_extra(res: dict, ref: dict) -> str:
     """How a run's change in squared error against a reference run splits over the regions
     (Markdown): per domain the PSNR difference, each region's share of the change (a region that
@@ -337,10 +341,7 @@ def format_extra(res: dict, ref: dict) -> str:
             continue
         extra = {r: d["sse"][r] - e["sse"][r] for r in REGIONS}
         total = sum(extra.values())
-
-        def diff(a, b):
-            return None if a is None or b is None else a - b
-
+        diff = _diff
         row = [name, _db(diff(d["psnr"], e["psnr"]), signed=True)]
         for r in REGIONS:
             growth = d["sse"][r] / e["sse"][r] if e["sse"][r] > 0 else None
@@ -365,3 +366,135 @@ def describe_regions(bright_above, bright_top, dilate) -> str:
     if dilate and b != "none":
         b += f", grown by {dilate} px"
     return f"Regions: bright = {b}; dynamic = gt/masks/dynamic less bright; static = the rest."
+
+
+# --------------------------------------------------------------------------------------------------
+# paired region differences over a suite's (scene, seed) pairs: `m4dgs-eval region-pairs`
+# --------------------------------------------------------------------------------------------------
+def pair_quantities(regions: Sequence[str] = REGIONS) -> List[str]:
+    """The quantities a pair's difference is taken of: the domain's PSNR, then each region's
+    PSNR alone, then each region's PSNR with it left out."""
+    return ["PSNR"] + [f"{r} alone" for r in regions] + [f"w/o {r}" for r in regions]
+
+
+def pair_region_diffs(res: dict, ref: dict, domain: str) -> Dict[str, Optional[float]]:
+    """{quantity (pair_quantities): res - ref} of one domain of two splits (split_run); None where
+    either side has no such pixels. Raises KeyError naming a domain either split lacks."""
+    for side in (res, ref):
+        if domain not in side["domains"]:
+            raise KeyError(
+                f"{side['run']}: no domain {domain!r} (it has {sorted(side['domains'])})"
+            )
+    d, e = res["domains"][domain], ref["domains"][domain]
+    out: Dict[str, Optional[float]] = {"PSNR": _diff(d["psnr"], e["psnr"])}
+    for r in REGIONS:
+        out[f"{r} alone"] = _diff(d["psnr_only"][r], e["psnr_only"][r])
+    for r in REGIONS:
+        out[f"w/o {r}"] = _diff(d["psnr_without"][r], e["psnr_without"][r])
+    return out
+
+
+def suite_region_pairs(
+    suite,
+    root,
+    ref: str,
+    rows: Sequence[str],
+    *,
+    scenes: Optional[Sequence[str]] = None,
+    seeds: int = 1,
+    domain: str = "LDR-OE",
+    bright_above: Optional[float] = None,
+    bright_top: Optional[float] = None,
+    dilate: int = 0,
+    log=None,
+) -> dict:
+    """Each row's region differences against `ref` per (scene, seed) pair of a suite's runs under
+    ROOT (ROOT/runs/<suite>/<scene>/<row>[-seed-n], split with split_run against the clip each
+    job names; a pair counts only when both runs have their test renders).
+
+    Returns {"domain", "ref", "regions" (the options), "diffs": {row: {(scene, seed): {quantity:
+    row - ref}}}, "missing": [run folders without test renders]}. Raises InputError for a row the
+    suite does not have, or two runs of a pair whose clips cannot be compared pixel for pixel."""
+    from .runner import job_list
+
+    if domain not in ("LDR-OE", "LDR-NE", "hdr") and not domain.startswith("ldr "):
+        raise InputError(
+            f"domain {domain!r}: one of LDR-OE, LDR-NE, hdr or 'ldr <level>' (e.g. 'ldr 0.125')"
+        )
+    jobs = job_list(suite, root, "small", scenes, seeds)
+    by_key = {(j.row, j.scene, int(j.seed)): j for j in jobs}
+    names = list(dict.fromkeys(j.row for j in jobs))
+    unknown = [n for n in [ref, *rows] if n not in names]
+    if unknown:
+        raise InputError(f"suite {suite}: no row(s) {unknown} (rows: {names})")
+    opts = dict(bright_above=bright_above, bright_top=bright_top, dilate=dilate)
+    caches: Dict[str, dict] = {}
+    splits: Dict[str, Optional[dict]] = {}
+    missing: List[str] = []
+
+    def split_of(job) -> Optional[dict]:
+        run = Path(job.run_dir)
+        if job.run_dir not in splits:
+            if not (_renders_root(run) / "test").is_dir():
+                splits[job.run_dir] = None
+                missing.append(job.run_dir)
+            else:
+                if log is not None:
+                    log(f"splitting {run} ...")
+                clip = Clip.open(job.clip_dir)
+                cache = caches.setdefault(str(clip.root), {})
+                splits[job.run_dir] = split_run(run, clip, masks_cache=cache, **opts)
+        return splits[job.run_dir]
+
+    diffs: Dict[str, Dict[tuple, dict]] = {}
+    for row in rows:
+        diffs[row] = {}
+        for (name, scene, seed), job in by_key.items():
+            base = by_key.get((ref, scene, seed))
+            if name != row or base is None:
+                continue
+            check_comparable(Clip.open(base.clip_dir), Clip.open(job.clip_dir))
+            a, b = split_of(job), split_of(base)
+            if a is not None and b is not None:
+                diffs[row][(scene, seed)] = pair_region_diffs(a, b, domain)
+    return {"domain": domain, "ref": ref, "regions": opts, "diffs": diffs, "missing": missing}
+
+
+def format_region_pairs(result: dict) -> str:
+    """Markdown, one table per row: per quantity the mean of row - ref over the pairs with its
+    Student-t 95 % interval (eval.stats.mean_ci, † where it excludes 0), how many pairs are above
+    0, then each pair's value (scenes by name, then seeds). The bright region's quantities only
+    where the split had one (--bright-above / --bright-top)."""
+    from .pairs import interval_text
+    from .stats import mean_ci
+
+    out = [describe_regions(**result["regions"]), ""]
+    for row, per_pair in result["diffs"].items():
+        keys = sorted(per_pair, key=lambda k: (str(k[0]), k[1]))
+        out += [f"{row} - {result['ref']}, {result['domain']} (dB)", ""]
+        if not keys:
+            out += ["no pair with both runs' test renders", ""]
+            continue
+        out += [
+            "| quantity | mean ± 95 % (n) | > 0 | "
+            + " | ".join(f"{s} / {sd}" for s, sd in keys)
+            + " |",
+            "|:---|---:|---:|" + "---:|" * len(keys),
+        ]
+        opts = result["regions"]
+        bright = opts.get("bright_above") is not None or opts.get("bright_top") is not None
+        for q in pair_quantities(REGIONS if bright else tuple(r for r in REGIONS if r != "bright")):
+            vals = {k: per_pair[k][q] for k in keys if per_pair[k][q] is not None}
+            if not vals:
+                continue
+            cells = [f"{vals[k]:+.2f}" if k in vals else "" for k in keys]
+            above = f"{sum(v > 0 for v in vals.values())} of {len(vals)}"
+            out.append(
+                f"| Δ {q} | {interval_text(mean_ci(vals.values()), '.2f')} | {above} | "
+                + " | ".join(cells)
+                + " |"
+            )
+        out.append("")
+    if result["missing"]:
+        out.append("without test renders (left out): " + ", ".join(result["missing"]))
+    return "\n".join(out).rstrip() + "\n"

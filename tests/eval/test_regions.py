@@ -228,3 +228,80 @@ def test_a_missing_render_names_the_file(tiny_clip_realistic, tmp_path):
     (pred / "test/hdr" / frame_name(g, "exr")).unlink()
     with pytest.raises(InputError, match=frame_name(g, "exr")):
         split_run(pred, clip)
+
+
+def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
+    tiny_clip_realistic, tmp_path
+):
+    """`region-pairs` over a suite of existing clips: two seeds of rows a (2 codes of error in the
+    moving pixels) and b (8, then 4 codes); each pair's differences are the scorer's (eval.score:
+    ldr_oe_psnr, dyn_ldr_psnr), the mean's interval the Student-t one of two values, and a row
+    without renders is named, not counted."""
+    import yaml
+
+    from eval.regions import suite_region_pairs
+    from eval.runner import seed_run_name
+
+    clip = Clip.open(tiny_clip_realistic)
+    scene = clip.meta.name
+    shutil.copytree(tiny_clip_realistic, tmp_path / "clips" / scene)
+    suite = tmp_path / "mine.yaml"
+    rows = [{"name": n, "variant": "full"} for n in ("a", "b", "c")]
+    suite.write_text(
+        yaml.safe_dump(
+            {"name": "mine", "scenes": {"clips": "clips"}, "rows": rows, "reference": "a"}
+        )
+    )
+    root = tmp_path / "root"
+    scores = {}
+    for row, seed, codes in (("a", 0, 2), ("a", 1, 2), ("b", 0, 8), ("b", 1, 4)):
+        name = seed_run_name(row, seed)
+        pred = _write_pred(clip, tmp_path / "pred" / name, codes)
+        _, scores[row, seed] = score_frames(
+            tiny_clip_realistic, pred, name, root / "runs/mine" / scene / name
+        )
+    (root / "runs/mine" / scene / "c").mkdir()  # a run not rendered yet
+    js = tmp_path / "pairs.json"
+    res = CliRunner().invoke(
+        main,
+        ["region-pairs", str(suite), "--root", str(root), "--ref", "a", "--rows", "b,c"]
+        + ["--seeds", "2", "--json", str(js)],
+    )
+    assert res.exit_code == 0, res.output
+    got = {(p["row"], p["seed"]): p["diffs"] for p in mio.read_json(js)["pairs"]}
+    assert set(got) == {("b", 0), ("b", 1)}
+    dyn = []
+    for seed in (0, 1):
+        d, a, b = got["b", seed], scores["a", seed], scores["b", seed]
+        assert d["PSNR"] == pytest.approx(b["ldr_oe_psnr"] - a["ldr_oe_psnr"], abs=1e-9)
+        assert d["dynamic alone"] == pytest.approx(b["dyn_ldr_psnr"] - a["dyn_ldr_psnr"], abs=1e-9)
+        assert d["static alone"] == 0.0  # no error put in the static pixels of either run
+        assert d["dynamic alone"] < 0
+        dyn.append(d["dynamic alone"])
+    # the mean of two pairs and its 95 % Student-t half-width: t(0.975, 1) = 12.7062 x |x1 - x2| / 2
+    mean, half = sum(dyn) / 2, 12.7062047 * abs(dyn[0] - dyn[1]) / 2
+    assert f"| Δ dynamic alone | {mean:+.2f} ± {half:.2f} (2) | 0 of 2 |" in res.output
+    assert (
+        "c - a, LDR-OE (dB)" in res.output and "no pair with both runs' test renders" in res.output
+    )
+    assert (
+        "without test renders (left out): " in res.output
+        and str(root / "runs/mine" / scene / "c") in res.output
+    )
+    assert "bright" not in res.output.split("Regions:")[1].split("\n", 1)[1]  # no bright region
+    lit = CliRunner().invoke(
+        main,
+        ["region-pairs", str(suite), "--root", str(root), "--ref", "a", "--rows", "b"]
+        + ["--seeds", "2", "--bright-top", "0.01", "--domain", "hdr"],
+    )
+    assert lit.exit_code == 0, lit.output
+    assert "b - a, hdr (dB)" in lit.output and "| Δ bright alone |" in lit.output
+    # a row the suite does not have, and a domain the runs lack, are named
+    with pytest.raises(InputError, match="'nope'"):
+        suite_region_pairs(str(suite), root, "a", ["nope"])
+    bad = CliRunner().invoke(
+        main,
+        ["region-pairs", str(suite), "--root", str(root), "--ref", "a", "--rows", "b"]
+        + ["--domain", "LDR-XX"],
+    )
+    assert bad.exit_code != 0 and "LDR-XX" in bad.output
