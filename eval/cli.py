@@ -808,6 +808,40 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm):
     click.echo(text)
 
 
+def _region_options(f):
+    """The bright region's options of `regions` and `region-pairs` (--bright-above, --bright-top,
+    --dilate)."""
+    f = click.option(
+        "--dilate",
+        type=click.IntRange(min=0),
+        default=0,
+        show_default=True,
+        help="Grow the bright region by this many pixels (4-connected steps).",
+    )(f)
+    f = click.option(
+        "--bright-top",
+        type=float,
+        default=None,
+        help="The bright region: each frame's brightest fraction of pixels, in (0, 1) (e.g. "
+        "0.01); instead of --bright-above.",
+    )(f)
+    return click.option(
+        "--bright-above",
+        type=float,
+        default=None,
+        help="The bright region: pixels whose ground-truth HDR (max over channels, clip units) "
+        "exceeds this (e.g. 20 for the scenes' lamps).",
+    )(f)
+
+
+def _check_bright(bright_above, bright_top) -> None:
+    """Usage errors for the bright region's options: at most one, --bright-top in (0, 1)."""
+    if bright_above is not None and bright_top is not None:
+        raise click.UsageError("give --bright-above or --bright-top, not both")
+    if bright_top is not None and not 0.0 < bright_top < 1.0:
+        raise click.UsageError(f"--bright-top must lie in (0, 1), got {bright_top}")
+
+
 @main.command()
 @click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
 @click.option(
@@ -827,27 +861,7 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm):
     help="Clip folder for every run (default: the 'clip' entry of each RUN/run.json); needed for "
     "a prediction folder of `score-frames`.",
 )
-@click.option(
-    "--bright-above",
-    type=float,
-    default=None,
-    help="The bright region: pixels whose ground-truth HDR (max over channels, clip units) "
-    "exceeds this (e.g. 20 for the scenes' lamps).",
-)
-@click.option(
-    "--bright-top",
-    type=float,
-    default=None,
-    help="The bright region: each frame's brightest fraction of pixels, in (0, 1) (e.g. 0.01); "
-    "instead of --bright-above.",
-)
-@click.option(
-    "--dilate",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Grow the bright region by this many pixels (4-connected steps).",
-)
+@_region_options
 @click.option(
     "--json",
     "json_path",
@@ -871,10 +885,7 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path
     )
     from .score import resolve_clip_dir
 
-    if bright_above is not None and bright_top is not None:
-        raise click.UsageError("give --bright-above or --bright-top, not both")
-    if bright_top is not None and not 0.0 < bright_top < 1.0:
-        raise click.UsageError(f"--bright-top must lie in (0, 1), got {bright_top}")
+    _check_bright(bright_above, bright_top)
     opts = dict(bright_above=bright_above, bright_top=bright_top, dilate=dilate)
     caches: dict = {}
 
@@ -932,25 +943,7 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path
     help="Which split to difference: LDR-OE / LDR-NE (the levels pooled as the scores are), "
     "'ldr <level>' (e.g. 'ldr 0.125') or hdr.",
 )
-@click.option(
-    "--bright-above",
-    type=float,
-    default=None,
-    help="The bright region: ground-truth HDR (max over channels, clip units) above this.",
-)
-@click.option(
-    "--bright-top",
-    type=float,
-    default=None,
-    help="The bright region: each frame's brightest fraction of pixels, in (0, 1).",
-)
-@click.option(
-    "--dilate",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Grow the bright region by this many pixels (4-connected steps).",
-)
+@_region_options
 @click.option(
     "--json",
     "json_path",
@@ -969,10 +962,7 @@ def region_pairs(
 
     from .regions import format_region_pairs, suite_region_pairs
 
-    if bright_above is not None and bright_top is not None:
-        raise click.UsageError("give --bright-above or --bright-top, not both")
-    if bright_top is not None and not 0.0 < bright_top < 1.0:
-        raise click.UsageError(f"--bright-top must lie in (0, 1), got {bright_top}")
+    _check_bright(bright_above, bright_top)
     rows = [n.strip() for n in row_names.split(",") if n.strip()]
     try:
         res = suite_region_pairs(
