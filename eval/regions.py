@@ -371,10 +371,13 @@ def describe_regions(bright_above, bright_top, dilate) -> str:
 # --------------------------------------------------------------------------------------------------
 # paired region differences over a suite's (scene, seed) pairs: `m4dgs-eval region-pairs`
 # --------------------------------------------------------------------------------------------------
-def pair_quantities(regions: Sequence[str] = REGIONS) -> List[str]:
+def pair_quantities(bright: bool = True) -> List[str]:
     """The quantities a pair's difference is taken of: the domain's PSNR, then each region's
-    PSNR alone, then each region's PSNR with it left out."""
-    return ["PSNR"] + [f"{r} alone" for r in regions] + [f"w/o {r}" for r in regions]
+    PSNR alone, then each region's PSNR with it left out. Without a bright region (bright False)
+    only the first two kinds: of two regions, the one left out leaves the other alone."""
+    if not bright:
+        return ["PSNR"] + [f"{r} alone" for r in REGIONS if r != "bright"]
+    return ["PSNR"] + [f"{r} alone" for r in REGIONS] + [f"w/o {r}" for r in REGIONS]
 
 
 def pair_region_diffs(res: dict, ref: dict, domain: str) -> Dict[str, Optional[float]]:
@@ -463,8 +466,8 @@ def suite_region_pairs(
 def format_region_pairs(result: dict) -> str:
     """Markdown, one table per row: per quantity the mean of row - ref over the pairs with its
     Student-t 95 % interval (eval.stats.mean_ci, † where it excludes 0), how many pairs are above
-    0, then each pair's value (scenes by name, then seeds). The bright region's quantities only
-    where the split had one (--bright-above / --bright-top)."""
+    0, then each pair's value (scenes by name, then seeds); the quantities of pair_quantities, the
+    bright region's only where the split had one (--bright-above / --bright-top)."""
     from .pairs import interval_text
     from .stats import mean_ci
 
@@ -483,7 +486,7 @@ def format_region_pairs(result: dict) -> str:
         ]
         opts = result["regions"]
         bright = opts.get("bright_above") is not None or opts.get("bright_top") is not None
-        for q in pair_quantities(REGIONS if bright else tuple(r for r in REGIONS if r != "bright")):
+        for q in pair_quantities(bright):
             vals = {k: per_pair[k][q] for k in keys if per_pair[k][q] is not None}
             if not vals:
                 continue

@@ -288,7 +288,9 @@ def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
         "without test renders (left out): " in res.output
         and str(root / "runs/mine" / scene / "c") in res.output
     )
-    assert "bright" not in res.output.split("Regions:")[1].split("\n", 1)[1]  # no bright region
+    # no bright region: nothing of it, and no "w/o" rows (of two regions, one left out is the other)
+    assert "bright" not in res.output.split("Regions:")[1].split("\n", 1)[1]
+    assert "w/o" not in res.output
     lit = CliRunner().invoke(
         main,
         ["region-pairs", str(suite), "--root", str(root), "--ref", "a", "--rows", "b"]
@@ -296,6 +298,7 @@ def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
     )
     assert lit.exit_code == 0, lit.output
     assert "b - a, hdr (dB)" in lit.output and "| Δ bright alone |" in lit.output
+    assert "| Δ w/o bright |" in lit.output
     # a row the suite does not have, and a domain the runs lack, are named
     with pytest.raises(InputError, match="'nope'"):
         suite_region_pairs(str(suite), root, "a", ["nope"])
