@@ -413,7 +413,8 @@ def suite_region_pairs(
 ) -> dict:
     """Each row's region differences against `ref` per (scene, seed) pair of a suite's runs under
     ROOT (ROOT/runs/<suite>/<scene>/<row>[-seed-n], split with split_run against the clip each
-    job names; a pair counts only when both runs have their test renders).
+    job names; a pair counts only when both runs have their test renders, and a scene or seed
+    the suite has but ROOT never ran is passed over).
 
     Returns {"domain", "ref", "regions" (the options), "diffs": {row: {(scene, seed): {quantity:
     row - ref}}}, "missing": [run folders without test renders]}. Raises InputError for a row the
@@ -432,21 +433,25 @@ def suite_region_pairs(
         raise InputError(f"suite {suite}: no row(s) {unknown} (rows: {names})")
     opts = dict(bright_above=bright_above, bright_top=bright_top, dilate=dilate)
     caches: Dict[str, dict] = {}
-    splits: Dict[str, Optional[dict]] = {}
+    splits: Dict[str, dict] = {}
     missing: List[str] = []
 
-    def split_of(job) -> Optional[dict]:
+    def rendered(job) -> bool:
+        """Whether the job's run has its test renders; a run folder without them is noted."""
         run = Path(job.run_dir)
+        if (_renders_root(run) / "test").is_dir():
+            return True
+        if run.is_dir() and job.run_dir not in missing:
+            missing.append(job.run_dir)
+        return False
+
+    def split_of(job) -> dict:
         if job.run_dir not in splits:
-            if not (_renders_root(run) / "test").is_dir():
-                splits[job.run_dir] = None
-                missing.append(job.run_dir)
-            else:
-                if log is not None:
-                    log(f"splitting {run} ...")
-                clip = Clip.open(job.clip_dir)
-                cache = caches.setdefault(str(clip.root), {})
-                splits[job.run_dir] = split_run(run, clip, masks_cache=cache, **opts)
+            if log is not None:
+                log(f"splitting {job.run_dir} ...")
+            clip = Clip.open(job.clip_dir)
+            cache = caches.setdefault(str(clip.root), {})
+            splits[job.run_dir] = split_run(job.run_dir, clip, masks_cache=cache, **opts)
         return splits[job.run_dir]
 
     diffs: Dict[str, Dict[tuple, dict]] = {}
@@ -456,10 +461,10 @@ def suite_region_pairs(
             base = by_key.get((ref, scene, seed))
             if name != row or base is None:
                 continue
+            if not all([rendered(job), rendered(base)]):  # both looked at: both noted
+                continue
             check_comparable(Clip.open(base.clip_dir), Clip.open(job.clip_dir))
-            a, b = split_of(job), split_of(base)
-            if a is not None and b is not None:
-                diffs[row][(scene, seed)] = pair_region_diffs(a, b, domain)
+            diffs[row][(scene, seed)] = pair_region_diffs(split_of(job), split_of(base), domain)
     return {"domain": domain, "ref": ref, "regions": opts, "diffs": diffs, "missing": missing}
 
 

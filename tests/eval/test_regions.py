@@ -236,7 +236,7 @@ def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
     """`region-pairs` over a suite of existing clips: two seeds of rows a (2 codes of error in the
     moving pixels) and b (8, then 4 codes); each pair's differences are the scorer's (eval.score:
     ldr_oe_psnr, dyn_ldr_psnr), the mean's interval the Student-t one of two values, and a row
-    without renders is named, not counted."""
+    without renders is named, not counted, a scene never run passed over."""
     import yaml
 
     from eval.regions import suite_region_pairs
@@ -245,6 +245,7 @@ def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
     clip = Clip.open(tiny_clip_realistic)
     scene = clip.meta.name
     shutil.copytree(tiny_clip_realistic, tmp_path / "clips" / scene)
+    shutil.copytree(tiny_clip_realistic, tmp_path / "clips" / "zz-not-run")  # a scene never run
     suite = tmp_path / "mine.yaml"
     rows = [{"name": n, "variant": "full"} for n in ("a", "b", "c")]
     suite.write_text(
@@ -284,6 +285,7 @@ def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
     assert (
         "c - a, LDR-OE (dB)" in res.output and "no pair with both runs' test renders" in res.output
     )
+    assert "zz-not-run" not in res.output  # passed over, not listed as missing
     assert (
         "without test renders (left out): " in res.output
         and str(root / "runs/mine" / scene / "c") in res.output
