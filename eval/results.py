@@ -1469,7 +1469,7 @@ def controls_markdown(
         ]
         for column, what in (("code", "code"), ("generator", "generator")):
             vb, vc = _provenance_of(c.base, rows, column), _provenance_of(c.control, rows, column)
-            if vb != vc:
+            if vb and vc and vb != vc:  # one side without runs: nothing to compare yet
                 lines += [
                     f"**Different {what} versions**: base {', '.join(vb)}, control "
                     f"{', '.join(vc)}; the change mixes the control with that difference.",

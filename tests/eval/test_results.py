@@ -1089,6 +1089,10 @@ def test_controls_flag_different_code_versions(tmp_path):
     scale, priors = _section(text, "video-init-scale"), _section(text, "video-init-priors")
     assert "**Different code versions**: base c0, control c1" in scale
     assert "Different code versions" not in priors
+    # a control whose own rows have no scored run yet (its suite has others) compares no versions
+    pending = [r for r in rows if r["row"] not in ("no-video-init-oracle", "full-oracle")]
+    priors = _section(R.controls_markdown(pending, None), "video-init-priors")
+    assert "not enough data" in priors and "Different" not in priors
 
 
 def _reading(base_mean, change_mean):
