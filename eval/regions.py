@@ -341,15 +341,14 @@ def format_extra(res: dict, ref: dict) -> str:
             continue
         extra = {r: d["sse"][r] - e["sse"][r] for r in REGIONS}
         total = sum(extra.values())
-        diff = _diff
-        row = [name, _db(diff(d["psnr"], e["psnr"]), signed=True)]
+        row = [name, _db(_diff(d["psnr"], e["psnr"]), signed=True)]
         for r in REGIONS:
             growth = d["sse"][r] / e["sse"][r] if e["sse"][r] > 0 else None
             row += [
                 _pct(extra[r] / total) if total != 0 else "n/a",
                 "n/a" if growth is None else f"{growth:.2f}",
-                _db(diff(d["psnr_only"][r], e["psnr_only"][r]), signed=True),
-                _db(diff(d["psnr_without"][r], e["psnr_without"][r]), signed=True),
+                _db(_diff(d["psnr_only"][r], e["psnr_only"][r]), signed=True),
+                _db(_diff(d["psnr_without"][r], e["psnr_without"][r]), signed=True),
             ]
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)
