@@ -917,13 +917,7 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path
 
 @main.command("region-pairs")
 @click.argument("suite")
-@click.option(
-    "--root",
-    required=True,
-    type=click.Path(exists=True, file_okay=False),
-    help="Experiment root of the suite (`m4dgs-eval run --root`): its runs in "
-    "ROOT/runs/<suite>/<scene>/<row>[-seed-n] with their test renders, its clips in ROOT/clips.",
-)
+@_out_opt
 @click.option("--ref", required=True, help="Reference row.")
 @click.option(
     "--rows", "row_names", required=True, help="Comma-separated rows to compare with --ref."
@@ -952,7 +946,7 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path
     help="Also write every pair's differences to this JSON file.",
 )
 def region_pairs(
-    suite, root, ref, row_names, scenes, seeds, domain, bright_above, bright_top, dilate, json_path
+    suite, out, ref, row_names, scenes, seeds, domain, bright_above, bright_top, dilate, json_path
 ):
     """Paired region differences over SUITE's (scene, seed) pairs: for each row, how its PSNR of
     each region alone and with each region left out (as `regions` splits a run) differs from
@@ -967,7 +961,7 @@ def region_pairs(
     try:
         res = suite_region_pairs(
             suite,
-            root,
+            out,
             ref,
             rows,
             scenes=_scenes(scenes),

@@ -417,7 +417,8 @@ def suite_region_pairs(
 
     Returns {"domain", "ref", "regions" (the options), "diffs": {row: {(scene, seed): {quantity:
     row - ref}}}, "missing": [run folders without test renders]}. Raises InputError for a row the
-    suite does not have, or two runs of a pair whose clips cannot be compared pixel for pixel."""
+    suite does not have, a ROOT without the suite's runs, or two runs of a pair whose clips cannot
+    be compared pixel for pixel."""
     from .runner import job_list
 
     if domain not in ("LDR-OE", "LDR-NE", "hdr") and not domain.startswith("ldr "):
@@ -425,6 +426,8 @@ def suite_region_pairs(
             f"domain {domain!r}: one of LDR-OE, LDR-NE, hdr or 'ldr <level>' (e.g. 'ldr 0.125')"
         )
     jobs = job_list(suite, root, "small", scenes, seeds)
+    if jobs and not Path(jobs[0].run_dir).parent.parent.is_dir():
+        raise InputError(f"{Path(jobs[0].run_dir).parent.parent}: no runs of suite {suite} here")
     by_key = {(j.row, j.scene, int(j.seed)): j for j in jobs}
     names = list(dict.fromkeys(j.row for j in jobs))
     unknown = [n for n in [ref, *rows] if n not in names]

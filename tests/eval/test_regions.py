@@ -304,6 +304,8 @@ def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
     # a row the suite does not have, and a domain the runs lack, are named
     with pytest.raises(InputError, match="'nope'"):
         suite_region_pairs(str(suite), root, "a", ["nope"])
+    with pytest.raises(InputError, match="no runs of suite"):
+        suite_region_pairs(str(suite), tmp_path / "elsewhere", "a", ["b"])
     bad = CliRunner().invoke(
         main,
         ["region-pairs", str(suite), "--root", str(root), "--ref", "a", "--rows", "b"]
