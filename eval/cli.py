@@ -989,6 +989,85 @@ def region_pairs(
         )
 
 
+@main.command("error-maps")
+@click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
+@click.option(
+    "--out",
+    "out_png",
+    required=True,
+    type=click.Path(dir_okay=False),
+    help="The figure to write (PNG).",
+)
+@click.option(
+    "--ref",
+    "ref_run",
+    default=None,
+    type=click.Path(exists=True, file_okay=False),
+    help="A reference run of the same scene, frames and levels: drawn beside the runs, with a row "
+    "of where each run's squared error grew (red) or shrank (blue) against it.",
+)
+@click.option(
+    "--domain",
+    default=None,
+    help="'ldr <level>' (a test level of the clip, e.g. 'ldr 0.125') or 'hdr' (mu-law, as the "
+    "HDR PSNR). Default: the clip's first observed level.",
+)
+@click.option(
+    "--frame",
+    default=None,
+    type=click.IntRange(min=0),
+    help="Global index of the test frame to draw. Default: the frame where the first run's PSNR "
+    "falls furthest below --ref's (without --ref: the first run's worst frame).",
+)
+@click.option(
+    "--labels",
+    default=None,
+    help="Comma-separated column titles for the runs (default: their folder names).",
+)
+@click.option(
+    "--clip",
+    "clip_dir",
+    default=None,
+    type=click.Path(exists=True, file_okay=False),
+    help="Clip folder for every run (default: the 'clip' entry of each RUN/run.json); needed for "
+    "a prediction folder of `score-frames`.",
+)
+def error_maps(runs, out_png, ref_run, domain, frame, labels, clip_dir):
+    """Draw one test frame of RUNS (one scene): the ground truth, each run's render, its error
+    map on one colour scale and, with --ref, where its error grew or shrank against the
+    reference; titles give each frame's PSNR as the scores compute it."""
+    from m4dgs.core.errors import InputError
+
+    from .errormaps import error_maps as draw
+
+    names = None
+    if labels is not None:
+        names = [x.strip() for x in labels.split(",")]
+        if len(names) != len(runs):
+            raise click.UsageError(f"--labels: {len(names)} label(s) for {len(runs)} run(s)")
+    try:
+        res = draw(
+            runs, out_png, ref=ref_run, domain=domain, frame=frame, clip_dir=clip_dir, labels=names
+        )
+    except (InputError, FileNotFoundError) as e:
+        raise click.ClickException(str(e)) from e
+    how = (
+        ""
+        if res["picked_from"] is None
+        else " (picked: "
+        + (
+            "largest PSNR drop against the reference)"
+            if ref_run
+            else "the first run's lowest PSNR)"
+        )
+    )
+    click.echo(f"frame {res['frame']}, {res['domain']}{how}")
+    for p in ([res["ref"]] if res["ref"] else []) + res["runs"]:
+        d = f" ({p['d_psnr']:+.2f} against the reference)" if "d_psnr" in p else ""
+        click.echo(f"  {p['label']}: {p['psnr']:.2f} dB{d}")
+    click.echo(f"wrote {res['png']}")
+
+
 @main.command()
 @click.option(
     "--csv",

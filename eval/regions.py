@@ -158,13 +158,36 @@ class _Domain:
         }
 
 
-def _renders_root(run: Path) -> Path:
+def renders_root(run: Path) -> Path:
     """RUN/renders for a run folder; RUN itself for a prediction folder (score-frames layout)."""
     return run / "renders" if (run / "renders" / "test").is_dir() else run
 
 
 def _ldr01(img: np.ndarray) -> np.ndarray:
     return np.asarray(img, np.float64) / 255.0
+
+
+def test_pair(root: Path, clip: Clip, g: int, level: Optional[float]) -> tuple:
+    """(prediction, ground truth), each [H, W, C] float64 in [0, 1], of test frame g as the scores
+    compare them: the 8-bit LDR render at `level` (RUN/renders/test/ldr/<level>/<g>.png) over 255,
+    or with level None the HDR render and ground truth mu-law tone-mapped, normalised by the
+    ground truth's maximum (the HDR PSNR's domain). root: RUN/renders (or a prediction folder)."""
+
+    def need(p: Path) -> Path:
+        if not p.exists():
+            raise InputError(
+                f"{p}: missing render (render the run's test frames first: m4dgs render)"
+            )
+        return p
+
+    if level is None:
+        tp, tg = hdr_tonemap_pair(
+            read_render_exr(need(root / "test/hdr" / frame_name(g, "exr"))),
+            clip.load_gt_hdr(g),
+        )
+        return tp[0].numpy(), tg[0].numpy()
+    p = mio.read_png(need(root / "test/ldr" / level_name(level) / frame_name(g, "png")))
+    return _ldr01(p), _ldr01(clip.load_gt_ldr(level, g))
 
 
 def split_run(
@@ -192,7 +215,7 @@ def split_run(
     test = clip_obj.test_frames
     if not test:
         raise InputError(f"{clip_obj.root / 'clip.json'}: split: the clip has no test frames")
-    root = _renders_root(run)
+    root = renders_root(run)
     has_dyn = (clip_obj.root / "gt/masks/dynamic").is_dir()
     cache = {} if masks_cache is None else masks_cache
 
@@ -208,13 +231,6 @@ def split_run(
             )
         return cache[g]
 
-    def need(p: Path) -> Path:
-        if not p.exists():
-            raise InputError(
-                f"{p}: missing render (render the run's test frames first: m4dgs render)"
-            )
-        return p
-
     ex = clip_obj.meta.exposures
     domains: Dict[str, dict] = {}
     for kind, levels in (("observed", ex.observed), ("novel", ex.novel)):
@@ -224,17 +240,12 @@ def split_run(
                 continue
             acc = _Domain()
             for g in frames:
-                p = mio.read_png(need(root / "test/ldr" / level_name(lv) / frame_name(g, "png")))
-                acc.add(_ldr01(p), _ldr01(clip_obj.load_gt_ldr(lv, g)), masks_of(g))
+                acc.add(*test_pair(root, clip_obj, g, lv), masks_of(g))
             domains[f"ldr {level_name(lv)}"] = dict(acc.result(), kind=kind)
     if clip_obj.has_gt_part("hdr"):
         acc = _Domain()
         for g in test:
-            tp, tg = hdr_tonemap_pair(
-                read_render_exr(need(root / "test/hdr" / frame_name(g, "exr"))),
-                clip_obj.load_gt_hdr(g),
-            )
-            acc.add(tp[0].numpy(), tg[0].numpy(), masks_of(g))
+            acc.add(*test_pair(root, clip_obj, g, None), masks_of(g))
         domains["hdr"] = dict(acc.result(), kind="hdr")
     # a real clip's levels hold different frame counts: its pools weight them by frames, as the
     # scorer's ldr_oe_psnr does
@@ -441,7 +452,7 @@ def suite_region_pairs(
     def rendered(job) -> bool:
         """Whether the job's run has its test renders; a run folder without them is noted."""
         run = Path(job.run_dir)
-        if (_renders_root(run) / "test").is_dir():
+        if (renders_root(run) / "test").is_dir():
             return True
         if run.is_dir() and job.run_dir not in missing:
             missing.append(job.run_dir)
