@@ -809,8 +809,16 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm):
 
 
 def _region_options(f):
-    """The bright region's options of `regions` and `region-pairs` (--bright-above, --bright-top,
-    --dilate)."""
+    """The region options of `regions` and `region-pairs` (--bright-above, --bright-top,
+    --dilate, --edges)."""
+    f = click.option(
+        "--edges",
+        type=click.FloatRange(min=0.0, min_open=True),
+        default=None,
+        help="Add an edge region: both pixels of every pair of 4-neighbours whose ground-truth "
+        "depths differ by more than this fraction (e.g. 0.05), less the bright region: the "
+        "occlusion boundaries.",
+    )(f)
     f = click.option(
         "--dilate",
         type=click.IntRange(min=0),
@@ -869,10 +877,11 @@ def _check_bright(bright_above, bright_top) -> None:
     type=click.Path(dir_okay=False),
     help="Also write every split (and the reference's) to this JSON file.",
 )
-def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path):
+def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, edges, json_path):
     """Where each run's test-frame error sits: per LDR level and for HDR (mu-law), each region's
     share of the pixels and of the squared error, and the PSNR with the region left out; regions
-    are bright (--bright-above / --bright-top), the ground truth's dynamic mask, and the rest."""
+    are bright (--bright-above / --bright-top), depth edges (--edges), the ground truth's dynamic
+    mask, and the rest."""
     from m4dgs.clip import Clip
     from m4dgs.core.errors import InputError
 
@@ -886,7 +895,7 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path
     from .score import resolve_clip_dir
 
     _check_bright(bright_above, bright_top)
-    opts = dict(bright_above=bright_above, bright_top=bright_top, dilate=dilate)
+    opts = dict(bright_above=bright_above, bright_top=bright_top, dilate=dilate, edges=edges)
     caches: dict = {}
 
     def split(run, clip):
@@ -904,7 +913,7 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path
         out = [split(r, c) for r, c in zip(runs, clips)]
     except (InputError, FileNotFoundError) as e:
         raise click.ClickException(str(e)) from e
-    click.echo(describe_regions(bright_above, bright_top, dilate))
+    click.echo(describe_regions(bright_above, bright_top, dilate, edges))
     for res in out:
         click.echo(f"\n{res['run']} (clip {res['clip_name']}, {res['test_frames']} test frames)\n")
         click.echo(format_split(res))
@@ -946,7 +955,18 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, json_path
     help="Also write every pair's differences to this JSON file.",
 )
 def region_pairs(
-    suite, out, ref, row_names, scenes, seeds, domain, bright_above, bright_top, dilate, json_path
+    suite,
+    out,
+    ref,
+    row_names,
+    scenes,
+    seeds,
+    domain,
+    bright_above,
+    bright_top,
+    dilate,
+    edges,
+    json_path,
 ):
     """Paired region differences over SUITE's (scene, seed) pairs: for each row, how its PSNR of
     each region alone and with each region left out (as `regions` splits a run) differs from
@@ -970,6 +990,7 @@ def region_pairs(
             bright_above=bright_above,
             bright_top=bright_top,
             dilate=dilate,
+            edges=edges,
             log=lambda s: click.echo(s, err=True),
         )
     except (InputError, KeyError, ValueError, FileNotFoundError) as e:

@@ -1,12 +1,14 @@
 """Where a run's test-frame error sits: its squared error split over disjoint pixel regions.
 
-A score says how far a run is off; this says where. Each test frame's pixels are split into three
+A score says how far a run is off; this says where. Each test frame's pixels are split into
 disjoint regions read from the clip's ground truth:
 
 - ``bright``: pixels whose ground-truth HDR value (the maximum over channels, clip units) exceeds
   ``bright_above``, or, with ``bright_top``, the frame's brightest fraction of pixels by that value;
   grown by ``dilate`` pixels (4-connected steps) so that a lamp's antialiased rim goes with it;
-- ``dynamic``: the ground truth's dynamic mask (``gt/masks/dynamic``), less ``bright``;
+- ``edge`` (only with ``edges``): both pixels of every pair of 4-neighbours whose ground-truth
+  depths differ by more than the fraction ``edges`` (occlusion boundaries), less ``bright``;
+- ``dynamic``: the ground truth's dynamic mask (``gt/masks/dynamic``), less the above;
 - ``static``: the rest.
 
 Per domain (each LDR test level, 8-bit codes scaled to [0, 1] as the renders are written, and the
@@ -38,7 +40,41 @@ from .metrics.hdr import hdr_tonemap_pair
 from .metrics.image import masked_psnr
 from .score import PSNR_CAP_DB, read_render_exr, resolve_clip_dir
 
-REGIONS = ("bright", "dynamic", "static")
+REGIONS = ("bright", "edge", "dynamic", "static")
+
+
+def active_regions(opts: dict) -> List[str]:
+    """The regions a split with these options (split_run's "regions") can fill: dynamic and
+    static always, bright with a bright option, edge with edges."""
+    out = []
+    if opts.get("bright_above") is not None or opts.get("bright_top") is not None:
+        out.append("bright")
+    if opts.get("edges") is not None:
+        out.append("edge")
+    return out + ["dynamic", "static"]
+
+
+def depth_edges(depth: np.ndarray, rel: float) -> np.ndarray:
+    """[H, W] bool: both pixels of every pair of 4-neighbours whose depths differ by more than the
+    fraction rel of the nearer (|log z1 - log z2| > log(1 + rel)). depth: [H, W] (or [H, W, 1]);
+    a pixel without a finite positive depth (sky) counts as farther than everything else, so a
+    rim against the sky is an edge and the sky itself is not."""
+    if not rel > 0:
+        raise ValueError(f"edges must be > 0, got {rel}")
+    z = np.asarray(depth, dtype=np.float64)
+    z = z[..., 0] if z.ndim == 3 else z
+    ok = np.isfinite(z) & (z > 0)
+    far = float(z[ok].max()) * 1e3 if ok.any() else 1.0
+    lz = np.log(np.where(ok, z, far))
+    cut = math.log1p(float(rel))
+    dx = np.abs(np.diff(lz, axis=1)) > cut
+    dy = np.abs(np.diff(lz, axis=0)) > cut
+    e = np.zeros(z.shape, dtype=bool)
+    e[:, 1:] |= dx
+    e[:, :-1] |= dx
+    e[1:, :] |= dy
+    e[:-1, :] |= dy
+    return e
 
 
 def region_masks(
@@ -48,6 +84,8 @@ def region_masks(
     bright_above: Optional[float] = None,
     bright_top: Optional[float] = None,
     dilate: int = 0,
+    depth: Optional[np.ndarray] = None,
+    edges: Optional[float] = None,
 ) -> Dict[str, np.ndarray]:
     """Disjoint boolean masks [H, W] covering the frame, keyed by REGIONS.
 
@@ -55,7 +93,8 @@ def region_masks(
     (no dynamic region). bright_above / bright_top (at most one; neither: an empty bright region):
     a threshold on max over channels of gt_hdr, or the fraction in (0, 1) of the frame's pixels
     with the largest such value (ties at the cut included). dilate: grow the bright region by this
-    many 4-connected steps.
+    many 4-connected steps. edges: the edge region, depth_edges(depth, edges) less bright (None:
+    an empty edge region); depth: [H, W] ground-truth depth, needed with edges.
     """
     if bright_above is not None and bright_top is not None:
         raise ValueError("give bright_above or bright_top, not both")
@@ -83,8 +122,17 @@ def region_masks(
         dyn = np.asarray(dynamic, dtype=bool)
         if dyn.shape != peak.shape:
             raise ValueError(f"dynamic mask {dyn.shape} does not match the frame {peak.shape}")
-    dyn = dyn & ~bright
-    return {"bright": bright, "dynamic": dyn, "static": ~(bright | dyn)}
+    if edges is None:
+        edge = np.zeros(peak.shape, dtype=bool)
+    else:
+        if depth is None:
+            raise ValueError("an edge region needs the ground-truth depth")
+        edge = depth_edges(depth, edges)
+        if edge.shape != peak.shape:
+            raise ValueError(f"depth {edge.shape} does not match the frame {peak.shape}")
+        edge &= ~bright
+    dyn = dyn & ~bright & ~edge
+    return {"bright": bright, "edge": edge, "dynamic": dyn, "static": ~(bright | edge | dyn)}
 
 
 def region_sse(pred: np.ndarray, gt: np.ndarray, masks: Dict[str, np.ndarray]) -> Dict[str, float]:
@@ -197,6 +245,7 @@ def split_run(
     bright_above: Optional[float] = None,
     bright_top: Optional[float] = None,
     dilate: int = 0,
+    edges: Optional[float] = None,
     masks_cache: Optional[dict] = None,
 ) -> dict:
     """The region split of one run's test renders (RUN/renders/test/{ldr/<level>,hdr}/<frame>).
@@ -205,8 +254,10 @@ def split_run(
     ("observed", "novel", "hdr"), "frames", "pixels" {region: count}, "sse" {region: float},
     "psnr", "psnr_only" {region: dB}, "psnr_without" {region: dB}}}}, the domains named
     "ldr <level>" and "hdr", plus "LDR-OE" / "LDR-NE" (the levels' pixels and errors summed, their
-    PSNRs averaged over levels, as ldr_oe_psnr is). masks_cache: a dict shared between calls on the
-    same clip with the same region options (the masks of its frames are computed once).
+    PSNRs averaged over levels, as ldr_oe_psnr is). edges: an edge region of depth jumps above
+    this fraction (region_masks; needs the clip's gt/depth). masks_cache: a dict shared between
+    calls on the same clip with the same region options (the masks of its frames are computed
+    once).
     """
     run = Path(run)
     clip_obj = clip if isinstance(clip, Clip) else Clip.open(resolve_clip_dir(run, clip))
@@ -215,6 +266,10 @@ def split_run(
     test = clip_obj.test_frames
     if not test:
         raise InputError(f"{clip_obj.root / 'clip.json'}: split: the clip has no test frames")
+    if edges is not None and not clip_obj.has_gt_part("depth"):
+        raise InputError(
+            f"{clip_obj.root / 'gt/depth'}: missing; an edge region needs the ground-truth depth"
+        )
     root = renders_root(run)
     has_dyn = (clip_obj.root / "gt/masks/dynamic").is_dir()
     cache = {} if masks_cache is None else masks_cache
@@ -228,6 +283,8 @@ def split_run(
                 bright_above=bright_above,
                 bright_top=bright_top,
                 dilate=dilate,
+                depth=clip_obj.load_gt_depth(g) if edges is not None else None,
+                edges=edges,
             )
         return cache[g]
 
@@ -259,7 +316,12 @@ def split_run(
         "clip": str(clip_obj.root),
         "clip_name": clip_obj.meta.name,
         "test_frames": len(test),
-        "regions": {"bright_above": bright_above, "bright_top": bright_top, "dilate": dilate},
+        "regions": {
+            "bright_above": bright_above,
+            "bright_top": bright_top,
+            "dilate": dilate,
+            "edges": edges,
+        },
         "domains": domains,
     }
 
@@ -313,15 +375,16 @@ def _share(part: float, whole: float) -> Optional[float]:
 
 
 def format_split(res: dict) -> str:
-    """One run's split as a Markdown table (a row per domain)."""
+    """One run's split as a Markdown table (a row per domain; a column group per active region)."""
+    regions = active_regions(res["regions"])
     head = ["domain", "frames", "PSNR"]
-    for r in REGIONS:
+    for r in regions:
         head += [f"{r} px %", f"{r} err %", f"{r} alone", f"w/o {r}"]
     lines = ["| " + " | ".join(head) + " |", "|:---" + "|---:" * (len(head) - 1) + "|"]
     for name, d in res["domains"].items():
         px, sse = sum(d["pixels"].values()), sum(d["sse"].values())
         row = [name, str(d["frames"]), _db(d["psnr"])]
-        for r in REGIONS:
+        for r in regions:
             row += [
                 _pct(_share(d["pixels"][r], px)),
                 _pct(_share(d["sse"][r], sse)),
@@ -342,8 +405,9 @@ def format_extra(res: dict, ref: dict) -> str:
     moves against the total has a negative share, the others then more than 100 %), the factor
     its own summed error grew by, and the PSNR differences of the region alone and with the region
     left out (means over frames, as the scores: they can differ in sign from the error factor)."""
+    regions = active_regions(res["regions"])
     head = ["domain", "Δ PSNR"]
-    for r in REGIONS:
+    for r in regions:
         head += [f"{r} share of Δ err %", f"{r} err x", f"Δ {r} alone", f"Δ w/o {r}"]
     lines = ["| " + " | ".join(head) + " |", "|:---" + "|---:" * (len(head) - 1) + "|"]
     for name, d in res["domains"].items():
@@ -353,7 +417,7 @@ def format_extra(res: dict, ref: dict) -> str:
         extra = {r: d["sse"][r] - e["sse"][r] for r in REGIONS}
         total = sum(extra.values())
         row = [name, _db(_diff(d["psnr"], e["psnr"]), signed=True)]
-        for r in REGIONS:
+        for r in regions:
             growth = d["sse"][r] / e["sse"][r] if e["sse"][r] > 0 else None
             row += [
                 _pct(extra[r] / total) if total != 0 else "n/a",
@@ -365,7 +429,7 @@ def format_extra(res: dict, ref: dict) -> str:
     return "\n".join(lines)
 
 
-def describe_regions(bright_above, bright_top, dilate) -> str:
+def describe_regions(bright_above, bright_top, dilate, edges=None) -> str:
     """One sentence naming the regions as split."""
     if bright_above is not None:
         b = f"ground-truth HDR above {bright_above:g}"
@@ -375,19 +439,24 @@ def describe_regions(bright_above, bright_top, dilate) -> str:
         b = "none"
     if dilate and b != "none":
         b += f", grown by {dilate} px"
-    return f"Regions: bright = {b}; dynamic = gt/masks/dynamic less bright; static = the rest."
+    if edges is None:
+        return f"Regions: bright = {b}; dynamic = gt/masks/dynamic less bright; static = the rest."
+    return (
+        f"Regions: bright = {b}; edge = both pixels of each 4-neighbour pair whose ground-truth "
+        f"depths differ by more than {100 * edges:g} %, less bright; dynamic = gt/masks/dynamic "
+        "less those; static = the rest."
+    )
 
 
 # --------------------------------------------------------------------------------------------------
 # paired region differences over a suite's (scene, seed) pairs: `m4dgs-eval region-pairs`
 # --------------------------------------------------------------------------------------------------
-def pair_quantities(bright: bool = True) -> List[str]:
+def pair_quantities(regions: Sequence[str] = REGIONS) -> List[str]:
     """The quantities a pair's difference is taken of: the domain's PSNR, then each region's
-    PSNR alone, then each region's PSNR with it left out. Without a bright region (bright False)
-    only the first two kinds: of two regions, the one left out leaves the other alone."""
-    if not bright:
-        return ["PSNR"] + [f"{r} alone" for r in REGIONS if r != "bright"]
-    return ["PSNR"] + [f"{r} alone" for r in REGIONS] + [f"w/o {r}" for r in REGIONS]
+    PSNR alone, then each region's PSNR with it left out. Of only two regions (dynamic and static)
+    only the first two kinds: the one left out leaves the other alone."""
+    alone = ["PSNR"] + [f"{r} alone" for r in regions]
+    return alone if len(regions) <= 2 else alone + [f"w/o {r}" for r in regions]
 
 
 def pair_region_diffs(res: dict, ref: dict, domain: str) -> Dict[str, Optional[float]]:
@@ -419,6 +488,7 @@ def suite_region_pairs(
     bright_above: Optional[float] = None,
     bright_top: Optional[float] = None,
     dilate: int = 0,
+    edges: Optional[float] = None,
     log=None,
 ) -> dict:
     """Each row's region differences against `ref` per (scene, seed) pair of a suite's runs under
@@ -444,7 +514,7 @@ def suite_region_pairs(
     unknown = [n for n in [ref, *rows] if n not in names]
     if unknown:
         raise InputError(f"suite {suite}: no row(s) {unknown} (rows: {names})")
-    opts = dict(bright_above=bright_above, bright_top=bright_top, dilate=dilate)
+    opts = dict(bright_above=bright_above, bright_top=bright_top, dilate=dilate, edges=edges)
     caches: Dict[str, dict] = {}
     splits: Dict[str, dict] = {}
     missing: List[str] = []
@@ -502,9 +572,7 @@ def format_region_pairs(result: dict) -> str:
             + " |",
             "|:---|---:|---:|" + "---:|" * len(keys),
         ]
-        opts = result["regions"]
-        bright = opts.get("bright_above") is not None or opts.get("bright_top") is not None
-        for q in pair_quantities(bright):
+        for q in pair_quantities(active_regions(result["regions"])):
             vals = {k: per_pair[k][q] for k in keys if per_pair[k][q] is not None}
             if not vals:
                 continue

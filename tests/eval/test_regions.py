@@ -20,6 +20,7 @@ from eval.regions import (
     REGIONS,
     _pool,
     check_comparable,
+    depth_edges,
     psnr_without,
     region_masks,
     region_sse,
@@ -157,7 +158,7 @@ def test_split_of_a_known_error_matches_the_scorer_and_sits_in_the_dynamic_regio
         )
         p = mio.read_png(run_dir / "renders/test/ldr" / level_name(lv) / frame_name(g, "png"))
         frames.append((p / 255.0, clip.load_gt_ldr(lv, g) / 255.0, mk))
-    for r in REGIONS:
+    for r in ("bright", "dynamic", "static"):  # no edge region without --edges
         without = [psnr_without(p, gt, mk[r]) for p, gt, mk in frames]
         alone = [min(masked_psnr(p, gt, mk[r]), PSNR_CAP_DB) for p, gt, mk in frames if mk[r].any()]
         got = d[f"ldr {level_name(lv)}"]
@@ -312,3 +313,110 @@ def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
         + ["--domain", "LDR-XX"],
     )
     assert bad.exit_code != 0 and "LDR-XX" in bad.output
+
+
+def _edges_by_loops(z: np.ndarray, rel: float) -> np.ndarray:
+    """The edge region spelt out pixel by pixel: a pixel is an edge when one of its 4-neighbours'
+    depths is more than (1 + rel) times the nearer of the two (no depth: farther than all)."""
+    h, w = z.shape
+    far = np.where(np.isfinite(z) & (z > 0), z, np.inf)
+    out = np.zeros((h, w), bool)
+    for y in range(h):
+        for x in range(w):
+            for dy, dx in ((0, 1), (1, 0), (0, -1), (-1, 0)):
+                v, u = y + dy, x + dx
+                if 0 <= v < h and 0 <= u < w:
+                    a, b = far[y, x], far[v, u]
+                    if np.isinf(a) and np.isinf(b):
+                        continue
+                    if max(a, b) > (1 + rel) * min(a, b):
+                        out[y, x] = True
+    return out
+
+
+def test_depth_edges_mark_both_sides_of_a_jump_and_the_rim_against_the_sky():
+    z = np.ones((5, 6))
+    z[:, 3:] = 2.0  # a jump between columns 2 and 3
+    z[0, 0] = 1.04  # a 4 % step: not an edge at 5 %
+    e = depth_edges(z, 0.05)
+    assert e[:, 2].all() and e[:, 3].all() and e.sum() == 10
+    z[4, 4:] = np.inf  # sky: its rim is an edge, sky beside sky is not
+    z[3, 5] = 0.0
+    e = depth_edges(z[..., None], 0.05)  # a depth channel axis is accepted
+    assert np.array_equal(e, _edges_by_loops(z, 0.05))
+    assert e[4, 3] and e[3, 4] and e[3, 5] and not e[4, 5]  # (4, 5): sky beside sky only
+    rng = np.random.default_rng(1)
+    zr = np.exp(rng.normal(0, 0.05, (9, 11)))
+    assert np.array_equal(depth_edges(zr, 0.06), _edges_by_loops(zr, 0.06))
+    with pytest.raises(ValueError):
+        depth_edges(z, 0.0)
+
+
+def test_edge_region_comes_after_bright_and_before_dynamic():
+    hdr = np.ones((4, 6, 3))
+    hdr[0, 2, 0] = 50.0
+    z = np.ones((4, 6))
+    z[:, 3:] = 3.0  # edge columns 2 and 3
+    dyn = np.zeros((4, 6), bool)
+    dyn[:, 2:5] = True
+    m = region_masks(hdr, dyn, bright_above=20.0, depth=z, edges=0.05)
+    assert set(m) == set(REGIONS)
+    assert (sum(v.astype(int) for v in m.values()) == 1).all()
+    assert m["bright"].sum() == 1 and m["edge"].sum() == 7 and not m["edge"][0, 2]
+    assert np.array_equal(m["dynamic"], dyn & ~m["bright"] & ~m["edge"])
+    assert m["dynamic"].sum() == 4  # column 4
+    assert not region_masks(hdr, dyn, depth=z)["edge"].any()  # no edges without the option
+    with pytest.raises(ValueError, match="depth"):
+        region_masks(hdr, dyn, edges=0.05)
+
+
+def test_an_error_on_the_depth_edges_lands_in_the_edge_region(tiny_clip_realistic, tmp_path):
+    clip = Clip.open(tiny_clip_realistic)
+    ex = clip.meta.exposures
+    pred = tmp_path / "pred"
+    masks = {}
+    for g in clip.test_frames:
+        z = clip.load_gt_depth(g)
+        z = z[..., 0] if z.ndim == 3 else z
+        masks[g] = (
+            _edges_by_loops(z, 0.05)
+            & ~region_masks(clip.load_gt_hdr(g), None, bright_top=0.01)["bright"]
+        )
+        mio.write_exr(pred / "test/hdr" / frame_name(g, "exr"), clip.load_gt_hdr(g))
+        for lv in list(ex.observed) + list(ex.novel):
+            gt = clip.load_gt_ldr(lv, g).astype(int)
+            p = np.where(masks[g][..., None], np.clip(gt + 6, 0, 255), gt).astype(np.uint8)
+            mio.write_png(pred / "test/ldr" / level_name(lv) / frame_name(g, "png"), p)
+    assert any(m.any() for m in masks.values())
+    res = split_run(pred, clip, bright_top=0.01, edges=0.05)
+    d = res["domains"]["LDR-OE"]
+    assert d["sse"]["edge"] > 0
+    assert d["sse"]["static"] == d["sse"]["dynamic"] == d["sse"]["bright"] == 0.0
+    lv = ex.observed[0]
+    alone = [
+        min(
+            masked_psnr(
+                mio.read_png(pred / "test/ldr" / level_name(lv) / frame_name(g, "png")) / 255.0,
+                clip.load_gt_ldr(lv, g) / 255.0,
+                masks[g],
+            ),
+            PSNR_CAP_DB,
+        )
+        for g in clip.test_frames
+        if masks[g].any()
+    ]
+    assert res["domains"][f"ldr {level_name(lv)}"]["psnr_only"]["edge"] == pytest.approx(
+        float(np.mean(alone)), abs=1e-6
+    )
+    # the CLI names the region and prints its columns; a clip without depth is refused
+    ok = CliRunner().invoke(
+        main, ["regions", str(pred), "--clip", str(tiny_clip_realistic), "--edges", "0.05"]
+    )
+    assert ok.exit_code == 0, ok.output
+    assert "edge = both pixels" in ok.output and "edge px %" in ok.output
+    assert "bright px %" not in ok.output  # no bright option: no bright columns
+    nodepth = tmp_path / "nodepth"
+    shutil.copytree(tiny_clip_realistic, nodepth)
+    shutil.rmtree(nodepth / "gt/depth")
+    with pytest.raises(InputError, match="gt/depth"):
+        split_run(pred, Clip.open(nodepth), edges=0.05)
