@@ -808,6 +808,17 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm):
     click.echo(text)
 
 
+# --clip of the commands that read several runs' renders (regions, error-maps)
+_runs_clip_opt = click.option(
+    "--clip",
+    "clip_dir",
+    default=None,
+    type=click.Path(exists=True, file_okay=False),
+    help="Clip folder for every run (default: the 'clip' entry of each RUN/run.json); needed for "
+    "a prediction folder of `score-frames`.",
+)
+
+
 def _region_options(f):
     """The region options of `regions` and `region-pairs` (--bright-above, --bright-top,
     --dilate, --edges)."""
@@ -861,14 +872,7 @@ def _check_bright(bright_above, bright_top) -> None:
     "exposure schedule): also print how each run's change in squared error splits over the "
     "regions.",
 )
-@click.option(
-    "--clip",
-    "clip_dir",
-    default=None,
-    type=click.Path(exists=True, file_okay=False),
-    help="Clip folder for every run (default: the 'clip' entry of each RUN/run.json); needed for "
-    "a prediction folder of `score-frames`.",
-)
+@_runs_clip_opt
 @_region_options
 @click.option(
     "--json",
@@ -1045,14 +1049,7 @@ def region_pairs(
     default=None,
     help="Comma-separated column titles for the runs (default: their folder names).",
 )
-@click.option(
-    "--clip",
-    "clip_dir",
-    default=None,
-    type=click.Path(exists=True, file_okay=False),
-    help="Clip folder for every run (default: the 'clip' entry of each RUN/run.json); needed for "
-    "a prediction folder of `score-frames`.",
-)
+@_runs_clip_opt
 def error_maps(runs, out_png, ref_run, domain, frame, labels, clip_dir):
     """Draw one test frame of RUNS (one scene): the ground truth, each run's render, its error
     map on one colour scale and, with --ref, where its error grew or shrank against the
