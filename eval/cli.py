@@ -1019,9 +1019,23 @@ def region_pairs(
 @click.option(
     "--out",
     "out_png",
-    required=True,
+    default=None,
     type=click.Path(dir_okay=False),
-    help="The figure to write (PNG).",
+    help="The figure of one test frame to write (PNG).",
+)
+@click.option(
+    "--video",
+    "out_mp4",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Also (or instead) write the same grid over every test frame of the domain as an mp4, "
+    "with one colour scale for the whole video and each tile's PSNR in its caption.",
+)
+@click.option(
+    "--fps",
+    default=None,
+    type=click.FloatRange(min=0.1),
+    help="Frame rate of --video (default: a quarter of the clip's, about 7.5).",
 )
 @click.option(
     "--ref",
@@ -1050,20 +1064,35 @@ def region_pairs(
     help="Comma-separated column titles for the runs (default: their folder names).",
 )
 @_runs_clip_opt
-def error_maps(runs, out_png, ref_run, domain, frame, labels, clip_dir):
+def error_maps(runs, out_png, out_mp4, fps, ref_run, domain, frame, labels, clip_dir):
     """Draw one test frame of RUNS (one scene): the ground truth, each run's render, its error
     map on one colour scale and, with --ref, where its error grew or shrank against the
-    reference; titles give each frame's PSNR as the scores compute it."""
+    reference; titles give each frame's PSNR as the scores compute it. --video: the same grid
+    over every test frame."""
     from m4dgs.core.errors import InputError
 
     from .errormaps import error_maps as draw
+    from .errormaps import error_video
 
+    if out_png is None and out_mp4 is None:
+        raise click.UsageError("give --out PNG, --video MP4 or both")
     names = None
     if labels is not None:
         names = [x.strip() for x in labels.split(",")]
         if len(names) != len(runs):
             raise click.UsageError(f"--labels: {len(names)} label(s) for {len(runs)} run(s)")
     try:
+        if out_mp4 is not None:
+            vid = error_video(
+                runs, out_mp4, ref=ref_run, domain=domain, clip_dir=clip_dir, labels=names, fps=fps
+            )
+            means = ", ".join(f"{k} {sum(v) / len(v):.2f} dB" for k, v in vid["psnr"].items() if v)
+            click.echo(
+                f"wrote {vid['mp4']} ({len(vid['frames'])} frames, {vid['domain']}; mean PSNR "
+                f"over them: {means})"
+            )
+            if out_png is None:
+                return
         res = draw(
             runs, out_png, ref=ref_run, domain=domain, frame=frame, clip_dir=clip_dir, labels=names
         )

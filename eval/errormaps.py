@@ -204,6 +204,25 @@ def draw_error_maps(panels: dict, out_png, title: str = "") -> Path:
     return _save(fig, out_png)
 
 
+def _open_runs(runs: Sequence, ref, clip_dir) -> tuple:
+    """([(run, Clip)], (ref, Clip) or None, the clip the frames and levels come from: the
+    reference's, else the first run's), each run's clip from its run.json unless clip_dir; the
+    clips must agree pixel for pixel (regions.check_comparable) and have ground truth."""
+    from .score import resolve_clip_dir
+
+    if not runs:
+        raise InputError("no run to draw")
+    clips = [Clip.open(resolve_clip_dir(r, clip_dir)) for r in runs]
+    clip = clips[0]
+    if ref is not None:
+        clip = Clip.open(resolve_clip_dir(ref, clip_dir))
+    for c in clips:
+        check_comparable(clip, c)
+    if not clip.has_gt:
+        raise InputError(f"{clip.root / 'gt'}: the clip has no ground truth to compare with")
+    return list(zip(runs, clips)), ((ref, clip) if ref is not None else None), clip
+
+
 def error_maps(
     runs: Sequence,
     out_png,
@@ -218,31 +237,14 @@ def error_maps(
     "png" (the written path) and, when the frame was picked, "picked_from" ({g: PSNR difference
     or PSNR} of every candidate frame). Clips are each run's (run.json) unless clip_dir is given;
     the runs' clips must agree pixel for pixel (regions.check_comparable)."""
-    from .score import resolve_clip_dir
-
-    if not runs:
-        raise InputError("no run to draw")
-    clips = [Clip.open(resolve_clip_dir(r, clip_dir)) for r in runs]
-    clip = clips[0]
-    if ref is not None:
-        ref_clip = Clip.open(resolve_clip_dir(ref, clip_dir))
-        for c in clips:
-            check_comparable(ref_clip, c)
-        clip = ref_clip
-    else:
-        for c in clips[1:]:
-            check_comparable(clips[0], c)
-    if not clip.has_gt:
-        raise InputError(f"{clip.root / 'gt'}: the clip has no ground truth to compare with")
+    pairs, ref_pair, clip = _open_runs(runs, ref, clip_dir)
     level = parse_domain(clip, domain)
-    pairs = list(zip(runs, clips))
-    ref_pair = (ref, clip) if ref is not None else None
     picked_from = None
     if frame is None:
         frames = domain_frames(clip, level)
         if not frames:
             raise InputError(f"{clip.root / 'clip.json'}: no test frame in the domain")
-        first = frame_psnrs(runs[0], clips[0], level, frames)
+        first = frame_psnrs(runs[0], pairs[0][1], level, frames)
         base = frame_psnrs(ref, clip, level, frames) if ref is not None else None
         frame = pick_frame(first, base)
         picked_from = {g: first[g] - (base[g] if base else 0.0) for g in frames}
@@ -251,3 +253,136 @@ def error_maps(
         panels, out_png, title=f"{clip.meta.name}, frame {frame}, {panels['domain']}"
     )
     return dict(panels, png=str(png), picked_from=picked_from)
+
+
+# --------------------------------------------------------------------------------------------------
+# the same over every test frame, as a video
+# --------------------------------------------------------------------------------------------------
+GAP = 4  # pixels between the video's tiles (before scaling)
+
+
+def colourise(a: np.ndarray, cmap: str, vmin: float, vmax: float) -> np.ndarray:
+    """[H, W] values -> [H, W, 3] uint8 through a matplotlib colour map, clipped to [vmin, vmax]."""
+    from matplotlib import colormaps
+
+    t = np.clip((np.asarray(a, np.float64) - vmin) / max(vmax - vmin, 1e-12), 0.0, 1.0)
+    return (colormaps[cmap](t)[..., :3] * 255.0 + 0.5).astype(np.uint8)
+
+
+def _caption(img: np.ndarray, text: str) -> np.ndarray:
+    """White text on a black box at the top-left of a uint8 tile."""
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray(img)
+    d = ImageDraw.Draw(im)
+    x0, y0, x1, y1 = d.textbbox((3, 2), text)
+    d.rectangle((x0 - 2, y0 - 1, x1 + 2, y1 + 1), fill=(0, 0, 0))
+    d.text((3, 2), text, fill=(255, 255, 255))
+    return np.asarray(im)
+
+
+def video_frame(panels: dict, err_top: float, d_top: Optional[float], scale: int = 2) -> np.ndarray:
+    """One video frame [H', W', 3] uint8 of error_panels' output: the figure's grid (images; RMS
+    error on 'magma' over [0, err_top]; with a reference the squared error's change on 'RdBu_r'
+    over [-d_top, d_top]), each tile scaled up `scale` times (nearest) and captioned, tiles GAP
+    pixels apart on grey."""
+    ref = panels["ref"]
+    cols = [("ground truth", panels["gt"], None)]
+    if ref is not None:
+        cols.append(("ref " + ref["label"], ref["pred"], ref))
+    cols += [(p["label"], p["pred"], p) for p in panels["runs"]]
+    n_rows = 3 if ref is not None else 2
+    h, w = panels["gt"].shape[:2]
+    th, tw = h * scale, w * scale
+    g = GAP * scale
+    out = np.full(
+        (n_rows * th + (n_rows - 1) * g, len(cols) * tw + (len(cols) - 1) * g, 3), 96, np.uint8
+    )
+
+    def put(i, j, tile, text):
+        tile = np.repeat(np.repeat(tile, scale, axis=0), scale, axis=1)
+        out[i * (th + g) : i * (th + g) + th, j * (tw + g) : j * (tw + g) + tw] = _caption(
+            tile, text
+        )
+
+    for j, (name, img, p) in enumerate(cols):
+        top = f"{name}, frame {panels['frame']}" if p is None else f"{name}: {p['psnr']:.2f} dB"
+        if p is not None and "d_psnr" in p:
+            top += f" ({p['d_psnr']:+.2f})"
+        put(0, j, (np.clip(img, 0, 1) * 255.0 + 0.5).astype(np.uint8), top)
+        if p is None:
+            continue
+        put(
+            1,
+            j,
+            colourise(np.sqrt(p["sq_err"]), "magma", 0.0, err_top),
+            f"RMS error, 0..{err_top:.3g}",
+        )
+        if ref is not None and p is not ref:
+            put(
+                2,
+                j,
+                colourise(p["d_sq_err"], "RdBu_r", -d_top, d_top),
+                f"sq. error - ref's, ±{d_top:.3g}",
+            )
+    return out
+
+
+def error_video(
+    runs: Sequence,
+    out_mp4,
+    *,
+    ref=None,
+    domain: Optional[str] = None,
+    clip_dir=None,
+    labels: Optional[Sequence[str]] = None,
+    fps: Optional[float] = None,
+    scale: int = 2,
+) -> dict:
+    """The figure's grid over every test frame of the domain as an mp4 (m4dgs.core.video
+    .write_mp4), one colour scale for the whole video: the median over the frames of each
+    frame's 99.5th percentile (two passes over the renders; larger values saturate). fps:
+    default a quarter of the clip's frame rate (test frames are every other frame). Returns
+    {"mp4", "domain", "frames", "psnr" {label: [PSNR per frame], the reference's as
+    "ref <label>"}, "err_top", "d_top"}."""
+    from m4dgs.core.video import write_mp4
+
+    pairs, ref_pair, clip = _open_runs(runs, ref, clip_dir)
+    level = parse_domain(clip, domain)
+    frames = domain_frames(clip, level)
+    if not frames:
+        raise InputError(f"{clip.root / 'clip.json'}: no test frame in the domain")
+
+    def panels_of(g):
+        return error_panels(pairs, level, g, ref=ref_pair, labels=labels)
+
+    err_tops, d_tops = [], []
+    for g in frames:
+        pn = panels_of(g)
+        shown = ([pn["ref"]] if pn["ref"] else []) + pn["runs"]
+        err_tops.append(_scale([np.sqrt(p["sq_err"]) for p in shown]))
+        if ref is not None:
+            d_tops.append(_scale([p["d_sq_err"] for p in pn["runs"]]))
+    err_top = float(np.median(err_tops))
+    d_top = float(np.median(d_tops)) if ref is not None else None
+    psnr: Dict[str, List[float]] = {}
+
+    def video():
+        for g in frames:
+            pn = panels_of(g)
+            if pn["ref"] is not None:
+                psnr.setdefault("ref " + pn["ref"]["label"], []).append(pn["ref"]["psnr"])
+            for p in pn["runs"]:
+                psnr.setdefault(p["label"], []).append(p["psnr"])
+            yield video_frame(pn, err_top, d_top, scale)
+
+    rate = float(fps) if fps else max(clip.meta.fps / 4.0, 1.0)
+    path = write_mp4(out_mp4, video(), rate)
+    return {
+        "mp4": str(path),
+        "domain": "hdr" if level is None else f"ldr {level_name(level)}",
+        "frames": frames,
+        "psnr": psnr,
+        "err_top": err_top,
+        "d_top": d_top,
+    }

@@ -37,7 +37,7 @@ import colorsys
 import io as _io
 import math
 from pathlib import Path
-from typing import Iterable, List, Optional
+from typing import List, Optional
 
 import numpy as np
 import torch
@@ -45,8 +45,9 @@ from PIL import Image, ImageDraw
 
 from m4dgs.core import camera as cam
 from m4dgs.core.hdr import mu_law
-from m4dgs.core.io import atomic_target, write_bytes_atomic, write_npz
+from m4dgs.core.io import write_bytes_atomic, write_npz
 from m4dgs.core.progress import progress_bar
+from m4dgs.core.video import write_mp4
 from m4dgs.model.trained import load_model
 
 
@@ -59,15 +60,6 @@ def to_uint8(img) -> np.ndarray:
     return np.clip(np.round(a.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
 
 
-def pad_even(frame: np.ndarray) -> np.ndarray:
-    """Pad [H, W, C] with black on the bottom / right to even H and W (yuv420p needs them)."""
-    h, w = frame.shape[:2]
-    ph, pw = h % 2, w % 2
-    if ph == 0 and pw == 0:
-        return frame
-    return np.pad(frame, ((0, ph), (0, pw), (0, 0)))
-
-
 def _label(frame: np.ndarray, text: str) -> np.ndarray:
     """Small white-on-black caption at the top-left (only for frames wide enough to hold it)."""
     if frame.shape[1] < 128 or frame.shape[0] < 48:
@@ -78,36 +70,6 @@ def _label(frame: np.ndarray, text: str) -> np.ndarray:
     d.rectangle((x0 - 2, y0 - 2, x1 + 2, y1 + 2), fill=(0, 0, 0))
     d.text((4, 3), text, fill=(255, 255, 255))
     return np.asarray(im)
-
-
-def write_mp4(path, frames: Iterable[np.ndarray], fps: float) -> Path:
-    """Encode uint8 frames [H, W, 3] (all the same size; padded to even sizes here) as H.264 /
-    yuv420p mp4, atomically. Returns the path."""
-    import imageio.v2 as imageio  # deferred: imageio + ffmpeg plugin, only to encode videos
-
-    path = Path(path)
-    with atomic_target(path, ".mp4") as tmp:
-        writer = imageio.get_writer(
-            str(tmp),
-            format="FFMPEG",
-            mode="I",
-            fps=float(fps),
-            codec="libx264",
-            pixelformat="yuv420p",
-            macro_block_size=1,
-            quality=8,
-            ffmpeg_log_level="error",
-        )
-        n = 0
-        try:
-            for fr in frames:
-                writer.append_data(pad_even(np.ascontiguousarray(fr, dtype=np.uint8)))
-                n += 1
-        finally:
-            writer.close()
-        if n == 0:
-            raise ValueError(f"write_mp4({path}): no frames")
-    return path
 
 
 def _progress(it, progress: bool, desc: str, total: Optional[int] = None):

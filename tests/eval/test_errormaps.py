@@ -14,12 +14,16 @@ from skimage.metrics import peak_signal_noise_ratio
 
 from eval.cli import main
 from eval.errormaps import (
+    GAP,
+    colourise,
     domain_frames,
     error_maps,
+    error_video,
     frame_psnrs,
     parse_domain,
     pick_frame,
     pixel_sq_error,
+    video_frame,
 )
 from eval.frames import score_frames
 from eval.metrics.hdr import hdr_psnr
@@ -160,3 +164,58 @@ def test_pixel_error_is_the_channel_mean():
     b[0, 0] = [0.3, 0.0, 0.0]
     e = pixel_sq_error(a, b)
     assert e.shape == (2, 3) and e[0, 0] == pytest.approx(0.03) and e.sum() == pytest.approx(0.03)
+
+
+def test_colourise_maps_the_ends_of_the_range_to_the_ends_of_the_colour_map():
+    from matplotlib import colormaps
+
+    a = np.array([[-1.0, 0.0, 0.5, 2.0]])
+    c = colourise(a, "magma", 0.0, 0.5)
+    assert c.shape == (1, 4, 3) and c.dtype == np.uint8
+    lo = np.round(np.array(colormaps["magma"](0.0)[:3]) * 255)
+    hi = np.round(np.array(colormaps["magma"](1.0)[:3]) * 255)
+    assert np.array_equal(c[0, 0], lo) and np.array_equal(c[0, 1], lo)  # below: clipped
+    assert np.array_equal(c[0, 2], hi) and np.array_equal(c[0, 3], hi)
+
+
+def test_video_holds_every_test_frame_and_its_psnrs_average_to_the_score(runs, tmp_path):
+    import imageio.v2 as imageio
+
+    clip, ref, run, m, _ = runs
+    lv = clip.meta.exposures.observed[0]
+    res = error_video([run], tmp_path / "v.mp4", ref=ref, labels=["a"], fps=5)
+    frames = domain_frames(clip, lv)
+    assert res["frames"] == frames and res["domain"] == f"ldr {level_name(lv)}"
+    # each tile's PSNR is the frame's; over the level's frames they average to the scorer's
+    assert np.mean(res["psnr"]["a"]) == pytest.approx(
+        m["per_level"][level_name(lv)]["psnr"], abs=1e-9
+    )
+    assert set(res["psnr"]) == {"a", "ref ref"}
+    # the grid: 3 rows (image, error, change) x 3 columns (truth, reference, run), scaled x2
+    h, w, s = clip.height, clip.width, 2
+    shape = (3 * h * s + 2 * GAP * s, 3 * w * s + 2 * GAP * s, 3)
+    rd = imageio.get_reader(tmp_path / "v.mp4")
+    got = [f for f in rd]
+    assert len(got) == len(frames)
+    assert got[0].shape[:2] == (shape[0] + shape[0] % 2, shape[1] + shape[1] % 2)
+    # the first frame's grid as drawn: the run's error tile is its error map through the scale
+    pn = error_maps([run], tmp_path / "f.png", ref=ref, frame=frames[0], labels=["a"])
+    img = video_frame(pn, res["err_top"], res["d_top"], scale=s)
+    assert img.shape == shape
+    y0, x0 = h * s + GAP * s, 2 * (w * s + GAP * s)
+    tile = img[y0 + h * s // 2 :, x0 : x0 + w * s][: h * s // 2]  # below the caption
+    want = colourise(np.sqrt(pn["runs"][0]["sq_err"]), "magma", 0.0, res["err_top"])
+    want = np.repeat(np.repeat(want, s, 0), s, 1)[h * s // 2 :]
+    assert np.array_equal(tile, want)
+
+
+def test_cli_writes_a_video_and_needs_an_output(runs, tmp_path):
+    clip, ref, run, _, _ = runs
+    res = CliRunner().invoke(
+        main, ["error-maps", str(run), "--ref", str(ref), "--video", str(tmp_path / "v.mp4")]
+    )
+    assert res.exit_code == 0, res.output
+    assert "frames" in res.output and (tmp_path / "v.mp4").stat().st_size > 0
+    assert not (tmp_path / "f.png").exists()
+    bad = CliRunner().invoke(main, ["error-maps", str(run)])
+    assert bad.exit_code != 0 and "--out PNG, --video MP4" in bad.output

@@ -441,7 +441,7 @@ def test_render_tracks_default_grid(run, tmp_path):
 
 
 def test_write_mp4_atomic_on_failure(tmp_path):
-    from m4dgs.outputs.videos import write_mp4
+    from m4dgs.core.video import write_mp4
 
     def frames():
         yield np.zeros((10, 12, 3), np.uint8)
