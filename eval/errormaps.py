@@ -2,9 +2,9 @@
 map and, beside a reference run, where its error grew or shrank.
 
 A score says how far a run is off and `m4dgs-eval regions` which region the error sits in; this
-shows the pixels. `m4dgs-eval error-maps RUN [RUN ...] [--ref RUN] [--domain D] [--frame G] --out
-PNG` (docs/eval.md) draws, for one test frame of one domain, a column per run (the ground truth
-first, then the reference, then the runs) and the rows
+shows the pixels. `m4dgs-eval error-maps RUN [RUN ...] [--ref RUN] [--domain D] [--frame G] [--out
+PNG] [--video MP4]` (docs/eval.md) draws, for one test frame of one domain, a column per run (the
+ground truth first, then the reference, then the runs) and the rows
 
 1. the images: the LDR render at the domain's level, or the HDR render mu-law tone-mapped and
    normalised by the ground truth's maximum (the HDR PSNR's domain, docs/metrics.md);
@@ -17,7 +17,8 @@ first, then the reference, then the runs) and the rows
 Each image's title gives the frame's PSNR (and its difference from the reference's), computed as
 the scores compute it (capped per frame). Without --frame the frame is the domain's test frame
 where the first run's PSNR falls furthest below the reference's (without a reference: the first
-run's worst frame), the one where the comparison shows most.
+run's worst frame), the one where the comparison shows most. The video (error_video) holds the
+same grid for every test frame of the domain, with one colour scale throughout.
 """
 
 from __future__ import annotations
