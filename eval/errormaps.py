@@ -33,7 +33,7 @@ from m4dgs.clip import Clip, level_name
 from m4dgs.core.errors import InputError
 
 from .metrics._util import psnr_from_mse
-from .regions import check_comparable, renders_root, test_pair
+from .regions import check_comparable, frame_pair, renders_root
 from .score import PSNR_CAP_DB
 
 
@@ -88,7 +88,7 @@ def frame_psnr(pred: np.ndarray, gt: np.ndarray) -> float:
 def frame_psnrs(run, clip: Clip, level: Optional[float], frames: Sequence[int]) -> Dict[int, float]:
     """{g: PSNR} of a run's test renders over `frames` of the domain."""
     root = renders_root(Path(run))
-    return {g: frame_psnr(*test_pair(root, clip, g, level)) for g in frames}
+    return {g: frame_psnr(*frame_pair(root, clip, g, level)) for g in frames}
 
 
 def pick_frame(first: Dict[int, float], ref: Optional[Dict[int, float]] = None) -> int:
@@ -125,7 +125,7 @@ def error_panels(
     labels = list(labels) if labels is not None else [Path(r).name for r, _ in runs]
 
     def panel(run, clip, label):
-        pred, gt = test_pair(renders_root(Path(run)), clip, g, level)
+        pred, gt = frame_pair(renders_root(Path(run)), clip, g, level)
         se = pixel_sq_error(pred, gt)
         return {
             "label": label,

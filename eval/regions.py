@@ -215,7 +215,7 @@ def _ldr01(img: np.ndarray) -> np.ndarray:
     return np.asarray(img, np.float64) / 255.0
 
 
-def test_pair(root: Path, clip: Clip, g: int, level: Optional[float]) -> tuple:
+def frame_pair(root: Path, clip: Clip, g: int, level: Optional[float]) -> tuple:
     """(prediction, ground truth), each [H, W, C] float64 in [0, 1], of test frame g as the scores
     compare them: the 8-bit LDR render at `level` (RUN/renders/test/ldr/<level>/<g>.png) over 255,
     or with level None the HDR render and ground truth mu-law tone-mapped, normalised by the
@@ -297,12 +297,12 @@ def split_run(
                 continue
             acc = _Domain()
             for g in frames:
-                acc.add(*test_pair(root, clip_obj, g, lv), masks_of(g))
+                acc.add(*frame_pair(root, clip_obj, g, lv), masks_of(g))
             domains[f"ldr {level_name(lv)}"] = dict(acc.result(), kind=kind)
     if clip_obj.has_gt_part("hdr"):
         acc = _Domain()
         for g in test:
-            acc.add(*test_pair(root, clip_obj, g, None), masks_of(g))
+            acc.add(*frame_pair(root, clip_obj, g, None), masks_of(g))
         domains["hdr"] = dict(acc.result(), kind="hdr")
     # a real clip's levels hold different frame counts: its pools weight them by frames, as the
     # scorer's ldr_oe_psnr does
