@@ -1098,16 +1098,9 @@ def error_maps(runs, out_png, out_mp4, fps, ref_run, domain, frame, labels, clip
         )
     except (InputError, FileNotFoundError) as e:
         raise click.ClickException(str(e)) from e
-    how = (
-        ""
-        if res["picked_from"] is None
-        else " (picked: "
-        + (
-            "largest PSNR drop against the reference)"
-            if ref_run
-            else "the first run's lowest PSNR)"
-        )
-    )
+    how = ""
+    if res["picked_from"] is not None:
+        how = " (picked: " + ("largest PSNR drop against --ref)" if ref_run else "lowest PSNR)")
     click.echo(f"frame {res['frame']}, {res['domain']}{how}")
     for p in ([res["ref"]] if res["ref"] else []) + res["runs"]:
         d = f" ({p['d_psnr']:+.2f} against the reference)" if "d_psnr" in p else ""
