@@ -270,23 +270,13 @@ def colourise(a: np.ndarray, cmap: str, vmin: float, vmax: float) -> np.ndarray:
     return (colormaps[cmap](t)[..., :3] * 255.0 + 0.5).astype(np.uint8)
 
 
-def _caption(img: np.ndarray, text: str) -> np.ndarray:
-    """White text on a black box at the top-left of a uint8 tile."""
-    from PIL import Image, ImageDraw
-
-    im = Image.fromarray(img)
-    d = ImageDraw.Draw(im)
-    x0, y0, x1, y1 = d.textbbox((3, 2), text)
-    d.rectangle((x0 - 2, y0 - 1, x1 + 2, y1 + 1), fill=(0, 0, 0))
-    d.text((3, 2), text, fill=(255, 255, 255))
-    return np.asarray(im)
-
-
 def video_frame(panels: dict, err_top: float, d_top: Optional[float], scale: int = 2) -> np.ndarray:
     """One video frame [H', W', 3] uint8 of error_panels' output: the figure's grid (images; RMS
     error on 'magma' over [0, err_top]; with a reference the squared error's change on 'RdBu_r'
     over [-d_top, d_top]), each tile scaled up `scale` times (nearest) and captioned, tiles GAP
     pixels apart on grey."""
+    from m4dgs.core.video import caption
+
     ref = panels["ref"]
     cols = [("ground truth", panels["gt"], None)]
     if ref is not None:
@@ -302,7 +292,7 @@ def video_frame(panels: dict, err_top: float, d_top: Optional[float], scale: int
 
     def put(i, j, tile, text):
         tile = np.repeat(np.repeat(tile, scale, axis=0), scale, axis=1)
-        out[i * (th + g) : i * (th + g) + th, j * (tw + g) : j * (tw + g) + tw] = _caption(
+        out[i * (th + g) : i * (th + g) + th, j * (tw + g) : j * (tw + g) + tw] = caption(
             tile, text
         )
 

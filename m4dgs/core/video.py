@@ -13,6 +13,18 @@ import numpy as np
 from m4dgs.core.io import atomic_target
 
 
+def caption(frame: np.ndarray, text: str) -> np.ndarray:
+    """A uint8 frame [H, W, 3] with `text` in white on a black box at its top-left."""
+    from PIL import Image, ImageDraw  # deferred: only frames with captions need it
+
+    im = Image.fromarray(frame)
+    d = ImageDraw.Draw(im)
+    x0, y0, x1, y1 = d.textbbox((4, 3), text)
+    d.rectangle((x0 - 2, y0 - 2, x1 + 2, y1 + 2), fill=(0, 0, 0))
+    d.text((4, 3), text, fill=(255, 255, 255))
+    return np.asarray(im)
+
+
 def pad_even(frame: np.ndarray) -> np.ndarray:
     """Pad [H, W, C] with black on the bottom / right to even H and W (yuv420p needs them)."""
     h, w = frame.shape[:2]

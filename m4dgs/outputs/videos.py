@@ -41,13 +41,12 @@ from typing import List, Optional
 
 import numpy as np
 import torch
-from PIL import Image, ImageDraw
 
 from m4dgs.core import camera as cam
 from m4dgs.core.hdr import mu_law
 from m4dgs.core.io import write_bytes_atomic, write_npz
 from m4dgs.core.progress import progress_bar
-from m4dgs.core.video import write_mp4
+from m4dgs.core.video import caption, write_mp4
 from m4dgs.model.trained import load_model
 
 
@@ -64,12 +63,7 @@ def _label(frame: np.ndarray, text: str) -> np.ndarray:
     """Small white-on-black caption at the top-left (only for frames wide enough to hold it)."""
     if frame.shape[1] < 128 or frame.shape[0] < 48:
         return frame
-    im = Image.fromarray(frame)
-    d = ImageDraw.Draw(im)
-    x0, y0, x1, y1 = d.textbbox((4, 3), text)
-    d.rectangle((x0 - 2, y0 - 2, x1 + 2, y1 + 2), fill=(0, 0, 0))
-    d.text((4, 3), text, fill=(255, 255, 255))
-    return np.asarray(im)
+    return caption(frame, text)
 
 
 def _progress(it, progress: bool, desc: str, total: Optional[int] = None):
