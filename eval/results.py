@@ -1169,6 +1169,16 @@ CONTROLS: Tuple[Control, ...] = (
         Effect("control-tlr-grad", "full-tlr-0.1-grad", "full-grad", "neighbours with gradient"),
     ),
     Control(
+        "tlr-weight-floor",
+        "TLR at the paper's weight: is its PSNR cost the near-black pixels? (a floor of 1 % of the "
+        "render's median in TLR's denominator against the paper's denominator)",
+        "method",
+        Effect("control-tlr-floor", "full-tlr-0.1", "full", "the paper's denominator"),
+        Effect(
+            "control-tlr-floor", "full-tlr-0.1-floor", "full-floor", "a floor in the denominator"
+        ),
+    ),
+    Control(
         "schedule-coverage",
         "Schedules: is random values' HDR PSNR cost the few frames near the range's ends? "
         "(values within half a stop of a level against log-uniform values)",

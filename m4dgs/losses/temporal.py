@@ -50,10 +50,18 @@ TLR_DEPTH_RATIO = 1.1  # authors: occlusion test at 1.1x depth
 
 
 def relative_difference(
-    a: torch.Tensor, b: torch.Tensor, detach_denominator: bool = True, eps: float = 1e-10
+    a: torch.Tensor,
+    b: torch.Tensor,
+    detach_denominator: bool = True,
+    eps: float = 1e-10,
+    floor: float | torch.Tensor = 0.0,
 ) -> torch.Tensor:
-    """|a - b| / (a + b + eps), elementwise; the denominator is detached when asked (authors)."""
+    """|a - b| / (a + b + eps + floor), elementwise; the denominator is detached when asked
+    (authors). floor: a scalar (float or 0-d tensor, not differentiated) added to the denominator
+    (TLR's `loss.tlr_den_floor`); 0 leaves the paper's normalisation, computed as before."""
     den = a + b + eps
+    if not (isinstance(floor, float) and floor == 0.0):
+        den = den + torch.as_tensor(floor, dtype=den.dtype, device=den.device).detach()
     if detach_denominator:
         den = den.detach()
     return (a - b).abs() / den
@@ -107,6 +115,7 @@ def tlr_loss(
     valid: torch.Tensor | None = None,
     detach_denominator: bool = True,
     detach_neighbour: bool = True,
+    den_floor: float | torch.Tensor = 0.0,
 ) -> torch.Tensor:
     """Temporal luminance regularisation for one neighbour t' (call for t - 1 and t + 1 and
     average).
@@ -117,8 +126,10 @@ def tlr_loss(
         flow: [H, W, 2] rendered flow F~_{t->t'} (always detached).
         valid: optional [H, W] bool (e.g. `tlr_valid_mask`); out-of-image flows are always excluded.
         detach_denominator: detach (H_w + H_t) as the authors do.
+        den_floor: scalar added to the denominator (not differentiated; `tlr_den_floor` gives
+            it from the render's median); 0 = the paper's.
     Returns:
-        scalar: mean over valid pixels and channels of |H_w - H_t| / (H_w + H_t).
+        scalar: mean over valid pixels and channels of |H_w - H_t| / (H_w + H_t + den_floor).
     """
     nb = hdr_nb.detach() if detach_neighbour else hdr_nb
     flow = flow.detach()
@@ -126,7 +137,18 @@ def tlr_loss(
     m = flow_in_bounds(flow)
     if valid is not None:
         m = m & valid.bool()
-    return _masked_channel_mean(relative_difference(warped, hdr_t, detach_denominator), m)
+    return _masked_channel_mean(
+        relative_difference(warped, hdr_t, detach_denominator, floor=den_floor), m
+    )
+
+
+def tlr_den_floor(hdr_t: torch.Tensor, fraction: float) -> float | torch.Tensor:
+    """The denominator floor of `loss.tlr_den_floor`: fraction x the median of the render hdr_t
+    [H, W, 3] over pixels and channels (torch's median: the lower middle value; detached, 0-d), or
+    the float 0.0 when fraction is 0 (the paper's TLR, computed exactly as without the option)."""
+    if fraction == 0:
+        return 0.0
+    return fraction * hdr_t.detach().median()
 
 
 def tlr_loss_neighbours(

@@ -163,6 +163,12 @@ class LossConfig:
     # rendered flow only; off: the neighbour render carries no gradient, as this code always did;
     # docs/method.md, departure 8)
     tlr_neighbour_grad: bool = False
+    # beyond the paper: a floor added to TLR's denominator, as a fraction of the query render's
+    # median HDR value (detached). 0 = the paper's normalisation (H_w + H_t). The normalised L1
+    # gives every pixel a push of the same size in log HDR, so near-black pixels, whose values
+    # 8-bit frames barely constrain, take most of the gradient in linear HDR; a floor of ~1 % of
+    # the median weights them down (docs/method.md, "Options beyond the paper")
+    tlr_den_floor: float = 0.0
 
 
 def _stage1_loss() -> LossConfig:
@@ -785,6 +791,8 @@ def _check_range(section: Any, name: str, v: Any, key: str) -> None:
         raise _range_error(key, v, ">= 0 (a number of iterations)")
     if name.endswith("_prob") and not 0 <= v <= 1:
         raise _range_error(key, v, "a probability in [0, 1]")
+    if name == "tlr_den_floor" and v < 0:
+        raise _range_error(key, v, ">= 0 (a fraction of the render's median HDR value)")
 
 
 def _check_budget(cfg: "TrainConfig") -> None:

@@ -33,7 +33,7 @@ from m4dgs.core.tensors import gather_rows
 from m4dgs.losses.geometry import depth_loss, flow_from_destination_map, flow_loss, track_loss
 from m4dgs.losses.motion import smoothness_terms as motion_smoothness
 from m4dgs.losses.photometric import rgb_loss, unit_exposure_loss
-from m4dgs.losses.temporal import tlr_loss, tlr_valid_mask
+from m4dgs.losses.temporal import tlr_den_floor, tlr_loss, tlr_valid_mask
 from m4dgs.model.tonemap import monotonicity_penalty
 from m4dgs.training.config import AblationConfig, LossConfig, ToneMapConfig
 from m4dgs.training.data import TrainingData
@@ -261,16 +261,21 @@ def tlr_term(
     neighbours: Sequence[Tuple[Tensor, Tensor, Tensor, Tensor, Tensor]],
     occlusion_ratio: float,
     neighbour_grad: bool = False,
+    den_floor: float = 0.0,
 ) -> Term:
     """Temporal luminance regularisation of the HDR render at t, averaged over its neighbours, each
     (hdr_nb [H, W, 3], depth_nb [H, W], flow [H, W, 2], flow_valid [H, W], depth_ref [H, W]): the
     neighbour's render and depth, the rendered flow to it and the depth of each pixel's point at the
     neighbour's time (depth-order occlusion test at occlusion_ratio). neighbour_grad: the gradient
-    also reaches the neighbour's render (`loss.tlr_neighbour_grad`)."""
+    also reaches the neighbour's render (`loss.tlr_neighbour_grad`); den_floor: the fraction of
+    hdr's median added to the denominator (`loss.tlr_den_floor`, 0 = the paper's)."""
     terms = []
+    floor = tlr_den_floor(hdr, den_floor)
     for hdr_nb, depth_nb, flow, fvalid, zref in neighbours:
         valid = fvalid & tlr_valid_mask(flow, depth_nb, zref, ratio=occlusion_ratio)
-        terms.append(tlr_loss(hdr, hdr_nb, flow, valid, detach_neighbour=not neighbour_grad))
+        terms.append(
+            tlr_loss(hdr, hdr_nb, flow, valid, detach_neighbour=not neighbour_grad, den_floor=floor)
+        )
     return "tlr", torch.stack(terms).mean()
 
 
@@ -391,7 +396,7 @@ def assemble(stage, it: int) -> LossOutput:
             flow, fvalid = camera.flow(dm, alpha, k, detach=True)
             zref = camera.depth_at(dm / alpha.clamp_min(1e-6)[..., None], k)
             nbrs.append((rn.hdr, rn.depth, flow, fvalid, zref))
-        add(tlr_term(r.hdr, nbrs, lc.tlr_occlusion_ratio, lc.tlr_neighbour_grad))
+        add(tlr_term(r.hdr, nbrs, lc.tlr_occlusion_ratio, lc.tlr_neighbour_grad, lc.tlr_den_floor))
     for term in stage.stage_terms(it, s, r, camera):
         add(term)
     if cfg.tonemap.lambda_monotonic > 0:

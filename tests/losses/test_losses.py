@@ -29,6 +29,7 @@ from m4dgs.losses.temporal import (
     hdr_reprojection_loss,
     ldr_reprojection_loss,
     reprojection_coords,
+    tlr_den_floor,
     tlr_loss,
     tlr_loss_neighbours,
     tlr_valid_mask,
@@ -346,6 +347,37 @@ def test_tlr_gradient_only_into_current_frame():
     h2 = h.detach().clone().requires_grad_(True)
     tlr_loss(h2, nb.detach(), flow.detach(), detach_denominator=False).backward()
     assert float(h2.grad[0, 0, 0]) == pytest.approx(-2 * 3 / 16 / 12)
+
+
+def test_tlr_denominator_floor():
+    """loss.tlr_den_floor: the floor is fraction x the render's median; the loss and its gradient
+    are the hand formula |Hw - H| / (Hw + H + floor) with the floor and the denominator held
+    constant; fraction 0 is the paper's loss, bit for bit."""
+    g = torch.Generator().manual_seed(3)
+    h = (torch.rand(6, 7, 3, generator=g) * 4).requires_grad_(True)
+    nb = torch.rand(6, 7, 3, generator=g) * 4
+    flow = torch.zeros(6, 7, 2)
+    assert tlr_den_floor(h, 0.0) == 0.0
+    floor = tlr_den_floor(h, 0.25)
+    assert not floor.requires_grad
+    flat = np.sort(h.detach().numpy().ravel())
+    lower_median = flat[(flat.size - 1) // 2]  # torch's median: the lower of the middle two
+    assert float(floor) == pytest.approx(0.25 * float(lower_median), rel=1e-6)
+    loss = tlr_loss(h, nb, flow, den_floor=floor)
+    hand = ((nb - h.detach()).abs() / (nb + h.detach() + float(floor))).mean()
+    assert float(loss) == pytest.approx(float(hand), rel=1e-6)
+    (grad,) = torch.autograd.grad(loss, h)
+    expect = -torch.sign(nb - h.detach()) / (nb + h.detach() + float(floor)) / h.numel()
+    torch.testing.assert_close(grad, expect)
+    # the floor weighs the dark pixels down: their share of the gradient falls
+    dark = h.detach().mean(-1) < float(np.median(h.detach().numpy()))
+    (g0,) = torch.autograd.grad(tlr_loss(h, nb, flow), h)
+    share = lambda gr: float(gr.abs().sum(-1)[dark].sum() / gr.abs().sum())  # noqa: E731
+    assert share(grad) < share(g0)
+    # fraction 0: the same bits as the loss without the option
+    assert torch.equal(
+        tlr_loss(h, nb, flow, den_floor=tlr_den_floor(h, 0.0)), tlr_loss(h, nb, flow)
+    )
 
 
 def test_tlr_valid_mask_hand_case():

@@ -282,6 +282,11 @@ def test_validate_catches_values_set_directly():
         ("tonemap.pretrain_steps", -1, r">= 0 \(a number of iterations\)"),
         ("width", 0, r">= 1 \(pixels\)"),
         ("checkpoint_every", 0, ">= 1"),
+        (
+            "stage2.loss.tlr_den_floor",
+            -0.01,
+            r">= 0 \(a fraction of the render's median HDR value\)",
+        ),
     ],
 )
 def test_numbers_out_of_range_are_rejected_naming_the_key(key, value, message):

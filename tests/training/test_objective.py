@@ -19,10 +19,16 @@ from m4dgs.core import rotation as rot
 from m4dgs.core import spline
 from m4dgs.core.camera import K_from_fov
 from m4dgs.core.knn import knn
+from m4dgs.core.warp import backward_warp
 from m4dgs.losses.geometry import depth_loss, flow_from_destination_map, flow_loss, track_loss
 from m4dgs.losses.motion import acceleration_loss, velocity_loss
 from m4dgs.losses.photometric import rgb_loss, unit_exposure_loss
-from m4dgs.losses.temporal import hdr_reprojection_loss, tlr_loss, tlr_valid_mask
+from m4dgs.losses.temporal import (
+    flow_in_bounds,
+    hdr_reprojection_loss,
+    tlr_loss,
+    tlr_valid_mask,
+)
 from m4dgs.model.gaussians import WorldGaussians
 from m4dgs.training import objective
 from m4dgs.training.config import apply_overrides, preset
@@ -276,6 +282,33 @@ def test_tlr_neighbour_gradient_option(data):
         torch.testing.assert_close(g_auto, g_hand, rtol=1e-5, atol=1e-9)
         got[flag] = g_auto
     assert float((got[True] - got[False]).abs().max()) > 1e-3 * float(got[False].abs().max())
+
+
+def test_tlr_denominator_floor_option(data):
+    """loss.tlr_den_floor: the stage's TLR term is the term rebuilt by hand with the floor
+    fraction x the query render's median in every neighbour's denominator; 0 is the paper's."""
+    it = 10_000
+    for frac in (0.0, 0.05):
+        st = video_stage(data, **{"stage1.loss.flow_prob": 0.0, "stage1.loss.tlr_den_floor": frac})
+        draw = replay_sample(st, it)
+        i, j = draw["i"], draw["j"]
+        got = st.losses(it).terms["tlr"]
+        nbrs = [k for k in (i - 1, i + 1) if 0 <= k < T]
+        with torch.no_grad():
+            r = st.render(float(i), [float(j)] + [float(k) for k in nbrs])
+            floor = frac * float(r.hdr.median())
+            terms = []
+            for n_idx, k in enumerate(nbrs):
+                rn = st.render(float(k))
+                dm, alpha = r.dest[1 + n_idx], r.alpha
+                flow, fv = flow_from_destination_map(dm, alpha=alpha)
+                z = (dm / alpha.clamp_min(1e-6)[..., None])[..., 2]
+                valid = fv & tlr_valid_mask(flow, rn.depth, z, ratio=1.1)
+                warped = backward_warp(rn.hdr, flow)
+                err = (warped - r.hdr).abs() / (warped + r.hdr + 1e-10 + floor)
+                m = (valid & flow_in_bounds(flow))[..., None].float()
+                terms.append((err * m).sum() / (m.sum() * 3))
+        assert float(got) == pytest.approx(float(torch.stack(terms).mean()), rel=1e-5)
 
 
 def test_stage1_step_densifies_through_the_strategy_and_records(data):
