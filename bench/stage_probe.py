@@ -4,9 +4,9 @@ setting does to the fit in a few hundred steps, without training whole runs. A p
 mechanism, not a result: the arms start from a model trained under the run's own settings, with
 fresh optimiser states.
 
-    python bench/stage_probe.py CLIP RUN --start 8000 --steps 400 --window 100 \\
-        --override-file RUN/config.yaml --arm "w0.01:stage2.loss.lambda_tlr=0.01" \\
-        --arm "w0.1:stage2.loss.lambda_tlr=0.1" \\
+    python bench/stage_probe.py CLIP RUN --start 8000 --steps 600 --window 100 \\
+        --base-overrides "stage2.iterations=11000,stage2.densify_static.stop_iter=8000,..." \\
+        --arm "w0.01:stage2.loss.lambda_tlr=0.01" --arm "w0.1:stage2.loss.lambda_tlr=0.1" \\
         --arm "w0.1-floor:stage2.loss.lambda_tlr=0.1,stage2.loss.tlr_den_floor=0.01"
 
 RUN is a finished run folder of CLIP (read only; its models are copied to a temporary folder as
@@ -49,14 +49,24 @@ def parse_overrides(text: str) -> dict:
     return out
 
 
-def run_arm(clip: str, src: Path, overrides: dict, start: int, steps: int, seed: int) -> list:
-    """The per-step records of `steps` stage-2 steps from RUN's final model under `overrides`."""
+def run_arm(
+    clip: str,
+    src: Path,
+    overrides: dict,
+    start: int,
+    steps: int,
+    seed: int,
+    preset: str = "small",
+    variant: str = "full",
+) -> list:
+    """The per-step records of `steps` stage-2 steps from RUN's final model under the preset, the
+    variant and `overrides`."""
     tmp = Path(tempfile.mkdtemp(prefix="stage_probe_"))
     try:
         shutil.copytree(src / "model", tmp / "model")
         shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
         (tmp / "model" / "ckpt.pt").unlink(missing_ok=True)
-        tr = Trainer(clip, tmp, "small", "full", overrides, "cpu", progress=False)
+        tr = Trainer(clip, tmp, preset, variant, overrides, "cpu", progress=False)
         st, first = make_stage(tr, src, "stage2", start, final=True)
         torch.manual_seed(seed)
         return [st.step(it) for it in range(first, first + steps)]
@@ -73,6 +83,8 @@ def main() -> None:
     ap.add_argument("--start", type=int, required=True, help="schedule position of the first step")
     ap.add_argument("--steps", type=int, default=400, help="steps per arm")
     ap.add_argument("--window", type=int, default=100, help="steps averaged per printed value")
+    ap.add_argument("--preset", default="small", choices=["tiny", "small", "paper"])
+    ap.add_argument("--variant", default="full", help="the run's variant")
     ap.add_argument("--base-overrides", default="", help="KEY=VALUE,... for every arm")
     ap.add_argument(
         "--arm",
@@ -95,7 +107,8 @@ def main() -> None:
     )
     for spec in a.arm:
         name, _, ov = spec.partition(":")
-        recs = run_arm(a.clip, src, {**base, **parse_overrides(ov)}, a.start, a.steps, a.seed)
+        ovr = {**base, **parse_overrides(ov)}
+        recs = run_arm(a.clip, src, ovr, a.start, a.steps, a.seed, a.preset, a.variant)
         for t in terms:
             vals = []
             for w0 in range(0, len(recs), a.window):
