@@ -28,7 +28,7 @@ import torch  # noqa: E402
 
 from m4dgs.core.io import read_exr  # noqa: E402
 from m4dgs.core.warp import backward_warp  # noqa: E402
-from m4dgs.losses.temporal import flow_in_bounds  # noqa: E402
+from m4dgs.losses.temporal import flow_in_bounds, relative_difference  # noqa: E402
 
 
 def pixel_values(frames: Path, flows: dict, every: int = 1):
@@ -50,9 +50,8 @@ def pixel_values(frames: Path, flows: dict, every: int = 1):
         vis = torch.from_numpy(flows["valid"][k]) & flow_in_bounds(flow)
         A = frame(a)
         w = backward_warp(frame(b), flow)
-        den = w + A + 1e-10
-        vals.append(((w - A).abs() / den).mean(-1)[vis].numpy())
-        grads.append((1.0 / den).mean(-1)[vis].numpy())
+        vals.append(relative_difference(w, A).mean(-1)[vis].numpy())
+        grads.append((1.0 / (w + A + 1e-10)).mean(-1)[vis].numpy())
         lums.append(A.mean(-1)[vis].numpy())
     return np.concatenate(vals), np.concatenate(grads), np.concatenate(lums)
 
