@@ -255,6 +255,11 @@ _out_opt = click.option(
     "clips in ROOT/clips/<setting>/<scene>, runs in ROOT/runs/<suite>/<scene>/<row>, figures in "
     "ROOT/figures/<suite>. One ROOT per preset.",
 )
+_scenes_opt = click.option(
+    "--scenes",
+    default=None,
+    help="Comma-separated subset of the scenes (default: all of each suite's scenes).",
+)
 _preset_opt = click.option(
     "--preset",
     type=click.Choice(["tiny", "small", "paper"]),
@@ -262,7 +267,7 @@ _preset_opt = click.option(
     show_default=True,
     help="Clip preset AND training preset (tiny: tests and the demo).",
 )
-_lpips_opt = click.option(
+_run_lpips_opt = click.option(
     "--lpips-weights",
     default=None,
     type=click.Path(exists=True, dir_okay=False),
@@ -298,7 +303,7 @@ _no_share_opt = click.option(
 @_out_opt
 @_preset_opt
 @_jobs_opt
-@click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
+@_scenes_opt
 @click.option(
     "--seeds",
     default=1,
@@ -317,7 +322,7 @@ _no_share_opt = click.option(
     "exit.",
 )
 @click.option("--clips-only", is_flag=True, help="Only make the missing clips.")
-@_lpips_opt
+@_run_lpips_opt
 @_device_opt
 @_no_share_opt
 @click.option(
@@ -408,7 +413,7 @@ def run(
     help="Only make the job's clip (run this once per clip before fan-out).",
 )
 @click.option("--force", is_flag=True, help="Recompute metrics.json even if it exists.")
-@_lpips_opt
+@_run_lpips_opt
 @_device_opt
 @_no_share_opt
 def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, device, no_share):
@@ -590,7 +595,7 @@ def build_tables(
     type=click.Path(dir_okay=False),
     help="Write the tables to this file (atomically) instead of stdout.",
 )
-@click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
+@_scenes_opt
 @click.option(
     "--seeds",
     default=None,
@@ -677,7 +682,7 @@ _runs_csv_opt = click.option(
     help="Finish a step whose finished runs were trained with other m4dgs code than this "
     "checkout's (by default the campaign stops there: one table, one code version).",
 )
-@_lpips_opt
+@_run_lpips_opt
 @_device_opt
 @_no_share_opt
 def campaign(
@@ -714,7 +719,7 @@ def campaign(
     help="Experiment root of the suites (runs in ROOT/runs/<suite>).",
 )
 @_runs_csv_opt
-@click.option("--scenes", default=None, help="Comma-separated subset of the suites' scenes.")
+@_scenes_opt
 @click.option(
     "--seeds",
     default=None,
@@ -935,7 +940,7 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, edges, js
 @click.option(
     "--rows", "row_names", required=True, help="Comma-separated rows to compare with --ref."
 )
-@click.option("--scenes", default=None, help="Comma-separated subset of the suite's scenes.")
+@_scenes_opt
 @click.option(
     "--seeds",
     default=1,
