@@ -18,6 +18,7 @@ import click
 
 from benchgen.exposure import SCHEDULES
 from m4dgs.core.errors import InputError, ReportingGroup
+from m4dgs.footage_options import prior_file_options
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
@@ -244,40 +245,7 @@ def make(
     ".png/.tif per frame, from a monocular depth model; one map per HDR frame also works (the "
     "training ones are taken). Required unless --ldr-only.",
 )
-@click.option(
-    "--depth-kind",
-    type=click.Choice(["depth", "disparity"]),
-    default="depth",
-    show_default=True,
-    help="What --depth holds: depth, or disparity (inverse depth).",
-)
-@click.option(
-    "--tracks",
-    default=None,
-    type=click.Path(dir_okay=False, exists=True),
-    help="Point tracks over the training frames [T, N, 2] in pixels (.npz with 'tracks' and "
-    "'visibility', or .npy). Default: tracks chained through DIS flow.",
-)
-@click.option(
-    "--visibility",
-    default=None,
-    type=click.Path(dir_okay=False, exists=True),
-    help="[T, N] visibility .npy for a --tracks .npy (default: all visible).",
-)
-@click.option(
-    "--track-pixel-centre",
-    type=click.Choice(["0", "0.5"]),
-    default="0",
-    show_default=True,
-    help="Coordinate of the first pixel's centre in the given tracks.",
-)
-@click.option(
-    "--flow",
-    default=None,
-    type=click.Path(file_okay=False, exists=True),
-    help="Optional flow prior: <a>_<b>.flo or .npy files between training-frame positions a and b "
-    "(0 = the first training frame).",
-)
+@prior_file_options
 @click.option(
     "--gt-flow",
     default=None,
@@ -405,10 +373,10 @@ def from_hdr(
         hdr=P(hdr_dir),
         depth=None if depth is None else P(depth),
         depth_kind=depth_kind,
-        tracks=None if tracks is None else P(tracks),
-        visibility=None if visibility is None else P(visibility),
+        tracks=tracks,
+        visibility=visibility,
         track_pixel_centre=float(track_pixel_centre),
-        flow=None if flow is None else P(flow),
+        flow=flow,
         gt_flow=None if gt_flow is None else P(gt_flow),
         exposures=int(num_exposures),
         observed=_levels(observed),

@@ -18,6 +18,7 @@ import click
 
 from m4dgs.core.errors import ReportingGroup
 from m4dgs.core.lock import FolderLock
+from m4dgs.footage_options import prior_file_options
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
@@ -251,41 +252,7 @@ def variants(preset):
     help="Depth prior (required): one [T, H, W] .npy/.npz, or a folder with one .npy/.npz/.exr/"
     "16-bit .png/.tif per frame, from a monocular depth model; any scale.",
 )
-@click.option(
-    "--depth-kind",
-    type=click.Choice(["depth", "disparity"]),
-    default="depth",
-    show_default=True,
-    help="What --depth holds: depth, or disparity (inverse depth, as many models write).",
-)
-@click.option(
-    "--tracks",
-    default=None,
-    type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    help="Point tracks [T, N, 2] in pixels ([T, N, 3] x, y, depth tracks are read as x, y): an "
-    ".npz with 'tracks' and 'visibility' (or 'visible'), or an .npy (visibility: --visibility). "
-    "Default: long tracks chained through DIS optical flow with a forward-backward check.",
-)
-@click.option(
-    "--visibility",
-    default=None,
-    type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    help="[T, N] visibility .npy for a --tracks .npy (default: all visible).",
-)
-@click.option(
-    "--track-pixel-centre",
-    default="0",
-    show_default=True,
-    type=click.Choice(["0", "0.5"]),
-    help="Coordinate of the first pixel's centre in the given tracks (0: integer pixel centres).",
-)
-@click.option(
-    "--flow",
-    default=None,
-    type=click.Path(exists=True, file_okay=False, path_type=Path),
-    help="Optional flow prior: a folder of <a>_<b>.flo or <a>_<b>.npy files between frame "
-    "positions a and b (default: the trainer computes DIS flow).",
-)
+@prior_file_options
 @click.option(
     "--every",
     default=1,
