@@ -277,6 +277,29 @@ def step_status(
     }
 
 
+def root_rates(root, preset: str) -> List[float]:
+    """Recorded training seconds per iteration of every scored run under ROOT/runs/<suite>/<scene>/
+    <row> at `preset`, whatever its suite: run.json `train_seconds` over the iterations its
+    config.yaml names (stage 1's only where run.json's `stage_seconds` has a stage 1). The
+    campaign's estimate falls back on these when none of its own runs has finished."""
+    rates = []
+    for info_path in sorted(Path(root, "runs").glob("*/*/*/run.json")):
+        run = info_path.parent
+        if not (run / "metrics.json").exists() or not (run / "config.yaml").exists():
+            continue
+        try:
+            info = mio.read_json(info_path)
+            cfg = yaml.safe_load((run / "config.yaml").read_text()) or {}
+            sec = info.get("train_seconds")
+            s1 = int(cfg["stage1"]["iterations"]) if "stage1" in info["stage_seconds"] else 0
+            s2 = int(cfg["stage2"]["iterations"])
+        except (OSError, ValueError, KeyError, TypeError, yaml.YAMLError):
+            continue  # a run folder of another layout: no rate, not an error of the campaign
+        if info.get("preset") == preset and isinstance(sec, (int, float)) and sec > 0:
+            rates.append(float(sec) / max(s1 + s2, 1))
+    return rates
+
+
 def estimate_hours(todo_iterations: int, sec_per_iteration: float, jobs: int) -> float:
     """Hours for `todo_iterations` at the recorded seconds per iteration of one run, `jobs` runs
     at a time."""
@@ -326,6 +349,12 @@ def run_campaign(
     # campaign, in this root or in the CSV (one machine, one --jobs setting make it meaningful)
     statuses = [step_status(st, root, campaign.preset, recorded) for st in campaign.steps]
     rates = sorted(r for s in statuses for r in s["sec_per_iteration"])
+    rate_source = "scored run(s) of this campaign in this root or the CSV"
+    if not rates and any(s["todo_iterations"] for s in statuses):
+        # none of its own runs has finished: the other suites' runs in this root (same preset,
+        # same machine as far as the root goes) say at least how fast this machine trains
+        rates = sorted(root_rates(root, campaign.preset))
+        rate_source = "scored run(s) of other suites in this root (none of this campaign's yet)"
     rate = rates[len(rates) // 2] if rates else None
     # a stage 1 that rows share (in the share folder already, or made by an earlier job) counts once
     for s, todo in zip(statuses, todo_iterations(statuses)):
@@ -402,13 +431,14 @@ def run_campaign(
             )
     if dry_run and rate is None and any(s["todo_iterations"] for s in statuses):
         say(
-            f"[campaign {campaign.name}] no time estimate: none of its runs has finished yet (the "
-            "estimate is their median recorded seconds per iteration)"
+            f"[campaign {campaign.name}] no time estimate: none of its runs has finished yet, nor "
+            "any other run at this preset in this root (the estimate is their median recorded "
+            "seconds per iteration)"
         )
     if dry_run and left:
         say(
             f"[campaign {campaign.name}] estimate: ~{left:.1f} h of training left at --jobs {jobs} "
-            f"(median {rate:.3f} s per iteration over {len(rates)} scored run(s) in this root or "
-            "the CSV; a stage 1 that rows share counted once, a run another suite repeats too)"
+            f"(median {rate:.3f} s per iteration over {len(rates)} {rate_source}; a stage 1 that "
+            "rows share counted once, a run another suite repeats too)"
         )
     return out

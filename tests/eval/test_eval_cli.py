@@ -1187,6 +1187,46 @@ def test_campaign_time_estimate_from_recorded_seconds(tmp_path, fake_trainer):
     assert [ln.split(":")[0].split()[-1] for ln in lines if "] step " in ln] == ["1/2", "2/2"]
 
 
+def test_campaign_time_estimate_falls_back_on_the_roots_other_runs(tmp_path):
+    """Before any run of its own has finished, the estimate takes the median seconds per iteration
+    of the other suites' scored runs in the root at the campaign's preset: train_seconds over the
+    config's iterations, stage 1's only when the run trained one; unscored runs and runs at another
+    preset do not count."""
+    import yaml
+
+    from eval.campaign import run_campaign
+    from m4dgs.core import io as mio
+    from m4dgs.training.variants import budget
+
+    suite, out, csv_path, camp = _two_step_campaign(tmp_path)
+
+    def other_run(name, preset, seconds, stage1, iters1, iters2, scored=True):
+        run = out / "runs" / "other-suite" / "some-scene" / name
+        run.mkdir(parents=True)
+        stages = {"stage1": 1.0, "stage2": 1.0} if stage1 else {"stage2": 1.0}
+        info = {"preset": preset, "train_seconds": seconds, "stage_seconds": stages}
+        mio.write_json(run / "run.json", info)
+        cfg = {"stage1": {"iterations": iters1}, "stage2": {"iterations": iters2}}
+        (run / "config.yaml").write_text(yaml.safe_dump(cfg))
+        if scored:
+            mio.write_json(run / "metrics.json", {})
+
+    other_run("a", "tiny", 300.0, True, 100, 200)  # 1.0 s per iteration
+    other_run("b", "tiny", 150.0, False, 100, 200)  # no stage 1: 0.75 (0.5 if it were counted)
+    other_run("c", "tiny", 60.0, True, 100, 200)  # 0.2
+    other_run("d", "small", 30000.0, True, 100, 200)  # another preset
+    other_run("e", "tiny", 30000.0, True, 100, 200, scored=False)  # not finished
+    lines = []
+    plan = run_campaign(camp, out, csv_path, dry_run=True, jobs=2, code="0" * 64, log=lines.append)
+    it = {v: budget("tiny", v)[2] for v in ("world-only", "full")}
+    # step 1: one scene x (world-only, full) x one seed, nothing scored
+    assert plan[0]["estimate_hours"] == pytest.approx(
+        (it["world-only"] + it["full"]) * 0.75 / 2 / 3600
+    )
+    assert any("over 3 scored run(s) of other suites in this root" in ln for ln in lines)
+    assert not any("no time estimate" in ln for ln in lines)
+
+
 def test_campaign_runs_exports_resumes_and_guards_the_code(tmp_path, fake_trainer):
     import csv
 
