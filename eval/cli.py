@@ -62,7 +62,7 @@ def main():
 
 
 # --------------------------------------------------------------------------------------------------
-# options of both scorers (`score` and `score-frames`)
+# options of the scorers (`score`, `score-frames`); --lpips-weights also of `run`, `job`, `campaign`
 _lpips_opt = click.option(
     "--lpips-weights",
     default=None,
@@ -267,12 +267,6 @@ _preset_opt = click.option(
     show_default=True,
     help="Clip preset AND training preset (tiny: tests and the demo).",
 )
-_run_lpips_opt = click.option(
-    "--lpips-weights",
-    default=None,
-    type=click.Path(exists=True, dir_okay=False),
-    help="LPIPS weights file passed to the scoring (LPIPS is n/a without it).",
-)
 _device_opt = click.option(
     "--device",
     default="auto",
@@ -322,7 +316,7 @@ _no_share_opt = click.option(
     "exit.",
 )
 @click.option("--clips-only", is_flag=True, help="Only make the missing clips.")
-@_run_lpips_opt
+@_lpips_opt
 @_device_opt
 @_no_share_opt
 @click.option(
@@ -413,7 +407,7 @@ def run(
     help="Only make the job's clip (run this once per clip before fan-out).",
 )
 @click.option("--force", is_flag=True, help="Recompute metrics.json even if it exists.")
-@_run_lpips_opt
+@_lpips_opt
 @_device_opt
 @_no_share_opt
 def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, device, no_share):
@@ -682,7 +676,7 @@ _runs_csv_opt = click.option(
     help="Finish a step whose finished runs were trained with other m4dgs code than this "
     "checkout's (by default the campaign stops there: one table, one code version).",
 )
-@_run_lpips_opt
+@_lpips_opt
 @_device_opt
 @_no_share_opt
 def campaign(
