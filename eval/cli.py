@@ -951,11 +951,19 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, edges, js
 )
 @_region_options
 @click.option(
+    "--against",
+    default=None,
+    metavar="SUITE:REF:ROW",
+    help="Also print each row's change against another effect in the same root: (row - --ref) "
+    "minus (ROW - REF) of SUITE, per (scene, seed) pair that both have, per region (a control's "
+    "difference in differences, e.g. control-tlr-priors:full:full-tlr-0.1).",
+)
+@click.option(
     "--json",
     "json_path",
     default=None,
     type=click.Path(dir_okay=False),
-    help="Also write every pair's differences to this JSON file.",
+    help="Also write every pair's differences (and, with --against, changes) to this JSON file.",
 )
 def region_pairs(
     suite,
@@ -969,48 +977,66 @@ def region_pairs(
     bright_top,
     dilate,
     edges,
+    against,
     json_path,
 ):
     """Paired region differences over SUITE's (scene, seed) pairs: for each row, how its PSNR of
     each region alone and with each region left out (as `regions` splits a run) differs from
     --ref's, per pair and as the mean with its Student-t 95 % interval over the pairs (as
-    `pairs` gives the scores'). Reads the runs' test renders, so it needs the suite's root."""
+    `pairs` gives the scores'). Reads the runs' test renders, so it needs the suite's root.
+    --against: each row's change against another suite's effect (a control's reading by region)."""
     from m4dgs.core.errors import InputError
 
-    from .regions import format_region_pairs, suite_region_pairs
+    from .regions import format_region_pairs, region_changes, suite_region_pairs
 
     _check_bright(bright_above, bright_top)
     rows = [n.strip() for n in row_names.split(",") if n.strip()]
+    base_spec = None
+    if against is not None:
+        base_spec = [p.strip() for p in against.split(":")]
+        if len(base_spec) != 3 or not all(base_spec):
+            raise click.BadParameter(
+                f"{against!r}: give SUITE:REF:ROW, e.g. control-tlr-priors:full:full-tlr-0.1",
+                param_hint="--against",
+            )
+    kw = dict(
+        scenes=_scenes(scenes),
+        seeds=seeds,
+        domain=domain,
+        bright_above=bright_above,
+        bright_top=bright_top,
+        dilate=dilate,
+        edges=edges,
+        log=lambda s: click.echo(s, err=True),
+    )
     try:
-        res = suite_region_pairs(
-            suite,
-            out,
-            ref,
-            rows,
-            scenes=_scenes(scenes),
-            seeds=seeds,
-            domain=domain,
-            bright_above=bright_above,
-            bright_top=bright_top,
-            dilate=dilate,
-            edges=edges,
-            log=lambda s: click.echo(s, err=True),
-        )
+        res = suite_region_pairs(suite, out, ref, rows, **kw)
+        changes = None
+        if base_spec is not None:
+            b_suite, b_ref, b_row = base_spec
+            base = suite_region_pairs(b_suite, out, b_ref, [b_row], **kw)
+            changes = region_changes(res, base, b_suite, b_row)
     except (InputError, KeyError, ValueError, FileNotFoundError) as e:
         raise click.ClickException(str(e.args[0]) if isinstance(e, KeyError) else str(e)) from e
     click.echo(format_region_pairs(res), nl=False)
+    if changes is not None:
+        click.echo("\nChange against " + against + ":\n")
+        click.echo(format_region_pairs(changes).split("\n", 2)[2], nl=False)
+
+    def pairs_of(r):
+        return [
+            {"row": row, "scene": scene, "seed": seed, "diffs": d}
+            for row, per in r["diffs"].items()
+            for (scene, seed), d in per.items()
+        ]
+
     if json_path:
-        mio.write_json(
-            json_path,
-            {
-                **{k: res[k] for k in ("domain", "ref", "regions", "missing")},
-                "pairs": [
-                    {"row": row, "scene": scene, "seed": seed, "diffs": d}
-                    for row, per in res["diffs"].items()
-                    for (scene, seed), d in per.items()
-                ],
-            },
-        )
+        doc = {k: res[k] for k in ("domain", "ref", "regions", "missing")}
+        doc["pairs"] = pairs_of(res)
+        if changes is not None:
+            doc["against"] = against
+            doc["changes"] = pairs_of(changes)
+        mio.write_json(json_path, doc)
 
 
 @main.command("error-maps")

@@ -551,18 +551,49 @@ def suite_region_pairs(
     return {"domain": domain, "ref": ref, "regions": opts, "diffs": diffs, "missing": missing}
 
 
+def region_changes(result: dict, base: dict, base_suite: str, base_row: str) -> dict:
+    """The difference in differences per region: each row's (row - ref) of `result` minus
+    (base_row - base's ref) of `base` (both suite_region_pairs results over the same domain and
+    region options, e.g. a control suite's effect against its base suite's), per (scene, seed)
+    pair that both hold, per quantity where both have a value. Returns a result of the same shape
+    (format_region_pairs prints it) with "titles" naming each row's two effects."""
+    if base["domain"] != result["domain"] or base["regions"] != result["regions"]:
+        raise ValueError("the two results must share the domain and the region options")
+    effect = base["diffs"].get(base_row, {})
+    diffs: Dict[str, Dict[tuple, dict]] = {}
+    titles = {}
+    for row, per_pair in result["diffs"].items():
+        diffs[row] = {}
+        for key, d in per_pair.items():
+            if key in effect:
+                e = effect[key]
+                diffs[row][key] = {q: _diff(d[q], e.get(q)) for q in d}
+        titles[row] = f"({row} - {result['ref']}) - ({base_suite}: {base_row} - {base['ref']})"
+    missing = list(dict.fromkeys(result["missing"] + base["missing"]))
+    return {
+        "domain": result["domain"],
+        "ref": result["ref"],
+        "regions": result["regions"],
+        "diffs": diffs,
+        "missing": missing,
+        "titles": titles,
+    }
+
+
 def format_region_pairs(result: dict) -> str:
     """Markdown, one table per row: per quantity the mean of row - ref over the pairs with its
     Student-t 95 % interval (eval.stats.mean_ci, † where it excludes 0), how many pairs are above
     0, then each pair's value (scenes by name, then seeds); the quantities of pair_quantities, the
-    bright region's only where the split had one (--bright-above / --bright-top)."""
+    bright region's only where the split had one (--bright-above / --bright-top); a region_changes
+    result is titled by its two effects."""
     from .pairs import interval_text
     from .stats import mean_ci
 
     out = [describe_regions(**result["regions"]), ""]
     for row, per_pair in result["diffs"].items():
         keys = sorted(per_pair, key=lambda k: (str(k[0]), k[1]))
-        out += [f"{row} - {result['ref']}, {result['domain']} (dB)", ""]
+        title = result.get("titles", {}).get(row, f"{row} - {result['ref']}")
+        out += [f"{title}, {result['domain']} (dB)", ""]
         if not keys:
             out += ["no pair with both runs' test renders", ""]
             continue

@@ -315,6 +315,64 @@ def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
     assert bad.exit_code != 0 and "LDR-XX" in bad.output
 
 
+def test_region_pairs_against_another_suite_gives_the_difference_in_differences(
+    tiny_clip_realistic, tmp_path
+):
+    """`region-pairs SUITE --against BASE:REF:ROW`: per (scene, seed) pair, (row - ref) of SUITE
+    minus (ROW - REF) of BASE, checked against the scorer's own PSNRs of the four runs of each
+    pair (ldr_oe_psnr, dyn_ldr_psnr); a seed only one suite has is left out; a malformed spec is
+    refused."""
+    import yaml
+
+    from eval.runner import seed_run_name
+
+    clip = Clip.open(tiny_clip_realistic)
+    scene = clip.meta.name
+    shutil.copytree(tiny_clip_realistic, tmp_path / "clips" / scene)
+    root = tmp_path / "root"
+    scores = {}
+    # control: a (2 codes) / b (8, 4 codes) at seeds 0, 1; base: r (2) / s (5) at seed 0 only
+    plan = {"control": [("a", 0, 2), ("a", 1, 2), ("b", 0, 8), ("b", 1, 4)]}
+    plan["base"] = [("r", 0, 2), ("s", 0, 5)]
+    for name, runs in plan.items():
+        rows = [{"name": n, "variant": "full"} for n in dict.fromkeys(r for r, _, _ in runs)]
+        doc = {
+            "name": name,
+            "scenes": {"clips": "clips"},
+            "rows": rows,
+            "reference": rows[0]["name"],
+        }
+        (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(doc))
+        for row, seed, codes in runs:
+            run = seed_run_name(row, seed)
+            pred = _write_pred(clip, tmp_path / "pred" / name / run, codes)
+            _, scores[name, row, seed] = score_frames(
+                tiny_clip_realistic, pred, run, root / "runs" / name / scene / run
+            )
+    js = tmp_path / "changes.json"
+    args = ["region-pairs", str(tmp_path / "control.yaml"), "--root", str(root), "--ref", "a"]
+    args += ["--rows", "b", "--seeds", "2", "--json", str(js)]
+    res = CliRunner().invoke(main, args + ["--against", f"{tmp_path / 'base.yaml'}:r:s"])
+    assert res.exit_code == 0, res.output
+    doc = mio.read_json(js)
+    changes = {(c["row"], c["seed"]): c["diffs"] for c in doc["changes"]}
+    assert set(changes) == {("b", 0)}  # the base has no seed 1
+    sc = {k: v for k, v in scores.items() if k[2] == 0}
+    want_psnr = (sc["control", "b", 0]["ldr_oe_psnr"] - sc["control", "a", 0]["ldr_oe_psnr"]) - (
+        sc["base", "s", 0]["ldr_oe_psnr"] - sc["base", "r", 0]["ldr_oe_psnr"]
+    )
+    want_dyn = (sc["control", "b", 0]["dyn_ldr_psnr"] - sc["control", "a", 0]["dyn_ldr_psnr"]) - (
+        sc["base", "s", 0]["dyn_ldr_psnr"] - sc["base", "r", 0]["dyn_ldr_psnr"]
+    )
+    assert changes["b", 0]["PSNR"] == pytest.approx(want_psnr, abs=1e-9)
+    assert changes["b", 0]["dynamic alone"] == pytest.approx(want_dyn, abs=1e-9)
+    assert want_dyn < 0  # 8 codes against 2 loses more than 5 against 2
+    assert changes["b", 0]["static alone"] == 0.0
+    assert "(b - a) - (" in res.output and ": s - r), LDR-OE (dB)" in res.output
+    bad = CliRunner().invoke(main, args + ["--against", "base:r"])
+    assert bad.exit_code != 0 and "SUITE:REF:ROW" in bad.output
+
+
 def _edges_by_loops(z: np.ndarray, rel: float) -> np.ndarray:
     """The edge region spelt out pixel by pixel: a pixel is an edge when one of its 4-neighbours'
     depths is more than (1 + rel) times the nearer of the two (no depth: farther than all)."""
