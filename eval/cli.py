@@ -789,7 +789,15 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
     help="Also each comparison's paired t-test p-value adjusted by Holm's method over every "
     "comparison printed (rows x metrics; † below 0.05), and how many survive.",
 )
-def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm):
+@click.option(
+    "--against",
+    default=None,
+    metavar="SUITE:REF:ROW",
+    help="Print instead each difference's change against SUITE's ROW - REF of the same (scene, "
+    "seed) pairs (a control's difference in differences, as results.md's Controls read it; e.g. "
+    "control-tlr-priors:full:full-tlr-0.1).",
+)
+def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm, against):
     """Print the paired differences row - ref of SUITE (a built-in suite's name or a suite YAML
     file) per (scene, seed) from the runs CSV, with their mean and 95 % interval: the per-scene
     values the hand-written results notes quote."""
@@ -798,9 +806,24 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm):
 
     names = [n.strip() for n in row_names.split(",") if n.strip()] if row_names else None
     mets = [m.strip() for m in metrics.split(",") if m.strip()]
+    spec = None
+    if against is not None:
+        spec = [p.strip() for p in against.split(":")]
+        if len(spec) != 3 or not all(spec):
+            raise click.BadParameter(
+                f"{against!r}: give SUITE:REF:ROW, e.g. control-tlr-priors:full:full-tlr-0.1",
+                param_hint="--against",
+            )
     try:
         text = pairs_markdown(
-            read_runs_csv(csv_path), suite, ref, names, mets, by_seed=by_seed, holm=holm
+            read_runs_csv(csv_path),
+            suite,
+            ref,
+            names,
+            mets,
+            by_seed=by_seed,
+            holm=holm,
+            against=spec,
         )
     except ValueError as e:
         raise click.UsageError(f"{csv_path}: {e}") from e

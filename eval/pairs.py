@@ -20,7 +20,13 @@ factor, F and p; a per-scene pattern seen at one seed has replicated when p is s
 
 With `holm` (`--holm`): the p-value of each printed comparison's paired t-test adjusted by Holm's
 step-down method over all the comparisons printed (rows x metrics: the family a reading draws its
-verdicts from; `eval.stats.holm`), † where it is below 0.05, and a closing line counting them."""
+verdicts from; `eval.stats.holm`), † where it is below 0.05, and a closing line counting them.
+
+With `against` (`--against SUITE:REF:ROW`): instead of the differences themselves, their change
+against another suite's difference ROW - REF of the same (scene, seed) pairs, those that both have:
+a control's difference in differences (the results page's Controls), per pair and over them,
+e.g. `m4dgs-eval pairs control-tlr-scale --rows full-tlr-0.1-paper-schedule --against
+control-tlr-priors:full:full-tlr-0.1`."""
 
 from __future__ import annotations
 
@@ -68,12 +74,15 @@ def pairs_markdown(
     metrics: Sequence[str] = DEFAULT_METRICS,
     by_seed: bool = False,
     holm: bool = False,
+    against: Optional[Sequence[str]] = None,
 ) -> str:
     """Markdown tables of the paired differences of `row_names` (default: every row of the suite
     in the CSV but the reference) against `ref` (default: the suite file's reference row). `suite`
     is a built-in suite's name or a suite YAML file (its `name` is the CSV's suite); with
     `by_seed`, also per trainer seed and the F-test of scene differences; with `holm`, the
-    Holm-adjusted p-values over every printed comparison (module docstring).
+    Holm-adjusted p-values over every printed comparison; with `against` = (suite, ref, row), each
+    difference less that suite's row - ref of the same (scene, seed): the change, as the results
+    page's Controls read it (module docstring).
     Raises ValueError naming what the CSV lacks."""
     from pathlib import Path
 
@@ -108,8 +117,28 @@ def pairs_markdown(
     if bad:
         raise ValueError(f"unknown metrics {bad} (known: {sorted(cols)})")
     fmts = {m: cols[m].fmt for m in metrics}
-    out = []
     diffs_of = {n: {m: pair_differences(rows, suite, n, ref, m) for m in metrics} for n in wanted}
+    titles = {n: f"{suite}: {n} - {ref}" for n in wanted}
+    if against is not None:
+        b_suite, b_ref, b_row = against
+        if not any(r["suite"] == b_suite and r.get("status") == SCORED for r in rows):
+            raise ValueError(f"--against: no scored run of suite {b_suite!r} in the CSV")
+        b_names = {r["row"] for r in rows if r["suite"] == b_suite and r.get("status") == SCORED}
+        missing = [n for n in (b_ref, b_row) if n not in b_names]
+        if missing:
+            raise ValueError(
+                f"--against: suite {b_suite!r} has no scored run of rows {missing} "
+                f"(rows: {sorted(b_names)})"
+            )
+        base = {m: pair_differences(rows, b_suite, b_row, b_ref, m) for m in metrics}
+        diffs_of = {
+            n: {m: {k: v - base[m][k] for k, v in d[m].items() if k in base[m]} for m in metrics}
+            for n, d in diffs_of.items()
+        }
+        titles = {
+            n: f"change: ({suite}: {n} - {ref}) - ({b_suite}: {b_row} - {b_ref})" for n in wanted
+        }
+    out = []
     family = [(n, m) for n in wanted for m in metrics]
     pooled_of = {(n, m): mean_ci(diffs_of[n][m].values()) for n, m in family}
     adjusted = dict(zip(family, holm_adjust([pooled_of[k].p for k in family]))) if holm else {}
@@ -119,7 +148,7 @@ def pairs_markdown(
         seeds = sorted({k[1] for k in keys}) if by_seed else []
         extra = [f"seed {sd} (n)" for sd in seeds] + (["scenes differ (F-test)"] if by_seed else [])
         out += [
-            f"{suite}: {name} - {ref}",
+            titles[name],
             "",
             "| metric | mean ± 95 % (n) | "
             + ("Holm p | " if holm else "")

@@ -250,3 +250,56 @@ def test_pairs_holm_marks_what_the_sequential_procedure_rejects(tmp_path):
     assert (
         f"over the 8 comparisons printed (rows x metrics): {sum(want.values())} exclude" in r.output
     )
+
+
+def test_pairs_against_another_suites_effect_is_the_difference_in_differences(tmp_path):
+    """`pairs SUITE --against BASE:REF:ROW`: per (scene, seed) pair both suites have, (row - ref)
+    minus BASE's (ROW - REF), recomputed here from the CSV values with numpy / scipy; a pair only
+    one suite has is left out; unknown suites or rows and a malformed spec are named."""
+    from eval.results import read_runs_csv, write_runs_csv
+
+    rng = np.random.default_rng(3)
+    rows = _rows(rng)  # paper-ablation: no-reproj - full, 5 pairs (c-scene / 1 has one side only)
+    for scene in ("a-scene", "b-scene", "c-scene"):
+        for seed in (0, 1):
+            if (scene, seed) == ("b-scene", 1):
+                continue  # the base lacks this pair: it drops out of the change
+            base = 31 + rng.random()
+            for row, lead in (("full", 0.0), ("no-reproj", 0.1 + rng.normal(0, 0.3))):
+                rows.append(
+                    dict(suite="control-reproj", scene=scene, row=row, seed=seed, status="scored")
+                    | dict(ldr_oe_psnr=base + lead, hdr_tae=0.1)
+                )
+    csv_path = tmp_path / "runs.csv"
+    write_runs_csv(csv_path, rows)
+    got = read_runs_csv(csv_path)
+    val = {(r["suite"], r["scene"], r["seed"], r["row"]): r["ldr_oe_psnr"] for r in got}
+    keys = [("a-scene", 0), ("a-scene", 1), ("b-scene", 0), ("c-scene", 0)]
+    want = np.array(
+        [
+            (val["paper-ablation", s, sd, "no-reproj"] - val["paper-ablation", s, sd, "full"])
+            - (val["control-reproj", s, sd, "no-reproj"] - val["control-reproj", s, sd, "full"])
+            for s, sd in keys
+        ]
+    )
+    res = _pairs_cli(
+        csv_path, "paper-ablation", "ldr_oe_psnr", "--rows", "no-reproj",
+        "--against", "control-reproj:full:no-reproj",
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert res.output.startswith(
+        "change: (paper-ablation: no-reproj - full) - (control-reproj: no-reproj - full)"
+    )
+    line = next(ln for ln in res.output.splitlines() if ln.startswith("| LDR-OE PSNR |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    half = stats.t.ppf(0.975, len(want) - 1) * want.std(ddof=1) / np.sqrt(len(want))
+    dag = "†" if abs(want.mean()) > half else ""
+    assert cells[1] == f"{want.mean():+.2f} ± {half:.2f}{dag} (4)"
+    assert cells[4:] == [f"{v:+.2f}" for v in want]  # a-scene / 0, a-scene / 1, b-scene / 0, c / 0
+    for spec, msg in (
+        ("control-reproj:full", "SUITE:REF:ROW"),
+        ("nope:full:no-reproj", "no scored run of suite 'nope'"),
+        ("control-reproj:full:no-such-row", "no-such-row"),
+    ):
+        bad = _pairs_cli(csv_path, "paper-ablation", "ldr_oe_psnr", "--against", spec)
+        assert bad.exit_code != 0 and msg in bad.output, (spec, bad.output)
