@@ -748,6 +748,20 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
     click.echo(f"wrote {csv_path}", err=True)
 
 
+def _against_spec(against):
+    """[suite, ref, row] of an --against SUITE:REF:ROW value (None without one); a usage error
+    otherwise."""
+    if against is None:
+        return None
+    spec = [p.strip() for p in against.split(":")]
+    if len(spec) != 3 or not all(spec):
+        raise click.BadParameter(
+            f"{against!r}: give SUITE:REF:ROW, e.g. control-tlr-priors:full:full-tlr-0.1",
+            param_hint="--against",
+        )
+    return spec
+
+
 @main.command()
 @click.argument("suite")
 @click.option(
@@ -806,14 +820,7 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm, against):
 
     names = [n.strip() for n in row_names.split(",") if n.strip()] if row_names else None
     mets = [m.strip() for m in metrics.split(",") if m.strip()]
-    spec = None
-    if against is not None:
-        spec = [p.strip() for p in against.split(":")]
-        if len(spec) != 3 or not all(spec):
-            raise click.BadParameter(
-                f"{against!r}: give SUITE:REF:ROW, e.g. control-tlr-priors:full:full-tlr-0.1",
-                param_hint="--against",
-            )
+    spec = _against_spec(against)
     try:
         text = pairs_markdown(
             read_runs_csv(csv_path),
@@ -1014,14 +1021,7 @@ def region_pairs(
 
     _check_bright(bright_above, bright_top)
     rows = [n.strip() for n in row_names.split(",") if n.strip()]
-    base_spec = None
-    if against is not None:
-        base_spec = [p.strip() for p in against.split(":")]
-        if len(base_spec) != 3 or not all(base_spec):
-            raise click.BadParameter(
-                f"{against!r}: give SUITE:REF:ROW, e.g. control-tlr-priors:full:full-tlr-0.1",
-                param_hint="--against",
-            )
+    base_spec = _against_spec(against)
     kw = dict(
         scenes=_scenes(scenes),
         seeds=seeds,
