@@ -3,15 +3,16 @@ m4dgs.losses.temporal.tlr_loss) on the ground truth's training sequence and on f
 training-frame HDR renders, every pair of consecutive training frames warped with the exact
 ground-truth flow (gt/flow.npz, both directions) and masked by its visibility.
 
-    python bench/tlr_share.py CLIP [RUN ...] [--dark 0.01,0.05,0.1,0.25] [--every 1]
+    python bench/tlr_share.py CLIP [RUN ...] [--dark 0.01,0.05,0.1,0.25] [--bright 0.01] [--every 1]
 
 Prints, for the ground truth and each run: the mean value (the truth's is what no model can go
 below on average without removing real change: textures resampled at sub-pixel offsets, noise,
 lights that change); the share of the value and of the linear-HDR gradient magnitude
 1 / (H_w + H) (the detached denominator's gradient per pixel) that falls on the darkest pixels of
-each --dark fraction (by the frame's mean channel); for the ground truth, the share of its value
-on its 3 % most changing pixels and how many of those are in the darkest quarter. The runs'
-renders are read from RUN/renders/train/hdr (written at the end of every training).
+each --dark fraction (by the frame's mean channel) and on the brightest of each --bright one; for
+the ground truth, the share of its value on its 3 % most changing pixels and how many of those are
+in the darkest quarter. The runs' renders are read from RUN/renders/train/hdr (written at the end
+of every training).
 """
 
 from __future__ import annotations
@@ -56,7 +57,9 @@ def pixel_values(frames: Path, flows: dict, every: int = 1):
     return np.concatenate(vals), np.concatenate(grads), np.concatenate(lums)
 
 
-def report(name: str, v: np.ndarray, g: np.ndarray, lum: np.ndarray, dark, truth: bool) -> None:
+def report(
+    name: str, v: np.ndarray, g: np.ndarray, lum: np.ndarray, dark, truth: bool, bright=()
+) -> None:
     print(
         f"{name}: mean {v.mean():.4f} over {v.size} visible pixels (median luminance "
         f"{np.median(lum):.3g})"
@@ -67,6 +70,13 @@ def report(name: str, v: np.ndarray, g: np.ndarray, lum: np.ndarray, dark, truth
         print(
             f"  darkest {q:.0%} (<= {t:.3g}): {v[s].sum() / v.sum():.2f} of the value, "
             f"{g[s].sum() / g.sum():.2f} of the gradient"
+        )
+    for q in bright:
+        t = np.quantile(lum, 1.0 - q)
+        s = lum >= t
+        print(
+            f"  brightest {q:.0%} (>= {t:.3g}): {v[s].sum() / v.sum():.2f} of the value, "
+            f"{g[s].sum() / g.sum():.4f} of the gradient"
         )
     if truth:
         top = v >= np.quantile(v, 0.97)
@@ -85,6 +95,9 @@ def main() -> None:
     ap.add_argument("clip", help="clip folder with gt/hdr and gt/flow.npz")
     ap.add_argument("runs", nargs="*", help="finished run folders of the clip")
     ap.add_argument("--dark", default="0.01,0.05,0.1,0.25", help="darkest fractions to report")
+    ap.add_argument(
+        "--bright", default="", help="brightest fractions to report too (e.g. 0.01,0.1)"
+    )
     ap.add_argument("--every", type=int, default=1, help="use every n-th flow pair")
     a = ap.parse_args()
     clip = Path(a.clip)
@@ -92,12 +105,13 @@ def main() -> None:
         sys.exit(f"{clip}: no gt/flow.npz (the exact flow between training frames)")
     flows = dict(np.load(clip / "gt" / "flow.npz"))
     dark = [float(x) for x in a.dark.split(",")]
-    report("ground truth", *pixel_values(clip / "gt" / "hdr", flows, a.every), dark, True)
+    bright = [float(x) for x in a.bright.split(",") if x.strip()]
+    report("ground truth", *pixel_values(clip / "gt" / "hdr", flows, a.every), dark, True, bright)
     for r in a.runs:
         d = Path(r) / "renders" / "train" / "hdr"
         if not d.is_dir():
             sys.exit(f"{r}: no renders/train/hdr (not a finished run)")
-        report(r, *pixel_values(d, flows, a.every), dark, False)
+        report(r, *pixel_values(d, flows, a.every), dark, False, bright)
 
 
 if __name__ == "__main__":

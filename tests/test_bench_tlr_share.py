@@ -58,3 +58,17 @@ def test_stage_probe_overrides(load_bench):
     assert sp.parse_overrides("") == {}
     with pytest.raises(SystemExit, match="not KEY=VALUE"):
         sp.parse_overrides("a.b")
+
+
+def test_report_shares_of_the_darkest_and_brightest_pixels(load_bench, capsys):
+    """report(): the value's and the gradient's shares on the darkest / brightest fractions, by
+    hand on four pixels (luminances 1, 2, 3, 4)."""
+    b = load_bench("tlr_share")
+    v = np.array([0.1, 0.2, 0.3, 0.4])
+    g = np.array([4.0, 3.0, 2.0, 1.0])
+    lum = np.array([1.0, 2.0, 3.0, 4.0])
+    b.report("x", v, g, lum, dark=[0.25], truth=False, bright=[0.25])
+    out = capsys.readouterr().out
+    # darkest quarter: pixel 1 (value 0.1 of 1.0, gradient 4 of 10); brightest: pixel 4
+    assert "darkest 25% (<= 1.75): 0.10 of the value, 0.40 of the gradient" in out
+    assert "brightest 25% (>= 3.25): 0.40 of the value, 0.1000 of the gradient" in out
