@@ -93,6 +93,19 @@ def test_given_tracks_keep_their_positions(tiny_clip_realistic, tmp_path):
     )
     got3 = Clip.open(import_clip(tmp_path / "mine3", opt3)).load_tracks_prior()
     assert np.array_equal(got3.tracks, got.tracks) and np.array_equal(got3.visible, got.visible)
+    # the same tracks through the command line (the prior-file options import-clip shares with
+    # benchgen from-hdr), given with the first pixel's centre at 0.5 this time
+    np.savez(tmp_path / "tracks05.npz", tracks=tr + 0.5, visibility=src.visible.T)
+    r = CliRunner().invoke(
+        main,
+        ["import-clip", "--frames", str(frames), "--exposures", str(times), "--depth", str(depth)]
+        + ["--tracks", str(tmp_path / "tracks05.npz"), "--track-pixel-centre", "0.5"]
+        + ["--out", str(tmp_path / "mine-cli")],
+    )
+    assert r.exit_code == 0, r.output
+    got_cli = Clip.open(tmp_path / "mine-cli").load_tracks_prior()
+    assert np.array_equal(got_cli.visible, got.visible)
+    assert np.allclose(got_cli.tracks[v], got.tracks[v], atol=1e-5)
 
 
 def test_errors_name_what_is_missing_and_leave_nothing(tiny_clip_realistic, tmp_path):
