@@ -1044,7 +1044,7 @@ def region_pairs(
     click.echo(format_region_pairs(res), nl=False)
     if changes is not None:
         click.echo("\nChange against " + against + ":\n")
-        click.echo(format_region_pairs(changes).split("\n", 2)[2], nl=False)
+        click.echo(format_region_pairs(changes, describe=False), nl=False)
 
     def pairs_of(r):
         return [

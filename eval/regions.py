@@ -580,16 +580,17 @@ def region_changes(result: dict, base: dict, base_suite: str, base_row: str) -> 
     }
 
 
-def format_region_pairs(result: dict) -> str:
+def format_region_pairs(result: dict, describe: bool = True) -> str:
     """Markdown, one table per row: per quantity the mean of row - ref over the pairs with its
     Student-t 95 % interval (eval.stats.mean_ci, † where it excludes 0), how many pairs are above
     0, then each pair's value (scenes by name, then seeds); the quantities of pair_quantities, the
     bright region's only where the split had one (--bright-above / --bright-top); a region_changes
-    result is titled by its two effects."""
+    result is titled by its two effects. describe=False leaves out the line that defines the
+    regions (printed once above several results)."""
     from .pairs import interval_text
     from .stats import mean_ci
 
-    out = [describe_regions(**result["regions"]), ""]
+    out = [describe_regions(**result["regions"]), ""] if describe else []
     for row, per_pair in result["diffs"].items():
         keys = sorted(per_pair, key=lambda k: (str(k[0]), k[1]))
         title = result.get("titles", {}).get(row, f"{row} - {result['ref']}")
