@@ -1880,7 +1880,11 @@ def controls_figure(rows: List[dict], out_png) -> Optional[Path]:
     cols = metric_columns()
     plt = _plt()
     fig, axes = plt.subplots(
-        1, len(CONTROLS_FIGURE_METRICS), figsize=(9.0, 0.5 * len(results) + 1.3), squeeze=False
+        1,
+        len(CONTROLS_FIGURE_METRICS),
+        figsize=(9.0, 0.5 * len(results) + 1.3),
+        squeeze=False,
+        layout="constrained",
     )
     for k, (ax, m) in enumerate(zip(axes[0], CONTROLS_FIGURE_METRICS)):
         col = cols[m]
