@@ -56,6 +56,7 @@ META = KEY + (
     "code",  # 12 hex digits of the fingerprint of the m4dgs sources it ran (run.json)
     "generator",  # benchgen generator version of the run's clip (clip.json generator.version)
     "torch_threads",  # torch threads of the training (run.json; another count = another draw)
+    "host",  # the machine it trained on: host_label(run.json host); another CPU kind = another draw
 )
 SCORED, MISSING = "scored", "missing"
 CRF_GRID = [i / 2 for i in range(-20, 21)]  # log2 exposure -10 .. 10 in half stops
@@ -174,10 +175,21 @@ def _crf_values(curve: dict) -> Optional[List[float]]:
     return [float(v) for v in np.interp(CRF_GRID, z, y)]
 
 
+def host_label(host: Optional[Mapping[str, object]]) -> str:
+    """run.json's `host` record (m4dgs.core.host.host_info) -> one CSV cell: the CPU model, the
+    instruction set torch's CPU kernels dispatch on and, for a run trained on CUDA, the device,
+    joined by " / " (e.g. "AMD EPYC / AVX2", "AMD EPYC / AVX2 / NVIDIA H200"); "" without one
+    (runs made before run.json recorded the host)."""
+    if not host:
+        return ""
+    parts = [str(host.get(k) or "").strip() for k in ("cpu", "cpu_capability", "gpu")]
+    return " / ".join(p for p in parts if p)
+
+
 def _provenance(run_dir, clip_meta: dict) -> Dict[str, str]:
     """The provenance cells of a run: code fingerprint (12 hex digits), the clip's generator version
-    (from its clip.json contents) and the torch thread count; "" where a run (or an older run.json
-    / clip.json) does not say."""
+    (from its clip.json contents), the torch thread count and the host (`host_label`); "" where a
+    run (or an older run.json / clip.json) does not say."""
     info = {}
     p = Path(run_dir) / "run.json"
     if p.exists():
@@ -188,6 +200,7 @@ def _provenance(run_dir, clip_meta: dict) -> Dict[str, str]:
         "code": str(info.get("code") or "")[:12],
         "generator": str(gen),
         "torch_threads": str(threads),
+        "host": host_label(info.get("host")),
     }
 
 
@@ -505,7 +518,7 @@ class SuiteData:
 
     def provenance(self, column: str) -> Dict[str, int]:
         """{value: number of scored runs} of a provenance column ("code", "generator",
-        "torch_threads"); runs whose CSV row does not say count under "not recorded"."""
+        "torch_threads", "host"); runs whose CSV row does not say count under "not recorded"."""
         out: Dict[str, int] = {}
         for r in self.rows:
             if r.get("status") == SCORED:
@@ -1477,14 +1490,24 @@ def controls_markdown(
             f"`{c.control.ref}` in `{c.control.suite}` ({c.control.condition}).",
             "",
         ]
-        for column, what in (("code", "code"), ("generator", "generator")):
+        for column, what in (("code", "code versions"), ("generator", "generator versions")):
             vb, vc = _provenance_of(c.base, rows, column), _provenance_of(c.control, rows, column)
             if vb and vc and vb != vc:  # one side without runs: nothing to compare yet
                 lines += [
-                    f"**Different {what} versions**: base {', '.join(vb)}, control "
+                    f"**Different {what}**: base {', '.join(vb)}, control "
                     f"{', '.join(vc)}; the change mixes the control with that difference.",
                     "",
                 ]
+        # hosts: only where both sides recorded theirs (older runs did not; machines of one kind
+        # repeat each other's runs bit for bit, docs/reliability.md)
+        hb = [h for h in _provenance_of(c.base, rows, "host") if h != "?"]
+        hc = [h for h in _provenance_of(c.control, rows, "host") if h != "?"]
+        if hb and hc and hb != hc:
+            lines += [
+                f"**Different hosts**: base {'; '.join(hb)}, control {'; '.join(hc)}; runs of "
+                "another CPU kind (or a GPU) differ like reseeds, so the change carries that too.",
+                "",
+            ]
         lines += [
             f"| metric | base Δ ({c.base.condition}) | control Δ ({c.control.condition}) "
             "| change | reading | after Holm |",
@@ -1961,6 +1984,7 @@ def _suite_summary(data: SuiteData) -> dict:
         "code": data.provenance("code"),
         "generator": data.provenance("generator"),
         "torch_threads": data.provenance("torch_threads"),
+        "host": data.provenance("host"),
     }
 
 
@@ -2086,7 +2110,8 @@ def suite_section(
         f"- Trainer seeds: {sm['seeds']} (" + ", ".join(str(s) for s in data.seeds) + ")",
         f"- Preset: {_presets_text(sm['presets'])}",
         f"- Provenance: m4dgs code {_counts_text(sm['code'])}; clip generator version "
-        f"{_counts_text(sm['generator'])}; torch threads {_counts_text(sm['torch_threads'])}",
+        f"{_counts_text(sm['generator'])}; torch threads {_counts_text(sm['torch_threads'])}; "
+        f"host {_counts_text(sm['host'])}",
         f"- Runs: {sm['scored']} scored of {sm['expected']} "
         f"(= {sm['scenes']} scenes x {sm['rows']} rows x {sm['seeds']} seeds); missing: "
         + miss_txt,

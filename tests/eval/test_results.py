@@ -55,6 +55,13 @@ def _write_run(root, suite, scene, row, seed, vals, curve_gain=None):
     d.mkdir(parents=True, exist_ok=True)
     code = hashlib.sha256(suite.encode()).hexdigest()  # one code version per suite
     info = {"variant": row, "preset": "small", "code": code, "torch_threads": 1 + seed}
+    if seed == 0:  # seed 1's run.json predates the host record
+        info["host"] = {
+            "machine": "x86_64",
+            "cpu": "Some CPU",
+            "cpu_capability": "AVX2",
+            "gpu": None,
+        }
     (d / "run.json").write_text(json.dumps(info))
     if scene == "lamp-room-orbit":  # only this scene's clip says its generator version
         c = Path(root) / "clips" / "syn-exp-3" / scene
@@ -282,6 +289,7 @@ def test_export_merge_results_readme(tmp_path):
     assert (one["code"], one["generator"], one["torch_threads"]) == (code, "7", "1")
     other = next(r for r in rows if r["scene"] != "lamp-room-orbit" and r["seed"] == "1")
     assert other["generator"] == "" and other["torch_threads"] == "2"
+    assert one["host"] == "Some CPU / AVX2" and other["host"] == ""
     assert "mixes" not in r.output
     # a run of another code version in a suite is exported, with a warning naming both versions
     info = root / "runs/paper-main" / MAIN_SCENES[0] / "full" / "run.json"
@@ -419,6 +427,8 @@ def test_export_merge_results_readme(tmp_path):
     assert "- Runs: 10 scored of 10 (= 2 scenes x 5 rows x 1 seeds); missing: 0" in text
     assert text.count("**Incomplete pairs**") == 1  # paper-main is complete
     assert "- Preset: small" in text and "[results-notes.md](results-notes.md)" in text
+    # the hosts: seed 0's run.json records one, seed 1's (older) none
+    assert "; host Some CPU / AVX2 (18 runs), not recorded (17 runs)" in text
     # the floor line: paper-ablation's clips are lamp-room-orbit (generator 7, floors recorded)
     # and two scenes whose clips say no generator
     n_abl = len({(r["scene"], r["generator"]) for r in rows if r["suite"] == "paper-ablation"})
@@ -1079,6 +1089,34 @@ def test_controls_are_differences_in_differences(tmp_path):
     assert R.controls_figure([], tmp_path / "none.png") is None
     linked = R.controls_markdown(rows, None, "figures/controls.png")
     assert "![controls](figures/controls.png)" in linked and "![" not in text
+
+
+def test_host_label():
+    from eval.results import host_label
+
+    cpu = {"machine": "x86_64", "cpu": "AMD EPYC", "cpu_capability": "AVX2", "gpu": None}
+    assert host_label(cpu) == "AMD EPYC / AVX2"
+    assert host_label(cpu | {"gpu": "NVIDIA H200"}) == "AMD EPYC / AVX2 / NVIDIA H200"
+    assert host_label(cpu | {"cpu": ""}) == "AVX2"
+    assert host_label(None) == host_label({}) == ""
+
+
+def test_controls_flag_different_hosts_only_where_both_sides_recorded_theirs():
+    from eval import results as R
+
+    rows = _control_rows(np.random.default_rng(3))
+    for r in rows:  # the priors suite on one machine; the scale suite's runs say nothing
+        if r["suite"] == "control-video-init-priors":
+            r["host"] = "CPU A / AVX2"
+    text = R.controls_markdown(rows, None)
+    assert "Different hosts" not in text  # an unrecorded side is not a difference
+    for r in rows:
+        if r["suite"] == "control-video-init-scale":
+            r["host"] = "CPU B / AVX512"
+    scale = _section(R.controls_markdown(rows, None), "video-init-scale")
+    assert "**Different hosts**: base CPU A / AVX2, control CPU B / AVX512" in scale
+    priors = _section(R.controls_markdown(rows, None), "video-init-priors")
+    assert "Different hosts" not in priors
 
 
 def test_controls_flag_different_code_versions(tmp_path):
