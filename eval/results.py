@@ -415,6 +415,17 @@ def export(
                     f"warning: suite {name} mixes {what} versions in {csv_path}: {counts}; paired "
                     "differences across them compare other code or clips, not only the rows"
                 )
+        hosts = Counter(  # runs that recorded no host (older code) are not a second host
+            str(r["host"])
+            for r in merged
+            if r["suite"] == name and r.get("status") == SCORED and r.get("host")
+        )
+        if len(hosts) > 1:
+            counts = ", ".join(f"{k} ({v} runs)" for k, v in sorted(hosts.items()))
+            say(
+                f"warning: suite {name} mixes hosts in {csv_path}: {counts}; runs of another CPU "
+                "kind or a GPU differ like reseeds (docs/reliability.md)"
+            )
     Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
     write_runs_csv(csv_path, merged, extra)
     write_crf_csv(crf_csv_path(csv_path), curves)

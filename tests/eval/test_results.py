@@ -295,11 +295,14 @@ def test_export_merge_results_readme(tmp_path):
     info = root / "runs/paper-main" / MAIN_SCENES[0] / "full" / "run.json"
     d = json.loads(info.read_text())
     d["code"] = "f" * 64
+    d["host"] = d["host"] | {"gpu": "Some GPU"}  # ... and trained on another host
     info.write_text(json.dumps(d))
     r = cli.invoke(main, ["export", "paper-main", "--root", str(root), "--csv", str(csvp)])
     assert r.exit_code == 0, r.output
     assert "warning: suite paper-main mixes m4dgs code versions" in r.output
     assert "ffffffffffff (1 runs)" in r.output and "(9 runs)" in r.output
+    assert "warning: suite paper-main mixes hosts" in r.output
+    assert "Some CPU / AVX2 (9 runs), Some CPU / AVX2 / Some GPU (1 runs)" in r.output
     # the clips' HDR-TAE floors: one row per (scene, generator) whose clip.json records them
     floors = read_csv(tmp_path / "results" / "runs-floors.csv")
     assert floors == [
