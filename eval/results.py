@@ -403,7 +403,12 @@ def export(
         summary[name] = {"scored": len(scored), "missing": len(rows) - len(scored)}
     merged = merge_rows(old, new_rows)
     for name in summary:
-        for column, what in (("code", "m4dgs code"), ("generator", "clip generator")):
+        # runs whose row does not say (older code) are not another version or host
+        for column, what in (
+            ("code", "m4dgs code versions"),
+            ("generator", "clip generator versions"),
+            ("host", "hosts"),
+        ):
             seen = Counter(
                 str(r[column])
                 for r in merged
@@ -412,20 +417,10 @@ def export(
             if len(seen) > 1:
                 counts = ", ".join(f"{k} ({v} runs)" for k, v in sorted(seen.items()))
                 say(
-                    f"warning: suite {name} mixes {what} versions in {csv_path}: {counts}; paired "
-                    "differences across them compare other code or clips, not only the rows"
+                    f"warning: suite {name} mixes {what} in {csv_path}: {counts}; paired "
+                    "differences across them compare other code, clips or machines, not only "
+                    "the rows (docs/reliability.md)"
                 )
-        hosts = Counter(  # runs that recorded no host (older code) are not a second host
-            str(r["host"])
-            for r in merged
-            if r["suite"] == name and r.get("status") == SCORED and r.get("host")
-        )
-        if len(hosts) > 1:
-            counts = ", ".join(f"{k} ({v} runs)" for k, v in sorted(hosts.items()))
-            say(
-                f"warning: suite {name} mixes hosts in {csv_path}: {counts}; runs of another CPU "
-                "kind or a GPU differ like reseeds (docs/reliability.md)"
-            )
     Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
     write_runs_csv(csv_path, merged, extra)
     write_crf_csv(crf_csv_path(csv_path), curves)
@@ -1501,24 +1496,20 @@ def controls_markdown(
             f"`{c.control.ref}` in `{c.control.suite}` ({c.control.condition}).",
             "",
         ]
-        for column, what in (("code", "code versions"), ("generator", "generator versions")):
+        for column, what in (
+            ("code", "code versions"),
+            ("generator", "generator versions"),
+            ("host", "hosts"),  # older runs recorded none: only recorded hosts are compared
+        ):
             vb, vc = _provenance_of(c.base, rows, column), _provenance_of(c.control, rows, column)
+            if column == "host":
+                vb, vc = [h for h in vb if h != "?"], [h for h in vc if h != "?"]
             if vb and vc and vb != vc:  # one side without runs: nothing to compare yet
                 lines += [
                     f"**Different {what}**: base {', '.join(vb)}, control "
                     f"{', '.join(vc)}; the change mixes the control with that difference.",
                     "",
                 ]
-        # hosts: only where both sides recorded theirs (older runs did not; machines of one kind
-        # repeat each other's runs bit for bit, docs/reliability.md)
-        hb = [h for h in _provenance_of(c.base, rows, "host") if h != "?"]
-        hc = [h for h in _provenance_of(c.control, rows, "host") if h != "?"]
-        if hb and hc and hb != hc:
-            lines += [
-                f"**Different hosts**: base {'; '.join(hb)}, control {'; '.join(hc)}; runs of "
-                "another CPU kind (or a GPU) differ like reseeds, so the change carries that too.",
-                "",
-            ]
         lines += [
             f"| metric | base Δ ({c.base.condition}) | control Δ ({c.control.condition}) "
             "| change | reading | after Holm |",
