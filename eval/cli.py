@@ -837,6 +837,46 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm, against):
     click.echo(text)
 
 
+@main.command()
+@click.argument("side_a", metavar="SUITE_A:ROW")
+@click.argument("side_b", metavar="SUITE_B:ROW")
+@click.option(
+    "--metrics",
+    default=None,
+    help="Comma-separated metric columns to compare (default: every quality column of the CSV, "
+    "i.e. all but training minutes, FPS, Gaussian count and peak memory).",
+)
+@click.option(
+    "--csv",
+    "csv_path",
+    default="results/runs.csv",
+    show_default=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="Runs CSV written by `export`.",
+)
+@click.option(
+    "--check",
+    is_flag=True,
+    help="Exit with status 1 unless every (scene, seed) pair is equal in every compared column.",
+)
+def repeats(side_a, side_b, metrics, csv_path, check):
+    """Check whether one configuration's runs repeat in another suite: for each (scene, seed)
+    that both SUITE_A:ROW and SUITE_B:ROW scored, how many quality columns are equal as the CSV
+    stores them, the largest differences B - A, each side's code and host, and the headline
+    metrics' B - A over the pairs that differ (to set beside the suite's seed noise)."""
+    from .repeats import repeats_markdown
+    from .results import read_runs_csv
+
+    mets = [m.strip() for m in metrics.split(",") if m.strip()] if metrics else None
+    try:
+        text, got = repeats_markdown(read_runs_csv(csv_path), side_a, side_b, mets)
+    except ValueError as e:
+        raise click.UsageError(f"{csv_path}: {e}") from e
+    click.echo(text)
+    if check and not all(p.equal for p in got):
+        raise SystemExit(1)
+
+
 # --clip of the commands that read several runs' renders (regions, error-maps)
 _runs_clip_opt = click.option(
     "--clip",
