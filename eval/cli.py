@@ -748,6 +748,17 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
     click.echo(f"wrote {csv_path}", err=True)
 
 
+# --csv of the commands that read the runs CSV alone (pairs, repeats)
+_read_csv_opt = click.option(
+    "--csv",
+    "csv_path",
+    default="results/runs.csv",
+    show_default=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="Runs CSV written by `export`.",
+)
+
+
 def _against_spec(against):
     """[suite, ref, row] of an --against SUITE:REF:ROW value (None without one); a usage error
     otherwise."""
@@ -782,14 +793,7 @@ def _against_spec(against):
     show_default=True,
     help="Comma-separated metric columns of the CSV (e.g. hdr_tce, track_epe, mask_iou).",
 )
-@click.option(
-    "--csv",
-    "csv_path",
-    default="results/runs.csv",
-    show_default=True,
-    type=click.Path(exists=True, dir_okay=False),
-    help="Runs CSV written by `export`.",
-)
+@_read_csv_opt
 @click.option(
     "--by-seed",
     is_flag=True,
@@ -846,14 +850,7 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm, against):
     help="Comma-separated metric columns to compare (default: every quality column of the CSV, "
     "i.e. all but training minutes, FPS, Gaussian count and peak memory).",
 )
-@click.option(
-    "--csv",
-    "csv_path",
-    default="results/runs.csv",
-    show_default=True,
-    type=click.Path(exists=True, dir_okay=False),
-    help="Runs CSV written by `export`.",
-)
+@_read_csv_opt
 @click.option(
     "--check",
     is_flag=True,
