@@ -38,6 +38,7 @@ LAYERS = {
     "eval.cli": "eval-driver",
     "eval.results": "eval-driver",
     "eval.pairs": "eval-driver",
+    "eval.repeats": "eval-driver",
     "eval.campaign": "eval-driver",
     "eval.frames": "eval-driver",
     "eval.regions": "eval-driver",
