@@ -762,15 +762,14 @@ _read_csv_opt = click.option(
 def _against_spec(against):
     """[suite, ref, row] of an --against SUITE:REF:ROW value (None without one); a usage error
     otherwise."""
+    from .pairs import split_spec
+
     if against is None:
         return None
-    spec = [p.strip() for p in against.split(":")]
-    if len(spec) != 3 or not all(spec):
-        raise click.BadParameter(
-            f"{against!r}: give SUITE:REF:ROW, e.g. control-tlr-priors:full:full-tlr-0.1",
-            param_hint="--against",
-        )
-    return spec
+    try:
+        return split_spec(against, ("SUITE", "REF", "ROW"), "control-tlr-priors:full:full-tlr-0.1")
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--against") from None
 
 
 @main.command()

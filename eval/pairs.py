@@ -39,6 +39,15 @@ from .stats import mean_ci, scene_heterogeneity, scene_mean_ci
 DEFAULT_METRICS = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "ldr_train_psnr")
 
 
+def split_spec(text: str, fields: Sequence[str], example: str) -> List[str]:
+    """The parts of a colon-separated spec such as SUITE:REF:ROW (`fields` names them); ValueError
+    naming the expected form when the count is wrong or a part is empty."""
+    parts = [p.strip() for p in text.split(":")]
+    if len(parts) != len(fields) or not all(parts):
+        raise ValueError(f"{text!r}: give {':'.join(fields)}, e.g. {example}")
+    return parts
+
+
 def _fmt(metric: str, fmts: Dict[str, str]) -> str:
     return fmts.get(metric, ".4f")
 

@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from .pairs import interval_text
+from .pairs import interval_text, split_spec
 from .results import SCORED
 from .stats import mean_ci
 
@@ -47,10 +47,8 @@ class PairRepeat:
 
 def parse_side(text: str) -> Tuple[str, str]:
     """(suite, row) of "SUITE:ROW"; ValueError otherwise."""
-    parts = [p.strip() for p in text.split(":")]
-    if len(parts) != 2 or not all(parts):
-        raise ValueError(f"{text!r}: give SUITE:ROW, e.g. exposure-schedules:alternating")
-    return parts[0], parts[1]
+    suite, row = split_spec(text, ("SUITE", "ROW"), "exposure-schedules:alternating")
+    return suite, row
 
 
 def quality_columns() -> List[str]:
