@@ -22,6 +22,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from m4dgs.core.errors import NonFiniteError
+
 #: eps added to the HDR irradiance before the logarithm (authors' code).
 LOG_EPS = 1e-6
 
@@ -102,10 +104,16 @@ class ToneMapper(nn.Module):
         The MLP is evaluated only at the nodes (cost independent of the image size: the exact path
         costs [H W, C, hidden] activations); values and gradients (w.r.t. z and the parameters) are
         those of the interpolant, whose error is below ~1e-5 for the smooth curves learned here
-        (checked in the tests)."""
+        (checked in the tests). Raises NonFiniteError when z holds NaN or infinite values."""
         c = self.n_channels
         zd = z.detach()
         lo, hi = torch.stack(torch.aminmax(zd)).tolist()  # one read from the device, not two
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            # NaN or an overflowed HDR value would otherwise become an out-of-range table index
+            raise NonFiniteError(
+                f"the tone mapper's input log2(H + eps) + log2(dt) spans {lo} .. {hi}: the HDR "
+                "render holds NaN or values beyond float32's range"
+            )
         if not hi > lo:
             return self.curve(z)
         nodes = torch.linspace(lo, hi, self.lut_size, dtype=z.dtype, device=z.device)

@@ -133,7 +133,10 @@ def _load() -> tuple[object | None, str]:
                 flush=True,
             )
             t0 = time.perf_counter()
-        waiting = f"[m4dgs] waiting for another process building the C++ rasterizer in {build_dir}"
+        waiting = (
+            f"[m4dgs] waiting for another process building or loading the C++ rasterizer in "
+            f"{build_dir}"
+        )
         with build_lock(build_dir, waiting):
             module = cpp_extension.load(
                 name=EXT_NAME + suffix,

@@ -203,7 +203,14 @@ class Stage(ABC):
         for o, lr in self.position_lrs(it):
             for group in o.param_groups:
                 group["lr"] = lr
-        L, meta = self.losses(it)
+        try:
+            L, meta = self.losses(it)
+        except NonFiniteError as e:  # raised inside a loss (e.g. the tone mapper): add where
+            raise NonFiniteError(
+                f"{self.section}: step {it}: {e}; training stopped, the last checkpoint is kept. "
+                "HDR values beyond float32's range come from colours that grow without bound "
+                "(docs/reliability.md, non-finite values)"
+            ) from e
         total = total_loss(L, self.weights())
         info = {"means2d": meta.means2d, "radii": meta.radii, "width": self.W, "height": self.H}
         sets = self.gaussian_sets()

@@ -555,6 +555,20 @@ def test_a_non_finite_parameter_stops_training_naming_it(data):
         ws.check_parameters(0)
 
 
+def test_an_overflowing_hdr_render_stops_training_naming_stage_and_step(data):
+    """An HDR value beyond float32's range (here every colour 2^200) reaching the tone mapper's
+    table stops the step with the stage and step named, not an out-of-range table index."""
+    from m4dgs.core.errors import NonFiniteError
+
+    # a table of 64 nodes: the tiny frames (32 x 24 x 3 values) take the table path
+    st = video_stage(data, **{"tonemap.lut_size": 64})
+    st.step(0)
+    with torch.no_grad():
+        st.color.fc2.bias.fill_(200.0)  # finite parameters, 2^200 overflows float32
+    with pytest.raises(NonFiniteError, match=r"stage1: step 1: the tone mapper's input .* spans"):
+        st.step(1)
+
+
 def test_blank_and_saturated_frames_are_found():
     from m4dgs.core.errors import InputError
     from m4dgs.training.data import blank_frames, check_frame_content
@@ -653,3 +667,17 @@ def test_the_tone_mapper_table_reads_its_input_range_once():
     out, sites = _count_device_reads(lambda: tm.curve_lut(z))
     assert list(sites.values()) == [1] and next(iter(sites)).startswith("model/tonemap.py:"), sites
     torch.testing.assert_close(out, tm.curve(z), rtol=0, atol=1e-4)
+
+
+@pytest.mark.parametrize("bad", [float("inf"), float("-inf"), float("nan")])
+def test_the_tone_mapper_table_refuses_non_finite_input(bad):
+    """A NaN or infinite input would give a NaN table position, cast to an out-of-range index:
+    the table path raises NonFiniteError instead; finite inputs are unaffected (test above)."""
+    from m4dgs.core.errors import NonFiniteError
+    from m4dgs.model.tonemap import ToneMapper
+
+    tm = ToneMapper(hidden=16, generator=torch.Generator().manual_seed(0))
+    z = torch.linspace(-3.0, 2.0, 300).reshape(100, 3)
+    z[17, 1] = bad
+    with pytest.raises(NonFiniteError, match="tone mapper's input"):
+        tm.curve_lut(z)
