@@ -21,7 +21,11 @@ generator version) counts as finished even without its run folder: the CSV is th
 survives a lost root, so a campaign restarted into a new root trains only what the CSV lacks.
 Before a step trains anything, the m4dgs code of its finished runs (run.json `code`, or the CSV's
 `code` column) is compared with this checkout's: a step is never finished with other code than it
-was started with (its paired differences would compare code versions), unless allow_mixed_code."""
+was started with (its paired differences would compare code versions), unless allow_mixed_code.
+A job that fails (a diverged run, a bug) does not hold the campaign up: its step is exported (the
+run becomes a "failed" row with its error, eval.runner.record_failure), the later steps run, and
+the campaign ends with an error naming every failed job; running it again retries them.
+"""
 
 from __future__ import annotations
 
@@ -324,8 +328,9 @@ def run_campaign(
     preset, this generator's clips) count as finished, so a campaign resumes from it after its root
     is lost.
     code: the fingerprint of this checkout's m4dgs sources (default: computed). Raises InputError
-    before a step whose finished runs have other code (unless allow_mixed_code) and M4DGSError
-    after a step with failed jobs (its finished runs exported first)."""
+    before a step whose finished runs have other code (unless allow_mixed_code) and, after the
+    last step, M4DGSError naming the jobs that failed in any step (each step exported first, the
+    failed runs as "failed" rows)."""
     from m4dgs.core.errors import M4DGSError
 
     from .results import export
@@ -360,6 +365,7 @@ def run_campaign(
     for s, todo in zip(statuses, todo_iterations(statuses)):
         s["todo_iterations"] = todo
     left = 0.0
+    failures: List[str] = []  # "step i (suite): job ids" of the steps with failed jobs
     for i, st in enumerate(campaign.steps, 1):
         if i == 1 or dry_run:
             s = statuses[i - 1]
@@ -419,21 +425,32 @@ def run_campaign(
             )
             summary["ran"] = True
         summary.update(step_status(st, root, campaign.preset, recorded))
-        if summary["scored"] > summary["recorded"]:
-            export_step()
-        out.append(summary)
         bad = failed_jobs(res)
+        if summary["scored"] > summary["recorded"] or bad:
+            export_step()  # with failed jobs: their rows say "failed" and why
+        out.append(summary)
         if bad:
-            raise M4DGSError(
-                f"campaign {campaign.name}, step {i} ({st.suite}): {len(bad)} job(s) failed "
-                f"({'; '.join(r['id'] for r in bad[:3])}); the finished runs are exported. Run "
-                "the same command again to retry them."
+            failures.append(
+                f"step {i} ({st.suite}): {len(bad)} job(s) ({'; '.join(r['id'] for r in bad[:3])}"
+                + (f" and {len(bad) - 3} more" if len(bad) > 3 else "")
+                + ")"
+            )
+            say(
+                f"[campaign {campaign.name}] step {i} ({st.suite}): {len(bad)} job(s) failed; "
+                "exported as failed rows, going on with the next step"
             )
     if dry_run and rate is None and any(s["todo_iterations"] for s in statuses):
         say(
             f"[campaign {campaign.name}] no time estimate: none of its runs has finished yet, nor "
             "any other run at this preset in this root (the estimate is their median recorded "
             "seconds per iteration)"
+        )
+    if failures:
+        raise M4DGSError(
+            f"campaign {campaign.name}: jobs failed in "
+            + "; ".join(failures)
+            + "; every step ran and the finished runs are exported. Run the same command again "
+            "to retry the failed jobs."
         )
     if dry_run and left:
         say(

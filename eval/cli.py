@@ -729,7 +729,8 @@ def campaign(
 def export(suites, out, csv_path, scenes, seeds, add_missing):
     """Collect the scored runs of SUITES under ROOT into one CSV of per-run metrics (one row per
     suite, scene, row, seed), merging with the existing CSV: a scored run replaces the row of
-    the same key, a run without metrics.json never replaces a scored one, other rows stay. Beside
+    the same key, a run without metrics.json never replaces a scored one, other rows stay (a run
+    whose last attempt failed gets status "failed" and its error, from <run>/failure.json). Beside
     it, <name>-crf.csv holds the learned tone curves and <name>-floors.csv the clips'
     ground-truth HDR-TAE floors (one row per scene and generator version)."""
     from .results import export as export_runs
@@ -744,7 +745,10 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
         add_missing=add_missing,
     )
     for name, c in summary.items():
-        click.echo(f"{name}: {c['scored']} scored, {c['missing']} without metrics.json", err=True)
+        failed = f", {c['failed']} failed" if c.get("failed") else ""
+        click.echo(
+            f"{name}: {c['scored']} scored{failed}, {c['missing']} without metrics.json", err=True
+        )
     click.echo(f"wrote {csv_path}", err=True)
 
 

@@ -8,7 +8,8 @@ collect_suite) into one tidy CSV, one row per (suite, scene, row, seed) with the
 eval.suite.metric_columns() as columns (6 significant digits), and the learned CRF curves (mean of
 RGB on a fixed log2-exposure grid, 3 decimals) into a second CSV beside it (`<stem>-crf.csv`). It
 merges with an existing CSV: a scored run replaces the row of the same key, a run without
-metrics.json ("missing") never replaces a scored row, and rows of other suites, scenes or seeds
+metrics.json ("missing", or "failed" with its error when the job's last attempt failed:
+eval.runner.record_failure) never replaces a scored row, and rows of other suites, scenes or seeds
 stay, so suites run in different sessions accumulate.
 
 `results` renders, for every suite in the CSV, what stands behind it (scenes, seeds, presets, scored
@@ -50,15 +51,16 @@ META = KEY + (
     "clip_setting",  # clip setting id (OUT/clips/<id>: syn-exp-3, syn-exp-3-crf-aces-filmic)
     "crf",  # the clip's true camera response
     "preset",  # training preset of the run (run.json / metrics.json)
-    "status",  # scored | missing (a job of the suite without metrics.json)
+    "status",  # scored | failed (the job's last attempt failed) | missing (no metrics.json yet)
     "ldr_convention",  # ldr_png | ldr_jpeg (metrics.json)
     # provenance: runs of one comparison should come from the same code, clips and thread count
     "code",  # 12 hex digits of the fingerprint of the m4dgs sources it ran (run.json)
     "generator",  # benchgen generator version of the run's clip (clip.json generator.version)
     "torch_threads",  # torch threads of the training (run.json; another count = another draw)
     "host",  # the machine it trained on: host_label(run.json host); another CPU kind = another draw
+    "error",  # a failed run's one-line error (<run>/failure.json), else empty
 )
-SCORED, MISSING = "scored", "missing"
+SCORED, MISSING, FAILED = "scored", "missing", "failed"
 CRF_GRID = [i / 2 for i in range(-20, 21)]  # log2 exposure -10 .. 10 in half stops
 CRF_KEY = KEY + ("crf",)
 SUITE_ORDER = (
@@ -208,13 +210,15 @@ def export_suite(
     suite, root, scenes=None, seeds=None, add_missing: bool = False
 ) -> Tuple[List[dict], List[dict], dict]:
     """(runs rows, CRF rows, clip floors) of one suite's jobs under ROOT (eval.cli.collect_suite):
-    every job, a scored one with its metrics, a job without metrics.json with status "missing";
+    every job, a scored one with its metrics, a job without metrics.json with status "failed"
+    (and its error) when its run folder records a failed attempt, else "missing";
     the floors {(scene, generator): {...}} of the scored runs' clips (clip_floors). Without
     `scenes`, only the scenes with at least one run folder of the suite (the subset that was run);
     with `scenes`, every job of those scenes. add_missing: first compute, for every scored run, the
     metrics its metrics.json lacks because an earlier version scored it
     (eval.score.add_missing_metrics; written into the run's metrics.json)."""
     from .cli import collect_suite
+    from .runner import read_failure
     from .suite import load_eval_suite
 
     s = load_eval_suite(suite)
@@ -238,6 +242,7 @@ def export_suite(
         setting = s.clips[row.clip]
         m = e["metrics"] or {}
         curve = m.get("crf_curve") or {}
+        error = None if e["metrics"] else read_failure(e["run_dir"])
         r = {
             "suite": s.name,
             "scene": e["scene"],
@@ -248,9 +253,10 @@ def export_suite(
             "clip_setting": setting.setting_id(s.scenes),
             "crf": curve.get("crf") or setting.crf or "hdrnerf",
             "preset": (m.get("run") or {}).get("preset") or "",
-            "status": SCORED if e["metrics"] else MISSING,
+            "status": SCORED if e["metrics"] else (FAILED if error else MISSING),
             "ldr_convention": m.get("ldr_convention", "") if e["metrics"] else "",
             **_provenance(e["run_dir"], meta),
+            "error": error or "",
         }
         for k in keys:
             v = m.get(k)
@@ -341,12 +347,12 @@ def write_crf_csv(path, curves: Dict[tuple, dict]) -> None:
 
 
 def merge_rows(old: List[dict], new: List[dict]) -> List[dict]:
-    """New rows replace old rows of the same (suite, scene, row, seed); a missing run never replaces
-    a scored one; every other old row stays."""
+    """New rows replace old rows of the same (suite, scene, row, seed); a missing or failed run
+    never replaces a scored one; every other old row stays."""
     idx = {_key(r): r for r in old}
     for r in new:
         k = _key(r)
-        if r["status"] == MISSING and k in idx and idx[k].get("status") == SCORED:
+        if r["status"] != SCORED and k in idx and idx[k].get("status") == SCORED:
             continue
         idx[k] = r
     return _sorted(list(idx.values()))
@@ -365,8 +371,9 @@ def export(
     clip-floor CSV (floors_csv_path; written when a run's clip records its floors). add_missing:
     see export_suite.
 
-    Returns {suite: {"scored", "missing"}} of what was collected; raises InputError when a suite
-    has no scored run under ROOT (a wrong ROOT would otherwise add only missing rows)."""
+    Returns {suite: {"scored", "failed", "missing"}} of what was collected; raises InputError
+    when a suite has no scored run under ROOT (a wrong ROOT would otherwise add only missing
+    rows)."""
     from m4dgs.core.errors import InputError
 
     say = log or (lambda s: None)
@@ -400,7 +407,12 @@ def export(
         for c in crfs:
             curves[_key(c)] = {"crf": c["crf"], "log2_x": CRF_GRID, "learned": c["values"]}
         new_rows += rows
-        summary[name] = {"scored": len(scored), "missing": len(rows) - len(scored)}
+        failed = sum(r["status"] == FAILED for r in rows)
+        summary[name] = {
+            "scored": len(scored),
+            "failed": failed,
+            "missing": len(rows) - len(scored) - failed,
+        }
     merged = merge_rows(old, new_rows)
     for name in summary:
         # runs whose row does not say (older code) are not another version or host
@@ -483,7 +495,13 @@ class SuiteData:
 
     @property
     def missing(self) -> List[dict]:
-        return [e for e in self.entries if not e["metrics"]]
+        """Entries without metrics whose last attempt did not fail (not run, or running)."""
+        return [e for e in self.entries if not e["metrics"] and not e.get("error")]
+
+    @property
+    def failed(self) -> List[dict]:
+        """Entries whose job failed (a CSV row with status "failed"; "error" says why)."""
+        return [e for e in self.entries if not e["metrics"] and e.get("error")]
 
     @property
     def presets(self) -> Dict[str, int]:
@@ -584,7 +602,9 @@ def suite_data(
             for sc in scenes:
                 for rn in group:
                     r = by.get((name, sc, rn, seed))
-                    metrics = None
+                    metrics, error = None, None
+                    if r is not None and r.get("status") == FAILED:
+                        error = r.get("error") or "failed (no message recorded)"
                     if r is not None and r.get("status") == SCORED:
                         metrics = {k: r[k] for k in keys if r.get(k) is not None}
                         metrics["ldr_convention"] = r.get("ldr_convention") or "ldr_png"
@@ -598,6 +618,7 @@ def suite_data(
                             "run_dir": f"{name}/{sc}/{run}",
                             "clip_dir": None,
                             "metrics": metrics,
+                            "error": error,
                         }
                     )
     return SuiteData(
@@ -1978,6 +1999,7 @@ def _suite_summary(data: SuiteData) -> dict:
         "rows": len(data.row_names),
         "scored": len(data.scored),
         "missing": len(data.missing),
+        "failed": len(data.failed),
         "pairs": len(data.pairs),
         "complete_pairs": len(data.complete_pairs),
         "left_out": len(data.left_out),
@@ -1988,6 +2010,12 @@ def _suite_summary(data: SuiteData) -> dict:
         "torch_threads": data.provenance("torch_threads"),
         "host": data.provenance("host"),
     }
+
+
+def _short(text: str, limit: int = 240) -> str:
+    """One line of at most `limit` characters (an error message on the page)."""
+    t = " ".join(str(text).split())
+    return t if len(t) <= limit else t[: limit - 3] + "..."
 
 
 def _counts_text(p: Dict[str, int]) -> str:
@@ -2013,6 +2041,7 @@ def _partial_text(data: SuiteData) -> str:
         f"{len(data.pairs)} (scene, seed) pairs on which every row with runs is scored ({pairs}), "
         "so that every row is compared on the same runs; the "
         f"{len(data.left_out)} scored run(s) of the other pairs wait for the missing runs above"
+        + (" or are left out with the failed run(s) of their pair" if data.failed else "")
     )
 
 
@@ -2115,9 +2144,17 @@ def suite_section(
         f"{_counts_text(sm['generator'])}; torch threads {_counts_text(sm['torch_threads'])}; "
         f"host {_counts_text(sm['host'])}",
         f"- Runs: {sm['scored']} scored of {sm['expected']} "
-        f"(= {sm['scenes']} scenes x {sm['rows']} rows x {sm['seeds']} seeds); missing: "
+        f"(= {sm['scenes']} scenes x {sm['rows']} rows x {sm['seeds']} seeds); "
+        + (f"failed: {sm['failed']}; " if sm["failed"] else "")
+        + "missing: "
         + miss_txt,
     ]
+    if data.failed:
+        lines.append(
+            "- **Failed runs** (the job's last attempt stopped with an error; a result of the "
+            "configuration when it repeats, and its (scene, seed) pair is left out of every row's "
+            "tables): " + "; ".join(f"`{e['run_dir']}`: {_short(e['error'])}" for e in data.failed)
+        )
     ft = floors_text(data, floors or {})
     if ft:
         lines.append(ft)
@@ -2313,15 +2350,15 @@ def render_results(
         ]
     if names:
         lines += [
-            "| suite | scenes | rows | seeds | preset | scored | missing |",
-            "|:---|---:|---:|---:|:---|---:|---:|",
+            "| suite | scenes | rows | seeds | preset | scored | failed | missing |",
+            "|:---|---:|---:|---:|:---|---:|---:|---:|",
         ]
         for n in names:
             sm = _suite_summary(datas[n])
             lines.append(
                 f"| [{n}](#{n}) | {sm['scenes']} of {sm['all_scenes']} | {sm['rows']} | "
                 f"{sm['seeds']} | {_presets_text(sm['presets'])} | {sm['scored']} of "
-                f"{sm['expected']} | {sm['missing']} |"
+                f"{sm['expected']} | {sm['failed']} | {sm['missing']} |"
             )
         lines.append("")
     absent = [n for n in SUITE_ORDER if n not in names]

@@ -25,7 +25,10 @@ Failures: by default a job that fails (bad input, a diverged run, a bug) is repo
 goes on with the other jobs; the jobs of a clip that could not be made are skipped. `run_suite`
 returns every job's result, the failed ones with an "error" entry, and `m4dgs-eval run` exits with
 status 1 naming them after the last job. `fail_fast=True` (`--fail-fast`) stops at the first
-failure instead."""
+failure instead. A job that fails while training or scoring leaves `<run>/failure.json` (its
+one-line error and when), which `m4dgs-eval export` turns into a row with status "failed" and the
+results page lists; a later attempt of the job (a suite or campaign run again retries it) removes
+the file when it scores."""
 
 from __future__ import annotations
 
@@ -54,6 +57,33 @@ SHARE_DIR = ".shared"  # under OUT: trainer phases shared between runs (m4dgs.tr
 
 
 SEED_SUFFIX = "-seed-"
+FAILURE_FILE = "failure.json"  # in a run folder: the last attempt of its job failed
+
+
+def error_line(exc: BaseException) -> str:
+    """One line for an error: the message of the project's own errors (they name the file, key or
+    stage), the type and first line of any other exception."""
+    one = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return one if isinstance(exc, M4DGSError) else f"{type(exc).__name__}: {one}"
+
+
+def record_failure(run_dir, error: str) -> None:
+    """Write <run_dir>/failure.json {"error", "time"} (atomic) when the run folder exists."""
+    d = Path(run_dir)
+    if d.is_dir():
+        stamp = time.strftime("%Y-%m-%dT%H:%M:%S")
+        mio.write_json(d / FAILURE_FILE, {"error": error, "time": stamp})
+
+
+def read_failure(run_dir) -> Optional[str]:
+    """The recorded error of a run folder's last failed attempt, or None."""
+    p = Path(run_dir) / FAILURE_FILE
+    if not p.exists():
+        return None
+    try:
+        return str(mio.read_json(p).get("error") or "failed (no message recorded)")
+    except (OSError, M4DGSError):
+        return "failed (unreadable failure.json)"
 
 
 def seed_run_name(row: str, seed: int) -> str:
@@ -307,21 +337,28 @@ def run_job(
         return res
     run_dir = Path(job.run_dir)
     status = run_dir / "status.json"
-    if not (status.exists() and mio.read_json(status).get("stage") == "done"):
-        train_job(job, device=device, progress=progress, share=share)
-        steps.append("train")
-    mpath = run_dir / "metrics.json"
-    if force or not mpath.exists():
-        from .score import score_run  # deferred: scoring loads torch and the metrics (~1.5 s)
+    what = "training"
+    try:
+        if not (status.exists() and mio.read_json(status).get("stage") == "done"):
+            train_job(job, device=device, progress=progress, share=share)
+            steps.append("train")
+        mpath = run_dir / "metrics.json"
+        if force or not mpath.exists():
+            from .score import score_run  # deferred: scoring loads torch and the metrics (~1.5 s)
 
-        score_run(
-            run_dir,
-            clip=job.clip_dir,
-            lpips_weights=lpips_weights,
-            device=device,
-            **(score_kw or {}),
-        )
-        steps.append("score")
+            what = "scoring"
+            score_run(
+                run_dir,
+                clip=job.clip_dir,
+                lpips_weights=lpips_weights,
+                device=device,
+                **(score_kw or {}),
+            )
+            steps.append("score")
+    except Exception as exc:  # recorded for the CSV and the results page, then raised as before
+        record_failure(run_dir, f"{what}: {error_line(exc)}")
+        raise
+    (run_dir / FAILURE_FILE).unlink(missing_ok=True)  # an earlier attempt's record
     res.update(metrics=str(mpath), seconds=round(time.perf_counter() - t0, 2), steps=steps)
     return res
 
@@ -355,8 +392,7 @@ def _run_job_kw(job: Job, kw: dict) -> dict:
 def _failure(job: "Job", exc: BaseException, what: str) -> dict:
     """The result entry of a failed job: its id, folders and a one-line error (with the type of an
     unexpected exception, whose traceback the caller logs)."""
-    one = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-    msg = one if isinstance(exc, M4DGSError) else f"{type(exc).__name__}: {one}"
+    msg = error_line(exc)
     return {
         "id": job.id,
         "clip": job.clip_dir,

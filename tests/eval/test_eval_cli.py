@@ -729,8 +729,10 @@ def _crashing_clip(job, progress=False):
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_run_suite_goes_on_after_a_failed_job_and_retries_it(tmp_path, fake_trainer, jobs):
     """A job that fails (an input error, a bug) and the jobs of a clip that cannot be made are
-    reported; the other jobs finish; `m4dgs-eval run` exits 1 naming the failures; a second run
-    retries only what failed; --fail-fast stops at the first failure."""
+    reported; the other jobs finish; `m4dgs-eval run` exits 1 naming the failures; the failed run
+    records its error (failure.json), which `export` turns into a "failed" row; a second run
+    retries only what failed and, when it scores, removes the record; --fail-fast stops at the
+    first failure."""
     import multiprocessing as mp
 
     import eval.runner as runner
@@ -753,6 +755,7 @@ def test_run_suite_goes_on_after_a_failed_job_and_retries_it(tmp_path, fake_trai
 
     def bad_train(clip_dir, run_dir, *a, **k):
         if Path(run_dir).name == "base":
+            Path(run_dir).mkdir(parents=True, exist_ok=True)  # as the trainer does, then fails
             raise InputError(f"{clip_dir}/clip.json: field 'exposures' is broken")
         return good_train(clip_dir, run_dir, *a, **k)
 
@@ -776,7 +779,20 @@ def test_run_suite_goes_on_after_a_failed_job_and_retries_it(tmp_path, fake_trai
         flag_key = next(j.clip_key for j in jl if j.scene == "tiny-flag-arm")
         assert f"FAILED clip {flag_key}: making the clip: RuntimeError" in text
         assert "Traceback" in text  # the unexpected error's traceback is logged
-        assert not (Path(by[("tiny-lamp-box", "base")]["run"]) / "metrics.json").exists()
+        base_run = Path(by[("tiny-lamp-box", "base")]["run"])
+        assert not (base_run / "metrics.json").exists()
+        want = f"training: {Path(next(iter(lamp)))}/clip.json: field 'exposures' is broken"
+        assert runner.read_failure(base_run) == want
+        assert runner.read_failure(by[("tiny-lamp-box", "full")]["run"]) is None
+        # export: the failed run is a "failed" row with its error, the scored one "scored"
+        from eval.results import export as export_runs
+        from eval.results import read_runs_csv
+
+        csvp = tmp_path / f"runs-{jobs}.csv"
+        summary = export_runs([str(suite)], out, csvp, scenes=["tiny-lamp-box"])
+        assert next(iter(summary.values())) == {"scored": 1, "failed": 1, "missing": 0}
+        got = {r["row"]: (r["status"], r["error"]) for r in read_runs_csv(csvp)}
+        assert got == {"full": ("scored", ""), "base": ("failed", want)}
 
         # fail fast: the first failure propagates
         with pytest.raises((InputError, RuntimeError)):
@@ -802,6 +818,7 @@ def test_run_suite_goes_on_after_a_failed_job_and_retries_it(tmp_path, fake_trai
     assert by[("tiny-lamp-box", "full")]["steps"] == []
     assert by[("tiny-lamp-box", "base")]["steps"] == ["train", "score"]
     assert by[("tiny-flag-arm", "full")]["steps"] == ["train", "score"]
+    assert not (Path(by[("tiny-lamp-box", "base")]["run"]) / runner.FAILURE_FILE).exists()
 
 
 def test_run_suite_process_pool(tmp_path, fake_trainer):
@@ -1295,6 +1312,7 @@ def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trai
 
     def train(clip_dir, run_dir, **k):  # the fake trainer, recording the code as the real one does
         if any(str(run_dir).endswith(d) for d in diverge):
+            Path(run_dir).mkdir(parents=True, exist_ok=True)  # the real trainer's folder exists
             raise RuntimeError("diverged")
         fake_train(clip_dir, run_dir, **k)
         rj = Path(run_dir) / "run.json"
@@ -1302,8 +1320,13 @@ def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trai
         return run_dir
 
     monkeypatch.setattr(pmod, "train", train)
-    with pytest.raises(M4DGSError, match="1 job"):
+    with pytest.raises(M4DGSError, match=r"jobs failed in step 2 \(.*\): 1 job"):
         run_campaign(camp, out, csv_path, **kw)
+    with open(csv_path) as f:
+        failed = [r for r in csv.DictReader(f) if r["status"] == "failed"]
+    assert [(r["scene"], r["row"], r["seed"], r["error"]) for r in failed] == [
+        ("tiny-flag-arm", "full", "1", "training: RuntimeError: diverged")
+    ]
 
     def csv_keys():
         with open(csv_path) as f:
@@ -1343,6 +1366,44 @@ def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trai
     assert len(fake_trainer["train"]) == 8  # only the job the CSV lacked
     assert fake_trainer["train"][-1][0].endswith("tiny-flag-arm/full-seed-1")
     assert len(csv_keys()) == 8
+    with open(csv_path) as f:  # the retried run replaced its failed row
+        assert {r["status"] for r in csv.DictReader(f)} == {"scored"}
+
+
+def test_campaign_goes_on_after_a_step_with_a_failed_job(tmp_path, fake_trainer, monkeypatch):
+    """A job that fails in step 1 does not hold up step 2: every other job trains, the failed run
+    is a "failed" row of the CSV, and the campaign ends with an error naming both steps it failed
+    in (step 2 retries the same job)."""
+    import csv
+    import sys
+
+    from eval.campaign import run_campaign
+    from m4dgs.core.errors import M4DGSError
+
+    suite, out, csv_path, camp = _two_step_campaign(tmp_path)
+    kw = dict(log=lambda s: None, run_kw={"score_kw": {"fps": False}, "progress": False})
+    pmod = sys.modules["m4dgs.training.pipeline"]
+    fake_train = pmod.train
+
+    def train(clip_dir, run_dir, **k):
+        if str(run_dir).endswith("tiny-lamp-box/base"):  # step 1's and step 2's seed-0 job
+            Path(run_dir).mkdir(parents=True, exist_ok=True)
+            raise RuntimeError("diverged")
+        fake_train(clip_dir, run_dir, **k)
+        rj = Path(run_dir) / "run.json"  # the code fingerprint, as the real trainer records it
+        mio.write_json(rj, dict(mio.read_json(rj), code=code))
+        return run_dir
+
+    code = "c0ffee" + "0" * 58
+    monkeypatch.setattr(pmod, "train", train)
+    with pytest.raises(M4DGSError, match=r"step 1 \(.*\): 1 job.*; step 2 \(.*\): 1 job"):
+        run_campaign(camp, out, csv_path, code=code, **kw)
+    assert len(fake_trainer["train"]) == 7  # step 2's other seven jobs
+    with open(csv_path) as f:
+        st = sorted((r["scene"], r["row"], r["seed"], r["status"]) for r in csv.DictReader(f))
+    assert len(st) == 8 and [x for x in st if x[3] != "scored"] == [
+        ("tiny-lamp-box", "base", "0", "failed")
+    ]
 
 
 SHARE_SUITE_YAML = """name: t3

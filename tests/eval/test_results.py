@@ -441,7 +441,9 @@ def test_export_merge_results_readme(tmp_path):
         "0.071 (0.071-0.071)" in text
     )
     assert "the clips' HDR-TAE floors in `runs-floors.csv`" in text
-    assert "| [paper-ablation](#paper-ablation) | 3 of 9 | 6 | 2 | small | 35 of 36 | 1 |" in text
+    assert (
+        "| [paper-ablation](#paper-ablation) | 3 of 9 | 6 | 2 | small | 35 of 36 | 0 | 1 |" in text
+    )
     # figures
     figs = docs / "figures" / "results"
     for suite in ("paper-ablation", "paper-main"):
@@ -723,6 +725,60 @@ def test_results_of_a_suite_in_progress(tmp_path):
         m, h = mean_ci(v)
         assert body[labels[name]]["n"] == "2"
         assert unbold(body[labels[name]]["LDR-OE PSNR↑"]) == f"{m:.2f} ± {h:.2f}"
+
+
+def test_results_lists_failed_runs_and_leaves_their_pair_out(tmp_path):
+    """A run whose job failed is a "failed" row with its error: the page counts and lists it, the
+    tables leave its (scene, seed) pair out of every row, and a failed row never replaces a scored
+    one in a merge (a missing one it does)."""
+    from eval.results import FAILED, MISSING, SCORED, merge_rows, write_runs_csv
+
+    rng = np.random.default_rng(5)
+    csvp, readme = tmp_path / "runs.csv", tmp_path / "README.md"
+    out = tmp_path / "docs" / "results.md"
+    err = "training: stage2: step 2038: the tone mapper's input ... spans -17.0 .. inf"
+
+    def row(scene, name, status=SCORED):
+        r = {"suite": "paper-main", "scene": scene, "row": name, "seed": 0, "label": name}
+        r.update(variant=name, preset="small", status=status, ldr_convention="ldr_png")
+        if status == SCORED:
+            r.update({k: float(rng.uniform(20, 30)) for k in METRICS})
+        elif status == FAILED:
+            r["error"] = err
+        return r
+
+    rows = [row(sc, n) for sc in MAIN_SCENES for n in MAIN_ROWS]
+    failed = (MAIN_SCENES[1], "full")
+    rows = [r if (r["scene"], r["row"]) != failed else row(*failed, FAILED) for r in rows]
+    write_runs_csv(csvp, rows)
+    readme.write_text("x\n<!-- results:main:start -->\n<!-- results:main:end -->\n")
+    args = ["results", "--csv", str(csvp), "--out", str(out), "--readme", str(readme)]
+    r = CliRunner().invoke(main, args + ["--no-figures"])
+    assert r.exit_code == 0, r.output
+    text = out.read_text()
+    n = len(MAIN_SCENES) * len(MAIN_ROWS)
+    assert (
+        f"| [paper-main](#paper-main) | 2 of 9 | 5 | 1 | small | {n - 1} of {n} | 1 | 0 |" in text
+    )
+    assert f"scored of {n} (= 2 scenes x 5 rows x 1 seeds); failed: 1; missing: 0" in text
+    assert "- **Failed runs** (" in text and f"`paper-main/{failed[0]}/full`: {err}" in text
+    assert "the 1 of 2 (scene, seed) pairs" in text
+    assert "or are left out with the failed run(s) of their pair" in text
+    from eval.suite import load_eval_suite
+
+    labels = {x.name: x.label for x in load_eval_suite("paper-main").rows}
+    t = table_after(text, "Syn-Exp-3 test frames (paper Table 1)")
+    body = {c[0]: dict(zip(t[0], c)) for c in t[1:]}
+    for name in MAIN_ROWS:  # every row on the one complete pair: the first scene's value
+        v = next(
+            x["ldr_oe_psnr"] for x in rows if x["row"] == name and x["scene"] == MAIN_SCENES[0]
+        )
+        assert body[labels[name]]["n"] == "1"
+        assert unbold(body[labels[name]]["LDR-OE PSNR↑"]).startswith(f"{v:.2f}")
+    # merging: failed never replaces scored, replaces missing
+    scored, fail, miss = row("s", "full"), row("s", "full", FAILED), row("s", "full", MISSING)
+    assert merge_rows([scored], [fail]) == [scored]
+    assert merge_rows([miss], [fail]) == [fail]
 
 
 def test_results_warns_of_runs_that_lack_a_metric_their_row_reports(tmp_path):
