@@ -24,8 +24,7 @@ Before a step trains anything, the m4dgs code of its finished runs (run.json `co
 was started with (its paired differences would compare code versions), unless allow_mixed_code.
 A job that fails (a diverged run, a bug) does not hold the campaign up: its step is exported (the
 run becomes a "failed" row with its error, eval.runner.record_failure), the later steps run, and
-the campaign ends with an error naming every failed job; running it again retries them.
-"""
+the campaign ends with an error naming every failed job; running it again retries them."""
 
 from __future__ import annotations
 
