@@ -11,6 +11,8 @@ layout is below; docs/method.md lists the trainer phases that fill it, docs/outp
   model/stage1.pt        final stage-1 model;  model/final.pt  final model
   cameras.json           estimated cameras (BA, then refined)
   renders/...            written by m4dgs.outputs.render
+  failure.json           {"error", "time"}: written by `m4dgs-eval run` / `campaign` when the job's
+                         last attempt failed (eval.runner.record_failure), removed once it scores
 """
 
 from __future__ import annotations
