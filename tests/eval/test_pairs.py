@@ -35,6 +35,28 @@ def _rows(rng):
     return rows
 
 
+def test_pairs_name_the_failed_runs_they_leave_out(tmp_path):
+    """A failed run's pair is not among the differences, and the output says which run failed and
+    why; a failed run of a row not compared is not named."""
+    from eval.pairs import pair_differences, pairs_markdown
+
+    rows = _rows(np.random.default_rng(0))
+    fail = dict(suite="paper-ablation", scene="b-scene", row="no-reproj", seed=1, status="failed")
+    fail["error"] = "training: stage2: step 2038: the tone mapper's input ... inf"
+    rows = [r for r in rows if (r["scene"], r["seed"], r["row"]) != ("b-scene", 1, "no-reproj")]
+    rows += [fail, dict(fail, row="no-tlr", scene="a-scene", seed=1)]
+    assert ("b-scene", 1) not in pair_differences(
+        rows, "paper-ablation", "no-reproj", "full", "ldr_oe_psnr"
+    )
+    text = pairs_markdown(rows, "paper-ablation", metrics=["ldr_oe_psnr"], row_names=["no-reproj"])
+    assert "(4)" in text  # 5 pairs less the failed one
+    assert (
+        "Failed runs (their (scene, seed) pairs are not in the differences above): "
+        "paper-ablation:no-reproj on b-scene seed 1 (training: stage2: step 2038:" in text
+    )
+    assert "no-tlr on a-scene" not in text
+
+
 def test_pairs_are_the_paired_differences(tmp_path):
     from eval.cli import main
     from eval.pairs import pair_differences, pairs_markdown
