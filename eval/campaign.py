@@ -231,22 +231,23 @@ def job_key(job) -> tuple:
 def step_status(
     step: Step, root, preset: str, recorded: Optional[Dict[tuple, dict]] = None
 ) -> dict:
-    """{"total", "scored", "recorded", "codes", "todo_iterations", "sec_per_iteration",
+    """{"total", "scored", "recorded", "failed", "codes", "todo_iterations", "sec_per_iteration",
     "job_costs"}: the step's jobs, how many are finished (metrics.json under ROOT, or, for a job
     without a run folder under ROOT, a scored row of `recorded`, the runs CSV: recorded_runs),
-    how many of those only the CSV holds, a Counter of the m4dgs code (run.json / CSV `code`, 12
-    hex digits) of the finished ones, the iterations of the jobs still to train, and the
+    how many of those only the CSV holds, how many unfinished ones failed at their last attempt
+    (<run>/failure.json: eval.runner.record_failure), a Counter of the m4dgs code (run.json / CSV
+    `code`, 12 hex digits) of the finished ones, the iterations of the jobs still to train, and the
     recorded training seconds per iteration of each finished run (run.json `train_seconds`, or
     the CSV's `train_minutes`: the method's cost, shared phases counted at their producer's
     time), and per job (finished, stage-1 share key, stage-1 iterations, stage-2 iterations) for
     todo_iterations (todo_iterations here counts every job in full), with its whole-training
     share key and whether it finished with a run folder under ROOT."""
-    from .runner import job_list
+    from .runner import job_list, read_failure
 
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
     recorded = recorded or {}
     codes: Counter = Counter()
-    scored, in_csv, todo, rates, costs = 0, 0, 0, [], []
+    scored, in_csv, failed, todo, rates, costs = 0, 0, 0, 0, [], []
     for j in jl:
         run = Path(j.run_dir)
         row = recorded.get(job_key(j))
@@ -269,10 +270,12 @@ def step_status(
                 rates.append(float(sec) / max(s1 + s2, 1))
         else:
             todo += s1 + s2
+            failed += read_failure(run) is not None
     return {
         "total": len(jl),
         "scored": scored,
         "recorded": in_csv,
+        "failed": failed,
         "codes": codes,
         "todo_iterations": todo,
         "sec_per_iteration": rates,
@@ -385,6 +388,7 @@ def run_campaign(
             f"[campaign {campaign.name}] step {i}/{n}: {st.suite} ({where}, {st.seeds} seed(s)): "
             f"{s['scored']} of {s['total']} runs scored"
             + (f" ({s['recorded']} of them only in {csv_path})" if s["recorded"] else "")
+            + (f"; {s['failed']} failed at their last attempt" if s.get("failed") else "")
             + eta
         )
         if dry_run:

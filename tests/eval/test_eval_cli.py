@@ -1404,6 +1404,11 @@ def test_campaign_goes_on_after_a_step_with_a_failed_job(tmp_path, fake_trainer,
     assert len(st) == 8 and [x for x in st if x[3] != "scored"] == [
         ("tiny-lamp-box", "base", "0", "failed")
     ]
+    # the dry run counts the failed job in both steps that hold it
+    lines = []
+    plan = run_campaign(camp, out, csv_path, dry_run=True, code=code, log=lines.append)
+    assert [p["failed"] for p in plan] == [1, 1]
+    assert sum("1 failed at their last attempt" in ln for ln in lines) == 2
 
 
 SHARE_SUITE_YAML = """name: t3
