@@ -12,15 +12,15 @@ metrics.json ("missing", or "failed" with its error when the job's last attempt 
 eval.runner.record_failure) never replaces a scored row, and rows of other suites, scenes or seeds
 stay, so suites run in different sessions accumulate.
 
-`results` renders, for every suite in the CSV, what stands behind it (scenes, seeds, presets, scored
-and missing runs), every table of the suite through eval.cli.build_tables (the same code as `eval
-table`: mean +- Student-t 95 % interval, paired differences to the reference row, the paper's values
-and the direction-agreement column) over the (scene, seed) pairs on which every row with runs is
-scored (SuiteData.complete_pairs: a suite still running compares every row on the same runs),
-figures (per-scene bars of the main metric, learned CRF curves against the true ones, HDR-TAE vs
-LDR-OE PSNR per run and as paired differences to the reference row), and a "Findings" section with
-one table per finding of the paper (FINDINGS): the paper's difference, ours with its interval and
-number of (scene, seed) pairs, and the verdict; then a "Controls" section (CONTROLS): for each
+`results` renders, for every suite in the CSV, what stands behind it (scenes, seeds, presets,
+scored, failed and missing runs), every table of the suite through eval.cli.build_tables (the same
+code as `eval table`: mean +- Student-t 95 % interval, paired differences to the reference row, the
+paper's values and the direction-agreement column) over the (scene, seed) pairs on which every row
+with runs is scored (SuiteData.complete_pairs: a suite still running compares every row on the same
+runs), figures (per-scene bars of the main metric, learned CRF curves against the true ones, HDR-TAE
+vs LDR-OE PSNR per run and as paired differences to the reference row), and a "Findings" section
+with one table per finding of the paper (FINDINGS): the paper's difference, ours with its interval
+and number of (scene, seed) pairs, and the verdict; then a "Controls" section (CONTROLS): for each
 control run for a disagreement, the effect as found, the same effect under the control, and their
 difference in differences with its interval. It also replaces the block between README_START and
 README_END of the README with the main table. The output depends only on the CSV (no dates), so
