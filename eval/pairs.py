@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from typing import Dict, List, Optional, Sequence
 
-from .results import FAILED, SCORED, pair_differences
+from .results import FAILED, SCORED, one_line, pair_differences
 from .stats import holm as holm_adjust
 from .stats import mean_ci, scene_heterogeneity, scene_mean_ci
 
@@ -192,16 +192,16 @@ def pairs_markdown(
             )
         out.append("")
     # the pairs a failed run keeps out (a result of its configuration, not a run still to come)
-    sides = [(suite, n) for n in [ref, *wanted]]
+    sides = {(suite, n) for n in [ref, *wanted]}
     if against is not None:
-        sides += [(against[0], against[1]), (against[0], against[2])]
-    failed = [r for r in rows if r.get("status") == FAILED and (r["suite"], r["row"]) in set(sides)]
+        sides |= {(against[0], against[1]), (against[0], against[2])}
+    failed = [r for r in rows if r.get("status") == FAILED and (r["suite"], r["row"]) in sides]
     if failed:
         out += [
             "Failed runs (their (scene, seed) pairs are not in the differences above): "
             + "; ".join(
                 f"{r['suite']}:{r['row']} on {r['scene']} seed {r['seed']} "
-                f"({' '.join(str(r.get('error') or 'no message').split())[:160]})"
+                f"({one_line(r.get('error') or 'no message', 160)})"
                 for r in failed
             ),
             "",

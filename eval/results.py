@@ -2012,7 +2012,7 @@ def _suite_summary(data: SuiteData) -> dict:
     }
 
 
-def _short(text: str, limit: int = 240) -> str:
+def one_line(text: str, limit: int = 240) -> str:
     """One line of at most `limit` characters (an error message on the page)."""
     t = " ".join(str(text).split())
     return t if len(t) <= limit else t[: limit - 3] + "..."
@@ -2153,7 +2153,8 @@ def suite_section(
         lines.append(
             "- **Failed runs** (the job's last attempt stopped with an error; a result of the "
             "configuration when it repeats, and its (scene, seed) pair is left out of every row's "
-            "tables): " + "; ".join(f"`{e['run_dir']}`: {_short(e['error'])}" for e in data.failed)
+            "tables): "
+            + "; ".join(f"`{e['run_dir']}`: {one_line(e['error'])}" for e in data.failed)
         )
     ft = floors_text(data, floors or {})
     if ft:
