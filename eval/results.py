@@ -1218,6 +1218,31 @@ CONTROLS: Tuple[Control, ...] = (
             "control-tlr-floor", "full-tlr-0.1-floor", "full-floor", "a floor in the denominator"
         ),
     ),
+    # added 2026-11-29 before any run of control-tlr-weight (docs/results-notes.md): the floor
+    # run at weight 0.1 against the weight alone at 0.03 and at 0.05, each against its own suite's
+    # full; the one of the two whose HDR-TAE effect is nearer the floor run's is the reading
+    *(
+        Control(
+            f"tlr-floor-vs-weight-{w}",
+            f"TLR's denominator floor: a weaker TLR? (the floor at weight 0.1 against weight {w} "
+            "with the paper's denominator)",
+            "method",
+            Effect(
+                "control-tlr-weight",
+                f"full-tlr-{w}",
+                "full",
+                f"weight {w}, the paper's denominator",
+            ),
+            Effect(
+                "control-tlr-floor",
+                "full-tlr-0.1-floor",
+                "full",
+                "weight 0.1, a floor in the denominator",
+            ),
+            ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "hdr_tce"),
+        )
+        for w in ("0.03", "0.05")
+    ),
     Control(
         "schedule-coverage",
         "Schedules: is random values' HDR PSNR cost the few frames near the range's ends? "

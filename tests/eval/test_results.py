@@ -672,7 +672,7 @@ def test_results_pending(tmp_path):
     assert "**The runs are pending**" in text and "does not exist yet" in text
     from eval.results import CONTROLS, FINDINGS
 
-    assert text.count("**not enough data**") == len(FINDINGS) + len(CONTROLS) == 31
+    assert text.count("**not enough data**") == len(FINDINGS) + len(CONTROLS) == 33
     assert "The result tables are pending" in readme.read_text()
     assert not (tmp_path / "docs" / "figures" / "results").exists() or not any(
         (tmp_path / "docs" / "figures" / "results").iterdir()
