@@ -24,7 +24,9 @@ Before a step trains anything, the m4dgs code of its finished runs (run.json `co
 was started with (its paired differences would compare code versions), unless allow_mixed_code.
 A job that fails (a diverged run, a bug) does not hold the campaign up: its step is exported (the
 run becomes a "failed" row with its error, eval.runner.record_failure), the later steps run, and
-the campaign ends with an error naming every failed job; running it again retries them."""
+the campaign ends with an error naming every failed job; running it again retries them, unless
+told not to (retry_failed False, `--no-retry-failed`: a failure that repeats is a result of its
+configuration, and its row stays "failed")."""
 
 from __future__ import annotations
 
@@ -229,7 +231,11 @@ def job_key(job) -> tuple:
 
 
 def step_status(
-    step: Step, root, preset: str, recorded: Optional[Dict[tuple, dict]] = None
+    step: Step,
+    root,
+    preset: str,
+    recorded: Optional[Dict[tuple, dict]] = None,
+    retry_failed: bool = True,
 ) -> dict:
     """{"total", "scored", "recorded", "failed", "codes", "todo_iterations", "sec_per_iteration",
     "job_costs"}: the step's jobs, how many are finished (metrics.json under ROOT, or, for a job
@@ -241,7 +247,8 @@ def step_status(
     the CSV's `train_minutes`: the method's cost, shared phases counted at their producer's
     time), and per job (finished, stage-1 share key, stage-1 iterations, stage-2 iterations) for
     todo_iterations (todo_iterations here counts every job in full), with its whole-training
-    share key and whether it finished with a run folder under ROOT."""
+    share key and whether it finished with a run folder under ROOT. retry_failed False: a job
+    whose last attempt failed will not run again, so it adds nothing to todo_iterations."""
     from .runner import job_list, read_failure
 
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
@@ -253,6 +260,9 @@ def step_status(
         row = recorded.get(job_key(j))
         done = (row is not None and not run.exists()) or (run / "metrics.json").exists()
         key, s1, s2, tkey = job_plan(j)
+        if not (done or retry_failed) and read_failure(run) is not None:
+            failed += 1  # kept as it is: nothing to train, nothing shared
+            continue
         costs.append((done, key, s1, s2, tkey, (run / "metrics.json").exists()))
         if row is not None and not run.exists():  # a run folder, even unscored, wins
             scored += 1
@@ -320,6 +330,7 @@ def run_campaign(
     jobs: int = 1,
     dry_run: bool = False,
     allow_mixed_code: bool = False,
+    retry_failed: bool = True,
     code: Optional[str] = None,
     log: Optional[Callable[[str], None]] = None,
     run_kw: Optional[dict] = None,
@@ -332,7 +343,9 @@ def run_campaign(
     code: the fingerprint of this checkout's m4dgs sources (default: computed). Raises InputError
     before a step whose finished runs have other code (unless allow_mixed_code) and, after the
     last step, M4DGSError naming the jobs that failed in any step (each step exported first, the
-    failed runs as "failed" rows)."""
+    failed runs as "failed" rows). retry_failed False: a job whose last attempt failed counts as
+    finished (its row stays "failed"; it is not run again, so neither the mixed-code check nor the
+    final error concerns it)."""
     from m4dgs.core.errors import M4DGSError
 
     from .results import export
@@ -354,7 +367,9 @@ def run_campaign(
     recorded = recorded_runs(csv_path, campaign.preset, str(GENERATOR_VERSION))
     # the time estimate: the median recorded seconds per iteration over every finished run of the
     # campaign, in this root or in the CSV (one machine, one --jobs setting make it meaningful)
-    statuses = [step_status(st, root, campaign.preset, recorded) for st in campaign.steps]
+    statuses = [
+        step_status(st, root, campaign.preset, recorded, retry_failed) for st in campaign.steps
+    ]
     rates = sorted(r for s in statuses for r in s["sec_per_iteration"])
     rate_source = "scored run(s) of this campaign in this root or the CSV"
     if not rates and any(s["todo_iterations"] for s in statuses):
@@ -372,7 +387,7 @@ def run_campaign(
         if i == 1 or dry_run:
             s = statuses[i - 1]
         else:  # earlier steps have run since: this step's state now
-            s = statuses[i - 1] = step_status(st, root, campaign.preset, recorded)
+            s = statuses[i - 1] = step_status(st, root, campaign.preset, recorded, retry_failed)
             # the earlier steps' statuses from the start still name what they share: a stage 1 or
             # a training they had to do was counted there, so this step counts it once at most
             s["todo_iterations"] = todo_iterations(statuses[:i])[-1]
@@ -389,13 +404,16 @@ def run_campaign(
             f"{s['scored']} of {s['total']} runs scored"
             + (f" ({s['recorded']} of them only in {csv_path})" if s["recorded"] else "")
             + (f"; {s['failed']} failed at their last attempt" if s.get("failed") else "")
+            + (" (not retried)" if s.get("failed") and not retry_failed else "")
             + eta
         )
         if dry_run:
             out.append(summary)
             continue
+        # the jobs this step would run: not the scored ones, nor the failed ones when not retried
+        settled = s["scored"] + (0 if retry_failed else s["failed"])
         other = {c: k for c, k in s["codes"].items() if c != code}
-        if other and s["scored"] < s["total"] and not allow_mixed_code:
+        if other and settled < s["total"] and not allow_mixed_code:
             raise InputError(
                 f"campaign {campaign.name}, step {i} ({st.suite}): "
                 + ", ".join(f"{k} finished run(s) with m4dgs code {c}" for c, k in other.items())
@@ -411,7 +429,7 @@ def run_campaign(
                     say(f"[campaign {campaign.name}] not exported: {e}")
 
         res = []
-        if s["scored"] < s["total"]:
+        if settled < s["total"]:
             res = run_suite(
                 st.suite,
                 root,
@@ -424,10 +442,11 @@ def run_campaign(
                 # so that a lost root loses at most the runs in progress
                 skip=lambda j: job_key(j) in recorded and not Path(j.run_dir).exists(),
                 on_result=lambda j, r: export_step(quiet=True),
+                retry_failed=retry_failed,
                 **(run_kw or {}),
             )
             summary["ran"] = True
-        summary.update(step_status(st, root, campaign.preset, recorded))
+        summary.update(step_status(st, root, campaign.preset, recorded, retry_failed))
         bad = failed_jobs(res)
         if summary["scored"] > summary["recorded"] or bad:
             export_step()  # with failed jobs: their rows say "failed" and why

@@ -292,6 +292,15 @@ _no_share_opt = click.option(
 )
 
 
+_no_retry_failed_opt = click.option(
+    "--no-retry-failed",
+    is_flag=True,
+    help="Do not run again a job whose last attempt failed (<run>/failure.json): a failure that "
+    "repeats is a result of its configuration, and its row stays `failed`. By default such jobs "
+    "are retried.",
+)
+
+
 @main.command()
 @click.argument("suite")
 @_out_opt
@@ -325,6 +334,7 @@ _no_share_opt = click.option(
     help="Stop at the first failed job. By default a failed job is reported and the others go "
     "on; the command then exits with status 1 naming the failed jobs.",
 )
+@_no_retry_failed_opt
 def run(
     suite,
     out,
@@ -339,6 +349,7 @@ def run(
     device,
     no_share,
     fail_fast,
+    no_retry_failed,
 ):
     """Make missing clips, train missing runs and score missing metrics of SUITE (name or YAML
     path); resumable."""
@@ -375,6 +386,7 @@ def run(
         seeds=seeds,
         share=not no_share,
         fail_fast=fail_fast,
+        retry_failed=not no_retry_failed,
     )
     for r in res:
         click.echo(json.dumps(r))
@@ -676,11 +688,21 @@ _runs_csv_opt = click.option(
     help="Finish a step whose finished runs were trained with other m4dgs code than this "
     "checkout's (by default the campaign stops there: one table, one code version).",
 )
+@_no_retry_failed_opt
 @_lpips_opt
 @_device_opt
 @_no_share_opt
 def campaign(
-    campaign, out, jobs, csv_path, dry_run, allow_mixed_code, lpips_weights, device, no_share
+    campaign,
+    out,
+    jobs,
+    csv_path,
+    dry_run,
+    allow_mixed_code,
+    no_retry_failed,
+    lpips_weights,
+    device,
+    no_share,
 ):
     """Run the suites of CAMPAIGN (a name from eval/campaigns or a YAML path) one after another
     into ROOT, exporting each into the runs CSV as soon as it is done; resumable (run the same
@@ -695,10 +717,14 @@ def campaign(
         jobs=jobs,
         dry_run=dry_run,
         allow_mixed_code=allow_mixed_code,
+        retry_failed=not no_retry_failed,
         log=lambda s: click.echo(s, err=True),
         run_kw=dict(lpips_weights=lpips_weights, device=device, share=not no_share),
     )
-    done = sum(r["scored"] == r["total"] for r in res)
+    # a step is complete when each job scored, or failed and is not to be retried
+    done = sum(
+        r["scored"] + (r.get("failed", 0) if no_retry_failed else 0) == r["total"] for r in res
+    )
     click.echo(f"[campaign {c.name}] {done} of {len(res)} steps complete", err=True)
 
 

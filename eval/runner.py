@@ -427,6 +427,7 @@ def run_suite(
     fail_fast: bool = False,
     skip: Optional[Callable[[Job], bool]] = None,
     on_result: Optional[Callable[[Job, dict], None]] = None,
+    retry_failed: bool = True,
 ) -> List[dict]:
     """Make every missing clip, then train and score every (scene, row, seed) of a suite; resumable.
 
@@ -434,6 +435,9 @@ def run_suite(
     neither trained nor scored and its clip is made only if another job needs it; its result is
     {"id", "run", "steps": [], "recorded": True}. on_result(job, result) is called in this process
     after each job that finished (not after failed or skipped ones), e.g. to export it at once.
+    retry_failed False: a job whose last attempt failed (<run>/failure.json) is not run again (a
+    failure that repeats is a result of its configuration); its result is {"id", "run", "steps":
+    [], "failed_before": the recorded error}, which failed_jobs does not count.
 
     jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool
     of `jobs` workers, each spending cpu_count / jobs threads as m4dgs.core.threads.use_threads
@@ -443,10 +447,21 @@ def run_suite(
     started), unless fail_fast, which raises the first failure."""
     every = job_list(suite, out, preset, scenes, seeds)
     recorded = {j.id for j in every if skip is not None and skip(j)}
-    jl = [j for j in every if j.id not in recorded]
+    kept: Dict[str, str] = {}  # job id -> error of its last attempt, not retried
+    if not retry_failed:
+        for j in every:
+            err = None if j.id in recorded else read_failure(j.run_dir)
+            if err is not None:
+                kept[j.id] = err
+    jl = [j for j in every if j.id not in recorded and j.id not in kept]
     say = log or (lambda msg: print(msg, file=sys.stderr))
     if recorded:
         say(f"[eval run] {len(recorded)} of {len(every)} jobs are recorded already: not run")
+    if kept:
+        say(
+            f"[eval run] {len(kept)} of {len(every)} jobs failed at their last attempt: not "
+            "retried (" + ", ".join(sorted(kept)[:3]) + (", ..." if len(kept) > 3 else "") + ")"
+        )
     firsts: Dict[str, Job] = {}
     for j in jl:
         firsts.setdefault(j.clip_key, j)
@@ -477,6 +492,13 @@ def run_suite(
 
     def in_order(results: List[dict]) -> List[dict]:
         by_id = {r["id"]: r for r in results}
+        by_id.update(
+            {
+                j.id: {"id": j.id, "run": j.run_dir, "steps": [], "failed_before": kept[j.id]}
+                for j in every
+                if j.id in kept
+            }
+        )
         return [
             {"id": j.id, "run": j.run_dir, "steps": [], "recorded": True}
             if j.id in recorded

@@ -730,9 +730,9 @@ def _crashing_clip(job, progress=False):
 def test_run_suite_goes_on_after_a_failed_job_and_retries_it(tmp_path, fake_trainer, jobs):
     """A job that fails (an input error, a bug) and the jobs of a clip that cannot be made are
     reported; the other jobs finish; `m4dgs-eval run` exits 1 naming the failures; the failed run
-    records its error (failure.json), which `export` turns into a "failed" row; a second run
-    retries only what failed and, when it scores, removes the record; --fail-fast stops at the
-    first failure."""
+    records its error (failure.json), which `export` turns into a "failed" row; told not to retry
+    failed jobs, a run leaves that one alone; a second run retries only what failed and, when it
+    scores, removes the record; --fail-fast stops at the first failure."""
     import multiprocessing as mp
 
     import eval.runner as runner
@@ -793,6 +793,24 @@ def test_run_suite_goes_on_after_a_failed_job_and_retries_it(tmp_path, fake_trai
         assert next(iter(summary.values())) == {"scored": 1, "failed": 1, "missing": 0}
         got = {r["row"]: (r["status"], r["error"]) for r in read_runs_csv(csvp)}
         assert got == {"full": ("scored", ""), "base": ("failed", want)}
+
+        # not retried: the failed job keeps its record and its result says so (not a new
+        # failure); the jobs of the clip that could not be made have no run folder, no record,
+        # and are tried again (and fail again)
+        logs.clear()
+        res = runner.run_suite(suite, out, "tiny", log=logs.append, retry_failed=False, **kw)
+        by = {(j.scene, j.row): r for j, r in zip(jl, res)}
+        assert by[("tiny-lamp-box", "base")] == {
+            "id": by[("tiny-lamp-box", "base")]["id"],
+            "run": str(base_run),
+            "steps": [],
+            "failed_before": want,
+        }
+        assert sorted(r["id"] for r in runner.failed_jobs(res)) == sorted(
+            j.id for j in jl if j.scene == "tiny-flag-arm"
+        )
+        assert "1 of 4 jobs failed at their last attempt: not retried" in "\n".join(logs)
+        assert runner.read_failure(base_run) == want
 
         # fail fast: the first failure propagates
         with pytest.raises((InputError, RuntimeError)):
@@ -1373,12 +1391,13 @@ def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trai
 def test_campaign_goes_on_after_a_step_with_a_failed_job(tmp_path, fake_trainer, monkeypatch):
     """A job that fails in step 1 does not hold up step 2: every other job trains, the failed run
     is a "failed" row of the CSV, and the campaign ends with an error naming both steps it failed
-    in (step 2 retries the same job)."""
+    in (step 2 retries the same job). A newer checkout cannot retry it (mixed code) but, told not
+    to, goes past it with nothing to run."""
     import csv
     import sys
 
     from eval.campaign import run_campaign
-    from m4dgs.core.errors import M4DGSError
+    from m4dgs.core.errors import InputError, M4DGSError
 
     suite, out, csv_path, camp = _two_step_campaign(tmp_path)
     kw = dict(log=lambda s: None, run_kw={"score_kw": {"fps": False}, "progress": False})
@@ -1409,6 +1428,30 @@ def test_campaign_goes_on_after_a_step_with_a_failed_job(tmp_path, fake_trainer,
     plan = run_campaign(camp, out, csv_path, dry_run=True, code=code, log=lines.append)
     assert [p["failed"] for p in plan] == [1, 1]
     assert sum("1 failed at their last attempt" in ln for ln in lines) == 2
+
+    # a checkout with newer code: retrying the failed job would finish step 1 with other code
+    # than its scored job's, so the campaign stops before it; told not to retry it, the campaign
+    # has nothing left to run, trains nothing and ends without an error
+    newer = "beef" + "0" * 60
+    with pytest.raises(
+        InputError, match=r"step 1 \(.*\): 1 finished run\(s\) with m4dgs code c0ffee"
+    ):
+        run_campaign(camp, out, csv_path, code=newer, **kw)
+    lines = []
+    res = run_campaign(
+        camp, out, csv_path, code=newer, retry_failed=False, log=lines.append, run_kw=kw["run_kw"]
+    )
+    assert len(fake_trainer["train"]) == 7 and not any(r["ran"] for r in res)
+    assert [(r["scored"], r["failed"], r["total"]) for r in res] == [(1, 1, 2), (7, 1, 8)]
+    assert sum("failed at their last attempt (not retried)" in ln for ln in lines) == 2
+    monkeypatch.setattr(pmod, "code_fingerprint", lambda: newer, raising=False)
+    r = CliRunner().invoke(
+        main,
+        ["campaign", str(camp.path), "--root", str(out), "--csv", str(csv_path)]
+        + ["--no-retry-failed", "--dry-run"],
+    )
+    assert r.exit_code == 0, r.output
+    assert "2 of 2 steps complete" in r.output
 
 
 SHARE_SUITE_YAML = """name: t3
