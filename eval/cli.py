@@ -19,6 +19,8 @@ score runs, run experiment suites, print paper-style tables.
         where each run's test-frame error sits (bright / moving / static pixels)
     m4dgs-eval region-pairs SUITE --root ROOT --ref full --rows no-x --seeds 2
         the same split differenced per (scene, seed) pair, with its mean and 95 % interval
+    m4dgs-eval peaks RUN [RUN ...]
+        the largest HDR value of each run's test renders against the ground truth's (runaways)
     m4dgs-eval table tiny
         the suite's tables (Markdown; --format latex|csv) and figures: mean +- 95 % CI over
         scenes x seeds, paired differences to the reference row, the paper's values and
@@ -1021,6 +1023,35 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, edges, js
             click.echo(format_extra(res, ref))
     if json_path:
         mio.write_json(json_path, {"runs": out, "ref": ref})
+
+
+@main.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
+@_runs_clip_opt
+@click.option(
+    "--json",
+    "json_path",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Also write each run's figures to this JSON file.",
+)
+def peaks(runs, clip_dir, json_path):
+    """The largest HDR value of each run's test renders against the ground truth's largest, and
+    the share of rendered values above it: highlights that ran away, which the headline HDR PSNR
+    (normalised by the ground truth's maximum and clipped) does not see."""
+    from m4dgs.clip import Clip
+    from m4dgs.core.errors import InputError
+
+    from .peaks import format_peaks, run_peaks
+    from .score import resolve_clip_dir
+
+    try:
+        out = [run_peaks(r, Clip.open(resolve_clip_dir(r, clip_dir))) for r in runs]
+    except (InputError, FileNotFoundError) as e:
+        raise click.ClickException(str(e)) from e
+    click.echo(format_peaks(out), nl=False)
+    if json_path:
+        mio.write_json(json_path, {"runs": out})
 
 
 @main.command("region-pairs")

@@ -42,6 +42,7 @@ LAYERS = {
     "eval.campaign": "eval-driver",
     "eval.frames": "eval-driver",
     "eval.regions": "eval-driver",
+    "eval.peaks": "eval-driver",
     "eval.errormaps": "eval-driver",
     "eval.__main__": "eval-driver",
 }
