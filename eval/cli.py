@@ -1038,20 +1038,29 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, edges, js
 def peaks(runs, clip_dir, json_path):
     """The largest HDR value of each run's test renders against the ground truth's largest, and
     the share of rendered values above it: highlights that ran away, which the headline HDR PSNR
-    (normalised by the ground truth's maximum and clipped) does not see."""
+    (normalised by the ground truth's maximum and clipped) does not see. A run that cannot be
+    read (no renders: e.g. a failed run) is named after the table with the reason; the exit status
+    is 1 only when no run could be read."""
     from m4dgs.clip import Clip
     from m4dgs.core.errors import InputError
 
     from .peaks import format_peaks, run_peaks
     from .score import resolve_clip_dir
 
-    try:
-        out = [run_peaks(r, Clip.open(resolve_clip_dir(r, clip_dir))) for r in runs]
-    except (InputError, FileNotFoundError) as e:
-        raise click.ClickException(str(e)) from e
-    click.echo(format_peaks(out), nl=False)
+    out, unread = [], []
+    for r in runs:
+        try:
+            out.append(run_peaks(r, Clip.open(resolve_clip_dir(r, clip_dir))))
+        except (InputError, FileNotFoundError) as e:
+            unread.append(str(e))
+    if out:
+        click.echo(format_peaks(out), nl=False)
+    for e in unread:
+        click.echo(f"not read: {e}", err=True)
     if json_path:
-        mio.write_json(json_path, {"runs": out})
+        mio.write_json(json_path, {"runs": out, "not_read": unread})
+    if not out:
+        raise click.ClickException(f"none of the {len(runs)} run(s) could be read")
 
 
 @main.command("region-pairs")

@@ -35,6 +35,7 @@ def run_peaks(run_dir, clip: Optional[Clip] = None) -> Dict:
     "nonfinite"} of one run's test-frame HDR renders (renders/test/hdr/<frame>.exr) against the
     clip's ground truth (gt/hdr). clip: default the run's (run.json "clip"). Raises InputError
     when the clip has no ground-truth HDR or test frames, or a test frame's render is missing."""
+    from .runner import read_failure
     from .score import resolve_clip_dir
 
     run_dir = Path(run_dir)
@@ -45,6 +46,9 @@ def run_peaks(run_dir, clip: Optional[Clip] = None) -> Dict:
     paths = [run_dir / "renders/test/hdr" / frame_name(g, "exr") for g in frames]
     for path in paths:
         if not path.exists():
+            failed = read_failure(run_dir)
+            if failed is not None:  # a diverged run has no model to render
+                raise InputError(f"{run_dir}: no test renders; its last attempt failed: {failed}")
             raise InputError(f"{path}: missing; render the run first (`m4dgs render {run_dir}`)")
     # the maximum over every test frame first, then one render in memory at a time
     gt_max = max(float(np.max(clip.load_gt_hdr(g))) for g in frames)

@@ -61,7 +61,7 @@ def test_a_faithful_run_reads_one_and_a_planted_runaway_its_size(tiny_clip_reali
     assert run_peaks(_renders(clip, tmp_path / "inf", inf), clip)["ratio"] == np.inf
 
 
-def test_cli_prints_a_row_per_run_and_names_a_missing_render(tiny_clip_realistic, tmp_path):
+def test_cli_prints_a_row_per_run_and_names_the_runs_it_cannot_read(tiny_clip_realistic, tmp_path):
     clip = Clip.open(tiny_clip_realistic)
     gt_max = max(float(np.max(clip.load_gt_hdr(g))) for g in clip.test_frames)
 
@@ -82,5 +82,20 @@ def test_cli_prints_a_row_per_run_and_names_a_missing_render(tiny_clip_realistic
     (b / "renders/test/hdr" / frame_name(clip.test_frames[0], "exr")).unlink()
     r = CliRunner().invoke(main, ["peaks", str(b), "--clip", str(tiny_clip_realistic)])
     assert r.exit_code == 1 and frame_name(clip.test_frames[0], "exr") in r.output
+    assert "none of the 1 run(s) could be read" in r.output
     with pytest.raises(InputError, match="missing"):
         run_peaks(b, clip)
+
+    # a failed run (no renders, failure.json) beside a good one: named with its error, the good
+    # one's row printed, exit 0
+    from eval.runner import record_failure
+
+    failed = tmp_path / "failed"
+    failed.mkdir()
+    record_failure(failed, "training: stage2: step 7: the HDR render holds NaN")
+    r = CliRunner().invoke(main, ["peaks", str(a), str(failed), "--clip", str(tiny_clip_realistic)])
+    assert r.exit_code == 0, r.output
+    assert sum(ln.startswith(f"| {tmp_path}") for ln in r.output.splitlines()) == 1
+    assert f"not read: {failed}: no test renders; its last attempt failed: training: stage2" in (
+        r.output
+    )
