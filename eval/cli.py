@@ -32,6 +32,7 @@ Details: docs/eval.md.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shlex
 from pathlib import Path
@@ -1057,8 +1058,12 @@ def peaks(runs, clip_dir, json_path):
         click.echo(format_peaks(out), nl=False)
     for e in unread:
         click.echo(f"not read: {e}", err=True)
-    if json_path:
-        mio.write_json(json_path, {"runs": out, "not_read": unread})
+    if json_path:  # standard JSON: an infinite or NaN figure is null
+        clean = [
+            {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in r.items()}
+            for r in out
+        ]
+        mio.write_json(json_path, {"runs": clean, "not_read": unread})
     if not out:
         raise click.ClickException(f"none of the {len(runs)} run(s) could be read")
 

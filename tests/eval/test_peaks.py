@@ -59,6 +59,15 @@ def test_a_faithful_run_reads_one_and_a_planted_runaway_its_size(tiny_clip_reali
             h[1, 1, 2] = np.inf
 
     assert run_peaks(_renders(clip, tmp_path / "inf", inf), clip)["ratio"] == np.inf
+    # ... which the JSON file holds as null (standard JSON)
+    js = tmp_path / "inf.json"
+    r = CliRunner().invoke(
+        main,
+        ["peaks", str(tmp_path / "inf"), "--clip", str(tiny_clip_realistic), "--json", str(js)],
+    )
+    assert r.exit_code == 0, r.output
+    got = json.loads(js.read_text(), parse_constant=lambda c: pytest.fail(f"non-standard {c}"))
+    assert got["runs"][0]["ratio"] is None and got["runs"][0]["nonfinite"] == 1
 
 
 def test_cli_prints_a_row_per_run_and_names_the_runs_it_cannot_read(tiny_clip_realistic, tmp_path):
