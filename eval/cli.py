@@ -847,7 +847,15 @@ def _against_spec(against):
     "seed) pairs (a control's difference in differences, as results.md's Controls read it; e.g. "
     "control-tlr-priors:full:full-tlr-0.1).",
 )
-def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm, against):
+@click.option(
+    "--rows-differ",
+    "differ",
+    is_flag=True,
+    help="Also whether the rows compared (two or more: levels of one factor, such as three draws "
+    "or three weights) differ from one another by more than the pairs scatter: a two-way "
+    "analysis of variance over the (scene, seed) pairs every row has (F, p per metric).",
+)
+def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm, against, differ):
     """Print the paired differences row - ref of SUITE (a built-in suite's name or a suite YAML
     file) per (scene, seed) from the runs CSV, with their mean and 95 % interval: the per-scene
     values the hand-written results notes quote."""
@@ -867,6 +875,7 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm, against):
             by_seed=by_seed,
             holm=holm,
             against=spec,
+            differ=differ,
         )
     except ValueError as e:
         raise click.UsageError(f"{csv_path}: {e}") from e

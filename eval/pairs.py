@@ -26,7 +26,12 @@ With `against` (`--against SUITE:REF:ROW`): instead of the differences themselve
 against another suite's difference ROW - REF of the same (scene, seed) pairs, those that both have:
 a control's difference in differences (the results page's Controls), per pair and over them,
 e.g. `m4dgs-eval pairs control-tlr-scale --rows full-tlr-0.1-paper-schedule --against
-control-tlr-priors:full:full-tlr-0.1`."""
+control-tlr-priors:full:full-tlr-0.1`.
+
+With `differ` (`--rows-differ`), for rows that are levels of one factor (three draws of the
+exposure offsets, three TLR weights): whether they differ from one another by more than the
+pairs scatter (`eval.stats.rows_differ`: the two-way analysis of variance without replication,
+the (scene, seed) pairs as blocks, F and p), below the per-row tables."""
 
 from __future__ import annotations
 
@@ -34,7 +39,7 @@ from typing import Dict, List, Optional, Sequence
 
 from .results import FAILED, SCORED, one_line, pair_differences
 from .stats import holm as holm_adjust
-from .stats import mean_ci, scene_heterogeneity, scene_mean_ci
+from .stats import mean_ci, rows_differ, scene_heterogeneity, scene_mean_ci
 
 DEFAULT_METRICS = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "ldr_train_psnr")
 
@@ -84,6 +89,7 @@ def pairs_markdown(
     by_seed: bool = False,
     holm: bool = False,
     against: Optional[Sequence[str]] = None,
+    differ: bool = False,
 ) -> str:
     """Markdown tables of the paired differences of `row_names` (default: every row of the suite
     in the CSV but the reference) against `ref` (default: the suite file's reference row). `suite`
@@ -91,8 +97,8 @@ def pairs_markdown(
     `by_seed`, also per trainer seed and the F-test of scene differences; with `holm`, the
     Holm-adjusted p-values over every printed comparison; with `against` = (suite, ref, row), each
     difference less that suite's row - ref of the same (scene, seed): the change, as the results
-    page's Controls read it (module docstring).
-    Raises ValueError naming what the CSV lacks."""
+    page's Controls read it; with `differ`, whether the rows differ from one another (module
+    docstring). Raises ValueError naming what the CSV lacks."""
     from pathlib import Path
 
     from .suite import SuiteError, builtin_suites, load_eval_suite, metric_columns
@@ -121,6 +127,8 @@ def pairs_markdown(
     unknown = [n for n in wanted if n not in names]
     if unknown:
         raise ValueError(f"suite {suite!r} has no scored run of rows {unknown} (rows: {names})")
+    if differ and len(wanted) < 2:
+        raise ValueError(f"--rows-differ compares two or more rows; {len(wanted)} given ({wanted})")
     cols = metric_columns()
     bad = [m for m in metrics if m not in cols]
     if bad:
@@ -190,6 +198,20 @@ def pairs_markdown(
                 + " | ".join(cells)
                 + " |"
             )
+        out.append("")
+    if differ:
+        out += [
+            f"Do the rows differ from one another? ({', '.join(wanted)}: a two-way analysis of "
+            "variance over the (scene, seed) pairs every row has, the rows as the factor)",
+            "",
+            "| metric | rows differ (F-test) | pairs |",
+            "|:---|---:|---:|",
+        ]
+        for m in metrics:
+            h = rows_differ({n: diffs_of[n][m] for n in wanted})
+            header = ((cols[m].group + " ") if cols[m].group else "") + cols[m].header
+            n_pairs = "n/a" if h is None else str(h.df_within // h.df_between + 1)
+            out.append(f"| {header} | {_heterogeneity_text(h)} | {n_pairs} |")
         out.append("")
     # the pairs a failed run keeps out (a result of its configuration, not a run still to come)
     sides = {(suite, n) for n in [ref, *wanted]}

@@ -148,9 +148,10 @@ def scene_mean_ci(diffs: Mapping[Hashable, float], level: float = LEVEL) -> Inte
 
 @dataclass(frozen=True)
 class Heterogeneity:
-    """One-way analysis of variance of paired differences across scenes: F = (between-scene mean
-    square) / (within-scene mean square), with df_between = scenes - 1 and df_within = runs -
-    scenes, and p = P(F_{df_between, df_within} >= F)."""
+    """An F-test of a factor: F = (between-level mean square) / (within or residual mean square),
+    p = P(F_{df_between, df_within} >= F). `scene_heterogeneity`: scenes across one difference's
+    pairs (df_between = scenes - 1, df_within = runs - scenes); `rows_differ`: rows across the
+    (scene, seed) pairs they share."""
 
     f: float
     df_between: int
@@ -183,6 +184,45 @@ def scene_heterogeneity(diffs: Mapping[Hashable, float]) -> Optional[Heterogenei
     from scipy.stats import f as f_dist
 
     f = (ssb / df1) / (ssw / df2)
+    return Heterogeneity(f, df1, df2, float(f_dist.sf(f, df1, df2)))
+
+
+def rows_differ(values: Mapping[Hashable, Mapping[Hashable, float]]) -> Optional[Heterogeneity]:
+    """Do several rows differ from one another beyond the pairs' scatter? {row: {(scene, seed):
+    value}} -> the two-way analysis of variance without replication over the (scene, seed) blocks
+    that every row has (a finite value in each), rows as the factor: F = (between-row mean square)
+    / (residual mean square), df_between = rows - 1, df_within = (blocks - 1)(rows - 1). Each
+    block's level cancels, so the values may be the rows' differences to one reference (the same
+    F as the rows' own values). For two rows it is the paired t-test (F = t^2, the same p). None
+    with fewer than two rows or two common blocks. A residual of 0 gives F = inf and p = 0 when
+    the row means differ (p = 1 when they do not), as `scene_heterogeneity`."""
+
+    def finite(x) -> bool:
+        return x is not None and not (isinstance(x, float) and math.isnan(x))
+
+    names = list(values)
+    if len(names) < 2:
+        return None
+    blocks = [b for b in values[names[0]] if all(finite(values[n].get(b)) for n in names)]
+    k, nb = len(names), len(blocks)
+    if nb < 2:
+        return None
+    y = [[float(values[n][b]) for n in names] for b in blocks]  # blocks x rows
+    grand = sum(map(sum, y)) / (k * nb)
+    row_mean = [sum(y[i][j] for i in range(nb)) / nb for j in range(k)]
+    block_mean = [sum(r) / k for r in y]
+    ss_rows = nb * sum((m - grand) ** 2 for m in row_mean)
+    ss_res = sum(
+        (y[i][j] - row_mean[j] - block_mean[i] + grand) ** 2 for i in range(nb) for j in range(k)
+    )
+    df1, df2 = k - 1, (nb - 1) * (k - 1)
+    if ss_res <= 1e-12 * max(1.0, ss_rows):
+        return Heterogeneity(
+            math.inf if ss_rows > 0 else 0.0, df1, df2, 0.0 if ss_rows > 0 else 1.0
+        )
+    from scipy.stats import f as f_dist
+
+    f = (ss_rows / df1) / (ss_res / df2)
     return Heterogeneity(f, df1, df2, float(f_dist.sf(f, df1, df2)))
 
 

@@ -325,3 +325,85 @@ def test_pairs_against_another_suites_effect_is_the_difference_in_differences(tm
     ):
         bad = _pairs_cli(csv_path, "paper-ablation", "ldr_oe_psnr", "--against", spec)
         assert bad.exit_code != 0 and msg in bad.output, (spec, bad.output)
+
+
+def _ls_rss(y, design):
+    """Residual sum of squares of the least-squares fit of y on the design's columns."""
+    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+    return float(((y - design @ coef) ** 2).sum())
+
+
+def test_rows_differ_is_the_two_way_anova_of_rows_in_blocks():
+    """Checked against the F-test of nested linear models fitted by least squares (blocks alone
+    against blocks + rows), and for two rows against the paired t-test; a block that one row lacks
+    is left out of every row."""
+    from eval.stats import rows_differ
+
+    rng = np.random.default_rng(7)
+    blocks = [(sc, sd) for sc in "abcd" for sd in (0, 1)]
+    level = {b: rng.normal(0, 1.0) for b in blocks}  # the block's own level cancels
+    rows = {
+        name: {b: level[b] + shift + rng.normal(0, 0.3) for b in blocks}
+        for name, shift in (("draw-0", 0.0), ("draw-1", 0.2), ("draw-2", 0.5))
+    }
+    rows["draw-2"].pop(("d", 1))  # a failed run: its block leaves every row
+    rows["draw-1"][("e", 0)] = 3.0  # a block only one row has
+    kept = [b for b in blocks if b != ("d", 1)]
+    y = np.array([rows[n][b] for b in kept for n in rows])
+    nb, k = len(kept), len(rows)
+    block_cols = np.kron(np.eye(nb), np.ones((k, 1)))
+    row_cols = np.kron(np.ones((nb, 1)), np.eye(k))[:, 1:]
+    rss_reduced = _ls_rss(y, block_cols)
+    rss_full = _ls_rss(y, np.hstack([block_cols, row_cols]))
+    df1, df2 = k - 1, (nb - 1) * (k - 1)
+    f_want = ((rss_reduced - rss_full) / df1) / (rss_full / df2)
+    h = rows_differ(rows)
+    assert (h.df_between, h.df_within) == (2, 12)
+    assert h.f == pytest.approx(f_want) and h.p == pytest.approx(stats.f.sf(f_want, df1, df2))
+    # two rows: the paired t-test's t squared and its p
+    two = {n: rows[n] for n in ("draw-0", "draw-1")}
+    common = [b for b in blocks if b in two["draw-0"] and b in two["draw-1"]]
+    t = stats.ttest_rel([two["draw-1"][b] for b in common], [two["draw-0"][b] for b in common])
+    h2 = rows_differ(two)
+    assert h2.f == pytest.approx(t.statistic**2) and h2.p == pytest.approx(t.pvalue)
+    # rows that differ by constants within every block: no residual, F infinite
+    exact = {n: {b: level[b] + i for b in blocks} for i, n in enumerate(("x", "y", "z"))}
+    assert rows_differ(exact).f == float("inf") and rows_differ(exact).p == 0.0
+    # one row, or one common block: nothing to test
+    assert rows_differ({"x": exact["x"]}) is None
+    assert rows_differ({"x": {("a", 0): 1.0}, "y": {("a", 0): 2.0, ("b", 0): 1.0}}) is None
+
+
+def test_pairs_rows_differ(tmp_path):
+    """--rows-differ: one F-test per metric below the per-row tables, on the differences to the
+    reference (the same F as on the rows' own values); one row is a usage error."""
+    from eval.pairs import pairs_markdown
+    from eval.results import read_runs_csv, write_runs_csv
+    from eval.stats import rows_differ
+
+    rng = np.random.default_rng(3)
+    rows = []
+    for scene in ("a-scene", "b-scene", "c-scene"):
+        for seed in (0, 1):
+            base = 30 + rng.random()
+            for row, lead in (("full", 0.0), ("no-reproj", 0.4), ("no-tlr", 0.1)):
+                rows.append(
+                    dict(suite="paper-ablation", scene=scene, row=row, seed=seed, status="scored")
+                    | dict(ldr_oe_psnr=base + lead + rng.normal(0, 0.2), hdr_tae=0.1)
+                )
+    csv_path = tmp_path / "runs.csv"
+    write_runs_csv(csv_path, rows)
+    rows = read_runs_csv(csv_path)
+    text = pairs_markdown(rows, "paper-ablation", metrics=["ldr_oe_psnr"], differ=True)
+    assert "Do the rows differ from one another? (no-reproj, no-tlr:" in text
+    line = next(ln for ln in text.splitlines() if ln.startswith("| LDR-OE PSNR | F("))
+    own = {
+        n: {(r["scene"], r["seed"]): r["ldr_oe_psnr"] for r in rows if r["row"] == n}
+        for n in ("no-reproj", "no-tlr")
+    }
+    h = rows_differ(own)
+    assert line == f"| LDR-OE PSNR | F(1, 5) = {h.f:.2f}, p = {h.p:.3f} | 6 |"
+    r = _pairs_cli(csv_path, "paper-ablation", "ldr_oe_psnr", "--rows-differ")
+    assert r.exit_code == 0 and r.output.strip() == text.strip()
+    r = _pairs_cli(csv_path, "paper-ablation", "ldr_oe_psnr", "--rows", "no-tlr", "--rows-differ")
+    assert r.exit_code != 0 and "--rows-differ compares two or more rows" in r.output
