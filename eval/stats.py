@@ -198,7 +198,7 @@ def rows_differ(values: Mapping[Hashable, Mapping[Hashable, float]]) -> Optional
     the row means differ (p = 1 when they do not), as `scene_heterogeneity`."""
 
     def finite(x) -> bool:
-        return x is not None and not (isinstance(x, float) and math.isnan(x))
+        return x is not None and math.isfinite(float(x))
 
     names = list(values)
     if len(names) < 2:
