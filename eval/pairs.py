@@ -179,7 +179,7 @@ def pairs_markdown(
             d = diffs[m]
             f = _fmt(m, fmts)
             cells = [f"{d[k]:+{f}}" if k in d else "" for k in keys]
-            header = ((cols[m].group + " ") if cols[m].group else "") + cols[m].header
+            header = cols[m].label
             pooled, scenes = (
                 interval_text(pooled_of[(name, m)], f),
                 interval_text(scene_mean_ci(d), f),
@@ -209,7 +209,7 @@ def pairs_markdown(
         ]
         for m in metrics:
             h = rows_differ({n: diffs_of[n][m] for n in wanted})
-            header = ((cols[m].group + " ") if cols[m].group else "") + cols[m].header
+            header = cols[m].label
             n_pairs = "n/a" if h is None else str(h.df_within // h.df_between + 1)
             out.append(f"| {header} | {_heterogeneity_text(h)} | {n_pairs} |")
         out.append("")

@@ -949,7 +949,7 @@ def findings_markdown(
         ]
         for r in res:
             col = cols[r.metric]
-            name = ((col.group + " ") if col.group else "") + col.header
+            name = col.label
             pd = "n/a" if r.paper_diff is None else _paper_diff_text(r.paper_diff, col.fmt)
             if r.ours is None or r.ours.mean is None:
                 ours, n = "n/a", 0 if r.ours is None else r.ours.n
@@ -1563,7 +1563,7 @@ def controls_markdown(
         ]
         for r in evaluate_control(c, rows):
             col = cols[r.metric]
-            name = ((col.group + " ") if col.group else "") + col.header
+            name = col.label
             lines.append(
                 f"| {name} | {_interval_text(r.base, col.fmt)} | "
                 f"{_interval_text(r.control, col.fmt)} | {_interval_text(r.change, col.fmt)} "
@@ -1655,7 +1655,7 @@ def bars_figure(data: SuiteData, out_png) -> Optional[Path]:
     ax.set_ylim(lo - 2 * pad, hi + pad)
     ax.set_xticks(range(len(scenes)))
     ax.set_xticklabels(scenes, rotation=30, ha="right", fontsize=7)
-    name = ((col.group + " ") if col.group else "") + col.header
+    name = col.label
     ax.set_ylabel(f"{name} {'(higher better)' if col.higher_is_better else '(lower better)'}")
     ax.set_title(
         f"{data.name}: {name} per scene (bar: mean over seeds, dots: seeds; "
@@ -1901,7 +1901,7 @@ def finding_figure(f: Finding, res: List[ComparisonResult], out_png) -> Optional
         ax.set_yticklabels(labels if k == 0 else [], fontsize=7)
         ax.set_ylim(len(labels) - 0.5, -0.5)
         arrow = "right: better" if col.higher_is_better else "left: better"
-        name = ((col.group + " ") if col.group else "") + col.header
+        name = col.label
         ax.set_xlabel(f"Δ {name} ({arrow})", fontsize=7)
         ax.xaxis.set_major_locator(MaxNLocator(nbins=4))
         ax.tick_params(axis="x", labelsize=7)
@@ -1982,7 +1982,7 @@ def controls_figure(rows: List[dict], out_png) -> Optional[Path]:
         ax.set_yticks(range(len(results)))
         ax.set_yticklabels([f"{c.key} ({c.arm})" for c, _ in results] if k == 0 else [], fontsize=7)
         ax.set_ylim(len(results) - 0.5, -0.5)
-        name = ((col.group + " ") if col.group else "") + col.header
+        name = col.label
         ax.set_xlabel(f"Δ {name} (row - ref)", fontsize=7)
         ax.xaxis.set_major_locator(MaxNLocator(nbins=4))
         ax.tick_params(axis="x", labelsize=7)

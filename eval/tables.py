@@ -50,6 +50,11 @@ class Column:
     group: str | None = None
     convention: str | None = None  # a CONVENTIONS key or a literal sentence
 
+    @property
+    def label(self) -> str:
+        """The column's name in one line: "group header" (the header alone without a group)."""
+        return ((self.group + " ") if self.group else "") + self.header
+
     @classmethod
     def from_dict(cls, d: dict) -> "Column":
         return cls(**d)
@@ -456,7 +461,7 @@ def render_csv(
     w = csv.writer(buf, lineterminator="\n")
     head = [spec.method_header, "n_scenes"] + (["n_runs"] if spec.intervals else [])
     for c in spec.columns:
-        name = ((c.group + " ") if c.group else "") + c.header
+        name = c.label
         head.append(name)
         head += [f"{name} ci95"] if spec.intervals else []
         head += [f"Δ {name}", f"Δ {name} ci95", f"Δ {name} excludes 0"] if "diff" in sub else []
