@@ -3,15 +3,17 @@ thread, each in its own process, one after the other) and compares every tensor 
 outputs (model/camera_init.pt, stage1.pt, v2w.pt, final.pt) and every logged value of log.jsonl
 but the step times.
 
-    python bench/same_bits.py OLD_CHECKOUT NEW_CHECKOUT CLIP [--preset tiny] [--out DIR]
-                              [--set KEY=VALUE ...]
+    python bench/same_bits.py OLD_CHECKOUT NEW_CHECKOUT CLIP [--preset tiny] [--variant full]
+                              [--out DIR] [--set KEY=VALUE ...]
 
 OLD_CHECKOUT / NEW_CHECKOUT are folders holding an m4dgs package (a git worktree of another commit,
 e.g. `git worktree add /tmp/old COMMIT`). Prints one line per file (tensors compared, tensors that
 differ and the first few names) and exits 0 when everything is equal, 1 otherwise. Use it before
 letting a campaign's later steps run on newer code than its earlier ones: equal bits mean the rows
 of the two code versions are the same runs, not two draws. `--set` applies a config override to
-both trainings (dotted key, as `m4dgs train --set`).
+both trainings (dotted key, as `m4dgs train --set`), `--variant` trains another variant (`m4dgs
+variants`); a phase the variant does not run (stage 1 of world-only) is left out of the comparison
+when neither run has its file.
 """
 
 from __future__ import annotations
@@ -31,15 +33,16 @@ TRAIN = """
 import sys, torch
 torch.set_num_threads(1)
 from m4dgs.training.pipeline import train
-overrides = dict(kv.split("=", 1) for kv in sys.argv[4:])
-train(sys.argv[1], sys.argv[2], preset=sys.argv[3], overrides=overrides or None, progress=False)
+overrides = dict(kv.split("=", 1) for kv in sys.argv[5:])
+train(sys.argv[1], sys.argv[2], preset=sys.argv[3], variant=sys.argv[4],
+      overrides=overrides or None, progress=False)
 """
 
 
-def train_with(checkout: Path, clip: Path, out: Path, preset: str, sets) -> None:
+def train_with(checkout: Path, clip: Path, out: Path, preset: str, sets, variant="full") -> None:
     """One training of `clip` into `out` with the m4dgs of `checkout`, in a fresh process."""
     env = dict(os.environ, PYTHONPATH=str(checkout), OMP_WAIT_POLICY="PASSIVE")
-    cmd = [sys.executable, "-c", TRAIN, str(clip), str(out), preset, *sets]
+    cmd = [sys.executable, "-c", TRAIN, str(clip), str(out), preset, variant, *sets]
     r = subprocess.run(cmd, cwd=checkout, env=env, capture_output=True, text=True)
     if r.returncode != 0:
         raise SystemExit(f"training with {checkout} failed:\n{r.stderr[-3000:]}")
@@ -73,12 +76,36 @@ def compare_logs(a_path: Path, b_path: Path) -> tuple[int, list]:
     return max(len(a), len(b)), differ
 
 
+def compare_runs(old: Path, new: Path, say=print) -> bool:
+    """Compare two run folders' phase files and logs, one line each through `say`; True when all
+    are equal. A phase file in neither run (a phase the variant does not run) is left out; one in
+    a single run is a difference."""
+    equal = True
+    for f in PHASE_FILES:
+        have = [(run / "model" / f).exists() for run in (old, new)]
+        if not any(have):
+            say(f"{f}: in neither run (a phase the variant does not run)")
+            continue
+        if not all(have):
+            equal = False
+            say(f"{f}: only in the {'old' if have[0] else 'new'} run")
+            continue
+        n, differ = compare_models(old / "model" / f, new / "model" / f)
+        equal &= not differ
+        say(f"{f}: {n} tensors, {len(differ)} differ {differ[:4]}")
+    n, differ = compare_logs(old / "log.jsonl", new / "log.jsonl")
+    equal &= not differ
+    say(f"log.jsonl: {n} records, {len(differ)} values differ {differ[:4]}")
+    return equal
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("old", type=Path, help="checkout holding the first m4dgs package")
     ap.add_argument("new", type=Path, help="checkout holding the second m4dgs package")
     ap.add_argument("clip", type=Path, help="clip folder to train on")
     ap.add_argument("--preset", default="tiny", choices=["tiny", "small", "paper"])
+    ap.add_argument("--variant", default="full", help="variant to train (`m4dgs variants`)")
     ap.add_argument(
         "--out", type=Path, default=None, help="folder for the two runs (default: temp)"
     )
@@ -91,15 +118,15 @@ def main(argv=None) -> int:
     runs = {}
     for name, checkout in (("old", args.old), ("new", args.new)):
         runs[name] = out / name
-        train_with(checkout.resolve(), args.clip.resolve(), runs[name], args.preset, args.sets)
-    equal = True
-    for f in PHASE_FILES:
-        n, differ = compare_models(runs["old"] / "model" / f, runs["new"] / "model" / f)
-        equal &= not differ
-        print(f"{f}: {n} tensors, {len(differ)} differ {differ[:4]}")
-    n, differ = compare_logs(runs["old"] / "log.jsonl", runs["new"] / "log.jsonl")
-    equal &= not differ
-    print(f"log.jsonl: {n} records, {len(differ)} values differ {differ[:4]}")
+        train_with(
+            checkout.resolve(),
+            args.clip.resolve(),
+            runs[name],
+            args.preset,
+            args.sets,
+            args.variant,
+        )
+    equal = compare_runs(runs["old"], runs["new"])
     print("same bits" if equal else "different bits", f"(runs in {out})")
     return 0 if equal else 1
 

@@ -64,7 +64,8 @@ def run_arm(
     tmp = Path(tempfile.mkdtemp(prefix="stage_probe_"))
     try:
         shutil.copytree(src / "model", tmp / "model")
-        shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
+        if (src / "renders" / "stage1").exists():  # a variant without stage 1 has none
+            shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
         (tmp / "model" / "ckpt.pt").unlink(missing_ok=True)
         tr = Trainer(clip, tmp, preset, variant, overrides, "cpu", progress=False)
         st, first = make_stage(tr, src, "stage2", start, final=True)

@@ -4,10 +4,11 @@ figure of a code change without the minutes of camera initialisation and the sta
     python bench/step_bench.py CLIP RUN --stage stage1 --start 1500 --steps 60 [--threads 2]
                                [--cprofile | --torch-profile] [--device cpu|cuda]
 
-RUN is a finished run folder of CLIP (its model/stage1.pt, model/v2w.pt, model/camera_init.pt and
-renders/stage1 are copied to a temporary folder; RUN is not touched). Stage 1 starts from the final
-stage-1 model at step --start (so the step's schedule, e.g. TLR after the densification, applies);
-stage 2 starts from the V2W output at --start, or with --checkpoint from RUN's mid-stage
+RUN is a finished run folder of CLIP (its models and stage-1 renders are copied to a temporary
+folder; RUN is not touched). Stage 1 starts from the final stage-1 model at step --start (so the
+step's schedule, e.g. TLR after the densification, applies); stage 2 starts from what the trainer
+starts it from (the V2W output, the masks and stage-1 renders as the variant uses them: a variant
+without stage 1 works too) at --start, or with --checkpoint from RUN's mid-stage
 checkpoint of stage 2 (then at its step; its optimiser settings come with it, so do not use it to
 compare commits that set up the optimisers differently). Five warm-up steps, then --steps timed
 steps; prints milliseconds per step and, with --cprofile, the functions that take the time, with
@@ -40,14 +41,12 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import torch  # noqa: E402
 from torch.utils._python_dispatch import TorchDispatchMode  # noqa: E402
 
-from m4dgs.core.io import read_exr  # noqa: E402
 from m4dgs.core.threads import kernel_threads, use_threads  # noqa: E402
 from m4dgs.model.gaussians import WorldGaussians  # noqa: E402
 from m4dgs.run import load_torch  # noqa: E402
-from m4dgs.training.exposure import training_exposures  # noqa: E402
 from m4dgs.training.pipeline import Trainer  # noqa: E402
-from m4dgs.training.stage1 import VideoStage, build_appearance  # noqa: E402
-from m4dgs.training.stage2 import WorldInit, WorldStage  # noqa: E402
+from m4dgs.training.stage1 import VideoStage  # noqa: E402
+from m4dgs.training.stage2 import WorldStage  # noqa: E402
 
 PKG = str(Path(__file__).resolve().parents[1] / "m4dgs")
 
@@ -93,42 +92,21 @@ def make_stage(
     tr: Trainer, src: Path, stage: str, start: int, checkpoint: bool = False, final: bool = False
 ):
     """The stage object of `tr` loaded from the copied models, on `tr.device`; returns (stage, first
-    step). final: stage 2 starts from the run's final Gaussians, appearance and cameras
-    (model/final.pt: the size stage 2 has late in a run) instead of the V2W output."""
+    step). Stage 2 starts where the trainer starts it (Trainer.world_init: the same Gaussians,
+    appearance, cameras, masks and stage-1 renders for the run's variant). final: stage 2 starts
+    from the run's final Gaussians, appearance and cameras (model/final.pt: the size stage 2 has
+    late in a run) instead of the V2W output."""
     cfg, d, dev = tr.cfg, tr.data, tr.device
     if stage == "stage1":
         st = VideoStage(d, cfg, dev, cfg.raster_backend, init=False)
         st.load_state_dict(load_torch(tr.run.path("model", "stage1.pt")))
         return st, start
-    ci = load_torch(tr.run.path("model", "camera_init.pt"))
-    v = load_torch(tr.run.path("model", "v2w.pt"))
-    c0, _ = training_exposures(cfg.exposure, d, dev)
-    color, tm, bg = build_appearance(cfg, c0, dev, pretrain=False)
-    color.load_state_dict(v["appearance"]["color"])
-    tm.load_state_dict(v["appearance"]["tonemap"])
-    bg.load_state_dict(v["appearance"]["background"])
-    hdr = torch.stack(
-        [
-            torch.from_numpy(read_exr(p))
-            for p in sorted(tr.run.path("renders", "stage1", "hdr").glob("*.exr"))
-        ]
-    )
-    init = WorldInit(
-        WorldGaussians.from_state(v["gaussians"]),
-        color,
-        tm,
-        bg,
-        ci["K"],
-        ci["c2w"],
-        ci["depth_scale"],
-        dynamic_masks=ci["masks"],
-        stage1_hdr=hdr,
-    )
+    init = tr.world_init()
     if final:
-        f = load_torch(src / "model" / "final.pt")
-        color.load_state_dict(f["color"])
-        tm.load_state_dict(f["tonemap"])
-        bg.load_state_dict(f["background"])
+        f = load_torch(src / "model" / "final.pt", map_location=dev)
+        init.color.load_state_dict(f["color"])
+        init.tonemap.load_state_dict(f["tonemap"])
+        init.background.load_state_dict(f["background"])
         init.gauss = WorldGaussians.from_state(f["gaussians"])
         init.c2w = f["c2w"]
     st = WorldStage(d, cfg, init, dev, cfg.raster_backend)
@@ -202,9 +180,10 @@ def main() -> None:
     cuda = a.device == "cuda"
     sync = torch.cuda.synchronize if cuda else (lambda: None)
     src = Path(a.run)
-    need = ["model/stage1.pt", "renders/stage1"]
-    if a.stage == "stage2":
-        need += ["model/camera_init.pt", "model/v2w.pt"] + (
+    if a.stage == "stage1":
+        need = ["model/stage1.pt", "renders/stage1"]
+    else:  # stage 1's renders too where the variant has a stage 1 (Trainer.world_init says)
+        need = ["model/camera_init.pt", "model/v2w.pt"] + (
             ["model/final.pt"] if a.from_final else []
         )
     missing = [n for n in need if not (src / n).exists()]
@@ -213,7 +192,8 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="step_bench_"))
     try:
         shutil.copytree(src / "model", tmp / "model")
-        shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
+        if (src / "renders" / "stage1").exists():
+            shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
         (tmp / "model" / "ckpt.pt").unlink(missing_ok=True)
         tr = Trainer(a.clip, tmp, a.preset, a.variant, {}, a.device, progress=False)
         st, start = make_stage(tr, src, a.stage, a.start, a.checkpoint, a.from_final)

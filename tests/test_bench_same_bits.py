@@ -36,3 +36,22 @@ def test_a_checkout_against_itself_and_planted_differences(
     log.write_text("\n".join(json.dumps(r) for r in rows) + "\n")
     n, differ = sb.compare_logs(tmp_path / "runs/old/log.jsonl", log)
     assert differ == ["3:total"] and n == len(rows)
+
+
+def test_a_variant_without_stage_1_and_a_phase_file_on_one_side(
+    load_bench, tiny_clip_realistic, tmp_path, short_training, capsys
+):
+    """--variant world-only: stage 1 is in neither run and left out (exit 0); a phase file that
+    only one run has is a difference."""
+    sb = load_bench("same_bits")
+    sets = sum((["--set", f"{k}={v}"] for k, v in short_training.items()), [])
+    runs = tmp_path / "runs"
+    argv = [str(ROOT), str(ROOT), str(tiny_clip_realistic), "--out", str(runs)]
+    assert sb.main(argv + ["--variant", "world-only"] + sets) == 0
+    out = capsys.readouterr().out
+    assert "stage1.pt: in neither run" in out and "same bits" in out, out
+    assert not (runs / "old/model/stage1.pt").exists()
+    (runs / "new/model/v2w.pt").unlink()
+    lines = []
+    assert sb.compare_runs(runs / "old", runs / "new", say=lines.append) is False
+    assert "v2w.pt: only in the old run" in lines

@@ -1,10 +1,11 @@
-"""bench/step_bench.py's operation counter: what it counts, checked on functions whose operations
-are known by hand."""
+"""bench/step_bench.py: its operation counter, checked on functions whose operations are known by
+hand, and its stage 2, checked against what the trainer ran."""
 
 from __future__ import annotations
 
 import importlib.util
 
+import pytest
 import torch
 
 
@@ -53,3 +54,47 @@ def test_op_counter_sees_backward_at_the_backward_call(load_bench, tmp_path):
     assert torch.equal(x.grad, torch.full((4,), 2.0))
     # forward mul + sum, and backward's operations (at least the gradient's multiply), all at step
     assert set(c.ops) == {"train.py:step"} and c.ops["train.py:step"] >= 3
+
+
+def test_make_stage_starts_stage2_where_the_trainer_does(
+    load_bench, tiny_clip_realistic, short_training, one_thread, tmp_path
+):
+    """bench/step_bench.make_stage builds the stage 2 that training ran, for the full method and for
+    variants whose stage 2 starts differently (static-hdr: no dynamic masks; world-only: no stage 1,
+    so no stage-1 renders and no HDR reprojection): its first step, drawn from the same seeded
+    generator, has the loss terms the run logged for its own first stage-2 step."""
+    import json
+    import shutil
+
+    from m4dgs.training.pipeline import Trainer, train
+
+    sb = load_bench("step_bench")
+    for variant in ("full", "static-hdr", "world-only"):
+        run = train(
+            tiny_clip_realistic,
+            tmp_path / variant,
+            preset="tiny",
+            variant=variant,
+            overrides=short_training,
+            progress=False,
+        )
+        logged = next(
+            r
+            for r in map(json.loads, (run / "log.jsonl").read_text().splitlines())
+            if r.get("stage") == "stage2" and r.get("step") == 0
+        )
+        copy = tmp_path / f"{variant}-copy"
+        shutil.copytree(run / "model", copy / "model")
+        if (run / "renders" / "stage1").exists():
+            shutil.copytree(run / "renders" / "stage1", copy / "renders" / "stage1")
+        (copy / "model" / "ckpt.pt").unlink(missing_ok=True)
+        tr = Trainer(
+            tiny_clip_realistic, copy, "tiny", variant, short_training, "cpu", progress=False
+        )
+        torch.manual_seed(tr.cfg.seed)  # as the trainer seeds every phase
+        st, first = sb.make_stage(tr, run, "stage2", 0)
+        rec = st.step(first)
+        terms = [k for k in rec if k in logged and isinstance(logged[k], float) and k != "sec"]
+        assert "total" in terms and "rgb" in terms, terms
+        for k in terms:
+            assert rec[k] == pytest.approx(logged[k], rel=1e-5, abs=1e-9), (variant, k)

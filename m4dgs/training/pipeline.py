@@ -401,8 +401,12 @@ class Trainer:
         )
         self._finish("v2w", time.perf_counter() - t0)
 
-    def stage2(self) -> None:
-        t0 = [time.perf_counter()]
+    def world_init(self) -> WorldInit:
+        """What stage 2 starts from, read from the run's earlier phases: the V2W output's Gaussians
+        and appearance (a freshly pre-trained appearance when V2W lifted the priors instead),
+        camera initialisation's cameras, depth scales and dynamic masks (none for static-hdr),
+        and stage 1's HDR renders (none without video initialisation). bench/step_bench.py builds
+        its stage 2 from this too, so that it times the stage the trainer runs."""
         cfg, d = self.cfg, self.data
         ci = self._camera_init_result()
         v = load_torch(self.run.path("model", "v2w.pt"), map_location=self.device)
@@ -413,7 +417,7 @@ class Trainer:
             tm.load_state_dict(v["appearance"]["tonemap"])
             bg.load_state_dict(v["appearance"]["background"])
         stage1_hdr = self._stage1_video()[0] if cfg.ablation.use_video_init else None
-        init = WorldInit(
+        return WorldInit(
             WorldGaussians.from_state(v["gaussians"]),
             color,
             tm,
@@ -424,6 +428,12 @@ class Trainer:
             dynamic_masks=ci["masks"] if cfg.method != "static-hdr" else None,
             stage1_hdr=stage1_hdr,
         )
+
+    def stage2(self) -> None:
+        t0 = [time.perf_counter()]
+        cfg, d = self.cfg, self.data
+        init = self.world_init()
+        color, tm, bg = init.color, init.tonemap, init.background
         stage = WorldStage(d, cfg, init, self.device, cfg.raster_backend)
         start = self._resume("stage2", stage)
         train_stage2(stage, start, self._log_fn("stage2", stage, t0), self.progress)
