@@ -32,7 +32,7 @@ import torch  # noqa: E402
 import yaml  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from step_bench import make_stage  # noqa: E402
+from step_bench import copy_run_models, make_stage  # noqa: E402
 
 from m4dgs.core.threads import use_threads  # noqa: E402
 from m4dgs.training.pipeline import Trainer  # noqa: E402
@@ -63,10 +63,7 @@ def run_arm(
     variant and `overrides`."""
     tmp = Path(tempfile.mkdtemp(prefix="stage_probe_"))
     try:
-        shutil.copytree(src / "model", tmp / "model")
-        if (src / "renders" / "stage1").exists():  # a variant without stage 1 has none
-            shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
-        (tmp / "model" / "ckpt.pt").unlink(missing_ok=True)
+        copy_run_models(src, tmp)
         tr = Trainer(clip, tmp, preset, variant, overrides, "cpu", progress=False)
         st, first = make_stage(tr, src, "stage2", start, final=True)
         torch.manual_seed(seed)

@@ -88,6 +88,16 @@ def print_op_counts(counter: OpCounter, steps: int, top: int = 25) -> None:
         print(f"  {n / steps:8.1f}  {100 * n / total:5.1f}%  {where}")
 
 
+def copy_run_models(src: Path, dst: Path) -> None:
+    """Copy what make_stage reads of the finished run `src` into the fresh folder `dst`: its models
+    and stage-1 renders (a variant without stage 1 has none), without the stage-2 checkpoint (a
+    Trainer on `dst` would otherwise resume from it)."""
+    shutil.copytree(src / "model", dst / "model")
+    if (src / "renders" / "stage1").exists():
+        shutil.copytree(src / "renders" / "stage1", dst / "renders" / "stage1")
+    (dst / "model" / "ckpt.pt").unlink(missing_ok=True)
+
+
 def make_stage(
     tr: Trainer, src: Path, stage: str, start: int, checkpoint: bool = False, final: bool = False
 ):
@@ -191,10 +201,7 @@ def main() -> None:
         ap.error(f"{src} lacks {', '.join(missing)}: RUN must be a run that got past that stage")
     tmp = Path(tempfile.mkdtemp(prefix="step_bench_"))
     try:
-        shutil.copytree(src / "model", tmp / "model")
-        if (src / "renders" / "stage1").exists():
-            shutil.copytree(src / "renders" / "stage1", tmp / "renders" / "stage1")
-        (tmp / "model" / "ckpt.pt").unlink(missing_ok=True)
+        copy_run_models(src, tmp)
         tr = Trainer(a.clip, tmp, a.preset, a.variant, {}, a.device, progress=False)
         st, start = make_stage(tr, src, a.stage, a.start, a.checkpoint, a.from_final)
         for it in range(start, start + 5):

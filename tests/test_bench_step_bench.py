@@ -64,7 +64,6 @@ def test_make_stage_starts_stage2_where_the_trainer_does(
     so no stage-1 renders and no HDR reprojection): its first step, drawn from the same seeded
     generator, has the loss terms the run logged for its own first stage-2 step."""
     import json
-    import shutil
 
     from m4dgs.training.pipeline import Trainer, train
 
@@ -84,10 +83,7 @@ def test_make_stage_starts_stage2_where_the_trainer_does(
             if r.get("stage") == "stage2" and r.get("step") == 0
         )
         copy = tmp_path / f"{variant}-copy"
-        shutil.copytree(run / "model", copy / "model")
-        if (run / "renders" / "stage1").exists():
-            shutil.copytree(run / "renders" / "stage1", copy / "renders" / "stage1")
-        (copy / "model" / "ckpt.pt").unlink(missing_ok=True)
+        sb.copy_run_models(run, copy)
         tr = Trainer(
             tiny_clip_realistic, copy, "tiny", variant, short_training, "cpu", progress=False
         )
