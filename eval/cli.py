@@ -1077,6 +1077,66 @@ def peaks(runs, clip_dir, json_path):
         raise click.ClickException(f"none of the {len(runs)} run(s) could be read")
 
 
+@main.command("crf")
+@click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
+@_runs_clip_opt
+@click.option(
+    "--bands",
+    default=6,
+    show_default=True,
+    type=click.IntRange(min=1),
+    help="Equal log2 bands of the recorded exposure range for the signed error, dark to bright.",
+)
+@click.option(
+    "--plot",
+    "plot_path",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Also draw the learned responses over the true one and their signed difference (PNG).",
+)
+@click.option(
+    "--json",
+    "json_path",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Also write each run's figures (and the drawn curves) to this JSON file.",
+)
+def crf_cmd(runs, clip_dir, bands, plot_path, json_path):
+    """Each run's learned camera response against its clip's true one: the CRF error of
+    metrics.json, the exposure shift that fits the learned curve best and the error left after it
+    (a curve slid along the exposure axis, i.e. a mis-set HDR scale, against a curve of another
+    shape), and the signed error per band of the recorded exposure range. A run that cannot be read
+    (no final model: e.g. a failed run) is named after the table with the reason; the exit status is
+    1 only when no run could be read."""
+    from m4dgs.clip import Clip
+    from m4dgs.core.errors import InputError
+
+    from .responses import clip_ranges, format_responses, plot_responses, run_response
+    from .score import resolve_clip_dir
+
+    out, unread, ranges = [], [], {}
+    for r in runs:
+        try:
+            cdir = resolve_clip_dir(r, clip_dir)
+            clip = Clip.open(cdir)
+            key = str(Path(cdir).resolve())
+            if key not in ranges:  # the recorded ranges read every training frame: once per clip
+                ranges[key] = clip_ranges(clip)[1]
+            out.append(run_response(r, clip, bands=bands, ranges=ranges[key]))
+        except (InputError, FileNotFoundError) as e:
+            unread.append(str(e))
+    if out:
+        click.echo(format_responses(out), nl=False)
+    for e in unread:
+        click.echo(f"not read: {e}", err=True)
+    if out and plot_path:
+        click.echo(f"wrote {plot_responses(out, plot_path)}")
+    if json_path:
+        mio.write_json(json_path, {"runs": out, "not_read": unread})
+    if not out:
+        raise click.ClickException(f"none of the {len(runs)} run(s) could be read")
+
+
 @main.command("region-pairs")
 @click.argument("suite")
 @_out_opt

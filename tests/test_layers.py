@@ -43,6 +43,7 @@ LAYERS = {
     "eval.frames": "eval-driver",
     "eval.regions": "eval-driver",
     "eval.peaks": "eval-driver",
+    "eval.responses": "eval-driver",
     "eval.errormaps": "eval-driver",
     "eval.__main__": "eval-driver",
 }

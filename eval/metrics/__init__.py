@@ -6,7 +6,7 @@ LPIPS without weights). `CONVENTIONS` maps a short key to the one-line conventio
 tables (eval.tables)."""
 
 from . import crf, geometry, hdr, image, lpips, perf, temporal
-from .crf import crf_error, observed_exposure_range
+from .crf import crf_error, crf_error_bands, crf_error_shifted, observed_exposure_range
 from .geometry import align_sim3, ate, depth_absrel, rpe, track_error
 from .hdr import hdr_flip, hdr_psnr, hdr_ssim, hdr_tonemap_pair, mu_law, pu21_encode, pu21_psnr
 from .image import (
@@ -34,6 +34,8 @@ __all__ = [
     "ate",
     "crf",
     "crf_error",
+    "crf_error_bands",
+    "crf_error_shifted",
     "depth_absrel",
     "dis_flow",
     "dis_flow_sequence",

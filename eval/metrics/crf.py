@@ -109,11 +109,7 @@ def crf_error(
             per.append(None)
             continue
         z = np.linspace(np.log2(r[0]), np.log2(r[1]), int(n))
-        y = learned(z)
-        if hasattr(y, "detach"):
-            y = y.detach().cpu().numpy()
-        y = np.asarray(y, np.float64)
-        y = y[:, c] if y.ndim == 2 else y.reshape(len(z))
+        y = _curve_channel(learned, z, c)
         true = np.asarray(f.channel(c)(np.exp2(z)), np.float64)
         per.append(float(255.0 * np.mean(np.abs(y - true))))
     vals = [v for v in per if v is not None]
@@ -122,5 +118,117 @@ def crf_error(
         "per_channel": per,
         "ranges": [None if r is None else [float(r[0]), float(r[1])] for r in ranges],
         "samples": int(n),
+        "units": "8-bit codes",
+    }
+
+
+def _curve_channel(learned: Callable, z: np.ndarray, c: int) -> np.ndarray:
+    """Channel c of learned(z) as float64 [len(z)] (torch or numpy out; [n] or [n, C])."""
+    y = learned(z)
+    if hasattr(y, "detach"):
+        y = y.detach().cpu().numpy()
+    y = np.asarray(y, np.float64)
+    return y[:, c] if y.ndim == 2 else y.reshape(len(z))
+
+
+def crf_error_shifted(
+    learned: Callable,
+    crf,
+    ranges: Sequence[Optional[Tuple[float, float]]],
+    max_shift: float = 2.0,
+    step: float = 0.01,
+    n: int = CRF_ERROR_SAMPLES,
+) -> dict:
+    """crf_error left after the best exposure shift of the learned response: which part of the error
+    is a mis-set HDR scale (the curve slid along log x) and which a wrong shape.
+
+    For a shift s (EV) the learned curve is read at x 2^s: err(s) = crf_error of z -> learned(z + s)
+    over the same ranges as crf_error. s is searched on a grid of `step` over [-max_shift,
+    max_shift], once shared by the channels (a global HDR scale) and once per channel (a scale per
+    channel, i.e. white balance). s > 0 means the learned curve needs s EV more exposure than the
+    true one for the same code (it is darker); a learned curve equal to f(x 2^-s) gives shift s and
+    error 0.
+
+    Returns:
+        {"shift": s [EV], "crf_error": err(s) [codes], "per_channel_shift": [s_c or None],
+        "per_channel_error": [err_c(s_c) or None], "crf_error_per_channel_shift": mean_c
+        err_c(s_c)}; the errors are None (and the shift 0.0) when no channel has a range.
+    """
+    f = get_crf(crf)
+    shifts = np.arange(-round(max_shift / step), round(max_shift / step) + 1) * float(step)
+    table = []  # [channel] -> errors over the shifts, or None
+    for c, r in enumerate(ranges):
+        if r is None:
+            table.append(None)
+            continue
+        z = np.linspace(np.log2(r[0]), np.log2(r[1]), int(n))
+        true = np.asarray(f.channel(c)(np.exp2(z)), np.float64)
+        # one call for every shift: [len(shifts) * n] log2 exposures
+        zz = (z[None, :] + shifts[:, None]).reshape(-1)
+        y = _curve_channel(learned, zz, c).reshape(len(shifts), len(z))
+        table.append(255.0 * np.mean(np.abs(y - true[None, :]), axis=1))
+    rows = [t for t in table if t is not None]
+    if not rows:
+        return {
+            "shift": 0.0,
+            "crf_error": None,
+            "per_channel_shift": [None] * len(table),
+            "per_channel_error": [None] * len(table),
+            "crf_error_per_channel_shift": None,
+        }
+    mean = np.mean(rows, axis=0)
+    i = int(np.argmin(mean))
+    per_i = [None if t is None else int(np.argmin(t)) for t in table]
+    per_err = [None if t is None else float(t[j]) for t, j in zip(table, per_i)]
+    return {
+        "shift": float(shifts[i]),
+        "crf_error": float(mean[i]),
+        "per_channel_shift": [None if j is None else float(shifts[j]) for j in per_i],
+        "per_channel_error": per_err,
+        "crf_error_per_channel_shift": float(np.mean([e for e in per_err if e is not None])),
+    }
+
+
+def crf_error_bands(
+    learned: Callable,
+    crf,
+    ranges: Sequence[Optional[Tuple[float, float]]],
+    bands: int = 6,
+    n: int = CRF_ERROR_SAMPLES,
+) -> dict:
+    """Where along the exposure range the learned response departs from the true one, with its sign.
+
+    Each channel's recorded range (as crf_error's) is cut into `bands` equal intervals of log2 x,
+    dark to bright; per band the mean of 255 (learned - true) over the log2-uniform samples that
+    fall in it (n, raised to a multiple of `bands`, so every band has n / bands of them). A curve
+    too dark in the mid-tones reads negative in the middle bands; a constant offset d reads 255 d
+    in every band.
+
+    Returns:
+        {"bands": [mean over channels, per band], "per_channel": [[per band] or None],
+        "edges_log2": [[bands + 1 log2 x edges] or None], "units": "8-bit codes"}.
+    """
+    if int(bands) < 1:
+        raise ValueError(f"bands must be >= 1, got {bands}")
+    bands = int(bands)
+    n = int(np.ceil(int(n) / bands)) * bands
+    f = get_crf(crf)
+    per, edges = [], []
+    for c, r in enumerate(ranges):
+        if r is None:
+            per.append(None)
+            edges.append(None)
+            continue
+        z = np.linspace(np.log2(r[0]), np.log2(r[1]), n)
+        d = 255.0 * (
+            _curve_channel(learned, z, c) - np.asarray(f.channel(c)(np.exp2(z)), np.float64)
+        )
+        per.append([float(v) for v in d.reshape(bands, -1).mean(axis=1)])
+        edges.append([float(v) for v in np.linspace(z[0], z[-1], bands + 1)])
+    vals = [p for p in per if p is not None]
+    return {
+        "bands": [float(v) for v in np.mean(vals, axis=0)] if vals else None,
+        "per_channel": per,
+        "edges_log2": edges,
         "units": "8-bit codes",
     }
