@@ -154,3 +154,17 @@ def test_the_command_reads_runs_names_the_unreadable_and_draws(
 
     none = CliRunner().invoke(main, ["crf", str(tmp_path / "failed")])
     assert none.exit_code == 1 and "none of the 1 run(s)" in none.output
+
+
+def test_a_clip_without_a_true_response_is_named(tiny_clip_realistic, tmp_path):
+    import shutil
+
+    from m4dgs.core.errors import InputError
+
+    real = tmp_path / "real"
+    shutil.copytree(tiny_clip_realistic, real)
+    meta = json.loads((real / "clip.json").read_text())
+    meta["crf"] = None  # a real clip: no true response to compare with
+    (real / "clip.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match=r"clip\.json: field 'crf'"):
+        clip_ranges(Clip.open(real))
