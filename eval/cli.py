@@ -1079,7 +1079,13 @@ def peaks(runs, clip_dir, json_path):
 
 @main.command("crf")
 @click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
-@_runs_clip_opt
+@click.option(
+    "--clip",
+    "clip_dir",
+    default=None,
+    type=click.Path(exists=True, file_okay=False),
+    help="Clip folder for every run (default: the 'clip' entry of each RUN/run.json).",
+)
 @click.option(
     "--bands",
     default=6,
