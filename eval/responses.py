@@ -34,6 +34,7 @@ from .metrics.crf import (
     crf_error,
     crf_error_bands,
     crf_error_shifted,
+    curve_channel,
     observed_exposure_range,
 )
 
@@ -66,7 +67,8 @@ def response_report(
     Args:
         curve: log2 exposures [n] (numpy) -> LDR values [n, C] or [n] (torch or numpy).
         clip: the clip whose true response (clip.json "crf") and recorded ranges are the reference.
-        bands: log2 bands of `bands`. samples: log2-uniform samples per channel.
+        bands: how many equal log2 bands the signed error is given in. samples: log2-uniform
+        samples per channel.
         ranges: the clip's recorded ranges when already known (clip_ranges), else computed.
     Returns:
         {"clip_name", "crf", "crf_error", "per_channel", "shift", "crf_error_shifted",
@@ -89,12 +91,7 @@ def response_report(
     if not hi > lo:  # disjoint channel ranges: draw over their union
         lo, hi = min(np.log2(r[0]) for _, r in have), max(np.log2(r[1]) for _, r in have)
     z = np.linspace(lo, hi, PLOT_SAMPLES)
-    y = curve(z)
-    if hasattr(y, "detach"):
-        y = y.detach().cpu().numpy()
-    y = np.asarray(y, np.float64)
-    y = y if y.ndim == 2 else y.reshape(len(z), 1).repeat(len(ranges), 1)
-    learned = np.mean([y[:, c] for c, _ in have], axis=0)
+    learned = np.mean([curve_channel(curve, z, c) for c, _ in have], axis=0)
     true = np.mean([np.asarray(f.channel(c)(np.exp2(z)), np.float64) for c, _ in have], axis=0)
     return {
         "clip_name": clip.meta.name,

@@ -109,7 +109,7 @@ def crf_error(
             per.append(None)
             continue
         z = np.linspace(np.log2(r[0]), np.log2(r[1]), int(n))
-        y = _curve_channel(learned, z, c)
+        y = curve_channel(learned, z, c)
         true = np.asarray(f.channel(c)(np.exp2(z)), np.float64)
         per.append(float(255.0 * np.mean(np.abs(y - true))))
     vals = [v for v in per if v is not None]
@@ -122,8 +122,9 @@ def crf_error(
     }
 
 
-def _curve_channel(learned: Callable, z: np.ndarray, c: int) -> np.ndarray:
-    """Channel c of learned(z) as float64 [len(z)] (torch or numpy out; [n] or [n, C])."""
+def curve_channel(learned: Callable, z: np.ndarray, c: int) -> np.ndarray:
+    """Channel c of a response learned(z) as float64 [len(z)] (learned returns torch or numpy,
+    [n] for a curve shared by the channels or [n, C])."""
     y = learned(z)
     if hasattr(y, "detach"):
         y = y.detach().cpu().numpy()
@@ -165,7 +166,7 @@ def crf_error_shifted(
         true = np.asarray(f.channel(c)(np.exp2(z)), np.float64)
         # one call for every shift: [len(shifts) * n] log2 exposures
         zz = (z[None, :] + shifts[:, None]).reshape(-1)
-        y = _curve_channel(learned, zz, c).reshape(len(shifts), len(z))
+        y = curve_channel(learned, zz, c).reshape(len(shifts), len(z))
         table.append(255.0 * np.mean(np.abs(y - true[None, :]), axis=1))
     rows = [t for t in table if t is not None]
     if not rows:
@@ -221,7 +222,7 @@ def crf_error_bands(
             continue
         z = np.linspace(np.log2(r[0]), np.log2(r[1]), n)
         d = 255.0 * (
-            _curve_channel(learned, z, c) - np.asarray(f.channel(c)(np.exp2(z)), np.float64)
+            curve_channel(learned, z, c) - np.asarray(f.channel(c)(np.exp2(z)), np.float64)
         )
         per.append([float(v) for v in d.reshape(bands, -1).mean(axis=1)])
         edges.append([float(v) for v in np.linspace(z[0], z[-1], bands + 1)])
