@@ -308,7 +308,9 @@ def test_tlr_denominator_floor_option(data):
                 err = (warped - r.hdr).abs() / (warped + r.hdr + 1e-10 + floor)
                 m = (valid & flow_in_bounds(flow))[..., None].float()
                 terms.append((err * m).sum() / (m.sum() * 3))
-        assert float(got) == pytest.approx(float(torch.stack(terms).mean()), rel=1e-5)
+        assert float(got.detach()) == pytest.approx(
+            float(torch.stack(terms).mean().detach()), rel=1e-5
+        )
 
 
 def test_stage1_step_densifies_through_the_strategy_and_records(data):
