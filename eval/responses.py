@@ -44,15 +44,11 @@ PLOT_SAMPLES = 200
 
 def clip_ranges(clip: Clip):
     """(true CRF, per-channel recorded exposure ranges) of a clip, as crf_error uses them. Raises
-    InputError when the clip has no known true response or no ground-truth HDR training frames."""
+    InputError when the clip has no true response (a real clip; Clip.open already rejects an
+    unknown name) or no ground-truth HDR training frames."""
     if not clip.meta.crf:
         raise InputError(f"{clip.root / 'clip.json'}: field 'crf' is empty: no true response")
-    try:
-        f = get_crf(clip.meta.crf)
-    except KeyError as e:
-        raise InputError(
-            f"{clip.root / 'clip.json'}: field 'crf': unknown response {clip.meta.crf!r}"
-        ) from e
+    f = get_crf(clip.meta.crf)
     if not (clip.has_gt and clip.has_gt_part("hdr") and clip.train_frames):
         raise InputError(f"{clip.root}: no ground-truth HDR training frames (gt/hdr)")
     frames = (clip.load_gt_hdr(g) for g in clip.train_frames)
