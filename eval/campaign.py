@@ -206,17 +206,24 @@ def todo_iterations(statuses: Sequence[dict]) -> List[int]:
     return out
 
 
-def recorded_runs(csv_path, preset: str, generator: Optional[str] = None) -> Dict[tuple, dict]:
-    """{(suite, scene, row, seed): CSV row} of the runs CSV's scored runs at `preset` (and, when
-    `generator` is given, not on clips of another benchgen generator version): the record of
-    finished runs that survives the loss of their run folders (empty without a CSV)."""
-    from .results import SCORED, read_runs_csv
+def recorded_runs(
+    csv_path, preset: str, generator: Optional[str] = None, status: str = "scored"
+) -> Dict[tuple, dict]:
+    """{(suite, scene, row, seed): CSV row} of the runs CSV's runs of `status` ("scored", or
+    "failed": the last attempt failed) at `preset` (and, when `generator` is given, not on clips
+    of another benchgen generator version; a failed row without a preset counts at every preset):
+    the record of finished (or failed) runs that survives the loss of their run folders (empty
+    without a CSV)."""
+    from .results import read_runs_csv
 
     if csv_path is None:
         return {}
     out = {}
     for r in read_runs_csv(csv_path):
-        if r.get("status") != SCORED or r.get("preset") != preset:
+        if r.get("status") != status:
+            continue
+        # a failed run's row names no preset when it failed before scoring (its metrics hold it)
+        if r.get("preset") != preset and not (status == "failed" and not r.get("preset")):
             continue
         made_by = str(r.get("generator") or "")  # "" for clips benchgen did not make
         if generator is not None and made_by and made_by != str(generator):
@@ -236,12 +243,14 @@ def step_status(
     preset: str,
     recorded: Optional[Dict[tuple, dict]] = None,
     retry_failed: bool = True,
+    recorded_failed: Optional[Dict[tuple, dict]] = None,
 ) -> dict:
     """{"total", "scored", "recorded", "failed", "codes", "todo_iterations", "sec_per_iteration",
     "job_costs"}: the step's jobs, how many are finished (metrics.json under ROOT, or, for a job
     without a run folder under ROOT, a scored row of `recorded`, the runs CSV: recorded_runs),
     how many of those only the CSV holds, how many unfinished ones failed at their last attempt
-    (<run>/failure.json: eval.runner.record_failure), a Counter of the m4dgs code (run.json / CSV
+    (<run>/failure.json: eval.runner.record_failure, or, for a job without a run folder, a failed
+    row of `recorded_failed`, the CSV's record of it), a Counter of the m4dgs code (run.json / CSV
     `code`, 12 hex digits) of the finished ones, the iterations of the jobs still to train, and the
     recorded training seconds per iteration of each finished run (run.json `train_seconds`, or
     the CSV's `train_minutes`: the method's cost, shared phases counted at their producer's
@@ -253,6 +262,13 @@ def step_status(
 
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
     recorded = recorded or {}
+    recorded_failed = recorded_failed or {}
+
+    def last_failed(j, run: Path) -> bool:
+        if run.exists():
+            return read_failure(run) is not None
+        return job_key(j) in recorded_failed
+
     codes: Counter = Counter()
     scored, in_csv, failed, todo, rates, costs = 0, 0, 0, 0, [], []
     for j in jl:
@@ -260,7 +276,7 @@ def step_status(
         row = recorded.get(job_key(j))
         done = (row is not None and not run.exists()) or (run / "metrics.json").exists()
         key, s1, s2, tkey = job_plan(j)
-        if not (done or retry_failed) and read_failure(run) is not None:
+        if not (done or retry_failed) and last_failed(j, run):
             failed += 1  # kept as it is: nothing to train, nothing shared
             continue
         costs.append((done, key, s1, s2, tkey, (run / "metrics.json").exists()))
@@ -280,7 +296,7 @@ def step_status(
                 rates.append(float(sec) / max(s1 + s2, 1))
         else:
             todo += s1 + s2
-            failed += read_failure(run) is not None
+            failed += last_failed(j, run)
     return {
         "total": len(jl),
         "scored": scored,
@@ -365,10 +381,13 @@ def run_campaign(
     # the runs CSV is the record that outlives the root: a job scored there (same preset, clips of
     # this generator) is finished even when its run folder is gone
     recorded = recorded_runs(csv_path, campaign.preset, str(GENERATOR_VERSION))
+    # ... and a job whose failed attempt it records (no run folder) failed at its last attempt
+    recorded_failed = recorded_runs(csv_path, campaign.preset, str(GENERATOR_VERSION), "failed")
     # the time estimate: the median recorded seconds per iteration over every finished run of the
     # campaign, in this root or in the CSV (one machine, one --jobs setting make it meaningful)
     statuses = [
-        step_status(st, root, campaign.preset, recorded, retry_failed) for st in campaign.steps
+        step_status(st, root, campaign.preset, recorded, retry_failed, recorded_failed)
+        for st in campaign.steps
     ]
     rates = sorted(r for s in statuses for r in s["sec_per_iteration"])
     rate_source = "scored run(s) of this campaign in this root or the CSV"
@@ -387,7 +406,9 @@ def run_campaign(
         if i == 1 or dry_run:
             s = statuses[i - 1]
         else:  # earlier steps have run since: this step's state now
-            s = statuses[i - 1] = step_status(st, root, campaign.preset, recorded, retry_failed)
+            s = statuses[i - 1] = step_status(
+                st, root, campaign.preset, recorded, retry_failed, recorded_failed
+            )
             # the earlier steps' statuses from the start still name what they share: a stage 1 or
             # a training they had to do was counted there, so this step counts it once at most
             s["todo_iterations"] = todo_iterations(statuses[:i])[-1]
@@ -440,13 +461,19 @@ def run_campaign(
                 log=say,
                 # a job the CSV records is not run again; each finished job is exported at once,
                 # so that a lost root loses at most the runs in progress
-                skip=lambda j: job_key(j) in recorded and not Path(j.run_dir).exists(),
+                # (nor, when failures are not retried, one whose failure only the CSV records)
+                skip=lambda j: not Path(j.run_dir).exists()
+                and (
+                    job_key(j) in recorded or (not retry_failed and job_key(j) in recorded_failed)
+                ),
                 on_result=lambda j, r: export_step(quiet=True),
                 retry_failed=retry_failed,
                 **(run_kw or {}),
             )
             summary["ran"] = True
-        summary.update(step_status(st, root, campaign.preset, recorded, retry_failed))
+        summary.update(
+            step_status(st, root, campaign.preset, recorded, retry_failed, recorded_failed)
+        )
         bad = failed_jobs(res)
         if summary["scored"] > summary["recorded"] or bad:
             export_step()  # with failed jobs: their rows say "failed" and why

@@ -298,9 +298,9 @@ _no_share_opt = click.option(
 _no_retry_failed_opt = click.option(
     "--no-retry-failed",
     is_flag=True,
-    help="Do not run again a job whose last attempt failed (<run>/failure.json): a failure that "
-    "repeats is a result of its configuration, and its row stays `failed`. By default such jobs "
-    "are retried.",
+    help="Do not run again a job whose last attempt failed (<run>/failure.json, or, for `campaign` "
+    "when the run folder is gone, the runs CSV's `failed` row): a failure that repeats is a "
+    "result of its configuration, and its row stays `failed`. By default such jobs are retried.",
 )
 
 

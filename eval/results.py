@@ -348,11 +348,15 @@ def write_crf_csv(path, curves: Dict[tuple, dict]) -> None:
 
 def merge_rows(old: List[dict], new: List[dict]) -> List[dict]:
     """New rows replace old rows of the same (suite, scene, row, seed); a missing or failed run
-    never replaces a scored one; every other old row stays."""
+    never replaces a scored one, nor a missing run a failed one (its run folder lost, the CSV is
+    the record of that failure); every other old row stays."""
     idx = {_key(r): r for r in old}
     for r in new:
         k = _key(r)
-        if r["status"] != SCORED and k in idx and idx[k].get("status") == SCORED:
+        was = idx[k].get("status") if k in idx else None
+        if r["status"] != SCORED and was == SCORED:
+            continue
+        if r["status"] == MISSING and was == FAILED:
             continue
         idx[k] = r
     return _sorted(list(idx.values()))

@@ -1452,6 +1452,27 @@ def test_campaign_goes_on_after_a_step_with_a_failed_job(tmp_path, fake_trainer,
     )
     assert r.exit_code == 0, r.output
     assert "2 of 2 steps complete" in r.output
+    # the root is lost (a new machine): the CSV's "failed" row is the record of that attempt, so
+    # the job still counts as failed, not as one to train (which would mix code versions)
+    import shutil
+
+    from eval.runner import job_list
+
+    shutil.rmtree(out)
+    for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
+        make_fake_clip(Path(j), seed=len(j))
+    lines = []
+    res = run_campaign(
+        camp, out, csv_path, code=newer, retry_failed=False, log=lines.append, run_kw=kw["run_kw"]
+    )
+    assert len(fake_trainer["train"]) == 7 and not any(r["ran"] for r in res)
+    assert [(r["scored"], r["recorded"], r["failed"]) for r in res] == [(1, 1, 1), (7, 7, 1)]
+    assert sum("failed at their last attempt (not retried)" in ln for ln in lines) == 2
+    with pytest.raises(InputError, match=r"step 1 \(.*\): 1 finished run\(s\) with m4dgs code"):
+        run_campaign(camp, out, csv_path, code=newer, **kw)  # retried: mixed code, as before
+    with open(csv_path) as f:
+        st = sorted((r["scene"], r["row"], r["seed"], r["status"]) for r in csv.DictReader(f))
+    assert [x for x in st if x[3] != "scored"] == [("tiny-lamp-box", "base", "0", "failed")]
 
 
 SHARE_SUITE_YAML = """name: t3

@@ -730,7 +730,7 @@ def test_results_of_a_suite_in_progress(tmp_path):
 def test_results_lists_failed_runs_and_leaves_their_pair_out(tmp_path):
     """A run whose job failed is a "failed" row with its error: the page counts and lists it, the
     tables leave its (scene, seed) pair out of every row, and a failed row never replaces a scored
-    one in a merge (a missing one it does)."""
+    one in a merge (a missing one it does, and a missing one never replaces it)."""
     from eval.results import FAILED, MISSING, SCORED, merge_rows, write_runs_csv
 
     rng = np.random.default_rng(5)
@@ -779,6 +779,9 @@ def test_results_lists_failed_runs_and_leaves_their_pair_out(tmp_path):
     scored, fail, miss = row("s", "full"), row("s", "full", FAILED), row("s", "full", MISSING)
     assert merge_rows([scored], [fail]) == [scored]
     assert merge_rows([miss], [fail]) == [fail]
+    # ... and a missing row (run folder lost) never replaces a failed one: the CSV is the record
+    assert merge_rows([fail], [miss]) == [fail]
+    assert merge_rows([fail], [scored]) == [scored]
 
 
 def test_results_warns_of_runs_that_lack_a_metric_their_row_reports(tmp_path):
