@@ -222,7 +222,8 @@ def recorded_runs(
     for r in read_runs_csv(csv_path):
         if r.get("status") != status:
             continue
-        # a failed run's row names no preset when it failed before scoring (its metrics hold it)
+        # a failed row without a preset: exported before export read it from run.json, or the run
+        # failed before run.json was written
         if r.get("preset") != preset and not (status == "failed" and not r.get("preset")):
             continue
         made_by = str(r.get("generator") or "")  # "" for clips benchgen did not make

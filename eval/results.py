@@ -190,8 +190,9 @@ def host_label(host: Optional[Mapping[str, object]]) -> str:
 
 def _provenance(run_dir, clip_meta: dict) -> Dict[str, str]:
     """The provenance cells of a run: code fingerprint (12 hex digits), the clip's generator version
-    (from its clip.json contents), the torch thread count and the host (`host_label`); "" where a
-    run (or an older run.json / clip.json) does not say."""
+    (from its clip.json contents), the torch thread count, the host (`host_label`) and the training
+    preset (run.json, written when training starts: also known for a run that failed before it was
+    scored); "" where a run (or an older run.json / clip.json) does not say."""
     info = {}
     p = Path(run_dir) / "run.json"
     if p.exists():
@@ -203,6 +204,7 @@ def _provenance(run_dir, clip_meta: dict) -> Dict[str, str]:
         "generator": str(gen),
         "torch_threads": str(threads),
         "host": host_label(info.get("host")),
+        "preset": str(info.get("preset") or ""),
     }
 
 
@@ -243,6 +245,8 @@ def export_suite(
         m = e["metrics"] or {}
         curve = m.get("crf_curve") or {}
         error = None if e["metrics"] else read_failure(e["run_dir"])
+        prov = _provenance(e["run_dir"], meta)
+        run_preset = prov.pop("preset")
         r = {
             "suite": s.name,
             "scene": e["scene"],
@@ -252,10 +256,12 @@ def export_suite(
             "variant": row.variant,
             "clip_setting": setting.setting_id(s.scenes),
             "crf": curve.get("crf") or setting.crf or "hdrnerf",
-            "preset": (m.get("run") or {}).get("preset") or "",
+            # a failed run's preset from its run.json, so that its row is recognised at that
+            # preset when the run folder is gone (eval.campaign.recorded_runs)
+            "preset": (m.get("run") or {}).get("preset") or (run_preset if error else ""),
             "status": SCORED if e["metrics"] else (FAILED if error else MISSING),
             "ldr_convention": m.get("ldr_convention", "") if e["metrics"] else "",
-            **_provenance(e["run_dir"], meta),
+            **prov,
             "error": error or "",
         }
         for k in keys:

@@ -1331,6 +1331,8 @@ def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trai
     def train(clip_dir, run_dir, **k):  # the fake trainer, recording the code as the real one does
         if any(str(run_dir).endswith(d) for d in diverge):
             Path(run_dir).mkdir(parents=True, exist_ok=True)  # the real trainer's folder exists
+            # ... with the run.json it writes when training starts (the preset among others)
+            mio.write_json(Path(run_dir) / "run.json", {"preset": "tiny", "code": code})
             raise RuntimeError("diverged")
         fake_train(clip_dir, run_dir, **k)
         rj = Path(run_dir) / "run.json"
@@ -1345,6 +1347,7 @@ def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trai
     assert [(r["scene"], r["row"], r["seed"], r["error"]) for r in failed] == [
         ("tiny-flag-arm", "full", "1", "training: RuntimeError: diverged")
     ]
+    assert [r["preset"] for r in failed] == ["tiny"]  # from run.json: the row is recognised later
 
     def csv_keys():
         with open(csv_path) as f:
