@@ -243,7 +243,8 @@ def make(
     help="Depth prior of the training frames (the PNGs of OUT/input/ldr/, which --ldr-only "
     "writes first): one [T, H, W] .npy/.npz or a folder with one .npy/.npz/.exr/16-bit "
     ".png/.tif per frame, from a monocular depth model; one map per HDR frame also works (the "
-    "training ones are taken). Required unless --ldr-only.",
+    "training ones are taken), as does one per HDR file of --hdr when --every / --max-frames drop "
+    "frames. Required unless --ldr-only.",
 )
 @prior_file_options
 @click.option(
@@ -363,7 +364,8 @@ def from_hdr(
     """An evaluation clip from an HDR video, the paper's Syn-Exp-3 recipe: even frames train,
     odd frames test, the training frames tone-mapped at alternating exposures, the test frames at
     every observed and novel exposure, the HDR frames kept as ground truth (docs/clip-format.md,
-    "From an HDR video"). Then: m4dgs train --clip OUT; m4dgs-eval score RUN."""
+    "From an HDR video"). Prints a summary of the clip and the next commands (m4dgs train --clip
+    OUT, m4dgs-eval score RUN) on stderr, and the clip's path on stdout."""
     from pathlib import Path as P
 
     from .from_hdr import HdrVideoOptions, clip_from_hdr_video
@@ -403,6 +405,11 @@ def from_hdr(
             "then run this command again with --depth"
         )
     else:
+        from .from_hdr import summary_lines
+
+        # the summary and the next steps on stderr, the clip's path alone on stdout (for scripts)
+        for line in summary_lines(path):
+            click.echo(line, err=True)
         click.echo(str(path))
 
 

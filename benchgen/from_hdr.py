@@ -21,7 +21,8 @@ folder of linear HDR frames:
   (clip.json gt.placement) and a miss is an error unless allowed, since a mis-exposed clip is a
   poor yardstick;
 - priors (the reader of `m4dgs import-clip`, m4dgs.footage): depth (required) for the training
-  frames, i.e. one map per frame of input/ldr/ (or one per HDR frame: the training ones are taken);
+  frames, i.e. one map per frame of input/ldr/ (or one per HDR frame kept, or one per HDR file of
+  the folder when every / max_frames drop frames: the training ones are taken; `depth_step`);
   tracks and flow optional, indexed by training-frame position (0 = input/ldr/00000.png, 1 = the
   next training frame, ...), DIS-chained tracks without them. `ldr_only` writes just the training
   frames (input/ldr/, no clip.json) for the depth model to run on first;
@@ -156,14 +157,42 @@ def _hdr_tae_floor(hdr, train, fs: FlowSet) -> Optional[float]:
     return float(np.mean(vals)) if vals else None
 
 
+def depth_step(depth: Path, T: int, G: int, n_files: int, opt: HdrVideoOptions) -> int:
+    """Every how many depth maps a training frame's map comes (ImportOptions.every of the depth
+    reader), from how many maps `depth` holds: T, one per training frame (step 1); G, one per HDR
+    frame kept (step 2: the training frames are the even ones); or, when --every / --max-frames
+    dropped HDR frames, n_files, one per HDR file of the --hdr folder (step 2 * every). Any other
+    count is an InputError naming the path, the count and every accepted count (a folder or array
+    whose count cannot be told is left to the reader)."""
+    from m4dgs.footage import count_depth_maps
+
+    n = count_depth_maps(depth)
+    every = max(int(opt.every), 1)
+    steps = {T: 1, G: 2}
+    if n_files != G:
+        steps.setdefault(n_files, 2 * every)
+    if n is None or n in steps:
+        return steps.get(n, 1)
+    accepted = [
+        f"{T} (one per training frame: the PNGs of input/ldr/)",
+        f"{G} (one per HDR frame kept; the training ones are taken)",
+    ]
+    if n_files != G:
+        accepted.append(f"{n_files} (one per HDR file in {opt.hdr}, before --every / --max-frames)")
+    raise InputError(
+        f"{depth}: field 'depth maps': {n} found; expected "
+        + (", ".join(accepted[:-1]) + " or " + accepted[-1])
+    )
+
+
 def clip_from_hdr_video(out, opt: HdrVideoOptions, force: bool = False) -> Path:
     """Write the evaluation clip of an HDR video at `out` (module docstring); returns its folder
     (with `ldr_only`: the folder holding only input/ldr/)."""
     from m4dgs.footage import (
         DEPTH_HELP,
         ImportOptions,
-        count_depth_maps,
         dis_tracks,
+        list_images,
         positions_to_frames,
         read_depth,
         read_flow,
@@ -227,12 +256,10 @@ def clip_from_hdr_video(out, opt: HdrVideoOptions, force: bool = False) -> Path:
             "the priors elsewhere"
         )
     T = len(train)
-    n_depth = count_depth_maps(Path(opt.depth))
     io_opt = ImportOptions(
         depth=Path(opt.depth),
         depth_kind=opt.depth_kind,
-        # one map per HDR frame: the training frames are the even ones
-        every=2 if (n_depth == G and G != T) else 1,
+        every=depth_step(Path(opt.depth), T, G, len(list_images(Path(opt.hdr), HDR_EXTS)), opt),
         tracks=opt.tracks,
         visibility=opt.visibility,
         track_pixel_centre=opt.track_pixel_centre,
@@ -340,3 +367,45 @@ def _check_placement(out: Path, placement: dict, opt: HdrVideoOptions) -> None:
         print(f"warning: {msg}; kept (--allow-misplaced).", file=sys.stderr)
         return
     raise PlacementError(msg + ", or pass --allow-misplaced to keep the clip anyway.")
+
+
+def summary_lines(clip_dir) -> List[str]:
+    """What `benchgen from-hdr` made, in a few lines for the user: frames and split, resolution,
+    exposure levels, priors, exposure placement and the next commands (train, then score)."""
+    from m4dgs.clip import Clip
+
+    from .placement import placement_failures
+    from .show import priors_view
+
+    clip = Clip.open(clip_dir)
+    m = clip.meta
+    root = Path(clip_dir)
+
+    def levels(vs) -> str:
+        return ", ".join(f"{float(v):g}" for v in vs)
+
+    resized = m.generator.get("resized_from")
+    size = f"{m.width}x{m.height}" + (
+        f" (resized from {resized[1]}x{resized[0]})" if resized else ""
+    )
+    pv = priors_view(clip)
+    src = pv.get("sources", {})
+    tracks = f"tracks {pv['tracks']}" + (f" ({src['tracks']})" if "tracks" in src else "")
+    flow = "no flow" if pv["flow"] is None else f"flow {pv['flow']} pairs"
+    gt_flow = "given" if clip.has_gt_part("flow.npz") else "none (eval uses DIS flow on gt/hdr)"
+    bad = placement_failures(m.gt.get("placement") or {})
+    run = Path("runs") / root.name / "full"
+    return [
+        f"clip {m.name}: {m.num_frames} frames, {size}: {len(clip.train_frames)} training (even), "
+        f"{len(clip.test_frames)} test (odd)",
+        f"exposures: training frames at {levels(m.exposures.observed)} "
+        f"({m.exposures.schedule}), test frames at those and novel {levels(m.exposures.novel)}; "
+        f"response {m.crf}, HDR scale {m.hdr_scale:.4g}",
+        f"priors: depth {pv['depth']} maps"
+        + (f" ({src['depth']})" if "depth" in src else "")
+        + f", {tracks}, {flow}; gt flow: {gt_flow}",
+        "exposure placement: "
+        + ("every target met" if not bad else "misses " + "; ".join(bad) + " (kept)"),
+        f"next: m4dgs train --clip {root} --preset small   (writes {run}), then "
+        f"m4dgs-eval score {run}",
+    ]

@@ -313,7 +313,9 @@ def _finished_clip(job: _Job, force: bool, allow_misplaced: bool) -> bool:
         done = Clip.open(out).meta
         old = _with_crf(done.generator)
         if {k: old.get(k) for k in job.gen} == job.gen:  # finished with the same settings
-            check_clip_placement(out, done.gt.get("placement"), allow_misplaced)
+            check_clip_placement(
+                out, done.gt.get("placement"), allow_misplaced, job.scene_path, job.gen["preset"]
+            )
             return True
         raise FileExistsError(
             f"{out}: a finished clip with other settings exists (generator {old}); pass force"
@@ -674,7 +676,9 @@ def _finish(job: _Job, writer: ClipWriter, meta: ClipMeta, targets, allow_mispla
     writer.finalize()
     # gt/hdr holds the same frames, scaled
     shutil.rmtree(job.out.joinpath(*UNIT_HDR_DIR), ignore_errors=True)
-    check_clip_placement(job.out, meta.gt["placement"], allow_misplaced)
+    check_clip_placement(
+        job.out, meta.gt["placement"], allow_misplaced, job.scene_path, job.gen["preset"]
+    )
 
 
 class PlacementError(InputError):
@@ -682,25 +686,60 @@ class PlacementError(InputError):
 
 
 def check_clip_placement(
-    clip_dir, placement: Optional[dict], allow_misplaced: bool = False
+    clip_dir,
+    placement: Optional[dict],
+    allow_misplaced: bool = False,
+    scene_path=None,
+    preset: Optional[str] = None,
 ) -> None:
-    """Raise PlacementError naming every missed target (unless allow_misplaced; then only warn on
-    stderr)."""
+    """Raise PlacementError naming every missed target (unless allow_misplaced; then only a line on
+    stderr).
+
+    scene_path: the clip's scene spec. What the message offers depends on whose spec it is: the
+    user's own spec is to be changed; a shipped smoke-test scene (every shipped suite listing it
+    sets `placement: warn`, as the tiny suite does) is expected to miss targets, so when allowed
+    the miss is only a note; another shipped scene is meant to meet them: its miss is to report."""
     import sys
 
     from .placement import placement_failures
+    from .suite import builtin_scene_suites, is_builtin_scene
 
     if not placement:
         return
     bad = placement_failures(placement)
     if not bad:
         return
+    missed = "; ".join(bad)
+    at = f" at preset {preset}" if preset else ""
+    if scene_path is None or not is_builtin_scene(scene_path):
+        msg = (
+            f"{clip_dir}: the clip misses its exposure-placement targets (clip.json "
+            f"gt.placement): {missed}. Change the scene spec (deeper shadows, an unlit corner, "
+            "smaller or dimmer lamps; docs/exposure.md) or pass --allow-misplaced to keep the clip "
+            "anyway."
+        )
+        if allow_misplaced:
+            print("warning: " + msg, file=sys.stderr)
+            return
+        raise PlacementError(msg)
+    name = Path(scene_path).stem
+    suites = builtin_scene_suites(scene_path)
+    if suites and all(s.placement == "warn" for s in suites):
+        msg = (
+            f"{clip_dir}: the built-in smoke-test scene {name} misses exposure-placement "
+            f"targets{at} ({missed}): expected for this scene (suite "
+            f"{', '.join(s.name for s in suites)} sets `placement: warn`, docs/exposure.md) and "
+            "harmless; the clip is usable, and clip.json gt.placement records what it achieved"
+        )
+        if allow_misplaced:
+            print(f"note: {msg}.", file=sys.stderr)
+            return
+        raise PlacementError(msg + "; pass --allow-misplaced to keep it.")
     msg = (
-        f"{clip_dir}: the clip misses its exposure-placement targets (clip.json gt.placement): "
-        + "; ".join(bad)
-        + ". Change the scene spec (deeper shadows, an unlit corner, smaller or dimmer lamps; "
-        "docs/exposure.md)"
-        " or pass --allow-misplaced to keep the clip anyway."
+        f"{clip_dir}: the built-in scene {name} misses its exposure-placement targets{at} "
+        f"(clip.json gt.placement): {missed}. Shipped benchmark scenes are meant to meet them "
+        "(docs/exposure.md), so please report this with the clip.json; pass --allow-misplaced "
+        "to keep the clip anyway."
     )
     if allow_misplaced:
         print("warning: " + msg, file=sys.stderr)

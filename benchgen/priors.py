@@ -288,14 +288,13 @@ def load_profile(path) -> PriorProfile:
     `base` (a named profile, default realistic) and any PriorProfile parameters, which replace the
     base's (e.g. `{base: realistic, depth_disp_shift: 0.08}`: realistic with harsh's disparity
     shift). Raises InputError (a ValueError) naming the file and the offending key or value."""
-    import yaml
-
     from m4dgs.core.errors import InputError
+    from m4dgs.core.io import read_yaml
 
     p = Path(path)
     try:
-        d = yaml.safe_load(p.read_text())
-    except (OSError, yaml.YAMLError) as e:
+        d = read_yaml(p)
+    except OSError as e:
         raise InputError(f"{p}: cannot read a prior profile: {e}") from None
     if not isinstance(d, dict):
         raise InputError(f"{p}: a prior profile is a mapping of parameters, got {type(d).__name__}")

@@ -24,7 +24,7 @@ def summary(clip: Clip) -> dict:
         "crf": m.crf,
         "unit_exposure_value": m.unit_exposure_value,
         "hdr_scale": m.hdr_scale,
-        "priors": m.priors.get("profile"),
+        "priors": priors_view(clip),
         "has_gt": clip.has_gt,
     }
     for k in ("dynamic_fraction", "dynamic_range_stops", "hdr_tae_floor", "render_noise"):
@@ -32,6 +32,34 @@ def summary(clip: Clip) -> dict:
             out[k] = m.gt[k]
     if "render_noise" in out:
         out["render_noise"] = render_noise_view(out["render_noise"])
+    return out
+
+
+def priors_view(clip: Clip) -> dict:
+    """The priors a clip has: its degradation profile when benchgen degraded them (clip.json
+    priors.profile), the number of depth maps (priors/depth/), tracks (priors/tracks.npz) and flow
+    pairs (priors/flow.npz; null when the clip has none), and where given priors came from
+    (clip.json priors.<kind>.source, e.g. `benchgen from-hdr` or `m4dgs import-clip`)."""
+    m, root = clip.meta, clip.root
+    out = {}
+    if m.priors.get("profile") is not None:
+        out["profile"] = m.priors["profile"]
+    out["depth"] = len(list((root / "priors/depth").glob("*.exr")))
+    out["tracks"] = None
+    if (root / "priors/tracks.npz").exists():
+        with np.load(root / "priors/tracks.npz") as z:
+            out["tracks"] = int(z["tracks"].shape[0])
+    out["flow"] = None
+    if clip.has_flow_prior():
+        with np.load(root / "priors/flow.npz") as z:
+            out["flow"] = int(z["pairs"].shape[0])
+    sources = {
+        k: v["source"]
+        for k, v in m.priors.items()
+        if k in ("depth", "tracks", "flow") and isinstance(v, dict) and v.get("source")
+    }
+    if sources:
+        out["sources"] = sources
     return out
 
 
@@ -133,18 +161,7 @@ def contact_sheet(clip: Clip, path) -> Path:
         else:
             ax.imshow(np.clip(im, 0, 1) if im.dtype != np.uint8 else im)
         if len(p) > 2:
-            t = p[2]
-            T = t.tracks.shape[1]
-            vis = t.visible[:, -1]
-            for n in np.nonzero(vis)[0][:200]:
-                ax.plot(
-                    t.tracks[n, max(0, T - 6) :, 0] - 0.5,
-                    t.tracks[n, max(0, T - 6) :, 1] - 0.5,
-                    "-",
-                    lw=0.6,
-                    color="cyan",
-                )
-            ax.scatter(t.tracks[vis, -1, 0] - 0.5, t.tracks[vis, -1, 1] - 0.5, s=2, c="yellow")
+            draw_tracks(ax, p[2])
         ax.set_title(title, fontsize=8)
     fig.suptitle(
         f"{m.name}: {m.width}x{m.height}, {m.num_frames} frames, {m.exposures.schedule}",
@@ -157,3 +174,19 @@ def contact_sheet(clip: Clip, path) -> Path:
     plt.close(fig)
     tmp.replace(path)
     return path
+
+
+def draw_tracks(ax, tracks, tail: int = 6, max_tracks: int = 200) -> None:
+    """Draw on an image axis the tracks visible in the last frame: a yellow dot where each is now
+    and, for the first max_tracks, a cyan line through its last `tail` positions. A position is
+    drawn only where the track is visible and its coordinates are finite: an occluded frame's
+    placeholder (often 0, 0) or NaN breaks the line instead of pulling it to the corner.
+    Coordinates are the clip's (the first pixel's centre at 0.5)."""
+    xy = np.asarray(tracks.tracks, np.float64) - 0.5  # imshow puts pixel centres at integers
+    ok = np.asarray(tracks.visible, bool) & np.isfinite(xy).all(axis=-1)
+    xy = np.where(ok[..., None], xy, np.nan)  # matplotlib breaks a line at NaN
+    T = xy.shape[1]
+    now = np.nonzero(ok[:, -1])[0]
+    for n in now[:max_tracks]:
+        ax.plot(xy[n, max(0, T - tail) :, 0], xy[n, max(0, T - tail) :, 1], "-", lw=0.6, c="cyan")
+    ax.scatter(xy[now, -1, 0], xy[now, -1, 1], s=2, c="yellow")

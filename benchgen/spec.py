@@ -21,6 +21,7 @@ import yaml
 from benchgen.exposure import SCHEDULES
 from m4dgs.core.checks import is_integer, is_number, unknown_keys
 from m4dgs.core.errors import InputError
+from m4dgs.core.io import YAMLSyntaxError, parse_yaml
 
 _REQUIRED = object()
 
@@ -795,9 +796,9 @@ def read_yaml(path) -> Any:
     except OSError as e:
         raise SpecError(path, "<file>", "a readable YAML file", _Raw(str(e))) from None
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise SpecError(path, "<file>", "valid YAML", _Raw(" ".join(str(e).split()))) from None
+        return parse_yaml(text, str(path))
+    except YAMLSyntaxError as e:
+        raise SpecError(path, e.where or "<file>", "valid YAML", _Raw(e.what)) from None
 
 
 def validate_scene(data: Any, file="<spec>") -> dict:

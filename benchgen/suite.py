@@ -85,3 +85,19 @@ def load_suite(name_or_path: Union[str, Path]) -> Suite:
         path,
         spec["placement"],
     )
+
+
+def builtin_scene_suites(scene_path: Union[str, Path]) -> List[Suite]:
+    """The shipped suites that list a scene spec; [] for a spec outside the shipped scenes folder
+    (the user's own)."""
+    p = Path(scene_path).resolve()
+    if p.parent != builtin_scenes_dir().resolve():
+        return []
+    suites = [load_suite(name) for name in builtin_suites()]
+    return [s for s in suites if p in {q.resolve() for q in s.scenes}]
+
+
+def is_builtin_scene(scene_path: Union[str, Path]) -> bool:
+    """True for a scene spec shipped with the project (the ``scenes`` package's folder)."""
+    p = Path(scene_path).resolve()
+    return p.parent == builtin_scenes_dir().resolve() and p.suffix in (".yaml", ".yml")

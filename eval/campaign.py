@@ -80,9 +80,7 @@ def load_campaign(name_or_path) -> Campaign:
             f"no campaign {name_or_path!r}: not a file, and not one of the shipped campaigns "
             f"({', '.join(builtin_campaigns()) or 'none'})"
         )
-    with open(path, "r", encoding="utf-8") as f:
-        d = yaml.safe_load(f)
-    return parse_campaign(d, path)
+    return parse_campaign(mio.read_yaml(path), path)
 
 
 def parse_campaign(d, path="<campaign>") -> Campaign:

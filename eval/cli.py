@@ -254,6 +254,7 @@ _out_opt = click.option(
     default=DEFAULT_OUT,
     show_default=True,
     type=click.Path(file_okay=False),
+    metavar="ROOT",
     help="Experiment root (the same as --root of `table` and `export`; --out is its older name): "
     "clips in ROOT/clips/<setting>/<scene>, runs in ROOT/runs/<suite>/<scene>/<row>, figures in "
     "ROOT/figures/<suite>. One ROOT per preset.",
@@ -289,7 +290,7 @@ _no_share_opt = click.option(
     "--no-share",
     is_flag=True,
     help="Compute every trainer phase in every run. By default the runs of one clip share camera "
-    "initialisation, stage 1, the V2W transform and stage 2 through OUT/.shared wherever their "
+    "initialisation, stage 1, the V2W transform and stage 2 through ROOT/.shared wherever their "
     "configurations agree on what that phase reads (stage 2: the whole configuration and the "
     "variant, e.g. the full row of two suites; never across trainer seeds; docs/eval.md).",
 )
@@ -472,15 +473,34 @@ def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) ->
     return entries
 
 
+def metrics_files(top) -> list:
+    """The metrics.json files in TOP and every folder below it, sorted. Symbolic links to folders
+    are followed (a run or scene folder linked into the tree counts like a real one); a folder
+    reached twice (linked beside itself, or a link back up the tree) is read once, where the
+    sorted walk meets it first."""
+    found, seen = [], set()
+    for d, dirs, files in os.walk(top, followlinks=True):
+        st = os.stat(d)
+        if (st.st_dev, st.st_ino) in seen:
+            dirs.clear()
+            continue
+        seen.add((st.st_dev, st.st_ino))
+        dirs.sort()
+        if "metrics.json" in files and os.path.isfile(os.path.join(d, "metrics.json")):
+            found.append(Path(d) / "metrics.json")
+    return sorted(found)
+
+
 def collect_runs_dir(runs_dir) -> list:
-    """Entries of every run under RUNS_DIR with a metrics.json; rows = the variant names (run.json /
-    metrics.json), or the run folder names where two runs of one scene and seed share a variant. A
-    folder named <row>-seed-<n> is trainer seed n of <row> (m4dgs-eval run --seeds)."""
+    """Entries of every run under RUNS_DIR with a metrics.json (metrics_files: linked run and
+    scene folders included); rows = the variant names (run.json / metrics.json), or the run folder
+    names where two runs of one scene and seed share a variant. A folder named <row>-seed-<n> is
+    trainer seed n of <row> (m4dgs-eval run --seeds)."""
     from .runner import split_run_name
     from .score import read_run_info
 
     entries = []
-    for mp in sorted(Path(runs_dir).rglob("metrics.json")):
+    for mp in metrics_files(runs_dir):
         rd = mp.parent
         m = mio.read_json(mp)
         run_meta = m.get("run") or {}
@@ -579,6 +599,29 @@ def build_tables(
     return "\n".join(parts)
 
 
+def _no_scored_runs(target: str, name: str, root, entries: list) -> str:
+    """One line for `table SUITE` when none of the suite's runs under ROOT has a metrics.json:
+    the folder it searched, what it looked for there, and what to run."""
+    where = os.path.join(os.path.abspath(root), "runs", name)
+    todo = f"m4dgs-eval run {shlex.quote(target)} --root {shlex.quote(str(root))}"
+    made = [e for e in entries if Path(e["run_dir"]).is_dir()]
+    if made:
+        return (
+            f"{len(made)} of the {len(entries)} run folder(s) of suite {name!r} exist under "
+            f"{where} but none has a metrics.json yet (searched <scene>/<row>/metrics.json); "
+            f"finish and score them with `{todo}`"
+        )
+    why = ""
+    if not os.path.isdir(root):
+        why = "; the experiment root does not exist"
+    elif not os.path.isdir(where):
+        why = "; that folder does not exist"
+    return (
+        f"no runs of suite {name!r} under {where} (searched <scene>/<row>/metrics.json for its "
+        f"{len(entries)} job(s){why}); train them with `{todo}`"
+    )
+
+
 @main.command()
 @click.argument("target")
 @click.option(
@@ -587,6 +630,7 @@ def build_tables(
     default=DEFAULT_OUT,
     show_default=True,
     type=click.Path(file_okay=False),
+    metavar="ROOT",
     help="Experiment root of a suite (runs in ROOT/runs/<suite>, figures to ROOT/figures/<suite>).",
 )
 @click.option(
@@ -623,12 +667,20 @@ def build_tables(
     help="Folder for the figures (default ROOT/figures/<suite>, or <runs dir>/../figures/<name>).",
 )
 def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
-    """Print the paper-style tables of TARGET: a suite (name or YAML; runs under OUT) or a folder of
-    runs."""
+    """Print the paper-style tables of TARGET: a suite (name or YAML; runs under ROOT) or a folder
+    of runs (linked run and scene folders count like real ones)."""
+    from m4dgs.core.errors import InputError
+
     from .suite import TableDef, load_eval_suite
 
     if Path(target).is_dir():
         entries = collect_runs_dir(target)
+        if not entries:
+            raise InputError(
+                f"no scored runs under {os.path.abspath(target)} (searched it and every folder "
+                "below it, links included, for metrics.json); score a run folder with "
+                "`m4dgs-eval score RUN`, or give a suite's name with --root ROOT"
+            )
         reference = "full" if any(e["row"] == "full" for e in entries) else None
         defs = [
             TableDef(f"Runs under {target}", "paper"),
@@ -636,20 +688,22 @@ def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
             TableDef("Geometry", "geometry"),
             TableDef("Cost", "cost"),
         ]
-        fig_dir = (
-            Path(figures_dir)
-            if figures_dir
-            else Path(target).resolve().parent / "figures" / Path(target).name
-        )
+        # beside the folder as named (a linked folder's figures stay in this tree)
+        given = Path(os.path.abspath(target))
+        fig_dir = Path(figures_dir) if figures_dir else given.parent / "figures" / given.name
     else:
+        if os.sep in target and not Path(target).exists():
+            raise InputError(
+                f"{target}: no such folder of runs ({os.path.abspath(target)}) nor suite file; "
+                "give a folder of runs, a suite YAML file or a built-in suite's name "
+                "(`m4dgs-eval suites`)"
+            )
         s = load_eval_suite(target)
         entries = collect_suite(target, out, _scenes(scenes), seeds=seeds)
         defs, reference = s.tables, s.reference
         fig_dir = Path(figures_dir) if figures_dir else Path(out) / "figures" / s.name
-    if not any(e["metrics"] for e in entries):
-        raise click.ClickException(
-            f"no metrics.json found for {target} (run `m4dgs-eval run` / `m4dgs-eval score` first)"
-        )
+        if not any(e["metrics"] for e in entries):
+            raise InputError(_no_scored_runs(target, s.name, out, entries))
     text = build_tables(entries, defs, fmt, reference)
     if out_file:
         mio.write_text_atomic(out_file, text)
@@ -739,6 +793,7 @@ def campaign(
     default=DEFAULT_OUT,
     show_default=True,
     type=click.Path(file_okay=False),
+    metavar="ROOT",
     help="Experiment root of the suites (runs in ROOT/runs/<suite>).",
 )
 @_runs_csv_opt

@@ -14,7 +14,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Dict, List, Optional
 
-import yaml
+from m4dgs.core.io import read_yaml
 
 
 @dataclass
@@ -36,7 +36,7 @@ def load_paper_values(path=None) -> Dict[str, PaperTable]:
     """Parse the paper-values file; raises ValueError naming the table/row/key of a malformed
     entry."""
     path = Path(path) if path is not None else paper_values_path()
-    data = yaml.safe_load(path.read_text()) or {}
+    data = read_yaml(path) or {}
     out: Dict[str, PaperTable] = {}
     for key, t in data.items():
         if (

@@ -42,8 +42,6 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Dict, List, Optional
 
-import yaml
-
 from benchgen.suite import load_suite
 from eval.paper import load_paper_values
 from eval.tables import Column, TableSpec, paper_table_spec
@@ -499,9 +497,7 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
 def load_eval_suite(name_or_path) -> EvalSuite:
     """Load a built-in suite by name (eval/suites/<name>.yaml) or any suite file by path."""
     path = find_eval_suite(name_or_path)
-    with open(path, "r", encoding="utf-8") as f:
-        d = yaml.safe_load(f)
-    return parse_suite(d, path)
+    return parse_suite(mio.read_yaml(path), path)
 
 
 def scene_suite_names(suite: EvalSuite) -> List[str]:

@@ -481,6 +481,27 @@ def load_flowset(
     )
 
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".exr", ".hdr", ".tif", ".tiff")
+
+
+def _missing_clip_json(root: Path) -> str:
+    """The problem text for a folder without clip.json: what makes a clip, and from frames which
+    command (a folder of images, directly or one level down, is taken for frames)."""
+    images = [p for p in root.glob("*") if p.suffix.lower() in IMAGE_SUFFIXES]
+    images += [p for p in root.glob("*/*") if p.suffix.lower() in IMAGE_SUFFIXES]
+    make = (
+        "`m4dgs import-clip --frames FOLDER ...` makes a clip from 8-bit video frames, "
+        "`benchgen from-hdr --hdr FOLDER ...` from HDR frames (docs/clip-format.md)"
+    )
+    if images:
+        hdr = any(p.suffix.lower() in (".exr", ".hdr") for p in images)
+        return (
+            f"missing: this folder holds {len(images)} image(s) ({'HDR ' if hdr else ''}frames?) "
+            f"but is not a clip; {make}"
+        )
+    return f"missing: not a clip folder (an unfinished clip, or another folder?); {make}"
+
+
 # --------------------------------------------------------------------------------------------------
 # Reader
 # --------------------------------------------------------------------------------------------------
@@ -502,7 +523,7 @@ class Clip:
         if not root.is_dir():
             raise ClipError(root, "<folder>", "clip folder does not exist")
         if not mpath.exists():
-            raise ClipError(mpath, "<file>", "missing (an unfinished or foreign folder?)")
+            raise ClipError(mpath, "<file>", _missing_clip_json(root))
         meta = _parse_meta(mio.read_json(mpath), mpath)
         clip = Clip(root, meta)
         if validate == "full":
@@ -615,6 +636,18 @@ class Clip:
 
     def has_flow_prior(self) -> bool:
         return (self.root / "priors/flow.npz").exists()
+
+    def stray_inputs(self) -> List[Path]:
+        """Files under input/ that the clip contract does not name (anything but
+        input/ldr/<training frame>.png): a test frame's image, notes, a copy left over. The
+        trainer reads none of them, but they enter `input_fingerprint`."""
+        expected = {Path("input/ldr") / frame_name(g, "png") for g in self.train_frames}
+        folder = self.root / "input"
+        if not folder.is_dir():
+            return []
+        return sorted(
+            p for p in folder.rglob("*") if p.is_file() and p.relative_to(self.root) not in expected
+        )
 
     def input_fingerprint(self) -> str:
         """SHA-256 (hex) of everything a trainer may read: clip.json and every file under input/

@@ -29,6 +29,7 @@ import torch
 import yaml
 
 from m4dgs.core import io as mio
+from m4dgs.core.errors import with_path
 
 
 def save_torch(path, obj: Any) -> None:
@@ -112,7 +113,7 @@ class RunDir:
     def read_config(self) -> Optional[Dict[str, Any]]:
         if not self.config_path.exists():
             return None
-        return yaml.safe_load(self.config_path.read_text())
+        return mio.read_yaml(self.config_path)
 
     # -- status
     # ----------------------------------------------------------------------------------------------
@@ -134,21 +135,26 @@ class RunDir:
     # ----------------------------------------------------------------------------------------------
     def log(self, record: Dict[str, Any]) -> None:
         """Append one JSON line (flushed and fsynced: the log survives a kill)."""
-        self.root.mkdir(parents=True, exist_ok=True)
-        with open(self.root / "log.jsonl", "a") as f:
-            f.write(json.dumps(record) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        self.log_records([record])
 
     def log_records(self, records: List[Dict[str, Any]]) -> None:
-        """Append several JSON lines in one write (then one fsync)."""
+        """Append JSON lines in one write, then one fsync. A failed write (no space, a file-size
+        limit) is raised naming log.jsonl; the torn line it may leave is skipped by `read_log`
+        and dropped by the resumed run's `truncate_log`."""
         if not records:
             return
         self.root.mkdir(parents=True, exist_ok=True)
-        with open(self.root / "log.jsonl", "a") as f:
-            f.write("".join(json.dumps(r) + "\n" for r in records))
-            f.flush()
-            os.fsync(f.fileno())
+        p = self.root / "log.jsonl"
+        try:
+            with open(p, "a") as f:
+                f.write("".join(json.dumps(r) + "\n" for r in records))
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as e:
+            new = with_path(e, p)
+            if new is e:
+                raise
+            raise new from e
 
     def read_log(self) -> List[Dict[str, Any]]:
         """Records of log.jsonl in order ([] without a log); blank lines and an unparsable line (the
@@ -167,8 +173,15 @@ class RunDir:
         return out
 
     def truncate_log(self, stage: str, step: int) -> None:
-        """Drop log lines past a checkpoint (the resumed run will write them again)."""
+        """Drop the log lines of `stage` past `step` (the resumed run writes them again; step -1
+        drops all of the stage's), and a torn line; the file is left alone when nothing goes."""
+        p = self.root / "log.jsonl"
+        if not p.exists():
+            return
+        text = p.read_text()
         recs = [
             r for r in self.read_log() if not (r.get("stage") == stage and r.get("step", -1) > step)
         ]
-        mio.write_text_atomic(self.root / "log.jsonl", "".join(json.dumps(r) + "\n" for r in recs))
+        new = "".join(json.dumps(r) + "\n" for r in recs)
+        if new != text:
+            mio.write_text_atomic(p, new)

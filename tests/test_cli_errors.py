@@ -68,9 +68,10 @@ with FolderLock(sys.argv[1]):
 """
 
 
-def test_second_writer_of_a_run_is_refused(not_a_clip, tmp_path):
+def test_second_writer_of_a_run_is_refused(tiny_clip_oracle, tmp_path):
     """A run folder another live process writes is refused by train (also with --force, which
-    must not delete it) and by the renderer, naming that process."""
+    must not delete it) and by the renderer, naming that process. (A real clip: a folder that is
+    no clip is refused before any run folder is looked at.)"""
     import subprocess
     import sys
 
@@ -83,7 +84,7 @@ def test_second_writer_of_a_run_is_refused(not_a_clip, tmp_path):
         assert p.stdout.readline().strip() == "locked"
         for extra in ([], ["--force"]):
             r = CliRunner().invoke(
-                m4dgs_main, ["train", "--clip", str(not_a_clip), "--out", str(run), *extra]
+                m4dgs_main, ["train", "--clip", str(tiny_clip_oracle), "--out", str(run), *extra]
             )
             assert r.exit_code == 1 and f"process {p.pid}" in r.output, r.output
             assert run.exists()

@@ -18,7 +18,7 @@ from typing import Any, Iterator, Optional, Tuple
 
 import numpy as np
 
-from m4dgs.core.errors import InputError
+from m4dgs.core.errors import InputError, one_line, with_path
 
 
 class FileFormatError(InputError):
@@ -38,7 +38,7 @@ def atomic_target(path, suffix: str = ".tmp") -> Iterator[Path]:
     rename cannot cross file systems; named `.<name>.<random><suffix>`, so format-sniffing writers
     see the right extension); on normal exit the file gets normal permissions (mkstemp makes it
     0600) and is renamed onto `path` (os.replace), on an exception it is removed and `path` is
-    untouched. Creates the parent folder."""
+    untouched (an OSError of the write is re-raised naming `path`). Creates the parent folder."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
@@ -47,6 +47,13 @@ def atomic_target(path, suffix: str = ".tmp") -> Iterator[Path]:
         yield Path(tmp)
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
+    except OSError as e:
+        # a failed write (no space, a file-size limit) names no file, or the temporary one: name
+        # the file the caller writes (m4dgs.core.errors.os_error_line reports it in one line)
+        new = with_path(e, path)
+        if new is e:
+            raise
+        raise new from e
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -72,6 +79,37 @@ def find_file(name_or_path, folder, suffix: str = ".yaml") -> Optional[Path]:
         return p
     cand = Path(folder) / f"{name_or_path}{suffix}"
     return cand if cand.is_file() else None
+
+
+class YAMLSyntaxError(FileFormatError):
+    """A YAML file that does not parse: `name`, `where` ("line L, column C", or "") and `what`."""
+
+    def __init__(self, name: str, where: str, what: str):
+        self.name, self.where, self.what = name, where, what
+        super().__init__(f"{name}{', ' + where if where else ''}: not valid YAML ({what})")
+
+
+def parse_yaml(text: str, name: str) -> Any:
+    """The YAML document `text` (from the file or place called `name`); a syntax error becomes one
+    line naming `name`, the line and column and the problem (yaml's own message spans lines and
+    names "<unicode string>" for text)."""
+    import yaml  # deferred with the other readers' libraries
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
+        where = f", line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        parts = [getattr(e, "context", None), getattr(e, "problem", None)]
+        what = "; ".join(p for p in parts if p) or " ".join(str(e).split())
+        raise YAMLSyntaxError(name, where.lstrip(", "), what) from None
+
+
+def read_yaml(path) -> Any:
+    """The parsed YAML file `path` (`parse_yaml`: a syntax error in one line naming the file, the
+    line and the column)."""
+    path = Path(path)
+    return parse_yaml(path.read_text(encoding="utf-8"), str(path))
 
 
 def write_json(path, obj: Any) -> None:
@@ -196,12 +234,12 @@ def _read_oiio(path, what: str):
         raise FileNotFoundError(f"{path}: file missing")
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise FileFormatError(f"{path}: not a readable {what} ({oiio.geterror()})")
+        raise FileFormatError(f"{path}: not a readable {what} ({one_line(oiio.geterror())})")
     try:
         spec = inp.spec()
         px = inp.read_image(spec.format)
         if px is None:
-            raise FileFormatError(f"{path}: not a readable {what} ({inp.geterror()})")
+            raise FileFormatError(f"{path}: not a readable {what} ({one_line(inp.geterror())})")
         names = list(spec.channelnames)
         base = spec.format.basetype
     finally:
@@ -236,10 +274,56 @@ def write_png(path, image: np.ndarray) -> None:
     _write_oiio(path, img, names, "uint8", {"DateTime": ""})
 
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PNG_END = b"IEND\xaeB`\x82"  # the IEND chunk's type and CRC: the last 8 bytes of every PNG
+# the first bytes of the formats a frame named .png most often really is
+_MAGIC = {
+    b"\xff\xd8\xff": "JPEG",
+    b"GIF8": "GIF",
+    b"BM": "BMP",
+    b"II*\x00": "TIFF",
+    b"MM\x00*": "TIFF",
+    b"RIFF": "WebP",
+    b"v/1\x01": "OpenEXR",
+}
+
+
+def check_png_bytes(path, other_formats: bool = False) -> None:
+    """Refuse, in one line naming the file, a file named .png that is not a complete PNG: another
+    format (a JPEG renamed: lossy, its 8-bit codes are not the camera's) or a truncated PNG (no
+    IEND chunk at its end; an image library would decode what is there, or print its own lines).
+    Reads the first and last 8 bytes only. `other_formats`: a file of another format passes (for
+    external images, which are converted); a truncated PNG never does."""
+    path = Path(path)
+    with open(path, "rb") as f:
+        head = f.read(8)
+        f.seek(0, os.SEEK_END)
+        size = f.tell()
+        f.seek(max(size - 8, 0))
+        tail = f.read(8)
+    if head != PNG_SIGNATURE:
+        if other_formats:
+            return
+        kind = next((k for m, k in _MAGIC.items() if head.startswith(m)), None)
+        what = f"a {kind} file" if kind else "not a PNG file (no PNG signature)"
+        raise FileFormatError(
+            f"{path}: {what} named .png; clip frames are lossless 8-bit PNGs (`m4dgs import-clip` "
+            "converts other formats)"
+        )
+    if tail != PNG_END:
+        raise FileFormatError(
+            f"{path}: a truncated PNG ({size} bytes, no IEND chunk at the end: an interrupted copy "
+            "or download?)"
+        )
+
+
 def read_png(path) -> np.ndarray:
     """Read an 8-bit PNG as uint8 [H, W] (grey) or [H, W, 3] (RGB; alpha dropped, palettes
-    expanded). A 16-bit PNG is refused, not quantised (m4dgs.core.io.read_image reads it)."""
+    expanded). A 16-bit PNG is refused, not quantised (m4dgs.core.io.read_image reads it), and so
+    are a truncated PNG and another format named .png (`check_png_bytes`)."""
     oiio = _oiio()
+    if Path(path).exists():
+        check_png_bytes(path)
     px, names, base = _read_oiio(path, "PNG")
     if base != oiio.UINT8:
         raise FileFormatError(
@@ -263,9 +347,11 @@ def read_image(path) -> Tuple[np.ndarray, str]:
     one-channel image is repeated to grey RGB. Raises InputError naming the file."""
     oiio = _oiio()
     path = Path(path)
+    if path.suffix.lower() == ".png" and path.is_file():
+        check_png_bytes(path, other_formats=True)
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise InputError(f"{path}: not a readable image ({oiio.geterror()})")
+        raise InputError(f"{path}: not a readable image ({one_line(oiio.geterror())})")
     try:
         spec = inp.spec()
         base = spec.format.basetype
@@ -281,7 +367,7 @@ def read_image(path) -> Tuple[np.ndarray, str]:
             )
         px = inp.read_image(fmt)
         if px is None:
-            raise InputError(f"{path}: could not read the pixels ({inp.geterror()})")
+            raise InputError(f"{path}: could not read the pixels ({one_line(inp.geterror())})")
         names = list(spec.channelnames)
     finally:
         inp.close()

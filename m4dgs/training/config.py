@@ -46,7 +46,7 @@ from typing import Any, Dict, Literal, Mapping, Optional, Tuple
 import yaml
 
 from m4dgs.core.errors import InputError
-from m4dgs.core.io import write_text_atomic
+from m4dgs.core.io import parse_yaml, write_text_atomic
 from m4dgs.model.gaussians import ModelConfig, VideoInitConfig
 from m4dgs.priors.camera_init import CameraInitConfig
 from m4dgs.priors.epipolar import EpipolarConfig
@@ -56,6 +56,31 @@ from m4dgs.training.densify import DensifyConfig
 
 class ConfigError(InputError):
     """A config value outside its allowed values (a ValueError; the tools report it in one line)."""
+
+
+class ConfigKeyError(ConfigError, KeyError):
+    """An unknown config key (also a KeyError, as before it was a project error)."""
+
+    def __str__(self) -> str:  # KeyError's own str() quotes the message
+        return str(self.args[0]) if self.args else ""
+
+
+class ConfigTypeError(ConfigError, TypeError):
+    """A config value of the wrong type (also a TypeError, as before it was a project error)."""
+
+
+def _unknown_key(path: str, section: Any, key: str, override: str = "") -> ConfigKeyError:
+    """The error for an unknown key `key` of the dataclass `section` (None: not a section), at
+    dotted path `path` (of the override `override`, when longer): the valid keys there and the
+    closest one when one is near."""
+    import difflib
+
+    names = sorted(f.name for f in dataclasses.fields(section)) if section is not None else []
+    near = difflib.get_close_matches(key, names, n=1)
+    hint = f"; did you mean '{near[0]}'?" if near else ""
+    valid = f" (valid keys there: {', '.join(names)})" if names else ""
+    within = f" in override '{override}'" if override and override != path else ""
+    return ConfigKeyError(f"unknown config key '{path}'{within}{hint}{valid}")
 
 
 # typed choices of the string options (validated by `validate`, `from_dict`, `apply_overrides`)
@@ -533,14 +558,25 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
         _check_choice(value, base, key)
         return value
     if isinstance(value, str) and base is not str:
-        value = yaml.safe_load(value) if value.strip() else value
+        text = value.strip()
+        try:
+            value = yaml.safe_load(value) if text else value
+        except yaml.YAMLError:
+            raise ConfigTypeError(
+                f"config key '{key}': {value!r} is not a value (a number, true/false, a word, "
+                "or a YAML list such as [1, 2])"
+            ) from None
+        if base is float and isinstance(value, str) and text.lower() in ("nan", "inf", "-inf"):
+            value = float(text)  # Python's spelling: the range check names the key
     if value is None:
         if optional or base is Any:
             return None
-        raise TypeError(f"config key '{key}' may not be null")
+        raise ConfigTypeError(f"config key '{key}' may not be null")
     if dataclasses.is_dataclass(base):
         if not isinstance(value, Mapping):
-            raise TypeError(f"config key '{key}' expects a mapping, got {type(value).__name__}")
+            raise ConfigTypeError(
+                f"config key '{key}' expects a mapping, got {type(value).__name__}"
+            )
         return _from_dict(base, value, key + ".")
     origin = typing.get_origin(base)
     if origin in (tuple, list):
@@ -553,22 +589,22 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     if base is bool:
         if isinstance(value, bool):
             return value
-        raise TypeError(f"config key '{key}' expects true/false, got {value!r}")
+        raise ConfigTypeError(f"config key '{key}' expects true/false, got {value!r}")
     if base is int:
         if (
             isinstance(value, bool)
             or not isinstance(value, (int, float))
             or float(value) != int(value)
         ):
-            raise TypeError(f"config key '{key}' expects an integer, got {value!r}")
+            raise ConfigTypeError(f"config key '{key}' expects an integer, got {value!r}")
         return int(value)
     if base is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise TypeError(f"config key '{key}' expects a number, got {value!r}")
+            raise ConfigTypeError(f"config key '{key}' expects a number, got {value!r}")
         return float(value)
     if base is str:
         if not isinstance(value, str):
-            raise TypeError(f"config key '{key}' expects a string, got {value!r}")
+            raise ConfigTypeError(f"config key '{key}' expects a string, got {value!r}")
         return value
     return value
 
@@ -578,7 +614,7 @@ def _from_dict(cls, data: Mapping[str, Any], prefix: str = ""):
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = [k for k in data if k not in names]
     if unknown:
-        raise KeyError(
+        raise ConfigKeyError(
             f"unknown config key '{prefix}{unknown[0]}' (valid keys under '{prefix or '<root>'}': "
             f"{sorted(names)})"
         )
@@ -734,15 +770,18 @@ def apply_overrides(cfg: Any, overrides: Mapping[str, Any]) -> Any:
             if not dataclasses.is_dataclass(obj) or part not in {
                 f.name for f in dataclasses.fields(obj)
             }:
-                raise KeyError(
-                    f"unknown config key '{'.'.join(parts[: i + 1])}' in override '{path}'"
+                raise _unknown_key(
+                    ".".join(parts[: i + 1]),
+                    obj if dataclasses.is_dataclass(obj) else None,
+                    part,
+                    path,
                 )
             obj = getattr(obj, part)
         last = parts[-1]
         if not dataclasses.is_dataclass(obj) or last not in {
             f.name for f in dataclasses.fields(obj)
         }:
-            raise KeyError(f"unknown config key '{path}'")
+            raise _unknown_key(path, obj if dataclasses.is_dataclass(obj) else None, last)
         tp = typing.get_type_hints(type(obj))[last]
         base, _ = _strip_optional(tp)
         if dataclasses.is_dataclass(base) and isinstance(value, Mapping):
@@ -849,8 +888,8 @@ def to_yaml(cfg: Any) -> str:
     return yaml.safe_dump(to_dict(cfg), sort_keys=False)
 
 
-def from_yaml(text: str, cls=TrainConfig):
-    data = yaml.safe_load(text) or {}
+def from_yaml(text: str, cls=TrainConfig, name: str = "<config>"):
+    data = parse_yaml(text, name) or {}
     return from_dict(cls, data)
 
 
@@ -860,4 +899,4 @@ def save_yaml(cfg: Any, path) -> None:
 
 
 def load_yaml(path, cls=TrainConfig):
-    return from_yaml(Path(path).read_text(), cls)
+    return from_yaml(Path(path).read_text(), cls, str(path))

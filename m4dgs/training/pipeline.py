@@ -28,8 +28,9 @@ from __future__ import annotations
 import os
 import shutil
 import time
+import warnings
 from pathlib import Path
-from typing import Any, Dict, Optional
+from typing import Any, Dict, List, Optional
 
 import numpy as np
 import torch
@@ -124,6 +125,19 @@ class Trainer:
         self.run.root.mkdir(parents=True, exist_ok=True)
         if have is None:
             self.run.write_config(want)
+        stray = self.clip.stray_inputs()
+        if stray:
+            names = ", ".join(str(p.relative_to(self.clip.root)) for p in stray[:3])
+            more = f" and {len(stray) - 3} more" if len(stray) > 3 else ""
+            warnings.warn_explicit(  # one line, "m4dgs clip:0: UserWarning: ..."
+                f"{self.clip.root}: {len(stray)} file(s) in input/ that the clip does not use "
+                f"({names}{more}): the trainer reads only input/ldr/<training frame>.png; move "
+                "them out (they still count in the clip's input fingerprint)",
+                UserWarning,
+                "m4dgs clip",
+                0,
+                module=__name__,
+            )
         self.fingerprint = self.clip.input_fingerprint()
         self._check_inputs_unchanged()
         self.data: TrainingData = load_training_data(self.clip, self.device)
@@ -203,9 +217,11 @@ class Trainer:
 
     def _resume(self, stage: str, stage_obj, ck: Optional[Dict[str, Any]] = None) -> int:
         """Load `ck` (or the checkpoint on disk) into stage_obj; returns the step to continue from
-        (0 = none)."""
+        (0 = none). The log keeps the stage's lines up to that step only: the lines of an attempt
+        killed (or failing a write) after it, or before the stage's first checkpoint, go."""
         ck = self._checkpoint(stage) if ck is None else ck
         if ck is None:
+            self.run.truncate_log(stage, -1)
             return 0
         stage_obj.load_state_dict(ck["state"])
         self.run.truncate_log(stage, ck["step"] - 1)
@@ -521,11 +537,21 @@ class Trainer:
         torch.manual_seed(self.cfg.seed)
         (compute or getattr(self, phase))()
 
+    def _load_rasterizer(self) -> None:
+        """Load (on its first use: compile, with a message) the rasterizer before any phase, so
+        that no progress bar sits on its first step meanwhile with an ETA set by the compile."""
+        from m4dgs.raster import resolve_backend
+        from m4dgs.raster.cpu_backend import load_extension
+
+        if resolve_backend(self.cfg.raster_backend, self.device) == "cpu":
+            load_extension()
+
     def train(self) -> Path:
         status = self.run.status()
         if status.get("stage") == "done":
             return self.run.root
         first = _phase_index(status)
+        self._load_rasterizer()
         steps = {
             "camera_init": self.camera_init,
             "stage1": self.stage1,
@@ -627,7 +653,9 @@ def train(
     (RunInUseError naming the first one's PID). share_dir: a folder where camera initialisation,
     stage 1, V2W and stage 2 are shared with other runs of the same clip
     (m4dgs.training.phases)."""
-    fresh = not Path(run_dir).exists()
+    Clip.open(clip_dir)  # not a clip: say so before any folder is made
+    made = _missing_folders(Path(run_dir))
+    fresh = bool(made)
     try:
         with FolderLock(run_dir):
             trainer = Trainer(
@@ -639,4 +667,19 @@ def train(
         # run folder behind (a folder that existed before, or holds a finished phase, is kept)
         if fresh and RunDir(run_dir).status().get("finished") is None:
             shutil.rmtree(run_dir, ignore_errors=True)
+            for parent in made[1:]:  # and the parents made for it (runs/<clip>/), when empty
+                try:
+                    parent.rmdir()
+                except OSError:  # another run's folder is in it (or it is gone): keep it
+                    break
         raise
+
+
+def _missing_folders(path: Path) -> List[Path]:
+    """`path` and those of its parents that do not exist yet, deepest first."""
+    out: List[Path] = []
+    p = path.absolute()
+    while not p.exists() and p != p.parent:
+        out.append(p)
+        p = p.parent
+    return out

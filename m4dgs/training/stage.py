@@ -302,19 +302,22 @@ def train_loop(
     postfix_keys=("rgb",),
 ) -> None:
     """Run stage.step(it) for it in start..iterations-1 with a progress bar (loss, Gaussian count)
-    and a callback after each step (logging, checkpoints). Shared by both stages."""
+    and a callback after each step (logging, checkpoints). Shared by both stages. The bar starts
+    after the first step: that step's one-time costs (the kernels' first calls, caches) would
+    otherwise set its rate and ETA for a long while."""
     bar = None
-    if progress:
-        bar = progress_bar(total=iterations, initial=start, desc=desc, unit="it")
     for it in range(start, iterations):
         t0 = time.perf_counter()
         rec = stage.step(it)
         rec["sec"] = time.perf_counter() - t0
         if on_step is not None:
             on_step(it, rec)
-        if bar is not None:
+        if progress and bar is None:
+            bar = progress_bar(total=iterations, initial=it + 1, desc=desc, unit="it")
+        elif bar is not None:
             bar.update(1)
-            if it % 10 == 0 or it == iterations - 1:
+        if bar is not None:
+            if it % 10 == 0 or it == iterations - 1 or it == start:
                 post = {
                     "loss": f"{rec['total']:.4f}",
                     **{k: f"{rec[k]:.4f}" for k in postfix_keys if k in rec},

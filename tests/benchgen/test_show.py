@@ -25,7 +25,7 @@ def test_show_summary_of_a_generated_clip(tiny_clip_oracle):
     root = Path(tiny_clip_oracle)
     s = summary(Clip.open(root))
     meta = json.loads((root / "clip.json").read_text())
-    assert s["frames"] == len(meta["frames"]) and s["priors"] == "oracle" and s["has_gt"]
+    assert s["frames"] == len(meta["frames"]) and s["priors"]["profile"] == "oracle" and s["has_gt"]
     noise = meta["gt"]["render_noise"]
     assert s["render_noise"]["rel_std"] == noise["rel_std"]
     assert math.isclose(noise["rel_std"], noise["rel_std_two_sample"] * math.sqrt(math.pi / 2))

@@ -35,3 +35,34 @@ def test_a_bar_in_a_log_writes_far_fewer_updates():
     bar = progress_bar(range(3), file=io.StringIO(), mininterval=5.0)  # an explicit value wins
     assert bar.mininterval == 5.0
     bar.close()
+
+
+def test_a_slow_first_step_does_not_set_the_training_bar_s_eta(monkeypatch):
+    """A first training sat on stage-1 step 0 (the kernels' first calls, a compile) with an ETA of
+    hours: the bar starts after the first step, so its rate is that of the steps after it."""
+    import time
+
+    from m4dgs.training import stage as stage_mod
+
+    made = {}
+    real = stage_mod.progress_bar
+
+    def spy(*a, **k):
+        made["at"] = time.perf_counter()
+        made["bar"] = real(*a, **k)
+        return made["bar"]
+
+    monkeypatch.setattr(stage_mod, "progress_bar", spy)
+
+    class Slow:
+        def step(self, it):
+            if it == 0:
+                time.sleep(0.5)
+                made["first_done"] = time.perf_counter()
+            return {"total": 0.0, "num_gaussians": 1}
+
+    stage_mod.train_loop(Slow(), 6, progress=True)
+    bar = made["bar"]
+    assert made["at"] >= made["first_done"]
+    assert bar.n == 6 and bar.total == 6  # every step counted
+    assert bar.format_dict["elapsed"] < 0.4  # the slow first step is not in the rate
