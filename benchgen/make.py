@@ -86,7 +86,9 @@ from .scene import load_scene
 # band-limited for the preset's pixel grid (and coarser patterns in the scene specs), adaptive extra
 # samples where the relative variance is high 6: the denoiser runs as an exposure ladder (the
 # darkest tenth of a frame was 11-19 % off a 1024-spp render with one pass; docs/rendering.md)
-GENERATOR_VERSION = 6
+# 7: held-out views of every test frame (gt/views/, benchgen.views) and the camera-motion
+# statistics (clip.json gt.camera_motion); the training and test frames are the same as version 6's
+GENERATOR_VERSION = 7
 
 #: where the unit-scale HDR frames wait for the clip's scale (removed when the clip is finished)
 UNIT_HDR_DIR = (".benchgen", "hdr_unit")
@@ -246,8 +248,10 @@ def make_clip(
     meta = _clip_meta(job, train_dt)
     writer = ClipWriter(job.out, meta)
     _render_ground_truth(job, writer, progress)  # 2
+    _render_views(job, writer, progress)  # 2b
     _apply_hdr_scale(job, writer, meta, train_dt, targets)  # 3
     hdr_train = _write_exposures(job, writer, train_dt)  # 4
+    _write_views(job, writer, meta)  # 3b, 4b
     _write_priors(job, writer, meta, train_dt)  # 5
     _record_clip_stats(job, meta, hdr_train)
     meta.generator["seconds"] = round(time.perf_counter() - t_start, 2)
@@ -392,13 +396,29 @@ def _reuse_render(job: _Job, candidates: Sequence) -> None:
         for g in job.frames:
             h = mio.read_exr(src / "gt" / "hdr" / frame_name(g, "exr")).astype(np.float64)
             mio.write_exr(unit_dir / frame_name(g, "exr"), (h * inv).astype(np.float32))
-        for k in ("emitter_sampling", "emitter_sampling_noise", "gt_notes"):
+        _reuse_views(src, src_state, job, inv)
+        for k in ("emitter_sampling", "emitter_sampling_noise", "gt_notes", "views_notes"):
             if k in src_state:
                 state[k] = src_state[k]
         # relative to this clip, so that a moved experiment root stays readable
         state["render_source"] = os.path.relpath(src.resolve(), job.out.resolve())
         job.save_state()
         return
+
+
+def _reuse_views(src: Path, src_state: dict, job: _Job, inv: float) -> None:
+    """The held-out views of a finished clip with the same render: their geometry files copied,
+    their unit-scale HDR frames (its views' HDR divided by its scale) written for step 3b."""
+    for name in src_state.get("views_notes", {}):
+        a, b = src / "gt" / "views" / name, job.out / "gt" / "views" / name
+        for part in ("depth", "masks", "covis"):
+            shutil.rmtree(b / part, ignore_errors=True)
+            shutil.copytree(a / part, b / part)
+        shutil.copy2(a / "cameras.json", b / "cameras.json")
+        unit = job.out.joinpath(*UNIT_HDR_DIR, "views", name)
+        for g in job.test:
+            h = mio.read_exr(a / "hdr" / frame_name(g, "exr")).astype(np.float64)
+            mio.write_exr(unit / frame_name(g, "exr"), (h * inv).astype(np.float32))
 
 
 def _choose_light_selection(job: _Job) -> None:
@@ -459,6 +479,143 @@ def _render_ground_truth(job: _Job, writer: ClipWriter, progress: bool) -> None:
         hdr_dir=UNIT_HDR_DIR,
     )
     job.save_state()
+
+
+#: seeds of the views' renders: apart from the frames' own (settings.seed + g), so that a view's
+#: noise is not the test frame's
+VIEW_SEED_OFFSET = 7_000_003
+
+
+def _render_views(job: _Job, writer: ClipWriter, progress: bool) -> None:
+    """Step 2b: every held-out view (benchgen.views; the spec's camera.views) of every test frame
+    at the unit emitter scale, into .benchgen/hdr_unit/views/<view>/, with its z-depth, dynamic
+    mask and co-visibility mask (against every training frame) under gt/views/<view>/; the view
+    cameras, their baselines and the clip's camera-motion statistics go into the resume state.
+    Resumes view by view and frame by frame."""
+    from .groundtruth import cameras_from_states, dynamic_mask
+    from .render import Renderer, _frame_progress
+    from .views import (
+        baseline,
+        covisibility,
+        pivot_distance,
+        placement_problem,
+        view_c2w,
+        view_state,
+    )
+
+    state = job.state
+    views = job.scene.spec["camera"]["views"]
+    if "views_notes" in state or not views or not job.test:
+        state.setdefault("views_notes", {})
+        if "camera_motion" not in state:
+            state["camera_motion"] = _camera_motion(job)
+        return
+    W, H, scene = job.W, job.H, job.scene
+    caster = Renderer(scene.frame(job.train[0], W, H), W, H, job.render)
+    train_states, train_casts = [], []
+    for g in job.train:
+        st = scene.frame(g, W, H)
+        caster.update(st)
+        train_states.append(st)
+        train_casts.append(caster.cast_rays())
+    unit = job.out.joinpath(*UNIT_HDR_DIR, "views")
+    notes = {
+        v["name"]: {"spec": v, "angle_deg": [], "translation": [], "covisible": []} for v in views
+    }
+    states = {v["name"]: [] for v in views}
+    for g in _frame_progress(job.test, scene, progress):
+        st = scene.frame(g, W, H)
+        caster.update(st)
+        frame_cast = caster.cast_rays()
+        dist, surface = pivot_distance(frame_cast.depth), float(frame_cast.hit.mean())
+        if not np.isfinite(dist):
+            raise InputError(
+                f"{job.scene_path}: camera.views: test frame {g} sees no surface, so its views "
+                "have no look-at point"
+            )
+        for i, v in enumerate(views):
+            name = v["name"]
+            vst = view_state(st, view_c2w(st.c2w, dist, v["orbit_deg"], v["offset"]))
+            states[name].append(vst)
+            caster.update(vst)
+            cast = caster.cast_rays()
+            problem = placement_problem(cast.depth, dist, surface)
+            if problem is not None:
+                raise InputError(
+                    f"{job.scene_path}: camera.views[{i}] ({name}) at test frame {g}: {problem}; "
+                    "choose a smaller orbit_deg or offset"
+                )
+            b = baseline(st.c2w, vst.c2w, dist)
+            notes[name]["angle_deg"].append(b["angle_deg"])
+            notes[name]["translation"].append(b["translation"])
+            covis = covisibility(cast, train_states, train_casts)
+            notes[name]["covisible"].append(float(covis.sum() / max(cast.hit.sum(), 1)))
+            hdr_path = unit / name / frame_name(g, "exr")
+            if not hdr_path.exists():
+                hdr = caster.render_hdr(seed=job.render.seed + VIEW_SEED_OFFSET * (i + 1) + g)
+                mio.write_exr(hdr_path, hdr)
+            writer.write_view_depth(name, g, cast.depth)
+            writer.write_view_mask(name, "masks/dynamic", g, dynamic_mask(cast.instance, vst))
+            writer.write_view_mask(name, "covis", g, covis)
+    for name in notes:
+        writer.write_view_cameras(name, cameras_from_states(states[name]))
+        n = notes[name]
+        n["angle_deg"] = float(np.mean(n["angle_deg"]))
+        n["translation"] = float(np.mean(n["translation"]))
+        n["covisible"] = float(np.mean(n["covisible"]))
+    state["views_notes"] = notes
+    state["camera_motion"] = _camera_motion(job)
+    job.save_state()
+
+
+def _camera_motion(job: _Job) -> dict:
+    """clip.json gt.camera_motion (benchgen.views.camera_motion) from the ground truth on disk:
+    cameras, z-depth of every frame, the tracks' 3D points."""
+    from .views import camera_motion, pivot_distance
+
+    out = job.out
+    cams = mio.read_json(out / "gt" / "cameras.json")
+    dist = [
+        pivot_distance(mio.read_exr(out / "gt/depth" / frame_name(g, "exr"))) for g in job.frames
+    ]
+    tracks = load_trackset(out / "gt/tracks.npz")
+    return camera_motion(
+        np.asarray(cams["c2w"]),
+        np.asarray(dist),
+        float(job.scene.fps),
+        tracks.points3d,
+        tracks.dynamic,
+    )
+
+
+def _write_views(job: _Job, writer: ClipWriter, meta: ClipMeta) -> None:
+    """Steps 3b and 4b: the views' HDR at the clip's scale, their LDR at every observed and novel
+    level (as the test frames'), and their notes into clip.json gt.views and gt.camera_motion."""
+    scale = np.float32(meta.hdr_scale)
+    levels = test_levels(job.settings)
+    unit = job.out.joinpath(*UNIT_HDR_DIR, "views")
+    for name in job.state.get("views_notes", {}):
+        for g in job.test:
+            h = None
+            if not writer.exists("gt", "views", name, "hdr", frame_name(g, "exr")):
+                h = mio.read_exr(unit / name / frame_name(g, "exr")) * scale
+                writer.write_view_hdr(name, g, h.astype(np.float32))
+            for lv in levels:
+                if writer.exists(
+                    "gt", "views", name, "ldr", f"{float(lv):g}", frame_name(g, "png")
+                ):
+                    continue
+                if h is None:
+                    h = mio.read_exr(job.out / "gt" / "views" / name / "hdr" / frame_name(g, "exr"))
+                writer.write_view_ldr(name, lv, g, tonemap_ldr(h, float(lv), job.crf))
+    meta.gt["views"] = job.state.get("views_notes", {})
+    meta.gt["views_convention"] = (
+        "held-out viewpoints of every test frame (benchgen.views): the camera swung about its "
+        "look-at point by orbit_deg [yaw, pitch], then moved by offset [right, up, forward] x the "
+        "look-at distance; angle_deg and translation: mean baseline to the test camera; covisible: "
+        "mean fraction of surface pixels seen by >= 2 training frames"
+    )
+    meta.gt["camera_motion"] = job.state.get("camera_motion")
 
 
 def scale_key(job: _Job, train_dt, targets: PlacementTargets) -> str:

@@ -27,7 +27,20 @@ def summary(clip: Clip) -> dict:
         "priors": priors_view(clip),
         "has_gt": clip.has_gt,
     }
-    for k in ("dynamic_fraction", "dynamic_range_stops", "hdr_tae_floor", "render_noise"):
+    if clip.view_names():
+        views = m.gt.get("views", {})
+        out["views"] = {
+            v: {k: views[v][k] for k in ("angle_deg", "translation", "covisible") if k in views[v]}
+            for v in clip.view_names()
+            if v in views
+        }
+    for k in (
+        "dynamic_fraction",
+        "dynamic_range_stops",
+        "hdr_tae_floor",
+        "render_noise",
+        "camera_motion",
+    ):
         if k in m.gt:
             out[k] = m.gt[k]
     if "render_noise" in out:
@@ -145,6 +158,19 @@ def contact_sheet(clip: Clip, path) -> Path:
     panels.append((img, "prior tracks (last frame)", ts))
     if clip.has_gt and clip.has_gt_part("masks/dynamic"):
         panels.append((clip.load_gt_dynamic_mask(g0).astype(np.float32), f"dynamic mask g={g0}"))
+    if clip.test_frames and clip.view_names():
+        # the first test frame's held-out views at its first level, each beside its co-visible
+        # pixels (dark: no training frame pair sees them)
+        gt, views = clip.test_frames[0], m.gt.get("views", {})
+        lv = m.test_levels_of(gt)[0]
+        panels.append((clip.load_gt_ldr(lv, gt), f"test g={gt} dt={lv:g} (input path)"))
+        for v in clip.view_names():
+            ldr = clip.load_view_ldr(v, lv, gt).astype(np.float32) / 255.0
+            covis = clip.load_view_covis(v, gt)
+            angle = views.get(v, {}).get("angle_deg")
+            deg = f", {angle:.0f} deg" if angle is not None else ""
+            panels.append((ldr, f"view {v}{deg}"))
+            panels.append((ldr * np.where(covis, 1.0, 0.25)[..., None], f"view {v}: co-visible"))
 
     cols = 4
     rows = int(np.ceil(len(panels) / cols))

@@ -694,10 +694,42 @@ TRAJECTORY = Union(
     doc="Camera trajectory, selected by 'type'.",
 )
 
+VIEW = Dict(
+    {
+        "name": F(Str(), _REQUIRED, "view name (folder gt/views/<name>/)"),
+        "orbit_deg": F(
+            Vec(2, -89.0, 89.0),
+            [0.0, 0.0],
+            "[yaw, pitch]: the camera swung about the look-at point, about the test camera's up "
+            "axis (yaw, positive to the camera's right) then its right axis (pitch, positive up)",
+        ),
+        "offset": F(
+            Vec(3, -2.0, 2.0),
+            [0.0, 0.0, 0.0],
+            "[right, up, forward] translation after the swing, in units of the distance to the "
+            "look-at point, orientation kept",
+        ),
+    },
+    doc="A held-out viewpoint, placed relative to each test frame's camera and its look-at point "
+    "(the point on the optical axis at the median depth of the frame's central pixels).",
+)
+
+#: the held-out views of a scene without its own: three baselines off the input path
+DEFAULT_VIEWS = [
+    {"name": "small", "orbit_deg": [0.0, 6.0], "offset": [0.0, 0.0, 0.0]},
+    {"name": "medium", "orbit_deg": [0.0, 0.0], "offset": [0.25, 0.0, 0.15]},
+    {"name": "large", "orbit_deg": [-25.0, 10.0], "offset": [0.0, 0.0, 0.0]},
+]
+
 CAMERA = Dict(
     {
         "fov_deg": F(Num(5, 170), 60.0, "horizontal field of view"),
         "trajectory": F(TRAJECTORY, _REQUIRED, "camera path"),
+        "views": F(
+            ListOf(VIEW, 0, 8),
+            DEFAULT_VIEWS,
+            "held-out viewpoints of every test frame (ground truth only; [] renders none)",
+        ),
     },
     doc="Pinhole camera; intrinsics come from fov_deg and the rendered width/height.",
 )
@@ -892,6 +924,12 @@ def validate_scene(data: Any, file="<spec>") -> dict:
             "a point different from the camera position",
             traj["target"],
         )
+    names = [v["name"] for v in spec["camera"]["views"]]
+    for i, n in enumerate(names):
+        if n in names[:i] or "/" in n or n.startswith("."):
+            raise SpecError(
+                file, f"camera.views[{i}].name", "a unique folder name (no '/', no leading '.')", n
+            )
     return spec
 
 
@@ -911,9 +949,9 @@ def validate_suite(data: Any, file="<suite>") -> dict:
 def _fmt_default(d) -> str:
     if d is _REQUIRED:
         return "**required**"
-    return (
-        "`" + yaml.safe_dump(d, default_flow_style=True).strip().removesuffix("...").strip() + "`"
-    )
+    # one line (a table cell): no wrapping of long defaults
+    text = yaml.safe_dump(d, default_flow_style=True, width=float("inf"))
+    return "`" + text.strip().removesuffix("...").strip() + "`"
 
 
 def _doc_rows(node: Node, path: str, rows: List[str]):

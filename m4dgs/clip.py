@@ -708,6 +708,50 @@ class Clip:
         self._need_gt()
         return self._img(Path("gt/masks/dynamic") / frame_name(g, "png"), 1) > 127
 
+    # -- held-out views (benchgen clips: the test frames' instants from other cameras)
+    # ----------------------------------------------------------------------------------------------
+    def view_names(self) -> List[str]:
+        """The clip's held-out views (gt/views/<view>/ with a cameras.json): in the order of
+        clip.json gt.views when it lists them, else sorted; [] for a clip without views."""
+        folder = self.root / "gt" / "views"
+        if not folder.is_dir():
+            return []
+        have = sorted(p.name for p in folder.iterdir() if (p / "cameras.json").is_file())
+        listed = [n for n in (self.meta.gt.get("views") or {}) if n in have]
+        return listed + [n for n in have if n not in listed]
+
+    def _view(self, view: str, *parts) -> Path:
+        self._need_gt()
+        return Path("gt") / "views" / view / Path(*parts)
+
+    def load_view_cameras(self, view: str) -> Cameras:
+        """The view's cameras: one per test frame (frames = split.test), gt/cameras.json's
+        conventions."""
+        p = self.root / self._view(view, "cameras.json")
+        if not p.exists():
+            raise ClipError(p, "<file>", f"missing (views of this clip: {self.view_names()})")
+        cams = Cameras.from_json(mio.read_json(p), p)
+        if cams.frames.tolist() != self.test_frames:
+            raise ClipError(p, "frames", "must list the test frames of clip.json split.test")
+        return cams
+
+    def load_view_hdr(self, view: str, g: int) -> np.ndarray:
+        return self._exr(self._view(view, "hdr", frame_name(g, "exr")), 3, nonneg=True)
+
+    def load_view_ldr(self, view: str, level: float, g: int) -> np.ndarray:
+        return self._img(self._view(view, "ldr", level_name(level), frame_name(g, "png")), 3)
+
+    def load_view_depth(self, view: str, g: int) -> np.ndarray:
+        return self._exr(self._view(view, "depth", frame_name(g, "exr")), 1)
+
+    def load_view_dynamic_mask(self, view: str, g: int) -> np.ndarray:
+        return self._img(self._view(view, "masks", "dynamic", frame_name(g, "png")), 1) > 127
+
+    def load_view_covis(self, view: str, g: int) -> np.ndarray:
+        """[H, W] bool: pixels whose surface point at least two training frames see (gt/views/
+        <view>/covis/<g>.png, 255 = co-visible)."""
+        return self._img(self._view(view, "covis", frame_name(g, "png")), 1) > 127
+
     # -- validation
     # ----------------------------------------------------------------------------------------------
     def validate(self) -> None:
@@ -738,6 +782,15 @@ class Clip:
                 self.load_gt_flow()
             if self.has_gt_part("tracks.npz"):
                 self.load_gt_tracks()
+            for view in self.view_names():
+                self.load_view_cameras(view)
+                for g in self.test_frames:
+                    self.load_view_hdr(view, g)
+                    self.load_view_depth(view, g)
+                    self.load_view_dynamic_mask(view, g)
+                    self.load_view_covis(view, g)
+                    for level in self.meta.test_levels_of(g):
+                        self.load_view_ldr(view, level, g)
 
 
 def frame_time(clip: Clip, g: float) -> float:
@@ -809,6 +862,32 @@ class ClipWriter:
         self._shape_hw(mask, f"gt/masks/dynamic/{g}", 1)
         mio.write_png(
             self.root / "gt/masks/dynamic" / frame_name(g, "png"),
+            np.where(mask, 255, 0).astype(np.uint8),
+        )
+
+    def _view_path(self, view: str, *parts) -> Path:
+        return self.root / "gt" / "views" / view / Path(*parts)
+
+    def write_view_cameras(self, view: str, cams: Cameras) -> None:
+        mio.write_json(self._view_path(view, "cameras.json"), cams.to_json())
+
+    def write_view_hdr(self, view: str, g: int, hdr: np.ndarray) -> None:
+        self._shape_hw(hdr, f"gt/views/{view}/hdr/{g}", 3)
+        mio.write_exr(self._view_path(view, "hdr", frame_name(g, "exr")), hdr)
+
+    def write_view_ldr(self, view: str, level: float, g: int, img: np.ndarray) -> None:
+        self._shape_hw(img, f"gt/views/{view}/ldr/{level}/{g}", 3)
+        mio.write_png(self._view_path(view, "ldr", level_name(level), frame_name(g, "png")), img)
+
+    def write_view_depth(self, view: str, g: int, depth: np.ndarray) -> None:
+        self._shape_hw(depth, f"gt/views/{view}/depth/{g}", 1)
+        mio.write_exr(self._view_path(view, "depth", frame_name(g, "exr")), depth)
+
+    def write_view_mask(self, view: str, kind: str, g: int, mask: np.ndarray) -> None:
+        """A 0 / 255 mask of the view: kind "masks/dynamic" or "covis"."""
+        self._shape_hw(mask, f"gt/views/{view}/{kind}/{g}", 1)
+        mio.write_png(
+            self._view_path(view, kind, frame_name(g, "png")),
             np.where(mask, 255, 0).astype(np.uint8),
         )
 

@@ -49,8 +49,10 @@ def test_clip_contract_and_ground_truth_notes(tiny_clip_realistic):
     ):
         assert key in m.gt, key
     # generator version 6: textures band-limited for the preset's grid, adaptive samples spent,
-    # the exposure-ladder denoiser, and its error against a 1024-spp render recorded per band
-    assert m.generator["version"] == 6
+    # the exposure-ladder denoiser, and its error against a 1024-spp render recorded per band;
+    # 7: held-out views of the test frames and the camera-motion statistics
+    assert m.generator["version"] == 7
+    assert set(m.gt["views"]) == {"small", "medium", "large"} and "camera_motion" in m.gt
     assert m.gt["render"]["denoise_ladder"] is True
     bias = m.gt["render_bias"]
     assert bias["reference_spp"] == 1024 and len(bias["median_rel_error"]) == 4
