@@ -164,7 +164,8 @@ def render(run_dir, force, overwrite, videos, tracks, device):
         click.echo("warning: --overwrite is now --force", err=True)
     device = str(resolve_device(device))
     n = render_run(run_dir, overwrite=force or overwrite, device=device)
-    click.echo(f"rendered {n['train']} train and {n['test']} test frames")
+    views = f" and {n['views']} held-out view frames" if n.get("views") else ""
+    click.echo(f"rendered {n['train']} train and {n['test']} test frames{views}")
     if videos or tracks:
         from m4dgs.outputs.videos import render_tracks, render_videos
 

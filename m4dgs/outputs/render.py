@@ -2,7 +2,8 @@
 
 renders/train/hdr/<g>.exr   renders/train/ldr/<g>.png (at the frame's input exposure)
 renders/train/depth/<g>.exr renders/test/hdr/<g>.exr    renders/test/ldr/<level>/<g>.png (every
-observed + novel level)  renders/test/depth/<g>.exr"""
+observed + novel level)  renders/test/depth/<g>.exr
+renders/views/<view>/...    the clip's held-out views, when it has them (m4dgs.outputs.views)"""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from m4dgs.core.io import write_exr, write_png
 from m4dgs.core.lock import FolderLock
 from m4dgs.core.progress import progress_bar
 from m4dgs.model.trained import load_model
+from m4dgs.outputs.views import render_views
 from m4dgs.run import RunDir
 
 
@@ -24,8 +26,9 @@ from m4dgs.run import RunDir
 def render_run(
     run_dir, overwrite: bool = False, progress: bool = True, device: str = "cpu"
 ) -> Dict[str, int]:
-    """Write every train/test render that is missing (or all with overwrite); returns counts of
-    files written. Holds the run folder's lock (a no-op inside the trainer, which holds it)."""
+    """Write every train/test render that is missing (or all with overwrite), and the clip's
+    held-out views (m4dgs.outputs.views); returns counts of frames written ("train", "test",
+    "views"). Holds the run folder's lock (a no-op inside the trainer, which holds it)."""
     with FolderLock(run_dir):
         return _render_run(run_dir, overwrite, progress, device)
 
@@ -69,6 +72,7 @@ def _render_run(run_dir, overwrite: bool, progress: bool, device: str) -> Dict[s
             ldr = model.tm(r["hdr"], _t(l2, r["hdr"])).clamp(0, 1)
             write_png(p, ldr.cpu().numpy())
         written[split] += 1
+    written["views"] = render_views(model, run, overwrite, progress_bar if progress else None)[0]
     return written
 
 
