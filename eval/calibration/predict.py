@@ -12,6 +12,9 @@ clip's true response, its ground truth and its priors are not read.
   the two training frames around it (linear motion: F_t->n = (t_n - t) / (t_b - t_a) F_a->b,
   with F_a->b sampled at the test pixel), merged with the hat weights of their own codes (a
   frame's weight is 0 where its warp leaves the image).
+- `dibr`, for the held-out views: the nearest training frame forward-warped into the view with its
+  depth prior and the camera initialisation's cameras, aligned to the truth like a method
+  (depth-image-based rendering with a z-buffer; holes take their nearest splatted pixel).
 
 Shapes: frames [H, W, 3] uint8, radiance [H, W, 3] float32. Pure functions of arrays, plus
 `ClipFrames`, the training frames of a clip.
@@ -139,6 +142,57 @@ def flow_merge(cf: ClipFrames, g: float, response: np.ndarray) -> np.ndarray:
         dts.append(cf.dt[i])
         weights.append(inside.astype(np.float64))
     return merge_radiance(ldrs, dts, response, weights).astype(np.float32)
+
+
+def dibr(
+    image: np.ndarray,
+    depth: np.ndarray,
+    K_src: np.ndarray,
+    c2w_src: np.ndarray,
+    K_dst: np.ndarray,
+    c2w_dst: np.ndarray,
+    width: int,
+    height: int,
+) -> Tuple[np.ndarray, np.ndarray]:
+    """Depth-image-based rendering: `image` [H, W, C] with z-depth `depth` [H, W] (0 or less: no
+    surface) of an OpenCV camera (K_src, c2w_src) forward-warped into (K_dst, c2w_dst) at width x
+    height: each source pixel centre lifted to 3D, projected, and splatted to the destination
+    pixel holding it, the nearest surface winning (a z-buffer). Returns (image [height, width, C]
+    with the holes filled by their nearest splatted pixel, splatted [height, width] bool)."""
+    from scipy import ndimage
+
+    H, W = depth.shape
+    v, u = np.meshgrid(np.arange(H) + 0.5, np.arange(W) + 0.5, indexing="ij")
+    z = np.asarray(depth, np.float64).ravel()
+    ok = np.isfinite(z) & (z > 0)
+    x = np.stack([u.ravel(), v.ravel(), np.ones(H * W)], 0)
+    pc = np.linalg.inv(np.asarray(K_src, np.float64)) @ x * z  # [3, HW] source camera
+    c2w_src, c2w_dst = np.asarray(c2w_src, np.float64), np.asarray(c2w_dst, np.float64)
+    pw = c2w_src[:3, :3] @ pc + c2w_src[:3, 3:4]
+    pd = c2w_dst[:3, :3].T @ (pw - c2w_dst[:3, 3:4])
+    zd = pd[2]
+    ok &= zd > 1e-9
+    uv = (np.asarray(K_dst, np.float64) @ pd)[:2] / np.where(ok, zd, 1.0)
+    iu, iv = np.floor(uv[0]).astype(np.int64), np.floor(uv[1]).astype(np.int64)
+    ok &= (iu >= 0) & (iu < width) & (iv >= 0) & (iv < height)
+    src = np.flatnonzero(ok)
+    dst = iv[src] * width + iu[src]
+    order = np.lexsort((zd[src], dst))  # by destination pixel, nearest first
+    dst_sorted = dst[order]
+    first = np.ones(dst_sorted.size, bool)
+    first[1:] = dst_sorted[1:] != dst_sorted[:-1]
+    win_src, win_dst = src[order][first], dst_sorted[first]
+    img = np.asarray(image).reshape(H * W, -1)
+    out = np.zeros((height * width, img.shape[1]), img.dtype)
+    out[win_dst] = img[win_src]
+    hit = np.zeros(height * width, bool)
+    hit[win_dst] = True
+    hit = hit.reshape(height, width)
+    out = out.reshape(height, width, -1)
+    if hit.any() and not hit.all():
+        _, (iy, ix) = ndimage.distance_transform_edt(~hit, return_indices=True)
+        out = out[iy, ix]
+    return out.reshape((height, width) + np.asarray(image).shape[2:]), hit
 
 
 def predict(cf: ClipFrames, frames: Sequence[int], row: str, response: np.ndarray) -> Dict:

@@ -142,3 +142,28 @@ def test_calibration_rows_read_no_ground_truth(tiny_clip_oracle, monkeypatch):
     g = response_of(cf)
     out = flow_merge(cf, float(clip.test_frames[0]), g)
     assert out.shape == (clip.height, clip.width, 3) and np.isfinite(out).all()
+
+
+def test_dibr_moves_a_plane_exactly_and_keeps_the_nearest_surface():
+    """A fronto-parallel plane at depth 4 seen by a camera, forward-warped into one moved 0.4 m to
+    the right: every pixel shifts left by f 0.4 / 4 = 4 px (f = 40), exactly; a nearer patch in
+    front of it hides what lies behind it in the new view."""
+    from eval.calibration.predict import dibr
+
+    H, W, f = 24, 40, 40.0
+    K = np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1.0]])
+    src, dst = np.eye(4), np.eye(4)
+    dst[0, 3] = 0.4
+    img = np.tile(np.arange(W, dtype=np.float64)[None, :, None], (H, 1, 1))  # colour = column
+    depth = np.full((H, W), 4.0)
+    out, hit = dibr(img, depth, K, src, K, dst, W, H)
+    assert hit[:, : W - 4].all() and not hit[:, W - 4 :].any()  # the right edge had no source
+    np.testing.assert_array_equal(out[:, : W - 4, 0], img[:, 4:, 0])
+    np.testing.assert_array_equal(out[:, W - 4 :, 0], np.broadcast_to(img[:, W - 1 :, 0], (H, 4)))
+    # a patch at depth 2 (columns 10-13) shifts by 8 px and wins over the plane where they meet
+    depth2 = depth.copy()
+    depth2[:, 10:14] = 2.0
+    img2 = img.copy()
+    img2[:, 10:14] = -1.0
+    out2, _ = dibr(img2, depth2, K, src, K, dst, W, H)
+    assert (out2[:, 2:6, 0] == -1.0).all()
