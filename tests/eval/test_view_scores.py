@@ -1,0 +1,55 @@
+"""Scores at the held-out views, against numpy by hand: a prediction equal to the truth, noise
+only outside the co-visible pixels (masked scores perfect, unmasked not), and a missing file."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from eval.view_scores import score_views
+from m4dgs.clip import Clip, ClipError, frame_name, level_name
+from m4dgs.core import io as mio
+
+
+def _copy_truth(clip, root):
+    for v in clip.view_names():
+        shutil.copytree(clip.root / "gt" / "views" / v / "hdr", root / v / "hdr")
+        shutil.copytree(clip.root / "gt" / "views" / v / "ldr", root / v / "ldr")
+
+
+def test_scores_at_the_views(tiny_clip_oracle, tmp_path):
+    clip = Clip.open(tiny_clip_oracle)
+    pred = tmp_path / "views"
+    _copy_truth(clip, pred)
+    s = score_views(clip, pred)
+    assert s["nv_ldr_oe_psnr"] == np.inf and s["nv_hdr_mpsnr"] == np.inf
+    assert s["nv_small_ldr_ne_ssim"] == pytest.approx(1.0)
+    assert 0 < s["nv_covisible"] <= 1
+
+    # noise outside the co-visible pixels only: masked scores stay perfect
+    rng = np.random.default_rng(0)
+    by_hand = []
+    for v in clip.view_names():
+        for g in clip.test_frames:
+            covis = clip.load_view_covis(v, g)
+            for lv in clip.meta.exposures.observed:
+                p = pred / v / "ldr" / level_name(lv) / frame_name(g, "png")
+                img = mio.read_png(p).astype(np.int16)
+                noise = rng.integers(-20, 21, img.shape) * (~covis)[..., None]
+                noisy = np.clip(img + noise, 0, 255).astype(np.uint8)
+                mio.write_png(p, noisy)
+                if v == "large":
+                    gt = clip.load_view_ldr(v, lv, g).astype(np.float64) / 255
+                    mse = np.mean((noisy / 255.0 - gt) ** 2)
+                    by_hand.append(10 * np.log10(1 / mse) if mse > 0 else np.inf)
+    s = score_views(clip, pred)
+    assert s["nv_ldr_oe_mpsnr"] == np.inf and s["nv_ldr_oe_psnr"] < 60
+    assert s["nv_large_ldr_oe_psnr"] == pytest.approx(np.mean(by_hand), rel=1e-9)
+    assert s["nv_ldr_ne_psnr"] == np.inf  # the novel levels were left alone
+
+    victim = pred / "medium" / "hdr" / frame_name(clip.test_frames[0], "exr")
+    victim.unlink()
+    with pytest.raises(ClipError, match="medium/hdr"):
+        score_views(clip, pred)
