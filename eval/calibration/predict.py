@@ -8,7 +8,7 @@ clip's true response, its ground truth and its priors are not read.
 - `copy_nearest`: the training frame nearest in time, its radiance through the estimated
   response (saturated codes give the response's end values), re-exposed at each level asked for.
 - `flow_merge`: a classical HDR-video reconstruction: the nearest training frame of every exposure
-  level on each side of the test time, warped to it with flow interpolated from the flow between
+  level, warped to it with flow interpolated from the flow between
   the two training frames around it (linear motion: F_t->n = (t_n - t) / (t_b - t_a) F_a->b,
   with F_a->b sampled at the test pixel), merged with the hat weights of their own codes (a
   frame's weight is 0 where its warp leaves the image).
@@ -109,16 +109,13 @@ def warp(image: np.ndarray, flow: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
 
 def neighbours(cf: ClipFrames, g: float) -> List[int]:
     """Indices of the training frames flow_merge uses at time g: for each exposure level, the
-    nearest frame of that level before g and the nearest after (where there is one)."""
-    out = set()
+    training frame of that level nearest in time (the earlier one on a tie). Frames further away
+    only add the flow's extrapolation error (measured on the tiny clips: taking the nearest of
+    each level on both sides scored 0.2-1.0 dB lower in HDR PSNR)."""
+    out = []
     for lv in sorted(set(cf.dt)):
         idx = [i for i, d in enumerate(cf.dt) if d == lv]
-        before = [i for i in idx if cf.frames[i] <= g]
-        after = [i for i in idx if cf.frames[i] >= g]
-        if before:
-            out.add(max(before, key=lambda i: cf.frames[i]))
-        if after:
-            out.add(min(after, key=lambda i: cf.frames[i]))
+        out.append(min(idx, key=lambda i: (abs(cf.frames[i] - g), cf.frames[i])))
     return sorted(out)
 
 

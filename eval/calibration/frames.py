@@ -1,0 +1,50 @@
+"""A calibration row's prediction folder, in the layout `m4dgs-eval score-frames` reads
+(eval.frames: DIR/test/hdr/<g>.exr and DIR/test/ldr/<level>/<g>.png at every observed and novel
+level), so that it is scored exactly like another method's frames:
+
+    python -m eval.calibration CLIP ROW OUT        # ROW: copy-nearest | flow-merge
+    m4dgs-eval score-frames --clip CLIP --pred OUT --name ROW
+
+The response is estimated from the clip's training frames (eval.calibration.predict.response_of)
+and written beside the frames as response.json (g per channel and code, natural log exposure), so
+that the row's LDR frames are the row's own response of its HDR, as a method's are its tone
+mapper's."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from m4dgs.clip import frame_name, level_name
+from m4dgs.core import io as mio
+
+from .predict import ClipFrames, ldr_at, predict, response_of
+
+ROWS = ("copy-nearest", "flow-merge")
+
+
+def write_prediction(clip, out, row: str) -> Path:
+    """Write calibration row `row`'s predictions of every test frame of `clip` (an m4dgs Clip)
+    into the folder `out`; returns it."""
+    if row not in ROWS:
+        raise ValueError(f"unknown calibration row {row!r}; known: {', '.join(ROWS)}")
+    out = Path(out)
+    cf = ClipFrames.of(clip)
+    g_resp = response_of(cf)
+    levels = list(clip.meta.exposures.observed) + list(clip.meta.exposures.novel)
+    for g, hdr in predict(cf, clip.test_frames, row, g_resp).items():
+        mio.write_exr(out / "test" / "hdr" / frame_name(g, "exr"), hdr)
+        for lv in clip.meta.test_levels_of(g) if clip.meta.exposures.test_dt else levels:
+            mio.write_png(
+                out / "test" / "ldr" / level_name(lv) / frame_name(g, "png"),
+                ldr_at(hdr, float(lv), g_resp),
+            )
+    mio.write_json(
+        out / "response.json",
+        {
+            "row": row,
+            "method": "Debevec-Malik least squares on quantile samples of bracketed training "
+            "frames, anchored at clip.json unit_exposure_value (eval.calibration.response)",
+            "g": g_resp.tolist(),
+        },
+    )
+    return out
