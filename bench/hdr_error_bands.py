@@ -12,12 +12,12 @@ time is past the exposure at which the clip's response reaches code 254.5 (satur
 training frame), and the fraction of values those are; and the median prediction / ground truth
 luminance ratio over the 20th-90th percentile of each frame's luminance (a global scale error
 shows there, a highlight error does not). Used to read the crf suite's HDR PSNR differences
-(docs/results-notes.md).
+(lab/notes/crf.md).
 
 --ref ROW: each run beside the run of row ROW on the same scene and seed (run folders
 ROOT/runs/SUITE/SCENE/ROW for seed 0 and ROW-seed-K for seed K, as `m4dgs-eval run` names them):
 how many times its squared error in the brightest 1 % and in the other 99 % of the pixels is the
-reference's (the exposure-schedules reading, docs/results-notes.md).
+reference's (the exposure-schedules reading, lab/notes/exposure-schedules.md).
 
 `m4dgs-eval regions RUN --ref RUN --bright-top 0.01` gives the same brightest-1 % ratio (its "hdr"
 row, "bright err x"; lamp-room-orbit's random values at seed 1: x2.36 in both) and splits the rest

@@ -1444,8 +1444,8 @@ def error_maps(runs, out_png, out_mp4, fps, ref_run, domain, frame, labels, clip
     "--notes",
     default=None,
     type=click.Path(dir_okay=False),
-    help="Hand-written notes linked from the page (default: results-notes.md beside --out, "
-    "when it exists).",
+    help="Hand-written notes linked from the page (default: results-notes.md beside --out, else "
+    "the research record's lab/results-notes.md in the folder above --out's, when it exists).",
 )
 @click.option(
     "--suite",
@@ -1465,8 +1465,9 @@ def results(
 
     notes_given = notes is not None
     if notes is None:
-        cand = Path(out_md).parent / "results-notes.md"
-        notes = str(cand) if cand.exists() else None
+        here = Path(out_md).parent
+        cands = [here / "results-notes.md", here.parent / "lab" / "results-notes.md"]
+        notes = next((str(c) for c in cands if c.exists()), None)
     default_fig = str(Path(out_md).parent / "figures" / Path(out_md).stem)
     fig = None if no_figures else (figures_dir or default_fig)
     # the command written into the page regenerates it as it is

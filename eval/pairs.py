@@ -1,7 +1,7 @@
 """Paired differences per (scene, seed) from the runs CSV: `m4dgs-eval pairs`.
 
 The results page gives each difference row - ref as a mean and interval; the hand-written notes
-(docs/results-notes.md) also quote the per-scene values behind them. This module prints those from
+(lab/results-notes.md) also quote the per-scene values behind them. This module prints those from
 the committed CSV, so that every number in the notes can be checked with one command:
 
     m4dgs-eval pairs control-reproj-priors --ref full-oracle --rows no-reproj-oracle

@@ -2,7 +2,7 @@
 
 The colour of a Gaussian is 2^(MLP output) with no upper bound (the authors' choice), and past the
 tone curve's shoulder at every exposure the photometric loss has no gradient left to pull a value
-back; a regulariser that keeps pushing (TLR at the paper's weight 0.1, docs/results-notes.md) can
+back; a regulariser that keeps pushing (TLR at the paper's weight 0.1, lab/results-notes.md) can
 then drive the brightest values up without limit. The headline HDR PSNR does not see that (mu-law
 on values normalised by the ground truth's maximum and clipped at 1; docs/metrics.md). This
 measures it directly, per run, over the test frames:

@@ -2,7 +2,7 @@
 
 Several controls train a configuration another suite already has (control-schedule-coverage's
 `alternating` is exposure-schedules' `alternating`, control-tlr-grad's `full` is
-control-tlr-priors' `full`, ...), and the notes (docs/results-notes.md, docs/reliability.md)
+control-tlr-priors' `full`, ...), and the notes (lab/results-notes.md, docs/reliability.md)
 state before the runs whether each such pair should repeat to the last digit (the same code, seed
 and kind of machine) or differ like a reseed (another machine's clips). This module checks such a
 statement from the committed runs CSV alone:

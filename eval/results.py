@@ -1096,7 +1096,7 @@ class Control:
     """A control run for a disagreement: does the effect found under `base` change under
     `control`? The change is the difference of the two paired differences (a difference in
     differences), paired over the (scene, seed) runs all four rows have. `arm` names which of the
-    three causes the control tests (method, scale, benchmark; docs/results-notes.md)."""
+    three causes the control tests (method, scale, benchmark; lab/results-notes.md)."""
 
     key: str
     title: str
@@ -1228,7 +1228,7 @@ CONTROLS: Tuple[Control, ...] = (
             "control-tlr-floor", "full-tlr-0.1-floor", "full-floor", "a floor in the denominator"
         ),
     ),
-    # added 2026-11-29 before any run of control-tlr-weight (docs/results-notes.md): the floor
+    # added 2026-11-29 before any run of control-tlr-weight (lab/controls/): the floor
     # run at weight 0.1 against the weight alone at 0.03 and at 0.05, each against its own suite's
     # full; the one of the two whose HDR-TAE effect is nearer the floor run's is the reading
     *(

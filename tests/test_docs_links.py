@@ -1,5 +1,6 @@
-"""Every relative link of the README and docs/ points at a file that exists and, where it names a
-section (`page.md#section`), at a heading of that page (GitHub's anchor rule)."""
+"""Every relative link of the README, docs/ and the research record lab/ points at a file that
+exists and, where it names a section (`page.md#section`), at a heading of that page (GitHub's
+anchor rule)."""
 
 import re
 from pathlib import Path
@@ -7,7 +8,11 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+PAGES = [
+    ROOT / "README.md",
+    *sorted((ROOT / "docs").glob("*.md")),
+    *sorted((ROOT / "lab").rglob("*.md")),
+]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
@@ -36,7 +41,7 @@ def anchors(page: Path) -> set:
 
 
 def test_anchor_rule():
-    page = ROOT / "docs" / "results-notes.md"
+    page = ROOT / "lab" / "results-notes.md"
     got = anchors(page)
     assert "status" in got
     assert "how-to-record-a-disagreement" in got
@@ -76,7 +81,7 @@ def test_broken_links_are_found(tmp_path):
     ]
 
 
-@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_relative_links_resolve(page):
     bad = broken_links(page)
     assert not bad, f"{page.relative_to(ROOT)}: " + "; ".join(bad)

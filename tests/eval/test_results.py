@@ -378,7 +378,9 @@ def test_export_merge_results_readme(tmp_path):
     )
     docs = tmp_path / "docs"
     docs.mkdir()
-    (docs / "results-notes.md").write_text("# Notes\n")
+    # the hand-written notes live in the research record, lab/, beside docs/
+    (tmp_path / "lab").mkdir()
+    (tmp_path / "lab" / "results-notes.md").write_text("# Notes\n")
     # a stale forest plot of a finding without runs goes; a file named like none of ours stays
     (docs / "figures" / "results").mkdir(parents=True)
     (docs / "figures" / "results" / "finding_priors.png").write_bytes(b"old")
@@ -429,7 +431,7 @@ def test_export_merge_results_readme(tmp_path):
     )
     assert "- Runs: 10 scored of 10 (= 2 scenes x 5 rows x 1 seeds); missing: 0" in text
     assert text.count("**Incomplete pairs**") == 1  # paper-main is complete
-    assert "- Preset: small" in text and "[results-notes.md](results-notes.md)" in text
+    assert "- Preset: small" in text and "[results-notes.md](../lab/results-notes.md)" in text
     # the hosts: seed 0's run.json records one, seed 1's (older) none
     assert "; host Some CPU / AVX2 (18 runs), not recorded (17 runs)" in text
     # the floor line: paper-ablation's clips are lamp-room-orbit (generator 7, floors recorded)
@@ -914,19 +916,24 @@ def _page_command(page: str) -> list:
 
 
 def test_committed_results_pages_are_regenerated_from_the_committed_csvs(tmp_path, monkeypatch):
-    """Every committed docs/results*.md (the main page and the page of the superseded generator-5
-    runs), its figures and, for the main page, the README's results block are what the command
-    written in the page makes from the committed CSV (a stale page, a CSV edited without
-    regenerating the page, or a page whose stated command does not make it, fails here). The
-    numbers themselves are the CSV's; their rendering is tested above."""
+    """Every committed docs/results*.md and lab/results*.md (the main page and the page of the
+    superseded generator-5 runs), its figures and, for the main page, the README's results block
+    are what the command written in the page makes from the committed CSV (a stale page, a CSV
+    edited without regenerating the page, or a page whose stated command does not make it, fails
+    here). The numbers themselves are the CSV's; their rendering is tested above."""
     repo = Path(__file__).resolve().parents[2]
     read, listing = _committed_tree(repo)
-    pages = [f"docs/{n}" for n in listing("docs") if n.startswith("results") and n.endswith(".md")]
-    pages = [p for p in pages if p != "docs/results-notes.md"]
+    pages = [
+        f"{d}/{n}"
+        for d in ("docs", "lab")
+        for n in listing(d)
+        if n.startswith("results") and n.endswith(".md")
+    ]
+    pages = [p for p in pages if p != "lab/results-notes.md"]
     if read("results/runs.csv") is None or "docs/results.md" not in pages:
         pytest.skip("no committed results/runs.csv")
     csvs = [f"results/{n}" for n in listing("results") if n.endswith(".csv")]
-    for rel in csvs + ["docs/results-notes.md", "README.md"]:
+    for rel in csvs + ["lab/results-notes.md", "README.md"]:
         data = read(rel)
         if data is not None:
             (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -942,7 +949,7 @@ def test_committed_results_pages_are_regenerated_from_the_committed_csvs(tmp_pat
         made = (tmp_path / out).read_text()
         made = made.replace(os.path.relpath(repo / "eval", tmp_path / out.parent) + "/", "../eval/")
         assert made == committed, f"{page} is stale: run the command at its top and commit"
-        figs_rel = f"docs/figures/{out.stem}"
+        figs_rel = f"{out.parent}/figures/{out.stem}"
         figs = sorted(p.name for p in (tmp_path / figs_rel).glob("*.png"))
         assert figs == [n for n in listing(figs_rel) if n.endswith(".png")], page
     assert (tmp_path / "README.md").read_bytes() == read("README.md")
