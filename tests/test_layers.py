@@ -45,6 +45,8 @@ LAYERS = {
     "eval.peaks": "eval-driver",
     "eval.responses": "eval-driver",
     "eval.errormaps": "eval-driver",
+    "eval.view_scores": "eval-driver",
+    "eval.calibration.views": "eval-driver",
     "eval.__main__": "eval-driver",
 }
 
@@ -74,6 +76,7 @@ DRIVER_ENTRY_POINTS = {
     "m4dgs.training.pipeline",
     "m4dgs.training.variants",
     "m4dgs.outputs.render",
+    "m4dgs.outputs.views",
     "m4dgs.model.trained",
 }
 

@@ -201,3 +201,18 @@ def test_a_calibration_row_is_scored_like_another_method(tiny_clip_oracle, tmp_p
     m = read_json(out / "metrics.json")
     for k in ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr"):
         assert np.isfinite(m[k]) and m[k] > 10, (k, m[k])
+
+
+def test_dibr_row_at_the_views_scores_like_a_method(tiny_clip_oracle, tmp_path):
+    """The dibr row writes every view frame from the camera initialisation of the clip (a short
+    one here), and eval.view_scores scores it as it scores a run's renders."""
+    from eval.calibration.views import write_dibr_views
+    from eval.view_scores import score_views
+    from m4dgs.clip import Clip
+
+    out = write_dibr_views(
+        tiny_clip_oracle, tmp_path / "views", preset="tiny", overrides={"camera_init.ba_steps": 20}
+    )
+    s = score_views(Clip.open(tiny_clip_oracle), out)
+    for v in ("small", "medium", "large"):
+        assert 10 < s[f"nv_{v}_ldr_oe_psnr"] < 60, (v, s[f"nv_{v}_ldr_oe_psnr"])
