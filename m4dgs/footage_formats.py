@@ -516,8 +516,10 @@ def import_format(fmt: str, src, out, opt: ImportOptions, force: bool = False) -
         priors={**opt.report, **{k: v for k, v in s.gt_notes.items() if "source" in k}},
         gt={k: v for k, v in s.gt_notes.items() if "source" not in k},
     )
-    if src_meta is not None:
+    if src_meta is not None:  # an export of a clip: its notes describe the same files
         meta.generator["source_clip_generator"] = src_meta.generator
+        meta.gt = {**src_meta.gt, **meta.gt}
+        meta.priors = {**src_meta.priors, **meta.priors}
     hw = (H, W)
     with staged_clip(out, meta) as w:
         r = w.root
