@@ -5,6 +5,7 @@ benchgen make --exposures 3                      the syn-exp-3 suite at the smal
 benchgen make --suite tiny --preset tiny         the two tiny scenes (seconds each)
 benchgen list                                    shipped suites and scenes
 benchgen show bench/syn-exp-3/<scene>            summary + contact sheet PNG
+benchgen export bench/syn-exp-3/<scene> --format nerfies --out DIR   in another method's layout
 """
 
 from __future__ import annotations
