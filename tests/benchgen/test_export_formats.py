@@ -438,3 +438,21 @@ def test_export_refuses(tmp_path, tiny_clip_oracle):
         benchgen_main, ["export", str(tiny_clip_oracle), "--format", "nerfies", "--out", str(out)]
     )
     assert r.exit_code == 1 and "--force" in r.output and len(r.output.strip().splitlines()) == 1
+
+
+def test_export_needs_cameras_for_nerfies(tmp_path, tiny_clip_oracle):
+    """A clip without cameras (from an HDR video, or real footage) has no Nerfies export; the
+    Mono4DGS-HDR export needs none."""
+    import shutil
+
+    clip = tmp_path / "nocam"
+    shutil.copytree(tiny_clip_oracle, clip)
+    (clip / "gt/cameras.json").unlink()
+    shutil.rmtree(clip / "gt/views")
+    args = ["export", str(clip), "--out", str(tmp_path / "o")]
+    r = CliRunner().invoke(benchgen_main, args + ["--format", "nerfies"])
+    assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
+    assert str(clip / "gt/cameras.json") in r.output and not (tmp_path / "o").exists()
+    r = CliRunner().invoke(benchgen_main, args + ["--format", "mono4dgs-hdr"])
+    assert r.exit_code == 0, r.output
+    assert not (tmp_path / "o/cameras_gt.json").exists()
