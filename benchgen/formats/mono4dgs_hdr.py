@@ -3,7 +3,8 @@
 Written: the training frames (train/ and images/, the same bytes) with their log2 exposures, the
 HDR ground truth of every frame (train_exr/, test_exr/), each test frame once at an observed level
 (test/) and once at a novel level (test_ne/), the levels taken in turn over the test frames so
-that every level is scored, every test frame at every level (test_levels/<level>/), the clip's
+that every level is scored (real data: its own level, and test_ne/ only where an import kept one),
+every test frame at every level of a synthetic clip (test_levels/<level>/), the clip's
 depth prior (prior_depth/, the official code's dep_mode "prior") and track prior (the official
 track file, pixel centres at integers as its loader indexes them), and the ground-truth cameras
 (cameras_gt.json: not an input of the official code, which estimates its own)."""
@@ -23,8 +24,9 @@ from m4dgs.formats import mono4dgs_hdr as fmt
 def test_levels(clip: Clip, j: int, g: int):
     """(observed level of test/, novel level of test_ne/ or None) of the j-th test frame g."""
     ex = clip.meta.exposures
-    if ex.test_dt is not None:  # real footage: the level it was captured at, no novel one
-        return ex.test_dt[j], None
+    if ex.test_dt is not None:  # real data: the level it was captured at, and a novel-exposure
+        # frame only where an import of this layout kept one (clip.json gt.test_ne)
+        return ex.test_dt[j], (clip.meta.gt.get("test_ne") or {}).get(str(g))
     obs = ex.observed[j % len(ex.observed)]
     nov = ex.novel[j % len(ex.novel)] if ex.novel else None
     return obs, nov
@@ -54,7 +56,7 @@ def export(clip: Clip, out: Path) -> None:
         if nov is not None:
             copy_file(clip.path("gt/ldr", level_name(nov), name), out / fmt.TEST_NE_DIR / name)
             test_ne_dt[name] = nov
-        for level in m.test_levels_of(g):
+        for level in m.test_levels_of(g) if m.exposures.test_dt is None else []:
             copy_file(
                 clip.path("gt/ldr", level_name(level), name),
                 out / fmt.TEST_LEVELS_DIR / level_name(level) / name,

@@ -277,6 +277,34 @@ def test_mono4dgs_hdr_folder_made_by_hand(tmp_path):
     assert float(c.load_depth_prior(4).mean()) == 4.0
     np.testing.assert_allclose(c.load_tracks_prior().tracks, np.swapaxes(xy, 0, 1) + 0.5)
 
+    # that clip (real data: one level per test frame, no HDR, no cameras) exported and imported
+    # again is the same clip
+    exp, again = tmp_path / "exp", tmp_path / "again"
+    r = CliRunner().invoke(
+        benchgen_main, ["export", str(out), "--format", "mono4dgs-hdr", "--out", str(exp)]
+    )
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in (exp / "test_ne").iterdir()) == [
+        "00001.png",
+        "00003.png",
+        "00005.png",
+    ]
+    assert not (exp / "test_levels").exists()  # one level per test frame: test/ is all there is
+    r = CliRunner().invoke(
+        m4dgs_main, ["import-clip", "--format", "mono4dgs-hdr", str(exp), "--out", str(again)]
+    )
+    assert r.exit_code == 0, r.output
+    b = Clip.open(again, validate="full")
+    assert (b.meta.split, b.meta.exposures) == (c.meta.split, c.meta.exposures)
+    assert b.meta.gt["test_ne"] == c.meta.gt["test_ne"]
+    for sub in ("input/ldr", "gt/ldr/0.125", "gt/ldr/2", "gt/ldr/32", "gt/ldr/0.5"):
+        files = _files(out, sub)
+        assert files and files == _files(again, sub)
+        assert all((out / f).read_bytes() == (again / f).read_bytes() for f in files)
+    np.testing.assert_allclose(
+        b.load_tracks_prior().tracks, c.load_tracks_prior().tracks, atol=1e-4
+    )
+
 
 def _nerfies_camera(t, f=30.0):
     # a DyCheck-style camera: OpenGL-looking world, the camera looking down -z of the world
