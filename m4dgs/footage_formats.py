@@ -313,6 +313,12 @@ def read_nerfies(src: Path) -> _Source:
     def camera(iid):
         p = src / nf.CAMERA_DIR / f"{iid}.json"
         K, c2w, size = nf.camera_from_json(read_json_file(p), p, scale=1.0 / factor)
+        h, w = mio.read_image(rgb(iid))[0].shape[:2]
+        if size != (w, h):
+            raise InputError(
+                f"{p}: field 'image_size': {size[0] * factor}x{size[1] * factor} is "
+                f"{size[0]}x{size[1]} at rgb/{fdir}, but {rgb(iid)} is {w}x{h}"
+            )
         return K, c2w, size
 
     def rgb(iid):

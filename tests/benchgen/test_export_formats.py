@@ -425,6 +425,10 @@ def test_bad_nerfies_folders(tmp_path):
     cam.write_text(json.dumps(d))
     _one_line_error(args, str(cam), "'orientation'", "missing")
     d = json.loads(good)
+    d["image_size"] = [640, 480]
+    cam.write_text(json.dumps(d))
+    _one_line_error(args, str(cam), "'image_size'")
+    d = json.loads(good)
     d["orientation"] = [[1, 0, 0], [0, 1, 0], [0, 0, 2]]
     cam.write_text(json.dumps(d))
     _one_line_error(args, str(cam), "'orientation'", "not a rotation")
