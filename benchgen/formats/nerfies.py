@@ -2,7 +2,9 @@
 
 Image ids: camera 0 is the clip's camera path: its training frames are the train split, its test
 frames the "val_path" split (interpolation along the path); camera k >= 1 is the k-th held-out
-view (gt/views/), its images the "val_<view>" split, DyCheck's validation cameras. "val" is both.
+view (gt/views/), its images the "val_<view>" split; "val", DyCheck's validation split, is the
+views (with their co-visibility masks; the path's test frames when the clip has no views), and
+dataset.json val_ids, Nerfies' validation images, are all of them.
 rgb/1x/ holds each training frame as captured and each validation image at one observed level
 (the clip's reference level, `reference_level`; metadata.json "exposure" says which); every level
 of a validation image is in rgb_levels/<level>/1x/. The cameras (camera/) and depth (depth/1x/,
@@ -132,7 +134,10 @@ def export(clip: Clip, out: Path) -> None:
             entry(iid, g, k, ref, split, view)
     train_ids = [s[0] for s in splits["train"]]
     val = [s for k, v in splits.items() if k != "train" for s in v]
-    splits["val"] = val
+    # DyCheck's "val": its validation cameras, each image with a co-visibility mask (its masked
+    # metrics read one per image): the held-out views; the path's test frames where there are none
+    views = [s for k, v in splits.items() if k.startswith("val_") and k != "val_path" for s in v]
+    splits["val"] = views or splits["val_path"]
     ids = train_ids + [s[0] for s in val]
     mio.write_json(
         out / fmt.DATASET_FILE,

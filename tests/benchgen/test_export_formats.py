@@ -135,7 +135,11 @@ def test_nerfies_cameras_project_gt_points(tiny_clip_oracle, exported):
     assert checked == 9
     # the splits DyCheck reads: train = the path's training frames, val = test frames + views
     val = json.loads((exp / "splits/val.json").read_text())
-    assert sorted(set(val["camera_ids"])) == [0, 1, 2, 3]
+    assert sorted(set(val["camera_ids"])) == [1, 2, 3]  # the held-out views
+    assert all((exp / "covisible/1x/val" / f"{n}.png").is_file() for n in val["frame_names"])
+    path = json.loads((exp / "splits/val_path.json").read_text())
+    assert set(path["camera_ids"]) == {0} and len(path["frame_names"]) == 4
+    assert sorted(ds["val_ids"]) == sorted(val["frame_names"] + path["frame_names"])
     assert all(
         f"{c}_{t:05d}" == n
         for n, t, c in zip(val["frame_names"], val["time_ids"], val["camera_ids"])
