@@ -5,6 +5,7 @@ benchgen make --exposures 3                      the syn-exp-3 suite at the smal
 benchgen make --suite tiny --preset tiny         the two tiny scenes (seconds each)
 benchgen list                                    shipped suites and scenes
 benchgen show bench/syn-exp-3/<scene>            summary + contact sheet PNG
+benchgen export bench/syn-exp-3/<scene> --format nerfies --out DIR   in another method's layout
 """
 
 from __future__ import annotations
@@ -445,6 +446,35 @@ def show(clip, sheet):
     if sheet:
         p = contact_sheet(c, Path(clip) / "contact_sheet.png")
         click.echo(f"contact sheet: {p}")
+
+
+@main.command("export")
+@click.argument("clip", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option(
+    "--format",
+    "fmt",
+    required=True,
+    type=click.Choice(["mono4dgs-hdr", "nerfies"]),
+    help="mono4dgs-hdr: the official Mono4DGS-HDR code's layout (images/, exposures.json, "
+    "test/, test_ne/, train_exr/, test_exr/). nerfies: the Nerfies / DyCheck layout (dataset.json, "
+    "metadata.json, scene.json, camera/, rgb/1x/; the held-out views as validation cameras). "
+    'What maps where: docs/clip-format.md, "Other formats".',
+)
+@click.option(
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Folder to write (written elsewhere first and moved into place when complete).",
+)
+@click.option("--force", is_flag=True, help="Replace a folder that is not empty at --out.")
+def export(clip, fmt, out_dir, force):
+    """Write CLIP in the layout another method reads: frames, exposures, test frames at every
+    level, HDR ground truth, cameras, depth and tracks where the layout has a place for them
+    (`m4dgs import-clip --format` reads it back)."""
+    from .formats import export_clip
+
+    click.echo(str(export_clip(clip, fmt, out_dir, force=force)))
 
 
 if __name__ == "__main__":

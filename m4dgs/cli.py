@@ -226,6 +226,24 @@ def variants(preset):
 
 
 @main.command("import-clip")
+@click.argument(
+    "source",
+    required=False,
+    type=click.Path(exists=True, file_okay=False, path_type=Path),
+)
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["footage", "mono4dgs-hdr", "nerfies"]),
+    default="footage",
+    show_default=True,
+    help="footage: your own frames (--frames or --video) and exposure times. mono4dgs-hdr: the "
+    "folder SOURCE in the official Mono4DGS-HDR code's layout (the paper's preprocessed "
+    "Syn-Exp / Real-Exp data; images/, exposures.json, test/, test_ne/, train_exr/, test_exr/). "
+    "nerfies: the folder SOURCE in the Nerfies / DyCheck layout (dataset.json, metadata.json, "
+    "camera/, rgb/<f>x/). The folder's depth and tracks are kept; --depth and --tracks replace "
+    'them (docs/clip-format.md, "Other formats").',
+)
 @click.option(
     "--frames",
     default=None,
@@ -275,10 +293,10 @@ def variants(preset):
 )
 @click.option(
     "--fps",
-    default=30.0,
-    show_default=True,
+    default=None,
     type=click.FloatRange(min=0, min_open=True),
-    help="Frame rate written to clip.json (videos of the run play at it).",
+    help="Frame rate written to clip.json (videos of the run play at it). Default: 30, or the "
+    "exported clip's own for a folder written by `benchgen export`.",
 )
 @click.option("--name", default=None, help="Clip name (default: the --out folder name).")
 @click.option(
@@ -301,6 +319,8 @@ def variants(preset):
 )
 @click.option("--force", is_flag=True, help="Replace a clip already at --out.")
 def import_clip_cmd(
+    source,
+    fmt,
     frames,
     video,
     exposures,
@@ -321,9 +341,37 @@ def import_clip_cmd(
 ):
     """Make a clip from your own footage: frames or a video, exposure times, a depth prior and
     optionally tracks and flow (docs/clip-format.md, "Your own footage"). Then: m4dgs train --clip
-    OUT."""
+    OUT. With --format mono4dgs-hdr or nerfies: the dataset folder SOURCE in that layout."""
+    from m4dgs.core.errors import InputError
     from m4dgs.footage import ImportOptions, import_clip
 
+    if fmt != "footage":
+        given = [
+            n
+            for n, v in (("--frames", frames), ("--video", video), ("--exposures", exposures))
+            if v is not None
+        ]
+        if source is None or given or every != 1 or max_frames or width or split != "all":
+            raise InputError(
+                f"--format {fmt}: give the dataset folder as SOURCE, without --frames, --video, "
+                "--exposures, --every, --max-frames, --width or --split (the folder has them)"
+            )
+        from m4dgs.footage_formats import import_format
+
+        opt = ImportOptions(
+            depth=depth,
+            depth_kind=depth_kind,
+            tracks=tracks,
+            visibility=visibility,
+            track_pixel_centre=float(track_pixel_centre),
+            flow=flow,
+            fps=fps,
+            name=name,
+        )
+        click.echo(str(import_format(fmt, source, out_dir, opt, force=force)))
+        return
+    if source is not None:
+        raise InputError(f"{source}: a folder argument needs --format mono4dgs-hdr or nerfies")
     opt = ImportOptions(
         frames=frames,
         video=video,
@@ -337,7 +385,7 @@ def import_clip_cmd(
         visibility=visibility,
         track_pixel_centre=float(track_pixel_centre),
         flow=flow,
-        fps=fps,
+        fps=30.0 if fps is None else fps,
         name=name,
         split=split,
     )

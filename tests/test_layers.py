@@ -18,10 +18,12 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYERS = {
     "m4dgs.core": "core",
     "m4dgs.clip": "formats",
+    "m4dgs.formats": "formats",  # other projects' layouts: names and conversions, both directions
     "m4dgs.run": "formats",
     "m4dgs.priors": "priors",
     "m4dgs.footage": "priors",  # own footage -> clip: frames, exposures and priors
     "m4dgs.footage_options": "priors",  # the command-line options of the prior files it reads
+    "m4dgs.footage_formats": "priors",  # other projects' dataset folders -> clip
     "m4dgs.raster": "raster",
     "m4dgs.losses": "losses",
     "m4dgs.model": "model",
