@@ -29,6 +29,7 @@ import difflib
 import hashlib
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -37,7 +38,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 BASELINE = ROOT / "bench" / "shape_check.txt"
-SKIP = {".git", ".venv", "out", "experiments", ".pytest_cache", "__pycache__", ".ruff_cache"}
+SKIP = {".git", ".venv", ".pytest_cache", "__pycache__", ".ruff_cache"}
+SKIP_TOP = {"out", "experiments"}  # experiment roots at the top only (eval/experiments/ is code)
 
 # the README's and docs/' own invocations on results/runs.csv
 PAIRS_AND_REPEATS = [
@@ -73,8 +75,9 @@ TABLE_SUITES = ["paper-main", "paper-ablation", "control-tlr", "crf", "exposure-
 
 
 def _copy_tree(dst: Path) -> None:
-    def ignore(_d, names):
-        return [n for n in names if n in SKIP]
+    def ignore(d, names):
+        top = Path(d).resolve() == ROOT
+        return [n for n in names if n in SKIP or (top and n in SKIP_TOP)]
 
     shutil.copytree(ROOT, dst, ignore=ignore, symlinks=True)
 
@@ -161,6 +164,11 @@ def collect(cwd: Path) -> list[tuple[str, str]]:
     return out
 
 
+def normalise(text: str) -> str:
+    """The temporary copy's path written as <tree> (a table names a run folder of it)."""
+    return re.sub(r"/[^ ]*?/shape-check-[A-Za-z0-9_]+/tree", "<tree>", text)
+
+
 def render(sections: list[tuple[str, str]]) -> str:
     return "".join(
         f"=== {name}\n{text}{'' if text.endswith(chr(10)) else chr(10)}" for name, text in sections
@@ -179,7 +187,7 @@ def main(argv=None) -> int:
     try:
         cwd = tmp / "tree"
         _copy_tree(cwd)
-        text = render(collect(cwd))
+        text = normalise(render(collect(cwd)))
     finally:
         if a.keep:
             print(f"kept {tmp}", file=sys.stderr)
@@ -189,7 +197,7 @@ def main(argv=None) -> int:
         a.baseline.write_text(text)
         print(f"wrote {a.baseline} ({len(text.splitlines())} lines)")
         return 0
-    base = a.baseline.read_text()
+    base = normalise(a.baseline.read_text())
     if base == text:
         print(f"identical to {a.baseline} ({len(text.splitlines())} lines)")
         return 0

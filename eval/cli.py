@@ -39,10 +39,11 @@ from pathlib import Path
 
 import click
 
+from eval.experiments.collect import collect_runs_dir, collect_suite
+from eval.inspect.pairs import DEFAULT_METRICS as DEFAULT_PAIR_METRICS
+from eval.records.suite_data import build_tables
 from m4dgs.core import io as mio
 from m4dgs.core.errors import ReportingGroup
-
-from .pairs import DEFAULT_METRICS as DEFAULT_PAIR_METRICS
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
@@ -128,7 +129,7 @@ def score(
     add_missing,
 ):
     """Score one run folder and write RUN/metrics.json; prints the headline metrics as JSON."""
-    from .score import add_missing_metrics, score_run
+    from eval.experiments.score import add_missing_metrics, score_run
 
     mpath = Path(run) / "metrics.json"
     if add_missing:
@@ -210,7 +211,7 @@ def score_frames_cmd(
 ):
     """Score another method's rendered frames against a clip with every frame-based metric of an
     m4dgs run (no m4dgs model needed); writes OUT/metrics.json and prints the headline metrics."""
-    from .frames import score_frames
+    from eval.experiments.frames import score_frames
 
     run_dir, m = score_frames(
         clip_dir,
@@ -233,7 +234,7 @@ def score_frames_cmd(
 def suites():
     """List the shipped experiment suites, their rows (name: variant + overrides, clip setting) and
     tables."""
-    from .suite import builtin_suites, check_variants, load_eval_suite
+    from eval.records.suite import builtin_suites, check_variants, load_eval_suite
 
     for name in builtin_suites():
         s = load_eval_suite(name)
@@ -357,9 +358,8 @@ def run(
 ):
     """Make missing clips, train missing runs and score missing metrics of SUITE (name or YAML
     path); resumable."""
+    from eval.experiments.runner import failed_jobs, list_jobs_jsonl, run_suite
     from m4dgs.core.errors import M4DGSError
-
-    from .runner import failed_jobs, list_jobs_jsonl, run_suite
 
     if list_jobs:
         click.echo(
@@ -429,9 +429,8 @@ def run(
 def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, device, no_share):
     """Run ONE job of SUITE: make its clip if missing, train (resumes), score. Prints a JSON result
     line."""
+    from eval.experiments.runner import find_job, run_job
     from m4dgs.core.threads import threads_for
-
-    from .runner import find_job, run_job
 
     j = find_job(suite, out, preset, scene, row, seed)
     # one job per process: every CPU, split as the workers of `run` split theirs
@@ -445,158 +444,6 @@ def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, d
             share=not no_share,
         )
     click.echo(json.dumps(res))
-
-
-# --------------------------------------------------------------------------------------------------
-def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) -> list:
-    """Entries {"scene", "row", "label", "seed", "run_dir", "clip_dir", "metrics" (dict or None)} of
-    a suite's jobs, for trainer seeds 0 .. seeds-1 (None: up to the largest seed with a run folder
-    under OUT, for every row)."""
-    from .runner import job_list, seeds_present
-
-    if seeds is None:
-        seeds = seeds_present(suite, out, preset, scenes)
-    entries = []
-    for j in job_list(suite, out, preset, scenes, seeds):
-        mp = Path(j.run_dir) / "metrics.json"
-        entries.append(
-            {
-                "scene": j.scene,
-                "row": j.row,
-                "label": j.label,
-                "seed": j.seed,
-                "run_dir": j.run_dir,
-                "clip_dir": j.clip_dir,
-                "metrics": mio.read_json(mp) if mp.exists() else None,
-            }
-        )
-    return entries
-
-
-def metrics_files(top) -> list:
-    """The metrics.json files in TOP and every folder below it, sorted. Symbolic links to folders
-    are followed (a run or scene folder linked into the tree counts like a real one); a folder
-    reached twice (linked beside itself, or a link back up the tree) is read once, where the
-    sorted walk meets it first."""
-    found, seen = [], set()
-    for d, dirs, files in os.walk(top, followlinks=True):
-        st = os.stat(d)
-        if (st.st_dev, st.st_ino) in seen:
-            dirs.clear()
-            continue
-        seen.add((st.st_dev, st.st_ino))
-        dirs.sort()
-        if "metrics.json" in files and os.path.isfile(os.path.join(d, "metrics.json")):
-            found.append(Path(d) / "metrics.json")
-    return sorted(found)
-
-
-def collect_runs_dir(runs_dir) -> list:
-    """Entries of every run under RUNS_DIR with a metrics.json (metrics_files: linked run and
-    scene folders included); rows = the variant names (run.json / metrics.json), or the run folder
-    names where two runs of one scene and seed share a variant. A folder named <row>-seed-<n> is
-    trainer seed n of <row> (m4dgs-eval run --seeds)."""
-    from .runner import split_run_name
-    from .score import read_run_info
-
-    entries = []
-    for mp in metrics_files(runs_dir):
-        rd = mp.parent
-        m = mio.read_json(mp)
-        run_meta = m.get("run") or {}
-        info = read_run_info(rd)
-        variant = run_meta.get("variant") or info.get("variant") or rd.name
-        scene = run_meta.get("clip_name") or rd.parent.name
-        row, seed = split_run_name(rd.name)
-        entries.append(
-            {
-                "scene": scene,
-                "row": row,
-                "label": variant,
-                "seed": seed,
-                "run_dir": str(rd),
-                "clip_dir": run_meta.get("clip"),
-                "metrics": m,
-            }
-        )
-    seen = {}
-    for e in entries:
-        seen.setdefault((e["scene"], e["label"], e["seed"]), []).append(e)
-    if any(len(v) > 1 for v in seen.values()):
-        for e in entries:
-            e["label"] = e["row"]
-    return entries
-
-
-def build_tables(
-    entries: list, table_defs: list, fmt: str = "markdown", reference: str | None = None
-) -> str:
-    """Render every table of a suite from collected entries: mean +- 95 % t-interval over the
-    (scene, seed) runs of each row, best mean in bold, the paired difference to the `reference` row
-    (a row name; its label in the table), for tables with `paper` the paper's values and the
-    direction agreement, footnotes."""
-    from eval.tables import render
-
-    from .score import PSNR_CAP_DB, all_conventions
-    from .suite import table_spec
-
-    present = [e for e in entries if e["metrics"]]
-    methods = list(dict.fromkeys(e["label"] for e in entries))
-    label_of = {}
-    for e in entries:
-        label_of.setdefault(e["row"], e["label"])
-    ref_label = label_of.get(reference) if reference is not None else None
-    rows = []
-    for e in (
-        entries
-    ):  # a run without metrics.json counts as a scene without values: its row's means are n/a
-        r = {"method": e["label"], "scene": e["scene"], "seed": e.get("seed", 0)}
-        if e["metrics"]:
-            r.update(
-                {k: v for k, v in e["metrics"].items() if isinstance(v, (int, float)) or v is None}
-            )
-        rows.append(r)
-    lp = any(r.get(k) is not None for r in rows for k in r if k.endswith("_lpips"))
-    convs = {e["metrics"].get("ldr_convention", "ldr_png") for e in present}
-    ldr_conv = (
-        convs.pop()
-        if len(convs) == 1
-        else "LDR scored with mixed conventions across runs (see metrics.json)"
-    )
-    conventions = all_conventions()
-    parts = []
-    for td in table_defs:
-        spec = table_spec(td, lpips_available=lp, ldr_convention=ldr_conv, methods=methods)
-        spec.intervals, spec.reference = True, ref_label
-        if getattr(td, "paper", None):
-            from .paper import load_paper_values
-
-            pt = load_paper_values()[td.paper]
-            spec.paper = {label_of[row]: vals for row, vals in pt.rows.items() if row in label_of}
-            spec.paper_source = pt.source
-        if any(r.get(c.key) == PSNR_CAP_DB for r in rows for c in spec.columns if "psnr" in c.key):
-            spec.conventions = list(spec.conventions) + ["psnr_cap"]
-        parts.append(
-            render(
-                rows,
-                spec,
-                FORMATS[fmt],
-                conventions=conventions,
-                **({"notes": True} if FORMATS[fmt] == "csv" else {}),
-            )
-        )
-    missing = [e for e in entries if not e["metrics"]]
-    if missing:
-        note = (
-            f"{len(missing)} of {len(entries)} runs have no metrics.json yet "
-            f"(e.g. {missing[0]['run_dir']})"
-        )
-        parts.append(
-            ("% " if FORMATS[fmt] == "latex" else "# " if FORMATS[fmt] == "csv" else "> ")
-            + note
-            + "\n"
-        )
-    return "\n".join(parts)
 
 
 def _no_scored_runs(target: str, name: str, root, entries: list) -> str:
@@ -669,9 +516,8 @@ def _no_scored_runs(target: str, name: str, root, entries: list) -> str:
 def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
     """Print the paper-style tables of TARGET: a suite (name or YAML; runs under ROOT) or a folder
     of runs (linked run and scene folders count like real ones)."""
+    from eval.records.suite import TableDef, load_eval_suite
     from m4dgs.core.errors import InputError
-
-    from .suite import TableDef, load_eval_suite
 
     if Path(target).is_dir():
         entries = collect_runs_dir(target)
@@ -711,7 +557,7 @@ def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
     else:
         click.echo(text, nl=False)
     if not no_figures:
-        from .figures import suite_figures
+        from eval.figures import suite_figures
 
         # seed 0 only
         paths = suite_figures([e for e in entries if e["metrics"] and not e.get("seed")], fig_dir)
@@ -764,7 +610,7 @@ def campaign(
     """Run the suites of CAMPAIGN (a name from eval/campaigns or a YAML path) one after another
     into ROOT, exporting each into the runs CSV as soon as it is done; resumable (run the same
     command again). See docs/eval.md."""
-    from .campaign import load_campaign, run_campaign
+    from eval.experiments.campaign import load_campaign, run_campaign
 
     c = load_campaign(campaign)
     res = run_campaign(
@@ -817,7 +663,7 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
     whose last attempt failed gets status "failed" and its error, from <run>/failure.json). Beside
     it, <name>-crf.csv holds the learned tone curves and <name>-floors.csv the clips'
     ground-truth HDR-TAE floors (one row per scene and generator version)."""
-    from .results import export as export_runs
+    from eval.experiments.export import export as export_runs
 
     summary = export_runs(
         suites,
@@ -850,7 +696,7 @@ _read_csv_opt = click.option(
 def _against_spec(against):
     """[suite, ref, row] of an --against SUITE:REF:ROW value (None without one); a usage error
     otherwise."""
-    from .pairs import split_spec
+    from eval.inspect.pairs import split_spec
 
     if against is None:
         return None
@@ -914,8 +760,8 @@ def pairs(suite, ref, row_names, metrics, csv_path, by_seed, holm, against, diff
     """Print the paired differences row - ref of SUITE (a built-in suite's name or a suite YAML
     file) per (scene, seed) from the runs CSV, with their mean and 95 % interval: the per-scene
     values the hand-written results notes quote."""
-    from .pairs import pairs_markdown
-    from .results import read_runs_csv
+    from eval.inspect.pairs import pairs_markdown
+    from eval.records.runs_csv import read_runs_csv
 
     names = [n.strip() for n in row_names.split(",") if n.strip()] if row_names else None
     mets = [m.strip() for m in metrics.split(",") if m.strip()]
@@ -957,8 +803,8 @@ def repeats(side_a, side_b, metrics, csv_path, check):
     that both SUITE_A:ROW and SUITE_B:ROW scored, how many quality columns are equal as the CSV
     stores them, the largest differences B - A, each side's code and host, and the headline
     metrics' B - A over the pairs that differ (to set beside the suite's seed noise)."""
-    from .repeats import repeats_markdown
-    from .results import read_runs_csv
+    from eval.inspect.repeats import repeats_markdown
+    from eval.records.runs_csv import read_runs_csv
 
     mets = [m.strip() for m in metrics.split(",") if m.strip()] if metrics else None
     try:
@@ -1048,17 +894,16 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, edges, js
     share of the pixels and of the squared error, and the PSNR with the region left out; regions
     are bright (--bright-above / --bright-top), depth edges (--edges), the ground truth's dynamic
     mask, and the rest."""
-    from m4dgs.clip import Clip
-    from m4dgs.core.errors import InputError
-
-    from .regions import (
+    from eval.experiments.score import resolve_clip_dir
+    from eval.inspect.regions import (
         check_comparable,
         describe_regions,
         format_extra,
         format_split,
         split_run,
     )
-    from .score import resolve_clip_dir
+    from m4dgs.clip import Clip
+    from m4dgs.core.errors import InputError
 
     _check_bright(bright_above, bright_top)
     opts = dict(bright_above=bright_above, bright_top=bright_top, dilate=dilate, edges=edges)
@@ -1106,11 +951,10 @@ def peaks(runs, clip_dir, json_path):
     (normalised by the ground truth's maximum and clipped) does not see. A run that cannot be
     read (no renders: e.g. a failed run) is named after the table with the reason; the exit status
     is 1 only when no run could be read."""
+    from eval.experiments.score import resolve_clip_dir
+    from eval.inspect.peaks import format_peaks, run_peaks
     from m4dgs.clip import Clip
     from m4dgs.core.errors import InputError
-
-    from .peaks import format_peaks, run_peaks
-    from .score import resolve_clip_dir
 
     out, unread = [], []
     for r in runs:
@@ -1169,11 +1013,10 @@ def crf_cmd(runs, clip_dir, bands, plot_path, json_path):
     shape), and the signed error per band of the recorded exposure range. A run that cannot be read
     (no final model: e.g. a failed run) is named after the table with the reason; the exit status is
     1 only when no run could be read."""
+    from eval.experiments.score import resolve_clip_dir
+    from eval.inspect.responses import clip_ranges, format_responses, plot_responses, run_response
     from m4dgs.clip import Clip
     from m4dgs.core.errors import InputError
-
-    from .responses import clip_ranges, format_responses, plot_responses, run_response
-    from .score import resolve_clip_dir
 
     out, unread, ranges = [], [], {}
     for r in runs:
@@ -1256,9 +1099,8 @@ def region_pairs(
     --ref's, per pair and as the mean with its Student-t 95 % interval over the pairs (as
     `pairs` gives the scores'). Reads the runs' test renders, so it needs the suite's root.
     --against: each row's change against another suite's effect (a control's reading by region)."""
+    from eval.inspect.regions import format_region_pairs, region_changes, suite_region_pairs
     from m4dgs.core.errors import InputError
-
-    from .regions import format_region_pairs, region_changes, suite_region_pairs
 
     _check_bright(bright_above, bright_top)
     rows = [n.strip() for n in row_names.split(",") if n.strip()]
@@ -1358,10 +1200,9 @@ def error_maps(runs, out_png, out_mp4, fps, ref_run, domain, frame, labels, clip
     map on one colour scale and, with --ref, where its error grew or shrank against the
     reference; titles give each frame's PSNR as the scores compute it. --video: the same grid
     over every test frame."""
+    from eval.inspect.errormaps import error_maps as draw
+    from eval.inspect.errormaps import error_video
     from m4dgs.core.errors import InputError
-
-    from .errormaps import error_maps as draw
-    from .errormaps import error_video
 
     if out_png is None and out_mp4 is None:
         raise click.UsageError("give --out PNG, --video MP4 or both")
@@ -1461,7 +1302,7 @@ def results(
 ):
     """Regenerate the results page (every suite's tables with intervals, the paper's values and
     the agreement column, figures, findings) and the README's main table from the runs CSV."""
-    from .results import render_results
+    from eval.report.page import render_results
 
     notes_given = notes is not None
     if notes is None:

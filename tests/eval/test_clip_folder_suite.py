@@ -11,8 +11,8 @@ import yaml
 from click.testing import CliRunner
 
 from eval.cli import main
-from eval.runner import job_list
-from eval.suite import SuiteError, load_eval_suite, scene_suite_names
+from eval.experiments.runner import job_list
+from eval.records.suite import SuiteError, load_eval_suite, scene_suite_names
 
 
 def write_suite(path, folder="clips", short=None, **extra):

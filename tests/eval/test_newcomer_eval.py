@@ -20,7 +20,7 @@ ROWS = ("static-hdr", "world-only", "full")
 
 
 def _tiny_scenes():
-    from eval.runner import job_list
+    from eval.experiments.runner import job_list
 
     return list(dict.fromkeys(j.scene for j in job_list("tiny", "unused", "tiny")))
 
@@ -152,7 +152,7 @@ def test_table_counts_linked_run_and_scene_folders(tmp_path):
 
     cli = CliRunner()
     check(cli.invoke(main, ["table", str(runs), "--format", "csv", "--no-figures"]))
-    from eval.suite import load_eval_suite
+    from eval.records.suite import load_eval_suite
 
     labels = {r.name: r.label for r in load_eval_suite("tiny").rows}
     args = ["table", "tiny", "--root", str(root), "--format", "csv", "--no-figures"]

@@ -15,8 +15,8 @@ import tifffile
 from click.testing import CliRunner
 
 from eval.cli import main
-from eval.frames import read_image, score_frames
-from eval.score import PSNR_CAP_DB
+from eval.experiments.frames import read_image, score_frames
+from eval.experiments.score import PSNR_CAP_DB
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError

@@ -37,9 +37,10 @@ from __future__ import annotations
 
 from typing import Dict, List, Optional, Sequence
 
-from .results import FAILED, SCORED, one_line, pair_differences
-from .stats import holm as holm_adjust
-from .stats import mean_ci, rows_differ, scene_heterogeneity, scene_mean_ci
+from eval.records.runs_csv import FAILED, SCORED, one_line
+from eval.stats import holm as holm_adjust
+from eval.stats import mean_ci, rows_differ, scene_heterogeneity, scene_mean_ci
+from eval.study.controls import pair_differences
 
 DEFAULT_METRICS = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "ldr_train_psnr")
 
@@ -101,7 +102,7 @@ def pairs_markdown(
     docstring). Raises ValueError naming what the CSV lacks."""
     from pathlib import Path
 
-    from .suite import SuiteError, builtin_suites, load_eval_suite, metric_columns
+    from eval.records.suite import SuiteError, builtin_suites, load_eval_suite, metric_columns
 
     definition = None
     if suite not in builtin_suites() and Path(suite).is_file():

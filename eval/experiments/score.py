@@ -62,8 +62,14 @@ from typing import Dict, Iterable, List, Optional, Tuple
 import numpy as np
 import torch
 
+from eval.conventions import (
+    CRF_LOG2_RANGE,
+    CRF_SAMPLES,
+    PSNR_CAP_DB,
+    TRACK_SAMPLES,
+    all_conventions,
+)
 from eval.metrics import (
-    CONVENTIONS,
     ate,
     crf_error,
     depth_absrel,
@@ -93,40 +99,8 @@ from m4dgs.core.device import resolve_device
 from m4dgs.core.errors import InputError, NonFiniteError
 from m4dgs.run import load_torch
 
-PSNR_CAP_DB = 100.0
 CHUNK = 8  # frames per batch when scoring (bounds memory at 864x480)
-TRACK_SAMPLES = 256
-CRF_LOG2_RANGE = (
-    -10.0,
-    10.0,
-)  # the tone mapper's input axis range used by the authors' monotonicity penalty
-CRF_SAMPLES = 81
 FPS_SIZE = (864, 480)
-
-SCORE_CONVENTIONS = {
-    "psnr_cap": f"PSNR capped at {PSNR_CAP_DB:g} dB per image (identical images) before averaging",
-    "depth_absrel_clip": "Depth AbsRel: rendered test z-depth vs GT, one median scale over all "
-    "test frames, mean "
-    "|s d - gt| / gt over gt > 0",
-    "crf_rmse": f"CRF RMSE: learned tone curve vs the true CRF, RMSE over RGB and {CRF_SAMPLES} "
-    "log2 exposures in "
-    f"[{CRF_LOG2_RANGE[0]:g}, {CRF_LOG2_RANGE[1]:g}]",
-    "track_first_frame": f"Tracks: up to {TRACK_SAMPLES} GT tracks visible at the first frame "
-    "(seed 0), induced by "
-    "the dynamic Gaussians' motion (model.track_2d)",
-    "cameras_all_frames": "Cameras: Sim(3) alignment over every frame present in both trajectories",
-    "hdr_tae_train": "HDR-TAE on the rendered training frames",
-    "hdr_tae_interior": "HDR-TAE on the rendered training frames without occlusion-edge pixels "
-    "(gt depth)",
-    "dyn_masks": "Dynamic masks: the run's dynamic masks (config masks.method) vs GT dynamic "
-    "masks on the training "
-    "frames, pixel counts pooled over frames (precision, recall, IoU)",
-}
-
-
-def all_conventions() -> Dict[str, str]:
-    """eval.metrics.CONVENTIONS plus the scoring conventions of this module."""
-    return {**CONVENTIONS, **SCORE_CONVENTIONS}
 
 
 # --------------------------------------------------------------------------------------------------

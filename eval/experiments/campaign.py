@@ -37,12 +37,11 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import yaml
 
+from eval.records.suite import SuiteError, load_eval_suite, scene_suite_names
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError
 
-from .suite import SuiteError, load_eval_suite, scene_suite_names
-
-CAMPAIGNS_DIR = Path(__file__).resolve().parent / "campaigns"
+CAMPAIGNS_DIR = Path(__file__).resolve().parents[1] / "campaigns"
 _TOP_KEYS = {"name", "description", "preset", "seeds", "scene_sets", "steps"}
 _STEP_KEYS = {"suite", "scenes", "seeds"}
 
@@ -212,7 +211,7 @@ def recorded_runs(
     of another benchgen generator version; a failed row without a preset counts at every preset):
     the record of finished (or failed) runs that survives the loss of their run folders (empty
     without a CSV)."""
-    from .results import read_runs_csv
+    from eval.records.runs_csv import read_runs_csv
 
     if csv_path is None:
         return {}
@@ -257,7 +256,7 @@ def step_status(
     todo_iterations (todo_iterations here counts every job in full), with its whole-training
     share key and whether it finished with a run folder under ROOT. retry_failed False: a job
     whose last attempt failed will not run again, so it adds nothing to todo_iterations."""
-    from .runner import job_list, read_failure
+    from eval.experiments.runner import job_list, read_failure
 
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
     recorded = recorded or {}
@@ -361,10 +360,9 @@ def run_campaign(
     failed runs as "failed" rows). retry_failed False: a job whose last attempt failed counts as
     finished (its row stays "failed"; it is not run again, so neither the mixed-code check nor the
     final error concerns it)."""
+    from eval.experiments.export import export
+    from eval.experiments.runner import failed_jobs, run_suite
     from m4dgs.core.errors import M4DGSError
-
-    from .results import export
-    from .runner import failed_jobs, run_suite
 
     say = log or print
     if code is None:
