@@ -157,6 +157,8 @@ def collect(cwd: Path) -> list[tuple[str, str]]:
         "table paper-main --root shape-runs --no-figures --format csv",
         "table shape-runs/runs/control-tlr --no-figures",
     ]
+    # `table` prints a compact table by default since issue 63; --columns all is the table of before
+    tables = [f"{t} --columns all || {t}" for t in tables]
     for cmd in tables:
         new, old = _split(cmd)
         rc, text = _eval(cwd, new)

@@ -11,7 +11,7 @@ import click
 
 from eval.cli._options import DEFAULT_OUT, parse_scenes, scenes_opt
 from eval.experiments.collect import collect_runs_dir, collect_suite
-from eval.records.suite_data import build_tables
+from eval.records.suite_data import build_tables, compact_tables
 from m4dgs.core import io as mio
 
 
@@ -74,6 +74,15 @@ def _no_scored_runs(target: str, name: str, root, entries: list) -> str:
     type=click.Path(dir_okay=False),
     help="Write the tables to this file (atomically) instead of stdout.",
 )
+@click.option(
+    "--columns",
+    type=click.Choice(["compact", "all"]),
+    default="compact",
+    show_default=True,
+    help="compact: one table of LDR-OE PSNR, HDR PSNR, HDR-TAE and training time, the `full` row "
+    "labelled as the method, columns without any value left out; all: every table of the suite "
+    "(or of the folder of runs) with every column.",
+)
 @scenes_opt
 @click.option(
     "--seeds",
@@ -92,7 +101,7 @@ def _no_scored_runs(target: str, name: str, root, entries: list) -> str:
     type=click.Path(file_okay=False),
     help="Folder for the figures (default ROOT/figures/<suite>, or <runs dir>/../figures/<name>).",
 )
-def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
+def table(target, out, fmt, columns, out_file, scenes, seeds, no_figures, figures_dir):
     """Print the paper-style tables of TARGET: a suite (name or YAML; runs under ROOT) or a folder
     of runs (linked run and scene folders count like real ones)."""
     from eval.records.suite import TableDef, load_eval_suite
@@ -129,6 +138,8 @@ def table(target, out, fmt, out_file, scenes, seeds, no_figures, figures_dir):
         fig_dir = Path(figures_dir) if figures_dir else Path(out) / "figures" / s.name
         if not any(e["metrics"] for e in entries):
             raise InputError(_no_scored_runs(target, s.name, out, entries))
+    if columns == "compact":
+        entries, defs = compact_tables(entries, defs[0].title if defs else str(target))
     text = build_tables(entries, defs, fmt, reference)
     if out_file:
         mio.write_text_atomic(out_file, text)

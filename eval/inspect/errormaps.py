@@ -159,9 +159,9 @@ def _scale(values: Sequence[np.ndarray], q: float = 99.5) -> float:
 
 def draw_error_maps(panels: dict, out_png, title: str = "") -> Path:
     """The figure of error_panels' output as a PNG (written atomically)."""
-    from eval.figures import _plt, _save
+    from eval.figures import pyplot, save_png
 
-    plt = _plt()
+    plt = pyplot()
     ref = panels["ref"]
     cols = [("ground truth", panels["gt"], None)]
     if ref is not None:
@@ -201,7 +201,7 @@ def draw_error_maps(panels: dict, out_png, title: str = "") -> Path:
     if im_d is not None:
         fig.colorbar(im_d, cax=fig.add_subplot(grid[2, -1]), label="sq. error - ref's")
     fig.suptitle(title or f"frame {panels['frame']}, {panels['domain']}", fontsize=9)
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 def _open_runs(runs: Sequence, ref, clip_dir) -> tuple:

@@ -586,8 +586,7 @@ def format_region_pairs(result: dict, describe: bool = True) -> str:
     bright region's only where the split had one (--bright-above / --bright-top); a region_changes
     result is titled by its two effects. describe=False leaves out the line that defines the
     regions (printed once above several results)."""
-    from eval.inspect.pairs import interval_text
-    from eval.stats import mean_ci
+    from eval.stats import interval_text, mean_ci
 
     out = [describe_regions(**result["regions"]), ""] if describe else []
     for row, per_pair in result["diffs"].items():

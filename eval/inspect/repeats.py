@@ -22,9 +22,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from eval.inspect.pairs import interval_text, split_spec
+from eval.inspect.pairs import split_spec
 from eval.records.runs_csv import SCORED
-from eval.stats import mean_ci
+from eval.stats import interval_text, mean_ci
 
 HEADLINE = ("ldr_oe_psnr", "hdr_psnr", "hdr_tae")
 

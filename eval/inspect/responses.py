@@ -170,9 +170,9 @@ def format_responses(results: List[Dict]) -> str:
 def plot_responses(results: List[Dict], path) -> Path:
     """Two panels, one line per run: the learned response (channel mean) over the true one, and
     their signed difference in 8-bit codes, against log2 exposure. Written atomically as PNG."""
-    from eval.figures import _plt, _save
+    from eval.figures import pyplot, save_png
 
-    plt = _plt()
+    plt = pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
     first = results[0]["plot"]
     a.plot(first["log2_x"], first["true"], color="black", lw=2.0, label="true")
@@ -191,5 +191,5 @@ def plot_responses(results: List[Dict], path) -> Path:
     a.legend(fontsize=7)
     fig.tight_layout()
     path = Path(path)
-    _save(fig, path)
+    save_png(fig, path)
     return path

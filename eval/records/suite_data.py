@@ -284,3 +284,26 @@ def build_tables(
             + "\n"
         )
     return "\n".join(parts)
+
+
+# the compact table `m4dgs-eval table` prints by default (--columns all: every table of the suite)
+COMPACT_COLUMNS = ("ldr_oe_psnr", "hdr_psnr", "hdr_tae", "train_minutes")
+METHOD = "Mono4DGS-HDR"
+
+
+def compact_tables(entries: list, title: str) -> tuple:
+    """(entries, table definitions) of the compact table: LDR-OE PSNR, HDR PSNR, HDR-TAE and
+    training time (COMPACT_COLUMNS) without the columns no run has a value of, and the `full`
+    row labelled as the method ("Mono4DGS-HDR (full)") where its label does not say so."""
+    from eval.records.suite import TableDef
+
+    keys = [
+        k for k in COMPACT_COLUMNS if any((e["metrics"] or {}).get(k) is not None for e in entries)
+    ]
+    out = [
+        dict(e, label=f"{METHOD} ({e['label']})")
+        if e["row"] == "full" and METHOD not in e["label"]
+        else e
+        for e in entries
+    ]
+    return out, [TableDef(title, keys or list(COMPACT_COLUMNS))]

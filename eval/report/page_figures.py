@@ -4,12 +4,12 @@ the controls' overview."""
 
 from __future__ import annotations
 
-import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
+from eval.figures import pyplot, save_png
 from eval.records.suite_data import SuiteData
 from eval.study.controls import CONTROLS, NO_CHANGE, Control, ControlResult, evaluate_control
 from eval.study.findings import (
@@ -21,33 +21,13 @@ from eval.study.findings import (
     ComparisonResult,
     Finding,
 )
-from m4dgs.core import io as mio
 
 
 # --------------------------------------------------------------------------------------------------
 # figures
 # --------------------------------------------------------------------------------------------------
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, path) -> Path:
-    """PNG without the Software tag (byte-stable across runs), written atomically."""
-    plt = _plt()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight", metadata={"Software": None})
-    plt.close(fig)
-    mio.write_bytes_atomic(Path(path), buf.getvalue())
-    return Path(path)
-
-
 def _colors(n: int) -> list:
-    plt = _plt()
+    plt = pyplot()
     cmap = plt.get_cmap("tab10")
     return [cmap(i % 10) for i in range(n)]
 
@@ -80,7 +60,7 @@ def bars_figure(data: SuiteData, out_png) -> Optional[Path]:
             vals.setdefault((e["scene"], e["row"]), []).append(v)
     if not vals:
         return None
-    plt = _plt()
+    plt = pyplot()
     rows, scenes = data.row_names, data.scenes
     w = 0.8 / max(1, len(rows))
     fig, ax = plt.subplots(figsize=(max(5.0, 0.35 * len(scenes) * len(rows) + 1.5), 3.6))
@@ -115,7 +95,7 @@ def bars_figure(data: SuiteData, out_png) -> Optional[Path]:
     )
     ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 def crf_figure(data: SuiteData, curves: Dict[tuple, dict], out_png) -> Optional[Path]:
@@ -136,7 +116,7 @@ def crf_figure(data: SuiteData, curves: Dict[tuple, dict], out_png) -> Optional[
             panels.append((sc, lines))
     if not panels:
         return None
-    plt = _plt()
+    plt = pyplot()
     ncol = min(3, len(panels))
     nrow = math.ceil(len(panels) / ncol)
     fig, axes = plt.subplots(
@@ -184,7 +164,7 @@ def crf_figure(data: SuiteData, curves: Dict[tuple, dict], out_png) -> Optional[
         loc="outside right center",
     )
     fig.suptitle(f"{data.name}: learned CRFs (solid) vs true (dashed)", fontsize=9)
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 def scatter_figure(data: SuiteData, out_png) -> Optional[Path]:
@@ -198,7 +178,7 @@ def scatter_figure(data: SuiteData, out_png) -> Optional[Path]:
             pts.setdefault(e["row"], []).append((x, y))
     if not pts:
         return None
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.2, 3.6))
     for rn, c in zip(data.row_names, _colors(len(data.row_names))):
         if rn in pts:
@@ -209,7 +189,7 @@ def scatter_figure(data: SuiteData, out_png) -> Optional[Path]:
     ax.set_title(f"{data.name}: one point per run (scene, seed)", fontsize=8)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 def paired_deltas(data: SuiteData, x_key="ldr_oe_psnr", y_key="hdr_tae") -> Dict[str, list]:
@@ -237,7 +217,7 @@ def delta_scatter_figure(data: SuiteData, out_png) -> Optional[Path]:
     if not pts:
         return None
     ref = data.suite.reference
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.2, 3.6))
     for rn, c in zip(data.row_names, _colors(len(data.row_names))):
         if rn in pts:
@@ -255,7 +235,7 @@ def delta_scatter_figure(data: SuiteData, out_png) -> Optional[Path]:
     ax.set_title(f"{data.name}: one point per (scene, seed) pair and row", fontsize=8)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 # the figures of a suite, <suite>_<kind>.png, in the page's order
@@ -323,7 +303,7 @@ def finding_figure(f: Finding, res: List[ComparisonResult], out_png) -> Optional
         return None
     cols = metric_columns()
     labels = list(dict.fromkeys(f"{c.row} - {c.ref}" for c in f.comparisons))
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(
         1, len(f.metrics), figsize=(2.3 * len(f.metrics) + 1.6, 0.42 * len(labels) + 1.2)
     )
@@ -360,7 +340,7 @@ def finding_figure(f: Finding, res: List[ComparisonResult], out_png) -> Optional
         "and the paper (x)",
         fontsize=8,
     )
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 CONTROLS_FIGURE_METRICS = ("ldr_oe_psnr", "hdr_tae")
@@ -396,7 +376,7 @@ def controls_figure(rows: List[dict], out_png) -> Optional[Path]:
     if not results:
         return None
     cols = metric_columns()
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(
         1,
         len(CONTROLS_FIGURE_METRICS),
@@ -438,7 +418,7 @@ def controls_figure(rows: List[dict], out_png) -> Optional[Path]:
         "Controls: the effect as found (grey) and under the control (blue); mean, 95 % interval",
         fontsize=8,
     )
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 def finding_figures(evaluated: Dict[str, List[ComparisonResult]], fig_dir) -> Dict[str, Path]:

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
 from eval.records.runs_csv import SCORED
+from eval.stats import interval_text
 from eval.study.findings import NO_DATA
 
 CONTROLS_FIGURE = "controls.png"  # the overview figure of the controls
@@ -423,14 +424,6 @@ def _provenance_of(e: Effect, rows: List[dict], column: str) -> List[str]:
     )
 
 
-def _interval_text(iv, fmt: str) -> str:
-    if iv is None or iv.mean is None:
-        return "n/a"
-    half = "n/a" if iv.half is None else format(iv.half, fmt)
-    dag = "†" if iv.excludes_zero else ""
-    return f"{format(iv.mean, '+' + fmt)} ± {half}{dag} (n = {iv.n})"
-
-
 def controls_markdown(
     rows: List[dict], notes_link: Optional[str], figure: Optional[str] = None
 ) -> str:
@@ -510,10 +503,11 @@ def controls_markdown(
         for r in evaluate_control(c, rows):
             col = cols[r.metric]
             name = col.label
+            base, control, change = (
+                interval_text(iv, col.fmt, "n = ") for iv in (r.base, r.control, r.change)
+            )
             lines.append(
-                f"| {name} | {_interval_text(r.base, col.fmt)} | "
-                f"{_interval_text(r.control, col.fmt)} | {_interval_text(r.change, col.fmt)} "
-                f"| {r.reading} | {r.reading_holm} |"
+                f"| {name} | {base} | {control} | {change} | {r.reading} | {r.reading_holm} |"
             )
         lines.append("")
     return "\n".join(lines)

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
 from eval.records.runs_csv import SCORED
+from eval.stats import heterogeneity_text
 
 FINDING_FIGURE_PREFIX = "finding_"  # a finding's figure: finding_<key>.png
 
@@ -246,13 +247,6 @@ def _paper_diff_text(v: float, fmt: str) -> str:
 HETEROGENEITY_ALPHA = 0.05  # "scenes differ" in the findings tables' summary lines
 
 
-def heterogeneity_text(h) -> str:
-    """The findings tables' "scenes differ" cell: p = 0.123 (p < 0.001 below it), n/a for None."""
-    if h is None:
-        return "n/a"
-    return "p < 0.001" if h.p < 0.001 else f"p = {h.p:.3f}"
-
-
 def findings_markdown(
     rows: List[dict],
     notes_link: Optional[str],
@@ -334,7 +328,7 @@ def findings_markdown(
             lines.append(
                 f"| {r.comparison.row} | {r.comparison.ref} | {name} | {pd} | {claim} | {ours} "
                 f"| {n} | {r.verdict} | {r.verdict_holm} | {inside} | {over} | {k} "
-                f"| {r.verdict_scenes} | {heterogeneity_text(r.heterogeneity)} |"
+                f"| {r.verdict_scenes} | {heterogeneity_text(r.heterogeneity, test=False)} |"
             )
         counts = {
             v: sum(r.verdict == v for r in res)

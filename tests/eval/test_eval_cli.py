@@ -623,7 +623,7 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
         m = json.loads(mp.read_text())
         m["hdr_psnr"], m["ate"] = vals[(j.scene, j.row)]
         mio.write_json(mp, m)
-    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out)])
+    r = CliRunner().invoke(main, ["table", "--columns", "all", str(suite), "--root", str(out)])
     assert r.exit_code == 0, r.output
     text = r.output
     base_line = next(ln for ln in text.splitlines() if ln.startswith("| Baseline"))
@@ -642,7 +642,9 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
     mp = out / "runs/t2/tiny-flag-arm/base/metrics.json"
     saved = mp.read_bytes()
     mp.unlink()
-    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures"])
+    r = CliRunner().invoke(
+        main, ["table", "--columns", "all", str(suite), "--root", str(out), "--no-figures"]
+    )
     base_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Baseline"))
     # 10 means and their 10 paired differences to the reference row (full) are n/a; n counts the one
     # scored run
@@ -655,13 +657,34 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
     mp.write_bytes(saved)
     # latex / csv / runs-dir forms
     r = CliRunner().invoke(
-        main, ["table", str(suite), "--root", str(out), "--format", "latex", "--no-figures"]
+        main,
+        [
+            "table",
+            "--columns",
+            "all",
+            str(suite),
+            "--root",
+            str(out),
+            "--format",
+            "latex",
+            "--no-figures",
+        ],
     )
     assert r.exit_code == 0 and "\\textbf{33.50}" in r.output and "\\toprule" in r.output
     outf = tmp_path / "t.csv"
     r = CliRunner().invoke(
         main,
-        ["table", str(out / "runs" / "t2"), "--format", "csv", "--out", str(outf), "--no-figures"],
+        [
+            "table",
+            "--columns",
+            "all",
+            str(out / "runs" / "t2"),
+            "--format",
+            "csv",
+            "--out",
+            str(outf),
+            "--no-figures",
+        ],
     )
     assert r.exit_code == 0, r.output
     rows = [ln.split(",") for ln in outf.read_text().splitlines() if ln and not ln.startswith("#")]
@@ -983,7 +1006,9 @@ def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
         m["hdr_psnr"] = b + (1.0 + 0.1 * (j.seed - 0.5) if j.row == "full" else 0.0)
         vals[(j.row, j.scene, j.seed)] = m["hdr_psnr"]
         mio.write_json(mp, m)
-    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures"])
+    r = CliRunner().invoke(
+        main, ["table", "--columns", "all", str(suite), "--root", str(out), "--no-figures"]
+    )
     assert r.exit_code == 0, r.output
     base_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Baseline"))
     ours_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Ours"))
@@ -1002,11 +1027,24 @@ def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
     assert "| Ours | 4 |" in ours_line and "ref" in ours_line
     # with --seeds 1 only the seed-0 runs are tabulated
     r1 = CliRunner().invoke(
-        main, ["table", str(suite), "--root", str(out), "--no-figures", "--seeds", "1"]
+        main,
+        [
+            "table",
+            "--columns",
+            "all",
+            str(suite),
+            "--root",
+            str(out),
+            "--no-figures",
+            "--seeds",
+            "1",
+        ],
     )
     assert "| Baseline | 2 |" in r1.output
     # the runs folder form: <row>-seed-<n> folders are seeds of the same row
-    r2 = CliRunner().invoke(main, ["table", str(out / "runs" / "t2"), "--no-figures"])
+    r2 = CliRunner().invoke(
+        main, ["table", "--columns", "all", str(out / "runs" / "t2"), "--no-figures"]
+    )
     assert r2.exit_code == 0, r2.output
     assert "| world-only | 4 |" in r2.output and "| full | 4 |" in r2.output
 
