@@ -213,7 +213,7 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, edges, js
     share of the pixels and of the squared error, and the PSNR with the region left out; regions
     are bright (--bright-above / --bright-top), depth edges (--edges), the ground truth's dynamic
     mask, and the rest."""
-    from eval.experiments.score import resolve_clip_dir
+    from eval.experiments.run_files import resolve_clip_dir
     from eval.inspect.regions import (
         check_comparable,
         describe_regions,
@@ -270,7 +270,7 @@ def peaks(runs, clip_dir, json_path):
     (normalised by the ground truth's maximum and clipped) does not see. A run that cannot be
     read (no renders: e.g. a failed run) is named after the table with the reason; the exit status
     is 1 only when no run could be read."""
-    from eval.experiments.score import resolve_clip_dir
+    from eval.experiments.run_files import resolve_clip_dir
     from eval.inspect.peaks import format_peaks, run_peaks
     from m4dgs.clip import Clip
     from m4dgs.core.errors import InputError
@@ -332,7 +332,7 @@ def crf_cmd(runs, clip_dir, bands, plot_path, json_path):
     shape), and the signed error per band of the recorded exposure range. A run that cannot be read
     (no final model: e.g. a failed run) is named after the table with the reason; the exit status is
     1 only when no run could be read."""
-    from eval.experiments.score import resolve_clip_dir
+    from eval.experiments.run_files import resolve_clip_dir
     from eval.inspect.responses import clip_ranges, format_responses, plot_responses, run_response
     from m4dgs.clip import Clip
     from m4dgs.core.errors import InputError

@@ -7,6 +7,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from eval.experiments.run_files import read_run_info
+from eval.experiments.runner import job_list, seeds_present, split_run_name
 from m4dgs.core import io as mio
 
 
@@ -15,8 +17,6 @@ def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) ->
     """Entries {"scene", "row", "label", "seed", "run_dir", "clip_dir", "metrics" (dict or None)} of
     a suite's jobs, for trainer seeds 0 .. seeds-1 (None: up to the largest seed with a run folder
     under OUT, for every row)."""
-    from eval.experiments.runner import job_list, seeds_present
-
     if seeds is None:
         seeds = seeds_present(suite, out, preset, scenes)
     entries = []
@@ -59,9 +59,6 @@ def collect_runs_dir(runs_dir) -> list:
     scene folders included); rows = the variant names (run.json / metrics.json), or the run folder
     names where two runs of one scene and seed share a variant. A folder named <row>-seed-<n> is
     trainer seed n of <row> (m4dgs-eval run --seeds)."""
-    from eval.experiments.runner import split_run_name
-    from eval.experiments.score import read_run_info
-
     entries = []
     for mp in metrics_files(runs_dir):
         rd = mp.parent

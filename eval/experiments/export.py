@@ -13,6 +13,8 @@ from collections import Counter
 from pathlib import Path
 from typing import Dict, List, Mapping, Optional, Sequence, Tuple
 
+from eval.experiments.collect import collect_suite
+from eval.experiments.runner import read_failure
 from eval.records.runs_csv import (
     CRF_GRID,
     CRF_KEY,
@@ -33,6 +35,7 @@ from eval.records.runs_csv import (
     write_floors_csv,
     write_runs_csv,
 )
+from eval.records.suite import load_eval_suite
 from m4dgs.core import io as mio
 
 
@@ -111,10 +114,6 @@ def export_suite(
     with `scenes`, every job of those scenes. add_missing: first compute, for every scored run, the
     metrics its metrics.json lacks because an earlier version scored it
     (eval.score.add_missing_metrics; written into the run's metrics.json)."""
-    from eval.experiments.collect import collect_suite
-    from eval.experiments.runner import read_failure
-    from eval.records.suite import load_eval_suite
-
     s = load_eval_suite(suite)
     entries = collect_suite(suite, root, scenes, seeds=seeds)
     if scenes is None:  # scenes without any run folder were not run: not part of the subset

@@ -30,6 +30,7 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 
 from eval.conventions import PSNR_CAP_DB
+from eval.experiments.run_files import resolve_clip_dir
 from eval.inspect.regions import check_comparable, frame_pair, renders_root
 from eval.metrics._util import psnr_from_mse
 from m4dgs.clip import Clip, level_name
@@ -208,8 +209,6 @@ def _open_runs(runs: Sequence, ref, clip_dir) -> tuple:
     """([(run, Clip)], (ref, Clip) or None, the clip the frames and levels come from: the
     reference's, else the first run's), each run's clip from its run.json unless clip_dir; the
     clips must agree pixel for pixel (regions.check_comparable) and have ground truth."""
-    from eval.experiments.score import resolve_clip_dir
-
     if not runs:
         raise InputError("no run to draw")
     clips = [Clip.open(resolve_clip_dir(r, clip_dir)) for r in runs]

@@ -38,6 +38,7 @@ from __future__ import annotations
 from typing import Dict, List, Optional, Sequence
 
 from eval.records.runs_csv import FAILED, SCORED, one_line
+from eval.records.suite import SuiteError, builtin_suites, load_eval_suite, metric_columns
 from eval.stats import (
     heterogeneity_text,
     interval_text,
@@ -93,8 +94,6 @@ def pairs_markdown(
     page's Controls read it; with `differ`, whether the rows differ from one another (module
     docstring). Raises ValueError naming what the CSV lacks."""
     from pathlib import Path
-
-    from eval.records.suite import SuiteError, builtin_suites, load_eval_suite, metric_columns
 
     definition = None
     if suite not in builtin_suites() and Path(suite).is_file():

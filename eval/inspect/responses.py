@@ -25,6 +25,8 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from eval.experiments.run_files import resolve_clip_dir
+from eval.experiments.runner import read_failure
 from eval.metrics.crf import (
     CRF_ERROR_SAMPLES,
     crf_error,
@@ -117,8 +119,6 @@ def run_response(run_dir, clip: Optional[Clip] = None, bands: int = 6, ranges=No
     true response or ground truth."""
     import torch
 
-    from eval.experiments.runner import read_failure
-    from eval.experiments.score import resolve_clip_dir
     from m4dgs.model.trained import load_model
 
     run_dir = Path(run_dir)

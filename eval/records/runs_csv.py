@@ -10,6 +10,7 @@ import math
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
+from eval.records.suite import metric_columns
 from m4dgs.core import io as mio
 
 # --------------------------------------------------------------------------------------------------
@@ -50,8 +51,6 @@ MAIN_SUITE = "paper-main"
 
 def metric_keys() -> List[str]:
     """The metric columns of the CSV: every key a suite table may show (eval.suite)."""
-    from eval.records.suite import metric_columns
-
     return list(metric_columns())
 
 

@@ -7,7 +7,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Dict, List, Mapping, Optional, Tuple
 
+from eval.conventions import PSNR_CAP_DB, all_conventions
 from eval.records.runs_csv import FAILED, SCORED, SUITE_ORDER, metric_keys, row_key
+from eval.records.suite import TableDef, builtin_suites, load_eval_suite, table_spec
+from eval.stats import seed_noise
+from eval.tables import render
 
 FORMATS = {"md": "markdown", "markdown": "markdown", "latex": "latex", "csv": "csv"}
 
@@ -102,8 +106,6 @@ class SuiteData:
     def seed_noise(self, metric: str):
         """eval.stats.SeedNoise of one metric over the suite's (scene, row) groups with runs of two
         or more trainer seeds (every scored run, not only the tables' complete pairs), or None."""
-        from eval.stats import seed_noise
-
         groups: Dict[Tuple[str, str], List[float]] = {}
         for e in self.scored:
             v = e["metrics"].get(metric)
@@ -125,8 +127,6 @@ class SuiteData:
 def _load_suite(name: str, definitions: Optional[Mapping[str, object]] = None):
     """The suite's definition: from `definitions` ({name: EvalSuite}, suite files given by path),
     else the built-in suite of that name, else None."""
-    from eval.records.suite import builtin_suites, load_eval_suite
-
     if definitions and name in definitions:
         return definitions[name]
     return load_eval_suite(name) if name in builtin_suites() else None
@@ -204,8 +204,6 @@ def suites_in(rows: List[dict]) -> List[str]:
 
 def suite_tables(data: SuiteData, fmt: str = "markdown", first_only: bool = False) -> str:
     """The suite's tables rendered by eval.cli.build_tables (the code of `eval table`)."""
-    from eval.records.suite import TableDef
-
     if data.suite is not None:
         defs, ref = data.suite.tables, data.suite.reference
     else:
@@ -223,10 +221,6 @@ def build_tables(
     (scene, seed) runs of each row, best mean in bold, the paired difference to the `reference` row
     (a row name; its label in the table), for tables with `paper` the paper's values and the
     direction agreement, footnotes."""
-    from eval.conventions import PSNR_CAP_DB, all_conventions
-    from eval.records.suite import table_spec
-    from eval.tables import render
-
     present = [e for e in entries if e["metrics"]]
     methods = list(dict.fromkeys(e["label"] for e in entries))
     label_of = {}
@@ -295,8 +289,6 @@ def compact_tables(entries: list, title: str) -> tuple:
     """(entries, table definitions) of the compact table: LDR-OE PSNR, HDR PSNR, HDR-TAE and
     training time (COMPACT_COLUMNS) without the columns no run has a value of, and the `full`
     row labelled as the method ("Mono4DGS-HDR (full)") where its label does not say so."""
-    from eval.records.suite import TableDef
-
     keys = [
         k for k in COMPACT_COLUMNS if any((e["metrics"] or {}).get(k) is not None for e in entries)
     ]

@@ -47,6 +47,7 @@ from eval.records.runs_csv import (
     read_floors_csv,
     read_runs_csv,
 )
+from eval.records.suite import builtin_suites, load_eval_suite, metric_columns, suites_dir
 from eval.records.suite_data import SuiteData, suite_data, suite_tables, suites_in
 from eval.report.page_figures import (
     FIGURE_KINDS,
@@ -157,8 +158,6 @@ SEED_NOISE_METRICS = {
 def seed_noise_text(data: SuiteData) -> Optional[str]:
     """The section's line on how much a run moves with its trainer seed alone (SuiteData.seed_noise
     of the headline metrics), or None when no (scene, row) has runs of two seeds."""
-    from eval.records.suite import metric_columns
-
     cols = metric_columns()
     parts, groups = [], 0
     for k in SEED_NOISE_METRICS:
@@ -189,8 +188,6 @@ def suite_section(
 ) -> str:
     """The suite's section of the results page; partial: data.partial_metrics() when the caller
     has it."""
-    from eval.records.suite import suites_dir
-
     sm = _suite_summary(data)
     desc = data.suite.description if data.suite is not None else "(no suite definition found)"
     lines = [f"## {data.name}", "", desc, ""]
@@ -333,8 +330,6 @@ def replace_readme_block(text: str, block: str, path="README") -> str:
 def _is_results_figure(name: str) -> bool:
     """Whether a file name is one `suite_result_figures` writes: <suite>_<kind>.png, the suite a
     shipped suite (eval/suites/*.yaml)."""
-    from eval.records.suite import suites_dir
-
     if name == CONTROLS_FIGURE:
         return True
     if name.startswith(FINDING_FIGURE_PREFIX) and name.endswith(".png"):
@@ -373,7 +368,6 @@ def render_results(
     curves = read_crf_csv(crf_csv_path(csv_path))
     floors = read_floors_csv(floors_csv_path(csv_path))
     names = suites_in(rows)
-    from eval.records.suite import builtin_suites, load_eval_suite
 
     definitions = {d.name: d for d in (load_eval_suite(p) for p in suite_files)}
     datas = {n: suite_data(n, rows, definitions) for n in names}

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
 from eval.figures import pyplot, save_png
+from eval.records.suite import LAYOUTS, metric_columns
 from eval.records.suite_data import SuiteData
 from eval.study.controls import CONTROLS, NO_CHANGE, Control, ControlResult, evaluate_control
 from eval.study.findings import (
@@ -33,8 +34,6 @@ def _colors(n: int) -> list:
 
 
 def _main_metric(data: SuiteData) -> str:
-    from eval.records.suite import LAYOUTS, metric_columns
-
     if data.suite is not None and data.suite.tables:
         cols = data.suite.tables[0].columns
         keys = LAYOUTS[cols] if isinstance(cols, str) else list(cols)
@@ -47,8 +46,6 @@ def _main_metric(data: SuiteData) -> str:
 def bars_figure(data: SuiteData, out_png) -> Optional[Path]:
     """Per-scene bars of the suite's main metric (first column of its first table), one bar per row
     = the mean over seeds, a dot per seed."""
-    from eval.records.suite import metric_columns
-
     key = _main_metric(data)
     col = metric_columns()[key]
     vals = {}
@@ -296,8 +293,6 @@ def finding_figure(f: Finding, res: List[ComparisonResult], out_png) -> Optional
     not), the paper's Δ as a red cross, and 0 as a vertical line. None without any of our Δ."""
     from matplotlib.ticker import MaxNLocator
 
-    from eval.records.suite import metric_columns
-
     pts = finding_points(res)
     if not pts:
         return None
@@ -369,8 +364,6 @@ def controls_figure(rows: List[dict], out_png) -> Optional[Path]:
     marker filled where the change survives Holm's correction. None when no control has both
     effects."""
     from matplotlib.ticker import MaxNLocator
-
-    from eval.records.suite import metric_columns
 
     results = controls_figure_data(rows)
     if not results:

@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
 from eval.records.runs_csv import SCORED
-from eval.stats import interval_text
+from eval.records.suite import metric_columns
+from eval.stats import LEVEL, by_key, holm, interval_text, mean_ci, paired_diff
 from eval.study.findings import NO_DATA
 
 CONTROLS_FIGURE = "controls.png"  # the overview figure of the controls
@@ -363,8 +364,6 @@ def pair_differences(
 ) -> Dict[tuple, float]:
     """{(scene, seed): row - ref} of one metric over the scored CSV rows of `suite`, in key
     order (the Controls' effects and `m4dgs-eval pairs`)."""
-    from eval.stats import by_key
-
     mine = [r for r in rows if r["suite"] == suite and r.get("status") == SCORED]
     a = by_key([r for r in mine if r["row"] == row], metric)
     b = by_key([r for r in mine if r["row"] == ref], metric)
@@ -397,8 +396,6 @@ def evaluate_control(c: Control, rows: List[dict]) -> List[ControlResult]:
     """Per metric: the base effect, the control effect (each paired over its own (scene, seed)
     pairs) and the change control - base (paired over the pairs both effects have), read as it is
     and after Holm's correction over the control's metrics."""
-    from eval.stats import LEVEL, holm, mean_ci, paired_diff
-
     out = []
     for m in c.metrics:
         eb, ec = _effect_by_key(c.base, rows, m), _effect_by_key(c.control, rows, m)
@@ -429,8 +426,6 @@ def controls_markdown(
 ) -> str:
     """The "Controls" section: one table per control whose two effects have data, after the
     overview figure (`controls_figure`; `figure`: its link) when there is one."""
-    from eval.records.suite import metric_columns
-
     cols = metric_columns()
     lines = [
         "## Controls",

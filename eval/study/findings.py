@@ -8,8 +8,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
+from eval.paper import load_paper_values
 from eval.records.runs_csv import SCORED
-from eval.stats import heterogeneity_text
+from eval.records.suite import metric_columns
+from eval.stats import (
+    LEVEL,
+    by_key,
+    heterogeneity_text,
+    holm,
+    paired_diff,
+    scene_heterogeneity,
+    scene_paired_diff,
+)
 
 FINDING_FIGURE_PREFIX = "finding_"  # a finding's figure: finding_<key>.png
 
@@ -137,8 +147,6 @@ class ComparisonResult:
 def claim_sign(c: Comparison, metric: str, paper_diff: Optional[float]) -> Tuple[int, str]:
     """The sign the finding claims for Δ = row - ref: the paper's sign where it has both values
     (0 for a tie as printed), else the finding's `expect` in the metric's direction."""
-    from eval.records.suite import metric_columns
-
     if paper_diff is not None:
         return (0 if abs(paper_diff) < 1e-9 else (1 if paper_diff > 0 else -1)), "paper"
     hib = metric_columns()[metric].higher_is_better
@@ -161,8 +169,6 @@ def verdict(claim: int, ours, significant: Optional[bool] = None) -> str:
 def _holm_verdicts(res: List["ComparisonResult"]) -> None:
     """Fill p_holm / verdict_holm of one finding's results: the family is every comparison of the
     finding that has an interval (paper ties included, so the correction is never too lenient)."""
-    from eval.stats import LEVEL, holm
-
     adj = holm([None if r.ours is None or r.ours.half is None else r.ours.p for r in res])
     for r, a in zip(res, adj):
         r.p_holm = a
@@ -172,9 +178,6 @@ def _holm_verdicts(res: List["ComparisonResult"]) -> None:
 def evaluate_finding(f: Finding, rows: List[dict]) -> List[ComparisonResult]:
     """Every (comparison, metric) of a finding on the scored CSV rows of its suite: the paired
     difference over the (scene, seed) runs both rows have (eval.stats.paired_diff)."""
-    from eval.paper import load_paper_values
-    from eval.stats import by_key, paired_diff, scene_heterogeneity, scene_paired_diff
-
     pt = load_paper_values().get(f.paper) if f.paper else None
     mine = [r for r in rows if r["suite"] == f.suite and r.get("status") == SCORED]
     out = []
@@ -255,9 +258,6 @@ def findings_markdown(
 ) -> str:
     """The Findings section; figures: {finding key: link of its forest plot} to show under its
     table; evaluated: evaluate_findings(rows) when the caller has it."""
-    from eval.paper import load_paper_values
-    from eval.records.suite import metric_columns
-
     cols = metric_columns()
     if evaluated is None:
         evaluated = evaluate_findings(rows)
