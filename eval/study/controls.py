@@ -12,6 +12,7 @@ from eval.records.runs_csv import SCORED
 from eval.records.suite import metric_columns
 from eval.stats import LEVEL, by_key, holm, interval_text, mean_ci, paired_diff
 from eval.study.findings import NO_DATA
+from m4dgs.core import io as mio
 
 CONTROLS_FIGURE = "controls.png"  # the overview figure of the controls
 
@@ -44,305 +45,26 @@ class Control:
     metrics: Tuple[str, ...] = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae")
 
 
-_VIDEO_INIT_SMALL = Effect(
-    "control-video-init-priors", "no-video-init", "full", "realistic priors, small schedule"
-)
-CONTROLS: Tuple[Control, ...] = (
-    Control(
-        "video-init-split",
-        "Ablation (a): is (a)'s lead the stage split? (full with the paper's 27 / 73 % split)",
-        "method",
-        Effect("control-video-init", "no-video-init", "full", "full with 3,000 + 2,500"),
-        Effect(
-            "control-video-init", "no-video-init", "full-paper-split", "full with 1,500 + 4,000"
-        ),
-    ),
-    Control(
-        "video-init-priors",
-        "Ablation (a): is (a)'s lead the benchmark's priors? (oracle against realistic priors)",
-        "benchmark",
-        _VIDEO_INIT_SMALL,
-        Effect(
-            "control-video-init-priors",
-            "no-video-init-oracle",
-            "full-oracle",
-            "oracle priors, small schedule",
-        ),
-    ),
-    Control(
-        "video-init-depth",
-        "Ablation (a): is (a)'s lead the depth prior? (exact depth, tracks and flow realistic)",
-        "benchmark",
-        Effect("control-video-init-prior-parts", "no-video-init", "full", "realistic priors"),
-        Effect(
-            "control-video-init-prior-parts",
-            "no-video-init-exact-depth",
-            "full-exact-depth",
-            "exact depth",
-        ),
-    ),
-    Control(
-        "video-init-motion",
-        "Ablation (a): is (a)'s lead the track and flow priors? (exact tracks and flow, depth "
-        "realistic)",
-        "benchmark",
-        Effect("control-video-init-prior-parts", "no-video-init", "full", "realistic priors"),
-        Effect(
-            "control-video-init-prior-parts",
-            "no-video-init-exact-motion",
-            "full-exact-motion",
-            "exact tracks and flow",
-        ),
-    ),
-    Control(
-        "video-init-motion-masks",
-        "Ablation (a): is (a)'s lead the track and flow priors, with the masks held to the "
-        "paper's? (exact tracks and flow against realistic, epipolar masks in both)",
-        "benchmark",
-        Effect(
-            "control-video-init-masks",
-            "no-video-init-epipolar",
-            "full-epipolar",
-            "realistic priors, epipolar masks",
-        ),
-        Effect(
-            "control-video-init-masks",
-            "no-video-init-exact-motion-epipolar",
-            "full-exact-motion-epipolar",
-            "exact tracks and flow, epipolar masks",
-        ),
-    ),
-    Control(
-        "video-init-scale",
-        "Ablation (a): is (a)'s lead the small schedule? (the paper's 4K + 11K against 15K)",
-        "scale",
-        _VIDEO_INIT_SMALL,
-        Effect(
-            "control-video-init-scale",
-            "no-video-init-paper-schedule",
-            "full-paper-schedule",
-            "realistic priors, the paper's schedule",
-        ),
-    ),
-    Control(
-        "tlr-weight",
-        "Ablation (e): is TLR's small effect on HDR-TAE its weight? (0.1, the paper's text, "
-        "against 0.01)",
-        "method",
-        Effect("control-tlr", "no-tlr", "full", "TLR weight 0.01"),
-        Effect("control-tlr", "no-tlr", "full-tlr-0.1", "TLR weight 0.1"),
-    ),
-    Control(
-        "track-loss-priors",
-        "Priors: is the track loss's missing cost the benchmark's priors? (oracle against "
-        "realistic priors)",
-        "benchmark",
-        Effect("control-track-loss", "no-track-loss", "full", "realistic priors"),
-        Effect("control-track-loss", "no-track-loss-oracle", "full-oracle", "oracle priors"),
-    ),
-    Control(
-        "tlr-weight-priors",
-        "TLR at the paper's weight: is its PSNR cost the benchmark's priors? (oracle against "
-        "realistic priors)",
-        "benchmark",
-        Effect("control-tlr-priors", "full-tlr-0.1", "full", "realistic priors"),
-        Effect("control-tlr-priors", "full-tlr-0.1-oracle", "full-oracle", "oracle priors"),
-    ),
-    Control(
-        "tlr-weight-grad",
-        "TLR at the paper's weight: is its PSNR cost the neighbour renders' stopped gradient? "
-        "(with the gradient against without)",
-        "method",
-        Effect("control-tlr-grad", "full-tlr-0.1", "full", "neighbours without gradient"),
-        Effect("control-tlr-grad", "full-tlr-0.1-grad", "full-grad", "neighbours with gradient"),
-    ),
-    Control(
-        "tlr-weight-floor",
-        "TLR at the paper's weight: is its PSNR cost the near-black pixels? (a floor of 1 % of the "
-        "render's median in TLR's denominator against the paper's denominator)",
-        "method",
-        Effect("control-tlr-floor", "full-tlr-0.1", "full", "the paper's denominator"),
-        Effect(
-            "control-tlr-floor", "full-tlr-0.1-floor", "full-floor", "a floor in the denominator"
-        ),
-    ),
-    # added 2026-11-29 before any run of control-tlr-weight (docs/results-notes.md): the floor
-    # run at weight 0.1 against the weight alone at 0.03 and at 0.05, each against its own suite's
-    # full; the one of the two whose HDR-TAE effect is nearer the floor run's is the reading
-    *(
-        Control(
-            f"tlr-floor-vs-weight-{w}",
-            f"TLR's denominator floor: a weaker TLR? (the floor at weight 0.1 against weight {w} "
-            "with the paper's denominator)",
-            "method",
-            Effect(
-                "control-tlr-weight",
-                f"full-tlr-{w}",
-                "full",
-                f"weight {w}, the paper's denominator",
-            ),
-            Effect(
-                "control-tlr-floor",
-                "full-tlr-0.1-floor",
-                "full",
-                "weight 0.1, a floor in the denominator",
-            ),
-            ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "hdr_tce"),
+CONTROLS_FILE = Path(__file__).with_name("controls.yaml")
+
+
+def load_controls(path=CONTROLS_FILE) -> Tuple[Control, ...]:
+    """The controls of a controls file (eval/study/controls.yaml: one entry per control, its base
+    and control effects as {suite, row, ref, condition}; `metrics` only where they are not the
+    default)."""
+    out = []
+    for d in mio.read_yaml(path):
+        base, control = (
+            Effect(e["suite"], e["row"], e["ref"], e["condition"])
+            for e in (d["base"], d["control"])
         )
-        for w in ("0.03", "0.05")
-    ),
-    Control(
-        "schedule-coverage",
-        "Schedules: is random values' HDR PSNR cost the few frames near the range's ends? "
-        "(values within half a stop of a level against log-uniform values)",
-        "benchmark",
-        Effect("control-schedule-coverage", "random-values", "alternating", "log-uniform values"),
-        Effect(
-            "control-schedule-coverage",
-            "random-values-banded",
-            "alternating",
-            "values within half a stop of a level",
-        ),
-    ),
-    Control(
-        "tlr-weight-scale",
-        "TLR at the paper's weight: is its PSNR cost the small schedule? (the paper's 4K + 11K "
-        "against 3K + 2.5K)",
-        "scale",
-        Effect("control-tlr", "full-tlr-0.1", "full", "small schedule"),
-        Effect(
-            "control-tlr-scale",
-            "full-tlr-0.1-paper-schedule",
-            "full-paper-schedule",
-            "the paper's schedule",
-        ),
-    ),
-    Control(
-        "reproj-schedule",
-        "Ablation (d): is the reprojection loss's small effect its schedule? (throughout stage 2, "
-        "the paper's text, against its first 700 steps)",
-        "method",
-        Effect("control-reproj", "no-reproj", "full", "L_pr in stage 2's first 700 steps"),
-        Effect("control-reproj", "no-reproj", "full-pr-whole", "L_pr throughout stage 2"),
-    ),
-    Control(
-        "reproj-prior",
-        "Ablation (d): is the reprojection loss's small effect the benchmark's priors? (oracle "
-        "against realistic priors)",
-        "benchmark",
-        Effect("control-reproj-priors", "no-reproj", "full", "realistic priors"),
-        Effect("control-reproj-priors", "no-reproj-oracle", "full-oracle", "oracle priors"),
-    ),
-    Control(
-        "reproj-scale",
-        "Ablation (d): is the reprojection loss's small effect the small schedule? (the paper's "
-        "4K + 11K against 3K + 2.5K)",
-        "scale",
-        Effect("paper-ablation", "no-reproj", "full", "small schedule"),
-        Effect(
-            "control-scale",
-            "no-reproj-paper-schedule",
-            "full-paper-schedule",
-            "the paper's schedule",
-        ),
-    ),
-    Control(
-        "depth-loss-prior",
-        "Priors: is the gain without the depth loss the benchmark's depth prior? (exact depth, "
-        "tracks and flow realistic)",
-        "benchmark",
-        Effect("control-depth-loss", "no-depth-loss", "full", "realistic depth prior"),
-        Effect(
-            "control-depth-loss",
-            "no-depth-loss-exact-depth",
-            "full-exact-depth",
-            "exact depth prior",
-        ),
-    ),
-    Control(
-        "depth-loss-scale",
-        "Priors: is the depth loss's missing cost the small schedule? (the paper's 4K + 11K "
-        "against 3K + 2.5K)",
-        "scale",
-        Effect("priors", "no-depth-loss", "full", "small schedule"),
-        Effect(
-            "control-loss-scale",
-            "no-depth-loss-paper-schedule",
-            "full-paper-schedule",
-            "the paper's schedule",
-        ),
-    ),
-    Control(
-        "track-loss-scale",
-        "Priors: is the track loss's missing cost the small schedule? (the paper's 4K + 11K "
-        "against 3K + 2.5K)",
-        "scale",
-        Effect("priors", "no-track-loss", "full", "small schedule"),
-        Effect(
-            "control-loss-scale",
-            "no-track-loss-paper-schedule",
-            "full-paper-schedule",
-            "the paper's schedule",
-        ),
-    ),
-    Control(
-        "depth-loss-stage",
-        "Priors: is the gain without the depth loss stage 2's term? (removed from stage 2 only, "
-        "against both stages)",
-        "method",
-        Effect("control-depth-loss", "no-depth-loss", "full", "depth term removed in both stages"),
-        Effect(
-            "control-depth-loss",
-            "no-depth-loss-stage2",
-            "full",
-            "depth term removed in stage 2 only",
-        ),
-    ),
-    *(
-        Control(
-            f"track-loss-stage{sfx}",
-            "Priors: is the track loss's missing cost stage 2's term? (removed from stage 2 only, "
-            f"against both stages; {prior} priors)",
-            "method",
-            Effect(
-                "control-track-loss",
-                f"no-track-loss{sfx}",
-                f"full{sfx}",
-                f"track/flow term removed in both stages ({prior} priors)",
-            ),
-            Effect(
-                "control-track-loss-stage",
-                f"no-track-loss-stage2{sfx}",
-                f"full{sfx}",
-                f"track/flow term removed in stage 2 only ({prior} priors)",
-            ),
-        )
-        for sfx, prior in (("", "realistic"), ("-oracle", "oracle"))
-    ),
-    *(
-        Control(
-            f"exposure-draw-{k}",
-            "Exposure perturbation: is the small cost of ±0.75 EV one draw of the offsets? "
-            f"(draw {k} against draw 0)",
-            "benchmark",
-            Effect("exposure-noise", "ev-0.75", "ev-0", "offsets of perturb_seed 0"),
-            Effect(
-                "exposure-noise-draw", f"ev-0.75-draw-{k}", "ev-0", f"offsets of perturb_seed {k}"
-            ),
-        )
-        for k in (1, 2)
-    ),
-    Control(
-        "exposure-scale",
-        "Exposure perturbation: is the small cost of ±0.75 EV the small schedule? (the paper's "
-        "4K + 11K against 3K + 2.5K)",
-        "scale",
-        Effect("exposure-noise", "ev-0.75", "ev-0", "small schedule"),
-        Effect(
-            "control-scale", "ev-0.75-paper-schedule", "full-paper-schedule", "the paper's schedule"
-        ),
-    ),
-)
+        extra = {"metrics": tuple(d["metrics"])} if "metrics" in d else {}
+        out.append(Control(d["key"], d["title"], d["arm"], base, control, **extra))
+    return tuple(out)
+
+
+# the controls run for disagreements, as data (eval/study/controls.yaml)
+CONTROLS: Tuple[Control, ...] = load_controls()
 
 NO_CHANGE, GROWS, SHRINKS = "no resolvable change", "grows", "shrinks"
 REVERSES = "reverses"

@@ -20,6 +20,7 @@ from eval.stats import (
     scene_heterogeneity,
     scene_paired_diff,
 )
+from m4dgs.core import io as mio
 
 FINDING_FIGURE_PREFIX = "finding_"  # a finding's figure: finding_<key>.png
 
@@ -47,72 +48,22 @@ class Finding:
     metrics: Tuple[str, ...] = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae")
 
 
-def _cmp(ref: str, expect: str, *rows: str) -> Tuple[Comparison, ...]:
-    return tuple(Comparison(r, ref, expect) for r in rows)
+FINDINGS_FILE = Path(__file__).with_name("findings.yaml")
 
 
-FINDINGS: Tuple[Finding, ...] = (
-    Finding(
-        "baselines",
-        "The full method beats each baseline (paper Table 1)",
-        "paper-main",
-        "main",
-        tuple(
-            Comparison("full", b, "better")
-            for b in ("static-hdr", "ldr-reproj-consecutive", "ldr-reproj", "world-only")
-        ),
-    ),
-    Finding(
-        "ablations",
-        "Each ablation row costs quality (paper Table 3)",
-        "paper-ablation",
-        "ablation",
-        _cmp(
-            "full",
-            "worse",
-            "no-video-init",
-            "no-occlusion",
-            "no-cov-invariance",
-            "no-reproj",
-            "no-tlr",
-        ),
-    ),
-    Finding(
-        "control-points",
-        "N_s = 4 is the sweet spot of the control-point interval (paper Table 4)",
-        "control-points",
-        "control-points",
-        _cmp("ns-4", "better", "ns-1", "ns-2") + _cmp("ns-4", "worse", "ns-8", "ns-16"),
-    ),
-    Finding(
-        "perturbation",
-        "Exposure perturbation degrades gracefully (paper appendix)",
-        "exposure-noise",
-        "exposure-noise",
-        (
-            Comparison("ev-0.25", "ev-0", "worse"),
-            Comparison("ev-0.5", "ev-0.25", "worse"),
-            Comparison("ev-0.75", "ev-0.5", "worse"),
-            Comparison("ev-0.75", "ev-0", "worse"),
-        ),
-    ),
-    Finding(
-        "schedules",
-        "The alternating schedule is best; random schedules cost a little (paper appendix)",
-        "exposure-schedules",
-        "exposure-schedules",
-        _cmp("alternating", "worse", "random-order", "random-values"),
-    ),
-    Finding(
-        "priors",
-        "Better priors help: dropping the depth or track loss, or harsher priors, cost quality "
-        "(paper appendix; oracle and harsh priors beyond the paper)",
-        "priors",
-        "priors",
-        _cmp("full", "worse", "no-depth-loss", "no-track-loss")
-        + (Comparison("full-oracle", "full", "better"), Comparison("full-harsh", "full", "worse")),
-    ),
-)
+def load_findings(path=FINDINGS_FILE) -> Tuple[Finding, ...]:
+    """The findings of a findings file (eval/study/findings.yaml: one entry per finding, its
+    comparisons as {row, ref, expect}; `metrics` only where they are not the default)."""
+    out = []
+    for d in mio.read_yaml(path):
+        comparisons = tuple(Comparison(c["row"], c["ref"], c["expect"]) for c in d["comparisons"])
+        extra = {"metrics": tuple(d["metrics"])} if "metrics" in d else {}
+        out.append(Finding(d["key"], d["title"], d["suite"], d["paper"], comparisons, **extra))
+    return tuple(out)
+
+
+# the paper's findings, as data (eval/study/findings.yaml)
+FINDINGS: Tuple[Finding, ...] = load_findings()
 
 AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA = (
     "agrees",
