@@ -108,7 +108,7 @@ def run_bands(run_dir) -> Dict:
 def run_key(run) -> Tuple[str, str, int]:
     """(scene, row, trainer seed) of a run folder SCENE/ROW (seed 0) or SCENE/ROW-seed-K, as
     `m4dgs-eval run` names them (eval.runner.split_run_name)."""
-    from eval.runner import split_run_name
+    from eval.experiments.runner import split_run_name
 
     p = Path(run)
     return (p.parent.name, *split_run_name(p.name))
@@ -119,7 +119,7 @@ def reference_ratios(rows: List[Dict], ref_row: str) -> List[Dict]:
     its mean squared error in the brightest 1 % and in the rest divided by the same of the ref_row
     run with the same scene and seed (both scored on the same test frames). ValueError when that
     run is missing."""
-    from eval.runner import seed_run_name
+    from eval.experiments.runner import seed_run_name
 
     refs = {}
     for r in rows:

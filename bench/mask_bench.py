@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from eval.score import mask_scores, resolve_clip_dir
+from eval.experiments.run_files import resolve_clip_dir
+from eval.experiments.score import mask_scores
 from m4dgs.clip import Clip
 from m4dgs.core.threads import threads_for
 from m4dgs.priors.rigidity import relative_threshold_masks, reprojection_error_maps

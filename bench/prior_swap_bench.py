@@ -119,8 +119,8 @@ def score_camera_init(clip_root: Path, run_root: Path) -> Dict[str, float]:
     clip's ground truth. ATE / RPE over the training frames (the ones the initialisation
     estimates; eval's ate_ba also counts the test frames interpolated between them); the mask IoU
     is eval's (`eval.score.mask_metrics`)."""
+    from eval.experiments.score import mask_metrics
     from eval.metrics.geometry import ate, rpe
-    from eval.score import mask_metrics
     from m4dgs.clip import Clip
     from m4dgs.run import load_torch
 

@@ -142,7 +142,7 @@ def main() -> None:
         wall[phase] = time.perf_counter() - t0
     RunDir.log = log
     if not a.no_score:
-        from eval.score import score_run
+        from eval.experiments.score import score_run
 
         t0 = time.perf_counter()
         score_run(out, fps=False)

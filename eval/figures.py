@@ -64,20 +64,24 @@ def smooth(y: np.ndarray, window: int) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo)
 
 
-def _save(fig, path) -> Path:
+DPI = 100  # every figure of eval (tables, results page, error maps, responses)
+
+
+def save_png(fig, path) -> Path:
     """Save a matplotlib figure as PNG atomically (temp file in the same folder, then
-    os.replace)."""
+    os.replace), at DPI and without the Software tag (byte-stable across matplotlib versions'
+    builds)."""
     import matplotlib.pyplot as plt  # deferred, as in _plt
 
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=DPI, bbox_inches="tight", metadata={"Software": None})
     plt.close(fig)
     path = Path(path)
     mio.write_bytes_atomic(path, buf.getvalue())
     return path
 
 
-def _plt():
+def pyplot():
     # deferred: matplotlib (~0.6 s) and its backend choice, only when a figure is drawn
     import matplotlib
 
@@ -103,7 +107,7 @@ def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> 
     curves = [(lab, c) for lab, c in curves if c]
     if not curves:
         return None
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5.2, 3.8))
     # rows of one scene may have different true CRFs (suite crf): each is drawn once
     true_done = set()
@@ -131,7 +135,7 @@ def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> 
     ax.legend(fontsize=7, loc="upper left")
     if title:
         ax.set_title(title, fontsize=9)
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -171,7 +175,7 @@ def loss_figure(run_dir, out_png, title: str = "") -> Optional[Path]:
     series, off = loss_series(RunDir(run_dir).read_log())
     if not series:
         return None
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 3.8))
     n = max(len(v[0]) for v in series.values())
     window = max(1, n // 40)
@@ -197,7 +201,7 @@ def loss_figure(run_dir, out_png, title: str = "") -> Optional[Path]:
     ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))
     if title:
         ax.set_title(title, fontsize=9)
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -262,7 +266,7 @@ def image_grid(
         )
     )
     cols = [("GT", None)] + list(runs)
-    plt = _plt()
+    plt = pyplot()
     cw = 2.4
     ch = cw * clip.height / clip.width
     fig, axes = plt.subplots(
@@ -289,7 +293,7 @@ def image_grid(
             if j == 0:
                 ax.set_ylabel(rname, fontsize=7)
     fig.suptitle(title or f"{clip.meta.name}, test frame {g}", fontsize=8)
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 def suite_figures(entries: Sequence[dict], out_dir, *, loss: bool = True) -> List[Path]:

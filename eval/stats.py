@@ -312,3 +312,30 @@ def by_key(rows: Iterable[dict], key: str) -> Dict[Tuple, float]:
             continue
         acc.setdefault((r.get("scene"), r.get("seed", 0) or 0), []).append(float(v))
     return {k: sum(v) / len(v) for k, v in acc.items()}
+
+
+# --------------------------------------------------------------------------------------------------
+# text of an interval and of a heterogeneity test (one formatter each for every table that prints
+# them: `pairs`, `repeats`, `region-pairs` and the results page's controls and findings)
+# --------------------------------------------------------------------------------------------------
+def interval_text(iv, fmt: str, n_label: str = "") -> str:
+    """mean ± half († where the interval excludes 0) (n), or n/a for no interval or no mean.
+
+    n_label goes before the count: "" gives "(8)" (the `pairs` and `repeats` tables), "n = "
+    gives "(n = 8)" (the results page's controls)."""
+    if iv is None or iv.mean is None:
+        return "n/a"
+    half = "n/a" if iv.half is None else format(iv.half, fmt)
+    dag = "†" if iv.excludes_zero else ""
+    return f"{format(iv.mean, '+' + fmt)} ± {half}{dag} ({n_label}{iv.n})"
+
+
+def heterogeneity_text(h, test: bool = True) -> str:
+    """A scene_heterogeneity result as text, n/a for None. test=True: the F-test in full,
+    "F(df1, df2) = F, p = p" (`pairs --by-seed`); test=False: its p-value alone, "p = 0.123"
+    ("p < 0.001" below that; the findings tables' "scenes differ" cell)."""
+    if h is None:
+        return "n/a"
+    if not test:
+        return "p < 0.001" if h.p < 0.001 else f"p = {h.p:.3f}"
+    return f"F({h.df_between}, {h.df_within}) = {h.f:.2f}, p = {h.p:.3f}"

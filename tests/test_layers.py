@@ -1,4 +1,5 @@
-"""The package layers and their dependency rule (docs/architecture.md), checked on every import.
+"""The package layers and their dependency rule (docs/architecture.md), checked on every import,
+and the absence of import cycles anywhere in m4dgs/, benchgen/ and eval/.
 
 Every `import` / `from ... import` in m4dgs/, benchgen/ and eval/ (module level or inside a
 function, relative imports resolved) is mapped to the layer of the importing and of the imported
@@ -33,23 +34,23 @@ LAYERS = {
     "m4dgs.__main__": "app",
     "m4dgs": "package",
     "benchgen": "benchgen",
-    "eval": "eval",
-    "eval.score": "eval-driver",
-    "eval.runner": "eval-driver",
-    "eval.suite": "eval-driver",
-    "eval.cli": "eval-driver",
-    "eval.results": "eval-driver",
-    "eval.pairs": "eval-driver",
-    "eval.repeats": "eval-driver",
-    "eval.campaign": "eval-driver",
-    "eval.frames": "eval-driver",
-    "eval.regions": "eval-driver",
-    "eval.peaks": "eval-driver",
-    "eval.responses": "eval-driver",
-    "eval.errormaps": "eval-driver",
-    "eval.view_scores": "eval-driver",
-    "eval.calibration.views": "eval-driver",
-    "eval.__main__": "eval-driver",
+    # eval, bottom to top (docs/architecture.md, "eval's layers")
+    "eval": "eval",  # metrics/, stats, paper values, table and figure rendering, conventions
+    "eval.records": "eval-records",  # suite definitions, the runs CSV, a suite's data and tables
+    "eval.experiments": "eval-experiments",  # score, run, campaign, export run folders
+    "eval.study": "eval-study",  # the paper's findings and the controls (data + verdicts)
+    "eval.inspect": "eval-inspect",  # pairs, repeats, regions, error maps, peaks, responses
+    "eval.report": "eval-report",  # the results page and its figures
+    "eval.cli": "eval-cli",  # `m4dgs-eval`: one module per command group
+    "eval.__main__": "eval-cli",
+}
+
+EVAL_LAYERS = {
+    "eval-records",
+    "eval-experiments",
+    "eval-study",
+    "eval-inspect",
+    "eval-report",
 }
 
 # which layers each layer may import (its own layer is always allowed)
@@ -68,8 +69,14 @@ ALLOWED = {
     "benchgen": {"core", "formats"},
     # eval's metrics, statistics, tables and figures score files: no model, no trainer
     "eval": {"core", "formats"},
-    # eval's drivers (score a run, run a suite, the CLI) call the public entry points below
-    "eval-driver": {"core", "formats", "eval", "benchgen"},
+    # each eval layer may import the eval layers below it (and benchgen's suites and clips)
+    "eval-records": {"core", "formats", "eval", "benchgen"},
+    "eval-experiments": {"core", "formats", "eval", "benchgen", "eval-records"},
+    "eval-study": {"core", "formats", "eval", "eval-records"},
+    "eval-inspect": {"core", "formats", "eval", "benchgen", "eval-records", "eval-experiments"}
+    | {"eval-study"},
+    "eval-report": {"core", "formats", "eval", "eval-records", "eval-study"},
+    "eval-cli": {"core", "formats", "eval", "benchgen"} | EVAL_LAYERS,
 }
 
 # the only modules of upper layers that eval's drivers may import: the trainer, the renderer,
@@ -89,9 +96,14 @@ BENCHGEN_ENTRY_POINTS = {"m4dgs.footage", "m4dgs.footage_options"}
 
 def entry_point_ok(src_layer: str, target: str) -> bool:
     """Whether an import outside the layer rule is one of the named entry points."""
-    points = {"eval-driver": DRIVER_ENTRY_POINTS, "benchgen": BENCHGEN_ENTRY_POINTS}.get(
-        src_layer, set()
-    )
+    points = {
+        # a suite's rows name variants: the registry checks them (eval.records.suite)
+        "eval-records": {"m4dgs.training.variants"},
+        "eval-experiments": DRIVER_ENTRY_POINTS,
+        "eval-inspect": DRIVER_ENTRY_POINTS,
+        "eval-cli": DRIVER_ENTRY_POINTS,
+        "benchgen": BENCHGEN_ENTRY_POINTS,
+    }.get(src_layer, set())
     return any(target == e or target.startswith(e + ".") for e in points)
 
 
@@ -188,8 +200,17 @@ def test_import_layers():
         ("benchgen.render", "eval.metrics.temporal", False),
         ("benchgen.make", "m4dgs.clip", True),
         ("eval.metrics.hdr", "m4dgs.model.trained", False),
-        ("eval.score", "m4dgs.model.trained", True),
-        ("eval.score", "m4dgs.training.stage2", False),
+        ("eval.experiments.score", "m4dgs.model.trained", True),
+        ("eval.experiments.score", "m4dgs.training.stage2", False),
+        ("eval.records.runs_csv", "eval.cli", False),
+        ("eval.report.page", "eval.cli", False),
+        ("eval.inspect.pairs", "eval.report.page", False),
+        ("eval.study.findings", "eval.inspect.pairs", False),
+        ("eval.records.suite", "eval.experiments.runner", False),
+        ("eval.stats", "eval.records.runs_csv", False),
+        ("eval.report.page", "eval.study.controls", True),
+        ("eval.inspect.repeats", "eval.experiments.runner", True),
+        ("eval.cli.inspect", "eval.inspect.pairs", True),
         ("benchgen.from_hdr", "m4dgs.footage", True),
         ("benchgen.cli", "m4dgs.footage_options", True),
         ("benchgen.cli", "m4dgs.cli", False),
@@ -202,3 +223,72 @@ def test_rule_itself(src, target, expect_ok):
     ok = s == d or d in ALLOWED[s]
     ok = ok or entry_point_ok(s, target)
     assert ok is expect_ok
+
+
+def _module_of(name: str) -> str | None:
+    """The source module an imported name lives in (the longest existing prefix), or None when
+    it is not one of the repository's."""
+    parts = name.split(".")
+    while parts:
+        if _is_module(".".join(parts)):
+            return ".".join(parts)
+        parts.pop()
+    return None
+
+
+def import_graph() -> dict:
+    """{module: {imported module}} over every import of the sources (module level or in a
+    function), a package's __init__ counting as the package."""
+    graph = {}
+    for path in SOURCES:
+        mod = module_name(path)
+        deps = graph.setdefault(mod, set())
+        for _line, target in imports_of(path):
+            dst = _module_of(target)
+            if dst and dst != mod:
+                deps.add(dst)
+    return graph
+
+
+def cycles(graph: dict) -> list:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycles():
+    found = cycles(import_graph())
+    assert not found, "import cycles (a module reaches itself through its imports):\n" + "\n".join(
+        " <-> ".join(c) for c in found
+    )
+
+
+def test_cycle_finder_itself():
+    """The cycle finder on known graphs (so a broken finder cannot pass silently)."""
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set(), "c": {"b"}}) == []

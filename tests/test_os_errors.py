@@ -299,8 +299,8 @@ def test_a_folder_of_frames_says_how_to_make_a_clip(tmp_path, monkeypatch):
 def _yaml_loaders():
     from benchgen.priors import load_profile
     from benchgen.spec import read_yaml as read_spec
-    from eval.campaign import load_campaign
-    from eval.suite import load_eval_suite
+    from eval.experiments.campaign import load_campaign
+    from eval.records.suite import load_eval_suite
     from m4dgs.training.config import load_yaml as load_config
 
     return {

@@ -292,8 +292,8 @@ def test_benchgen_cli_and_eval_suite_pass_the_response(tmp_path, monkeypatch):
 
     import benchgen.make as bm
     from benchgen.cli import main as benchgen_main
-    from eval.runner import job_list, make_job_clip
-    from eval.suite import SuiteError, load_eval_suite, parse_suite
+    from eval.experiments.runner import job_list, make_job_clip
+    from eval.records.suite import SuiteError, load_eval_suite, parse_suite
 
     seen = []
     monkeypatch.setattr(bm, "make_suite", lambda *a, **kw: seen.append(kw["crf"]) or [])

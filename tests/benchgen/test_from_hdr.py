@@ -158,7 +158,7 @@ def test_bad_input_is_named(video, tmp_path):
 def test_given_gt_flow_sets_the_floor_and_the_clip_trains_and_scores(
     video, tmp_path, short_training
 ):
-    from eval.score import score_run
+    from eval.experiments.score import score_run
     from m4dgs.training.pipeline import train
 
     src, root = video

@@ -99,7 +99,7 @@ def test_profiles_registry_and_metadata():
     ]
     # the lists of names the CLI and the suite files accept
     from benchgen.cli import make as make_cmd
-    from eval.suite import PRIOR_PROFILES
+    from eval.records.suite import PRIOR_PROFILES
 
     assert PRIOR_PROFILES == tuple(PROFILES)
     from benchgen.cli import BUILTIN_PRIORS

@@ -141,7 +141,7 @@ def test_another_render_is_not_taken(clips, tmp_path):
 
 
 def test_sibling_clips_and_clip_waves(clips, tmp_path):
-    from eval.runner import clip_waves
+    from eval.experiments.runner import clip_waves
 
     assert sibling_clips(clips.root, "tiny-lamp-box") == sorted(
         [clips.base, clips.fresh, clips.reused]

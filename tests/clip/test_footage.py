@@ -310,7 +310,7 @@ def test_alternate_split_holds_out_odd_frames_scored_at_their_own_exposure(
     tiny_clip_realistic, tmp_path, short_training
 ):
     from eval.cli import main as eval_main
-    from eval.score import score_run
+    from eval.experiments.score import score_run
 
     clip, frames, times, depth, levels = alternating_capture(tiny_clip_realistic, tmp_path)
     out = tmp_path / "mine"

@@ -226,6 +226,6 @@ def test_random_values_banded_schedule():
 def test_schedule_names_agree():
     """eval validates suite files without importing benchgen's numerics: its list must match."""
     from benchgen.exposure import SCHEDULES
-    from eval.suite import SCHEDULES as EVAL_SCHEDULES
+    from eval.records.suite import SCHEDULES as EVAL_SCHEDULES
 
     assert EVAL_SCHEDULES == SCHEDULES

@@ -205,9 +205,9 @@ def test_a_calibration_row_is_scored_like_another_method(tiny_clip_oracle, tmp_p
 
 def test_dibr_row_at_the_views_scores_like_a_method(tiny_clip_oracle, tmp_path):
     """The dibr row writes every view frame from the camera initialisation of the clip (a short
-    one here), and eval.view_scores scores it as it scores a run's renders."""
-    from eval.calibration.views import write_dibr_views
-    from eval.view_scores import score_views
+    one here), and eval.experiments.view_scores scores it as it scores a run's renders."""
+    from eval.experiments.dibr_views import write_dibr_views
+    from eval.experiments.view_scores import score_views
     from m4dgs.clip import Clip
 
     out = write_dibr_views(

@@ -11,8 +11,8 @@ import yaml
 from click.testing import CliRunner
 
 from eval.cli import main
-from eval.runner import job_list
-from eval.suite import SuiteError, load_eval_suite, scene_suite_names
+from eval.experiments.runner import job_list
+from eval.records.suite import SuiteError, load_eval_suite, scene_suite_names
 
 
 def write_suite(path, folder="clips", short=None, **extra):
@@ -47,7 +47,9 @@ def test_a_suite_of_existing_clips_runs_and_tabulates(tiny_clip_oracle, tmp_path
     assert not (tmp_path / "root" / "clips").exists()
     for row in ("static-hdr", "full"):
         assert (tmp_path / "root/runs/mine/flag-arm" / row / "metrics.json").exists()
-    t = CliRunner().invoke(main, ["table", str(suite), "--root", str(tmp_path / "root")])
+    t = CliRunner().invoke(
+        main, ["table", "--columns", "all", str(suite), "--root", str(tmp_path / "root")]
+    )
     assert t.exit_code == 0, t.output
     assert "static-hdr" in t.output and "| full" in t.output
 

@@ -13,7 +13,8 @@ from click.testing import CliRunner
 from skimage.metrics import peak_signal_noise_ratio
 
 from eval.cli import main
-from eval.errormaps import (
+from eval.experiments.frames import score_frames
+from eval.inspect.errormaps import (
     GAP,
     colourise,
     domain_frames,
@@ -25,7 +26,6 @@ from eval.errormaps import (
     pixel_sq_error,
     video_frame,
 )
-from eval.frames import score_frames
 from eval.metrics.hdr import hdr_psnr
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio

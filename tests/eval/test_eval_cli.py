@@ -287,7 +287,7 @@ def _mu_np(x):
 
 
 def test_score_run_values(tmp_path, fake_trainer):
-    from eval.score import METRIC_KEYS, score_run
+    from eval.experiments.score import METRIC_KEYS, score_run
 
     clip = make_fake_clip(tmp_path / "clip")
     run = tmp_path / "run"
@@ -353,7 +353,7 @@ def test_score_dynamic_mask_metrics(tmp_path, fake_trainer):
     """Epipolar masks vs gt: the fake gt mask of frame g is rows 10:20, columns 10+g:25+g; the run's
     mask is the same box shifted 3 columns right, so precision = recall = 12/15 and IoU = 12/18
     (analytic)."""
-    from eval.score import score_run
+    from eval.experiments.score import score_run
 
     clip = make_fake_clip(tmp_path / "clip")
     run = tmp_path / "run"
@@ -374,7 +374,7 @@ def test_score_dynamic_mask_metrics(tmp_path, fake_trainer):
 
 
 def test_score_renders_missing_and_identical(tmp_path, fake_trainer):
-    from eval.score import PSNR_CAP_DB, score_run
+    from eval.experiments.score import PSNR_CAP_DB, score_run
 
     clip = make_fake_clip(tmp_path / "clip")
     run = tmp_path / "run"
@@ -401,7 +401,7 @@ def test_score_renders_missing_and_identical(tmp_path, fake_trainer):
 def test_score_refuses_non_finite_renders(tmp_path, fake_trainer):
     """A NaN in one test render stops scoring with the file named, instead of a mean over the
     finite frames."""
-    from eval.score import score_run
+    from eval.experiments.score import score_run
     from m4dgs.core.errors import NonFiniteError
 
     clip = make_fake_clip(tmp_path / "clip")
@@ -420,7 +420,7 @@ def test_score_refuses_non_finite_renders(tmp_path, fake_trainer):
 def test_score_refuses_a_read_only_run_folder_up_front(tmp_path, fake_trainer, monkeypatch):
     """A run folder that cannot take metrics.json is refused before any metric is computed (the
     permission test is replaced: CI runs as root, who may write anywhere)."""
-    import eval.score as score_mod
+    import eval.experiments.score as score_mod
     from m4dgs.core.errors import InputError
 
     clip = make_fake_clip(tmp_path / "clip")
@@ -481,7 +481,13 @@ def test_score_add_missing_fills_only_what_an_older_metrics_json_lacks(tmp_path,
 
 # --------------------------------------------------------------------------------------------------
 def test_suites_load_and_variants():
-    from eval.suite import LAYOUTS, builtin_suites, known_variants, load_eval_suite, metric_columns
+    from eval.records.suite import (
+        LAYOUTS,
+        builtin_suites,
+        known_variants,
+        load_eval_suite,
+        metric_columns,
+    )
 
     names = builtin_suites()
     assert {
@@ -533,7 +539,7 @@ def test_suites_load_and_variants():
 
 
 def test_suite_errors(tmp_path):
-    from eval.suite import SuiteError, parse_suite
+    from eval.records.suite import SuiteError, parse_suite
 
     base = {"name": "x", "scenes": "tiny", "rows": [{"variant": "full"}]}
     assert parse_suite(base).rows[0].name == "full"
@@ -548,7 +554,7 @@ def test_suite_errors(tmp_path):
 
 
 def test_list_jobs(tmp_path):
-    from eval.suite import load_eval_suite, scene_suite_names
+    from eval.records.suite import load_eval_suite, scene_suite_names
 
     r = CliRunner().invoke(
         main,
@@ -586,7 +592,7 @@ tables:
 
 
 def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
-    from eval.runner import job_list, run_suite
+    from eval.experiments.runner import job_list, run_suite
 
     suite = tmp_path / "t2.yaml"
     suite.write_text(SUITE_YAML)
@@ -617,7 +623,7 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
         m = json.loads(mp.read_text())
         m["hdr_psnr"], m["ate"] = vals[(j.scene, j.row)]
         mio.write_json(mp, m)
-    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out)])
+    r = CliRunner().invoke(main, ["table", "--columns", "all", str(suite), "--root", str(out)])
     assert r.exit_code == 0, r.output
     text = r.output
     base_line = next(ln for ln in text.splitlines() if ln.startswith("| Baseline"))
@@ -636,7 +642,9 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
     mp = out / "runs/t2/tiny-flag-arm/base/metrics.json"
     saved = mp.read_bytes()
     mp.unlink()
-    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures"])
+    r = CliRunner().invoke(
+        main, ["table", "--columns", "all", str(suite), "--root", str(out), "--no-figures"]
+    )
     base_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Baseline"))
     # 10 means and their 10 paired differences to the reference row (full) are n/a; n counts the one
     # scored run
@@ -649,13 +657,34 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
     mp.write_bytes(saved)
     # latex / csv / runs-dir forms
     r = CliRunner().invoke(
-        main, ["table", str(suite), "--root", str(out), "--format", "latex", "--no-figures"]
+        main,
+        [
+            "table",
+            "--columns",
+            "all",
+            str(suite),
+            "--root",
+            str(out),
+            "--format",
+            "latex",
+            "--no-figures",
+        ],
     )
     assert r.exit_code == 0 and "\\textbf{33.50}" in r.output and "\\toprule" in r.output
     outf = tmp_path / "t.csv"
     r = CliRunner().invoke(
         main,
-        ["table", str(out / "runs" / "t2"), "--format", "csv", "--out", str(outf), "--no-figures"],
+        [
+            "table",
+            "--columns",
+            "all",
+            str(out / "runs" / "t2"),
+            "--format",
+            "csv",
+            "--out",
+            str(outf),
+            "--no-figures",
+        ],
     )
     assert r.exit_code == 0, r.output
     rows = [ln.split(",") for ln in outf.read_text().splitlines() if ln and not ln.startswith("#")]
@@ -735,7 +764,7 @@ def test_run_suite_goes_on_after_a_failed_job_and_retries_it(tmp_path, fake_trai
     scores, removes the record; --fail-fast stops at the first failure."""
     import multiprocessing as mp
 
-    import eval.runner as runner
+    import eval.experiments.runner as runner
     from m4dgs.core.errors import InputError
 
     if jobs > 1 and (
@@ -785,8 +814,8 @@ def test_run_suite_goes_on_after_a_failed_job_and_retries_it(tmp_path, fake_trai
         assert runner.read_failure(base_run) == want
         assert runner.read_failure(by[("tiny-lamp-box", "full")]["run"]) is None
         # export: the failed run is a "failed" row with its error, the scored one "scored"
-        from eval.results import export as export_runs
-        from eval.results import read_runs_csv
+        from eval.experiments.export import export as export_runs
+        from eval.records.runs_csv import read_runs_csv
 
         csvp = tmp_path / f"runs-{jobs}.csv"
         summary = export_runs([str(suite)], out, csvp, scenes=["tiny-lamp-box"])
@@ -844,7 +873,7 @@ def test_run_suite_process_pool(tmp_path, fake_trainer):
     method)."""
     import multiprocessing as mp
 
-    from eval.runner import job_list, run_suite
+    from eval.experiments.runner import job_list, run_suite
 
     if mp.get_start_method(allow_none=True) not in (None, "fork") or sys.platform != "linux":
         pytest.skip("needs the fork start method to pass the fake trainer to the workers")
@@ -878,9 +907,9 @@ def test_run_suite_process_pool(tmp_path, fake_trainer):
 def test_score_with_lpips_weights(tmp_path, fake_trainer):
     """Generated LPIPS weights: the per-level aggregation equals a direct per-image recomputation
     (numpy mean)."""
+    from eval.experiments.score import score_run
     from eval.metrics import lpips_metric, mu_law, save_lpips_weights
     from eval.metrics.lpips import ALEX_CONVS, TAP_CHANNELS, LpipsWeights
-    from eval.score import score_run
 
     g = torch.Generator().manual_seed(0)
     conv_w = [
@@ -920,7 +949,7 @@ def test_score_real_clip_without_gt(tmp_path, fake_trainer):
     to DIS flow."""
     import shutil
 
-    from eval.score import score_run
+    from eval.experiments.score import score_run
 
     clip = make_fake_clip(tmp_path / "clip")
     run = tmp_path / "run"
@@ -946,7 +975,7 @@ def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
     """--seeds 2: seed 0 keeps the run folders, seed 1 trains into <row>-seed-1 with seed=1 on the
     same clips; the table pools the 2 scenes x 2 seeds with intervals and paired differences to the
     reference row."""
-    from eval.runner import job_list, run_suite
+    from eval.experiments.runner import job_list, run_suite
 
     suite = tmp_path / "t2.yaml"
     suite.write_text(SUITE_YAML)
@@ -977,7 +1006,9 @@ def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
         m["hdr_psnr"] = b + (1.0 + 0.1 * (j.seed - 0.5) if j.row == "full" else 0.0)
         vals[(j.row, j.scene, j.seed)] = m["hdr_psnr"]
         mio.write_json(mp, m)
-    r = CliRunner().invoke(main, ["table", str(suite), "--root", str(out), "--no-figures"])
+    r = CliRunner().invoke(
+        main, ["table", "--columns", "all", str(suite), "--root", str(out), "--no-figures"]
+    )
     assert r.exit_code == 0, r.output
     base_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Baseline"))
     ours_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Ours"))
@@ -996,11 +1027,24 @@ def test_run_suite_with_seeds_and_table(tmp_path, fake_trainer):
     assert "| Ours | 4 |" in ours_line and "ref" in ours_line
     # with --seeds 1 only the seed-0 runs are tabulated
     r1 = CliRunner().invoke(
-        main, ["table", str(suite), "--root", str(out), "--no-figures", "--seeds", "1"]
+        main,
+        [
+            "table",
+            "--columns",
+            "all",
+            str(suite),
+            "--root",
+            str(out),
+            "--no-figures",
+            "--seeds",
+            "1",
+        ],
     )
     assert "| Baseline | 2 |" in r1.output
     # the runs folder form: <row>-seed-<n> folders are seeds of the same row
-    r2 = CliRunner().invoke(main, ["table", str(out / "runs" / "t2"), "--no-figures"])
+    r2 = CliRunner().invoke(
+        main, ["table", "--columns", "all", str(out / "runs" / "t2"), "--no-figures"]
+    )
     assert r2.exit_code == 0, r2.output
     assert "| world-only | 4 |" in r2.output and "| full | 4 |" in r2.output
 
@@ -1012,7 +1056,7 @@ def test_suite_overrides_change_what_they_name(name):
     """Each override of a row names a config field and changes it (a misspelt key fails in
     apply_overrides; a value equal to the variant's default would make the row a copy), and every
     row keeps full's iteration budget."""
-    from eval.suite import load_eval_suite
+    from eval.records.suite import load_eval_suite
     from m4dgs.training.config import to_dict
     from m4dgs.training.variants import variant_config
 
@@ -1038,7 +1082,7 @@ def test_scale_control_rows_are_the_paper_schedule_at_the_small_resolution():
     exactly the budget transfer of that full row (stage2_only_budget), field by field."""
     import dataclasses
 
-    from eval.suite import load_eval_suite
+    from eval.records.suite import load_eval_suite
     from m4dgs.training.config import preset
     from m4dgs.training.variants import stage2_only_budget, variant_config
 
@@ -1085,7 +1129,7 @@ def _campaign_file(tmp_path, suite, steps):
 
 
 def test_campaign_file_errors_name_the_field(tmp_path):
-    from eval.campaign import CampaignError, load_campaign, parse_campaign
+    from eval.experiments.campaign import CampaignError, load_campaign, parse_campaign
 
     c = load_campaign("results-small")
     four = [
@@ -1178,8 +1222,8 @@ def _two_step_campaign(tmp_path):
     """(suite file, root, CSV path, campaign) of the fake-trainer campaign tests: suite t2 (rows
     base = world-only, full) with its clips made, step 1 on scene set ONE with one seed, step 2 on
     every scene with two."""
-    from eval.campaign import load_campaign
-    from eval.runner import job_list
+    from eval.experiments.campaign import load_campaign
+    from eval.experiments.runner import job_list
 
     suite = tmp_path / "t2.yaml"
     suite.write_text(SUITE_YAML)
@@ -1194,7 +1238,7 @@ def test_campaign_time_estimate_from_recorded_seconds(tmp_path, fake_trainer):
     """The dry run's estimate: the median recorded seconds per iteration of the scored runs (the
     fake runs record 120 s) times each step's iterations still to train (the rows' budgets at the
     tiny preset, counted here with m4dgs.training.variants.budget), over the workers."""
-    from eval.campaign import run_campaign
+    from eval.experiments.campaign import run_campaign
     from m4dgs.core.errors import InputError
     from m4dgs.training.variants import budget
 
@@ -1229,7 +1273,7 @@ def test_campaign_time_estimate_falls_back_on_the_roots_other_runs(tmp_path):
     preset do not count."""
     import yaml
 
-    from eval.campaign import run_campaign
+    from eval.experiments.campaign import run_campaign
     from m4dgs.core import io as mio
     from m4dgs.training.variants import budget
 
@@ -1265,8 +1309,8 @@ def test_campaign_time_estimate_falls_back_on_the_roots_other_runs(tmp_path):
 def test_campaign_runs_exports_resumes_and_guards_the_code(tmp_path, fake_trainer):
     import csv
 
-    from eval.campaign import run_campaign
-    from eval.runner import job_list
+    from eval.experiments.campaign import run_campaign
+    from eval.experiments.runner import job_list
     from m4dgs.core.errors import InputError
 
     suite, out, csv_path, camp = _two_step_campaign(tmp_path)
@@ -1317,8 +1361,8 @@ def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trai
     import shutil
     import sys
 
-    from eval.campaign import run_campaign
-    from eval.runner import job_list
+    from eval.experiments.campaign import run_campaign
+    from eval.experiments.runner import job_list
     from m4dgs.core.errors import InputError, M4DGSError
 
     suite, out, csv_path, camp = _two_step_campaign(tmp_path)
@@ -1365,7 +1409,7 @@ def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trai
     plan = run_campaign(camp, out, csv_path, dry_run=True, **kw)
     assert [(p["scored"], p["recorded"], p["total"]) for p in plan] == [(2, 2, 2), (7, 7, 8)]
     # the time estimate comes from the CSV's train_minutes (the fake runs record 120 s)
-    from eval.campaign import job_iterations
+    from eval.experiments.campaign import job_iterations
 
     todo = job_iterations(
         next(
@@ -1399,7 +1443,7 @@ def test_campaign_goes_on_after_a_step_with_a_failed_job(tmp_path, fake_trainer,
     import csv
     import sys
 
-    from eval.campaign import run_campaign
+    from eval.experiments.campaign import run_campaign
     from m4dgs.core.errors import InputError, M4DGSError
 
     suite, out, csv_path, camp = _two_step_campaign(tmp_path)
@@ -1459,7 +1503,7 @@ def test_campaign_goes_on_after_a_step_with_a_failed_job(tmp_path, fake_trainer,
     # the job still counts as failed, not as one to train (which would mix code versions)
     import shutil
 
-    from eval.runner import job_list
+    from eval.experiments.runner import job_list
 
     shutil.rmtree(out)
     for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
@@ -1498,8 +1542,14 @@ def test_campaign_estimate_counts_a_run_repeated_in_another_suite_once(tmp_path)
     holds its model), is counted once when neither has run, and a finished run known only from the
     CSV (no run folder, so nothing in the share folder) does not count as shared. Counted from the
     budgets (m4dgs.training.variants.budget)."""
-    from eval.campaign import Step, job_cost, job_training_key, step_status, todo_iterations
-    from eval.runner import job_list
+    from eval.experiments.campaign import (
+        Step,
+        job_cost,
+        job_training_key,
+        step_status,
+        todo_iterations,
+    )
+    from eval.experiments.runner import job_list
     from m4dgs.training.variants import budget
 
     a, b = tmp_path / "t3.yaml", tmp_path / "t4.yaml"
@@ -1545,8 +1595,8 @@ def test_campaign_estimate_counts_a_shared_stage_1_once(tmp_path):
     that changes stage 1 ((e) w/o TLR), another trainer seed or another clip does not, a row
     without stage 1 has none. todo_iterations counts each key's stage 1 once, and not at all when
     a finished job has it; counted here from the budgets (m4dgs.training.variants.budget)."""
-    from eval.campaign import Step, job_cost, step_status, todo_iterations
-    from eval.runner import job_list
+    from eval.experiments.campaign import Step, job_cost, step_status, todo_iterations
+    from eval.experiments.runner import job_list
     from m4dgs.training.variants import budget
 
     suite = tmp_path / "t3.yaml"

@@ -16,7 +16,7 @@ def _blocks(lang: str):
 
 
 def test_the_example_suite_is_valid_and_budget_matched(tmp_path):
-    from eval.suite import check_variants, load_eval_suite
+    from eval.records.suite import check_variants, load_eval_suite
     from m4dgs.training.config import to_dict
     from m4dgs.training.phases import leaves, phase_of
     from m4dgs.training.variants import run_plan

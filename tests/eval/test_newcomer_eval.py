@@ -20,7 +20,7 @@ ROWS = ("static-hdr", "world-only", "full")
 
 
 def _tiny_scenes():
-    from eval.runner import job_list
+    from eval.experiments.runner import job_list
 
     return list(dict.fromkeys(j.scene for j in job_list("tiny", "unused", "tiny")))
 
@@ -84,24 +84,32 @@ def test_table_of_a_suite_under_a_missing_or_empty_root_names_the_folder_searche
     cli = CliRunner()
     where = str(tmp_path / "out" / "runs" / "tiny")  # absolute, though --root was relative
 
-    line = _error_line(cli.invoke(main, ["table", "tiny", "--root", "out", "--no-figures"]))
+    line = _error_line(
+        cli.invoke(main, ["table", "--columns", "all", "tiny", "--root", "out", "--no-figures"])
+    )
     assert f"no runs of suite 'tiny' under {where} " in line
     assert "metrics.json" in line and "the experiment root does not exist" in line
     assert "`m4dgs-eval run tiny --root out`" in line
 
     (tmp_path / "out").mkdir()  # the root exists, its runs folder does not
-    line = _error_line(cli.invoke(main, ["table", "tiny", "--root", "out", "--no-figures"]))
+    line = _error_line(
+        cli.invoke(main, ["table", "--columns", "all", "tiny", "--root", "out", "--no-figures"])
+    )
     assert f"under {where} " in line and "that folder does not exist" in line
 
     Path(where).mkdir(parents=True)  # the suite's runs folder exists and is empty
-    line = _error_line(cli.invoke(main, ["table", "tiny", "--root", "out", "--no-figures"]))
+    line = _error_line(
+        cli.invoke(main, ["table", "--columns", "all", "tiny", "--root", "out", "--no-figures"])
+    )
     assert f"no runs of suite 'tiny' under {where} " in line and "does not exist" not in line
     assert "`m4dgs-eval run tiny --root out`" in line
 
     # run folders without metrics.json: how many, where, and what to run
     scene = _tiny_scenes()[0]
     (Path(where) / scene / "full").mkdir(parents=True)
-    line = _error_line(cli.invoke(main, ["table", "tiny", "--root", "out", "--no-figures"]))
+    line = _error_line(
+        cli.invoke(main, ["table", "--columns", "all", "tiny", "--root", "out", "--no-figures"])
+    )
     assert f"1 of the 6 run folder(s) of suite 'tiny' exist under {where} " in line
     assert "none has a metrics.json yet" in line and "m4dgs-eval run tiny --root out" in line
 
@@ -110,10 +118,12 @@ def test_table_of_an_empty_or_missing_runs_folder_names_it(tmp_path, monkeypatch
     monkeypatch.chdir(tmp_path)
     cli = CliRunner()
     (tmp_path / "runs" / "tiny" / "a-scene" / "full").mkdir(parents=True)  # no metrics.json
-    line = _error_line(cli.invoke(main, ["table", "runs", "--no-figures"]))
+    line = _error_line(cli.invoke(main, ["table", "--columns", "all", "runs", "--no-figures"]))
     assert f"no scored runs under {tmp_path / 'runs'} " in line and "metrics.json" in line
 
-    line = _error_line(cli.invoke(main, ["table", "nope/runs/tiny", "--no-figures"]))
+    line = _error_line(
+        cli.invoke(main, ["table", "--columns", "all", "nope/runs/tiny", "--no-figures"])
+    )
     assert f"nope/runs/tiny: no such folder of runs ({tmp_path / 'nope' / 'runs' / 'tiny'})" in line
 
 
@@ -151,17 +161,31 @@ def test_table_counts_linked_run_and_scene_folders(tmp_path):
             assert got["n_runs"] == "2" and float(got["LDR-OE PSNR"]) == pytest.approx(mean)
 
     cli = CliRunner()
-    check(cli.invoke(main, ["table", str(runs), "--format", "csv", "--no-figures"]))
-    from eval.suite import load_eval_suite
+    check(
+        cli.invoke(
+            main, ["table", "--columns", "all", str(runs), "--format", "csv", "--no-figures"]
+        )
+    )
+    from eval.records.suite import load_eval_suite
 
     labels = {r.name: r.label for r in load_eval_suite("tiny").rows}
-    args = ["table", "tiny", "--root", str(root), "--format", "csv", "--no-figures"]
+    args = [
+        "table",
+        "--columns",
+        "all",
+        "tiny",
+        "--root",
+        str(root),
+        "--format",
+        "csv",
+        "--no-figures",
+    ]
     check(cli.invoke(main, args), labels)
 
     # a runs folder that is itself a link: its figures go beside the link, not beside its target
     link = tmp_path / "proj" / "linked-runs"
     link.symlink_to(runs, target_is_directory=True)
-    r = cli.invoke(main, ["table", str(link), "--format", "csv"])
+    r = cli.invoke(main, ["table", "--columns", "all", str(link), "--format", "csv"])
     check(r)
     assert f"figure(s) to {tmp_path / 'proj' / 'figures' / 'linked-runs'}\n" in r.output
 

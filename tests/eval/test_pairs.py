@@ -38,7 +38,7 @@ def _rows(rng):
 def test_pairs_name_the_failed_runs_they_leave_out(tmp_path):
     """A failed run's pair is not among the differences, and the output says which run failed and
     why; a failed run of a row not compared is not named."""
-    from eval.pairs import pair_differences, pairs_markdown
+    from eval.inspect.pairs import pair_differences, pairs_markdown
 
     rows = _rows(np.random.default_rng(0))
     fail = dict(suite="paper-ablation", scene="b-scene", row="no-reproj", seed=1, status="failed")
@@ -59,8 +59,8 @@ def test_pairs_name_the_failed_runs_they_leave_out(tmp_path):
 
 def test_pairs_are_the_paired_differences(tmp_path):
     from eval.cli import main
-    from eval.pairs import pair_differences, pairs_markdown
-    from eval.results import read_runs_csv, write_runs_csv
+    from eval.inspect.pairs import pair_differences, pairs_markdown
+    from eval.records.runs_csv import read_runs_csv, write_runs_csv
 
     csv_path = tmp_path / "runs.csv"
     write_runs_csv(csv_path, _rows(np.random.default_rng(0)))
@@ -127,8 +127,8 @@ def test_scene_heterogeneity_is_the_one_way_anova_across_scenes():
 
 
 def test_pairs_by_seed(tmp_path):
-    from eval.pairs import pairs_markdown
-    from eval.results import read_runs_csv, write_runs_csv
+    from eval.inspect.pairs import pairs_markdown
+    from eval.records.runs_csv import read_runs_csv, write_runs_csv
 
     csv_path = tmp_path / "runs.csv"
     write_runs_csv(csv_path, _rows(np.random.default_rng(0)))
@@ -179,7 +179,7 @@ def test_pairs_of_a_suite_that_is_not_built_in(tmp_path):
     """Your own suite: its YAML file as SUITE gives its reference row; its name alone needs --ref
     and says so."""
     from eval.cli import main
-    from eval.results import write_runs_csv
+    from eval.records.runs_csv import write_runs_csv
 
     csv_path, yml = tmp_path / "ideas.csv", tmp_path / "my-idea.yaml"
     write_runs_csv(csv_path, _own_rows())
@@ -200,7 +200,7 @@ def test_results_page_of_your_own_suite(tmp_path):
     """`results --suite FILE`: the section of a suite that is not built in shows its definition and
     reference row; a CSV of only such suites gets no findings or controls sections."""
     from eval.cli import main
-    from eval.results import write_runs_csv
+    from eval.records.runs_csv import write_runs_csv
 
     csv_path, yml, out = tmp_path / "ideas.csv", tmp_path / "my-idea.yaml", tmp_path / "p.md"
     write_runs_csv(csv_path, _own_rows())
@@ -227,7 +227,7 @@ def test_results_page_of_your_own_suite(tmp_path):
 def test_pairs_holm_marks_what_the_sequential_procedure_rejects(tmp_path):
     """--holm: each comparison's adjusted p-value is marked † exactly where Holm's procedure, run
     here as a sequence of tests on scipy's paired t-test p-values, rejects at 5 %."""
-    from eval.results import write_runs_csv
+    from eval.records.runs_csv import write_runs_csv
 
     rng = np.random.default_rng(7)
     effects = {"no-video-init": 1.0, "no-occlusion": 0.35, "no-reproj": 0.15, "no-tlr": 0.0}
@@ -278,7 +278,7 @@ def test_pairs_against_another_suites_effect_is_the_difference_in_differences(tm
     """`pairs SUITE --against BASE:REF:ROW`: per (scene, seed) pair both suites have, (row - ref)
     minus BASE's (ROW - REF), recomputed here from the CSV values with numpy / scipy; a pair only
     one suite has is left out; unknown suites or rows and a malformed spec are named."""
-    from eval.results import read_runs_csv, write_runs_csv
+    from eval.records.runs_csv import read_runs_csv, write_runs_csv
 
     rng = np.random.default_rng(3)
     rows = _rows(rng)  # paper-ablation: no-reproj - full, 5 pairs (c-scene / 1 has one side only)
@@ -377,8 +377,8 @@ def test_rows_differ_is_the_two_way_anova_of_rows_in_blocks():
 def test_pairs_rows_differ(tmp_path):
     """--rows-differ: one F-test per metric below the per-row tables, on the differences to the
     reference (the same F as on the rows' own values); one row is a usage error."""
-    from eval.pairs import pairs_markdown
-    from eval.results import read_runs_csv, write_runs_csv
+    from eval.inspect.pairs import pairs_markdown
+    from eval.records.runs_csv import read_runs_csv, write_runs_csv
     from eval.stats import rows_differ
 
     rng = np.random.default_rng(3)

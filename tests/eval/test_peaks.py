@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from eval.cli import main
-from eval.peaks import run_peaks
+from eval.inspect.peaks import run_peaks
 from m4dgs.clip import Clip, frame_name
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError
@@ -97,7 +97,7 @@ def test_cli_prints_a_row_per_run_and_names_the_runs_it_cannot_read(tiny_clip_re
 
     # a failed run (no renders, failure.json) beside a good one: named with its error, the good
     # one's row printed, exit 0
-    from eval.runner import record_failure
+    from eval.experiments.runner import record_failure
 
     failed = tmp_path / "failed"
     failed.mkdir()

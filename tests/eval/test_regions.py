@@ -14,9 +14,9 @@ import pytest
 from click.testing import CliRunner
 
 from eval.cli import main
-from eval.frames import score_frames
-from eval.metrics.image import masked_psnr
-from eval.regions import (
+from eval.experiments.frames import score_frames
+from eval.experiments.score import PSNR_CAP_DB
+from eval.inspect.regions import (
     REGIONS,
     _pool,
     check_comparable,
@@ -26,7 +26,7 @@ from eval.regions import (
     region_sse,
     split_run,
 )
-from eval.score import PSNR_CAP_DB
+from eval.metrics.image import masked_psnr
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError
@@ -240,8 +240,8 @@ def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
     without renders is named, not counted, a scene never run passed over."""
     import yaml
 
-    from eval.regions import suite_region_pairs
-    from eval.runner import seed_run_name
+    from eval.experiments.runner import seed_run_name
+    from eval.inspect.regions import suite_region_pairs
 
     clip = Clip.open(tiny_clip_realistic)
     scene = clip.meta.name
@@ -324,7 +324,7 @@ def test_region_pairs_against_another_suite_gives_the_difference_in_differences(
     refused."""
     import yaml
 
-    from eval.runner import seed_run_name
+    from eval.experiments.runner import seed_run_name
 
     clip = Clip.open(tiny_clip_realistic)
     scene = clip.meta.name

@@ -19,7 +19,7 @@ def _csv(tmp_path):
     """Suite old (row full) and suite new (row base, the same configuration): a-scene/0 repeats
     exactly (only the cost columns differ), b-scene/0 and b-scene/1 move, c-scene/0 has one side
     only, and a missing row of new is ignored."""
-    from eval.results import write_runs_csv
+    from eval.records.runs_csv import write_runs_csv
 
     rng = np.random.default_rng(7)
     rows = []
@@ -56,7 +56,7 @@ def _csv(tmp_path):
 
 
 def test_repeats_counts_equal_pairs_and_gives_the_differences(tmp_path):
-    from eval.results import read_runs_csv
+    from eval.records.runs_csv import read_runs_csv
 
     path = _csv(tmp_path)
     res = _cli("old:full", "new:base", "--csv", path)

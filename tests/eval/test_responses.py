@@ -16,8 +16,8 @@ import torch
 from click.testing import CliRunner
 
 from eval.cli import main
+from eval.inspect.responses import clip_ranges, response_report
 from eval.metrics.crf import crf_error, crf_error_bands, crf_error_shifted
-from eval.responses import clip_ranges, response_report
 from m4dgs.clip import Clip
 from m4dgs.core import io as mio
 from m4dgs.core.crf import get_crf

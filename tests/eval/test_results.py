@@ -399,7 +399,7 @@ def test_export_merge_results_readme(tmp_path):
     text = (docs / "results.md").read_text()
     pv = paper_values()
     abl = {row: dict(v) for row, v in pv["ablation"]["rows"].items()}
-    from eval.suite import load_eval_suite
+    from eval.records.suite import load_eval_suite
 
     s = load_eval_suite("paper-ablation")
     labels = {r.name: r.label for r in s.rows}
@@ -454,7 +454,9 @@ def test_export_merge_results_readme(tmp_path):
             assert p.exists() and p.read_bytes()[:4] == b"\x89PNG", p
             assert f"](figures/results/{suite}_{kind}.png)" in text
     # the paired differences behind the delta figure, recomputed from the CSV rows
-    from eval.results import paired_deltas, read_runs_csv, suite_data
+    from eval.records.runs_csv import read_runs_csv
+    from eval.records.suite_data import suite_data
+    from eval.report.page_figures import paired_deltas
 
     got = paired_deltas(suite_data("paper-main", read_runs_csv(csvp)))
     at = {(r["scene"], r["row"]): r for r in rows if r["suite"] == "paper-main"}
@@ -546,7 +548,8 @@ def test_export_merge_results_readme(tmp_path):
         f"Scenes differ (p < 0.05) in {sum(p < 0.05 for p in het_p)} of the 20 comparisons" in text
     )
     # the finding's forest plot draws what its table says
-    from eval.results import FINDINGS, evaluate_finding, finding_points
+    from eval.report.page_figures import finding_points
+    from eval.study.findings import FINDINGS, evaluate_finding
 
     fig = docs / "figures" / "results" / "finding_ablations.png"
     assert fig.read_bytes()[:4] == b"\x89PNG" and "](figures/results/finding_ablations.png)" in text
@@ -621,7 +624,7 @@ def test_export_merge_results_readme(tmp_path):
 
 
 def test_export_add_missing_fills_metrics_of_scored_runs_only(tmp_path, monkeypatch):
-    import eval.score as score
+    import eval.experiments.score as score
 
     root, csvp = tmp_path / "exp", tmp_path / "runs.csv"
     make_runs(root)
@@ -672,7 +675,8 @@ def test_results_pending(tmp_path):
     assert r.exit_code == 0, r.output
     text = out.read_text()
     assert "**The runs are pending**" in text and "does not exist yet" in text
-    from eval.results import CONTROLS, FINDINGS
+    from eval.study.controls import CONTROLS
+    from eval.study.findings import FINDINGS
 
     assert text.count("**not enough data**") == len(FINDINGS) + len(CONTROLS) == 33
     assert "The result tables are pending" in readme.read_text()
@@ -685,7 +689,7 @@ def test_results_of_a_suite_in_progress(tmp_path):
     """While paper-main runs, the tables compare the (scene, seed) pairs on which every row is
     scored (the runs of the other pairs wait), and the README's block stays pending until one pair
     is complete."""
-    from eval.results import SCORED, write_runs_csv
+    from eval.records.runs_csv import SCORED, write_runs_csv
 
     rng = np.random.default_rng(3)
     csvp, readme = tmp_path / "runs.csv", tmp_path / "README.md"
@@ -716,7 +720,7 @@ def test_results_of_a_suite_in_progress(tmp_path):
     text, block = out.read_text(), readme.read_text()
     assert "the 2 of 4 (scene, seed) pairs" in text and "the 1 scored run(s)" in text
     assert "compares the 2 (scene, seed) pairs" in block and "(1 more run(s)" in block
-    from eval.suite import load_eval_suite
+    from eval.records.suite import load_eval_suite
 
     labels = {r.name: r.label for r in load_eval_suite("paper-main").rows}
     t = table_after(block, "Syn-Exp-3 test frames (paper Table 1)")
@@ -733,7 +737,7 @@ def test_results_lists_failed_runs_and_leaves_their_pair_out(tmp_path):
     """A run whose job failed is a "failed" row with its error: the page counts and lists it, the
     tables leave its (scene, seed) pair out of every row, and a failed row never replaces a scored
     one in a merge (a missing one it does, and a missing one never replaces it)."""
-    from eval.results import FAILED, MISSING, SCORED, merge_rows, write_runs_csv
+    from eval.records.runs_csv import FAILED, MISSING, SCORED, merge_rows, write_runs_csv
 
     rng = np.random.default_rng(5)
     csvp, readme = tmp_path / "runs.csv", tmp_path / "README.md"
@@ -766,7 +770,7 @@ def test_results_lists_failed_runs_and_leaves_their_pair_out(tmp_path):
     assert "- **Failed runs** (" in text and f"`paper-main/{failed[0]}/full`: {err}" in text
     assert "the 1 of 2 (scene, seed) pairs" in text
     assert "or are left out with the failed run(s) of their pair" in text
-    from eval.suite import load_eval_suite
+    from eval.records.suite import load_eval_suite
 
     labels = {x.name: x.label for x in load_eval_suite("paper-main").rows}
     t = table_after(text, "Syn-Exp-3 test frames (paper Table 1)")
@@ -790,7 +794,7 @@ def test_results_warns_of_runs_that_lack_a_metric_their_row_reports(tmp_path):
     """A row whose runs have a metric in some runs and not in others (a run scored before the
     metric existed, or written back by an older export) is named on the page and in a warning; a
     metric that a row never has (here HDR-TCE of static-hdr) is not."""
-    from eval.results import SCORED, write_runs_csv
+    from eval.records.runs_csv import SCORED, write_runs_csv
 
     csvp, out = tmp_path / "runs.csv", tmp_path / "results.md"
     args = ["results", "--csv", str(csvp), "--out", str(out), "--no-readme", "--no-figures"]
@@ -827,7 +831,7 @@ def test_results_section_gives_the_seed_noise_of_its_runs(tmp_path):
     """The suite's section says how much a run moves with its trainer seed: the root mean square
     seed-1 minus seed-0 difference over the (scene, row) groups, computed here by hand, and the
     largest; no line for a suite with one seed."""
-    from eval.results import SCORED, write_runs_csv
+    from eval.records.runs_csv import SCORED, write_runs_csv
 
     csvp, out = tmp_path / "runs.csv", tmp_path / "results.md"
     args = ["results", "--csv", str(csvp), "--out", str(out), "--no-readme", "--no-figures"]
@@ -872,7 +876,7 @@ def test_results_section_gives_the_seed_noise_of_its_runs(tmp_path):
     ],
 )
 def test_number_format(v, text):
-    from eval.results import fmt_number, parse_number
+    from eval.records.runs_csv import fmt_number, parse_number
 
     assert fmt_number(v) == text
     if text:
@@ -959,7 +963,7 @@ def test_results_page_title_own_figures_and_stated_command(tmp_path, monkeypatch
     """A second page from another CSV: its heading, its own figure folder (PNGs of suites no longer
     in its CSV are removed, the main page's folder is not touched), the README left alone with
     --no-readme, and the command stated in the page makes the same page again."""
-    from eval.results import write_runs_csv as write_csv
+    from eval.records.runs_csv import write_runs_csv as write_csv
 
     monkeypatch.chdir(tmp_path)
     rows = _control_rows(np.random.default_rng(5))
@@ -1043,7 +1047,7 @@ def _t_interval(x):
 
 def _section(text, key):
     """The Controls section of control `key`."""
-    from eval.results import CONTROLS
+    from eval.study.controls import CONTROLS
 
     title = next(c.title for c in CONTROLS if c.key == key)
     return text.split(f"### {title}", 1)[1].split("\n### ", 1)[0]
@@ -1067,13 +1071,17 @@ def test_controls_are_differences_in_differences(tmp_path):
     """The Controls section: each effect's mean and interval, and the change paired over the keys
     all four rows have, recomputed here with numpy / scipy from the same rows (written to a CSV
     and read back as `m4dgs-eval results` does)."""
-    from eval import results as R
+    from eval.records.runs_csv import read_runs_csv, write_runs_csv
+    from eval.report.page import _is_results_figure
+    from eval.report.page_figures import controls_figure, controls_figure_data
+    from eval.study.controls import NO_CHANGE, SHRINKS, controls_markdown
+    from eval.study.findings import NO_DATA
 
     rng = np.random.default_rng(7)
     csv_path = tmp_path / "runs.csv"
-    R.write_runs_csv(csv_path, _control_rows(rng))
-    rows = R.read_runs_csv(csv_path)
-    text = R.controls_markdown(rows, "results-notes.md")
+    write_runs_csv(csv_path, _control_rows(rng))
+    rows = read_runs_csv(csv_path)
+    text = controls_markdown(rows, "results-notes.md")
 
     def vals(suite, row):
         return {
@@ -1103,10 +1111,10 @@ def test_controls_are_differences_in_differences(tmp_path):
         assert n == len(keys) and mean == pytest.approx(em, abs=0.006)
         assert half == pytest.approx(eh, abs=0.006)
         assert dag == (abs(em) > eh)
-        expect = R.NO_CHANGE if abs(em) <= eh else _reading(np.mean(list(real.values())), em)
+        expect = NO_CHANGE if abs(em) <= eh else _reading(np.mean(list(real.values())), em)
         assert cells[4] == expect
     # oracle priors remove the ~1 dB lead: the change is resolved and the lead shrinks
-    assert _table_row(text, "video-init-priors", "LDR-OE PSNR")[4] == R.SHRINKS
+    assert _table_row(text, "video-init-priors", "LDR-OE PSNR")[4] == SHRINKS
     # after Holm: the change's scipy p-values over the control's four metrics, Holm's procedure
     metrics = {"ldr_oe_psnr": "LDR-OE PSNR", "ldr_ne_psnr": "LDR-NE PSNR"}
     metrics |= {"hdr_psnr": "HDR PSNR", "hdr_tae": "HDR-TAE"}
@@ -1136,32 +1144,32 @@ def test_controls_are_differences_in_differences(tmp_path):
         for (m, name), keep, (dm, bm) in zip(metrics.items(), holm_rejects(pv), want):
             cell = _table_row(text, key, name)[5]
             up = _reading(bm, dm)
-            assert cell == (up if keep else R.NO_CHANGE), (key, m)
+            assert cell == (up if keep else NO_CHANGE), (key, m)
             readings.append(cell)
-    assert R.SHRINKS in readings and R.NO_CHANGE in readings  # both kinds occur
+    assert SHRINKS in readings and NO_CHANGE in readings  # both kinds occur
     # the split control's suite is not in these rows
     split = _section(text, "video-init-split")
     assert "not enough data" in split and "`control-video-init`" in split
     assert "Different code versions" not in text
     # the overview figure draws the controls with data, each effect as its table states it, the
     # marker filled exactly where the table's "after Holm" reads a change
-    data = R.controls_figure_data(rows)
+    data = controls_figure_data(rows)
     assert [c.key for c, _ in data] == ["video-init-priors", "video-init-scale"]
     for c, res in data:
         r = res["ldr_oe_psnr"]
         cells = _table_row(text, c.key, "LDR-OE PSNR")
         assert _parse_interval(cells[1])[0] == pytest.approx(r.base.mean, abs=0.006)
         assert _parse_interval(cells[2])[0] == pytest.approx(r.control.mean, abs=0.006)
-        assert (r.reading_holm not in (R.NO_CHANGE, R.NO_DATA)) == (cells[5] != R.NO_CHANGE)
-    png = R.controls_figure(rows, tmp_path / "controls.png")
-    assert png.read_bytes()[:4] == b"\x89PNG" and R._is_results_figure("controls.png")
-    assert R.controls_figure([], tmp_path / "none.png") is None
-    linked = R.controls_markdown(rows, None, "figures/controls.png")
+        assert (r.reading_holm not in (NO_CHANGE, NO_DATA)) == (cells[5] != NO_CHANGE)
+    png = controls_figure(rows, tmp_path / "controls.png")
+    assert png.read_bytes()[:4] == b"\x89PNG" and _is_results_figure("controls.png")
+    assert controls_figure([], tmp_path / "none.png") is None
+    linked = controls_markdown(rows, None, "figures/controls.png")
     assert "![controls](figures/controls.png)" in linked and "![" not in text
 
 
 def test_host_label():
-    from eval.results import host_label
+    from eval.experiments.export import host_label
 
     cpu = {"machine": "x86_64", "cpu": "AMD EPYC", "cpu_capability": "AVX2", "gpu": None}
     assert host_label(cpu) == "AMD EPYC / AVX2"
@@ -1171,92 +1179,95 @@ def test_host_label():
 
 
 def test_controls_flag_different_hosts_only_where_both_sides_recorded_theirs():
-    from eval import results as R
+    from eval.study.controls import controls_markdown
 
     rows = _control_rows(np.random.default_rng(3))
     for r in rows:  # the priors suite on one machine; the scale suite's runs say nothing
         if r["suite"] == "control-video-init-priors":
             r["host"] = "CPU A / AVX2"
-    text = R.controls_markdown(rows, None)
+    text = controls_markdown(rows, None)
     assert "Different hosts" not in text  # an unrecorded side is not a difference
     for r in rows:
         if r["suite"] == "control-video-init-scale":
             r["host"] = "CPU B / AVX512"
-    scale = _section(R.controls_markdown(rows, None), "video-init-scale")
+    scale = _section(controls_markdown(rows, None), "video-init-scale")
     assert "**Different hosts**: base CPU A / AVX2, control CPU B / AVX512" in scale
-    priors = _section(R.controls_markdown(rows, None), "video-init-priors")
+    priors = _section(controls_markdown(rows, None), "video-init-priors")
     assert "Different hosts" not in priors
 
 
 def test_controls_flag_different_code_versions(tmp_path):
-    from eval import results as R
+    from eval.study.controls import controls_markdown
 
     rows = _control_rows(np.random.default_rng(3), code_scale="c1")
-    text = R.controls_markdown(rows, None)
+    text = controls_markdown(rows, None)
     scale, priors = _section(text, "video-init-scale"), _section(text, "video-init-priors")
     assert "**Different code versions**: base c0, control c1" in scale
     assert "Different code versions" not in priors
     # a control whose own rows have no scored run yet (its suite has others) compares no versions
     pending = [r for r in rows if r["row"] not in ("no-video-init-oracle", "full-oracle")]
-    priors = _section(R.controls_markdown(pending, None), "video-init-priors")
+    priors = _section(controls_markdown(pending, None), "video-init-priors")
     assert "not enough data" in priors and "Different" not in priors
 
 
 def _reading(base_mean, change_mean):
     """The expected reading of a resolved change, from the effect's magnitude before and after."""
-    from eval import results as R
+    from eval.study.controls import GROWS, REVERSES, SHRINKS
 
     before, after = base_mean, base_mean + change_mean
     if abs(after) < abs(before):
-        return R.SHRINKS
-    return R.GROWS if np.sign(after) == np.sign(before) else R.REVERSES
+        return SHRINKS
+    return GROWS if np.sign(after) == np.sign(before) else REVERSES
 
 
 def test_control_reading():
-    from eval import results as R
     from eval.stats import Interval
+    from eval.study.controls import GROWS, NO_CHANGE, REVERSES, SHRINKS, control_reading
+    from eval.study.findings import NO_DATA
 
     base = Interval(1.0, 0.5, 4)
-    assert R.control_reading(base, Interval(-0.9, 0.5, 4)) == R.SHRINKS
-    assert R.control_reading(base, Interval(0.9, 0.5, 4)) == R.GROWS
-    assert R.control_reading(base, Interval(0.3, 0.5, 4)) == R.NO_CHANGE
-    assert R.control_reading(Interval(-1.0, 0.5, 4), Interval(0.9, 0.5, 4)) == R.SHRINKS
+    assert control_reading(base, Interval(-0.9, 0.5, 4)) == SHRINKS
+    assert control_reading(base, Interval(0.9, 0.5, 4)) == GROWS
+    assert control_reading(base, Interval(0.3, 0.5, 4)) == NO_CHANGE
+    assert control_reading(Interval(-1.0, 0.5, 4), Interval(0.9, 0.5, 4)) == SHRINKS
     # past 0 but smaller than before: shrinks; past 0 and larger: reverses
-    assert R.control_reading(base, Interval(-1.5, 0.5, 4)) == R.SHRINKS
-    assert R.control_reading(base, Interval(-2.5, 0.5, 4)) == R.REVERSES
+    assert control_reading(base, Interval(-1.5, 0.5, 4)) == SHRINKS
+    assert control_reading(base, Interval(-2.5, 0.5, 4)) == REVERSES
     # an effect near 0 that becomes large (control-tlr's LDR PSNR: -0.12 dB, then +1.51 dB)
-    assert R.control_reading(Interval(-0.12, 1.13, 4), Interval(1.63, 1.14, 4)) == R.REVERSES
-    assert R.control_reading(Interval(0.08, 0.71, 4), Interval(1.48, 0.72, 4)) == R.GROWS
-    assert R.control_reading(base, Interval(0.9, None, 1)) == R.NO_DATA
-    assert R.control_reading(None, Interval(0.9, 0.5, 4)) == R.NO_DATA
+    assert control_reading(Interval(-0.12, 1.13, 4), Interval(1.63, 1.14, 4)) == REVERSES
+    assert control_reading(Interval(0.08, 0.71, 4), Interval(1.48, 0.72, 4)) == GROWS
+    assert control_reading(base, Interval(0.9, None, 1)) == NO_DATA
+    assert control_reading(None, Interval(0.9, 0.5, 4)) == NO_DATA
 
 
 def test_floor_line_mean_and_range_over_the_suites_clips(tmp_path):
     """floors_text: mean and range over the (scene, generator) clips of the suite's scored runs
     that have a recorded floor, recomputed with numpy; clips of another generator version do not
     count; no line without any floor."""
-    from eval import results as R
+    from eval.records.runs_csv import read_runs_csv, write_runs_csv
+    from eval.records.suite_data import suite_data
+    from eval.report.page import floors_text
 
     csv_path = tmp_path / "runs.csv"
-    R.write_runs_csv(csv_path, _control_rows(np.random.default_rng(3)))
-    data = R.suite_data("control-video-init-priors", R.read_runs_csv(csv_path))
+    write_runs_csv(csv_path, _control_rows(np.random.default_rng(3)))
+    data = suite_data("control-video-init-priors", read_runs_csv(csv_path))
     floors = {
         ("lamp-room-orbit", "6"): {"hdr_tae_floor": 0.118, "hdr_tae_floor_interior": 0.068},
         ("pendulum-lamp-handheld", "6"): {"hdr_tae_floor": 0.126, "hdr_tae_floor_interior": None},
         ("robot-arm-dolly", "5"): {"hdr_tae_floor": 0.5, "hdr_tae_floor_interior": 0.5},
     }
-    line = R.floors_text(data, floors)
+    line = floors_text(data, floors)
     f = np.array([0.118, 0.126])
     assert f"mean {f.mean():.3f} ({f.min():.3f}-{f.max():.3f}) over 2 of its 3 clips" in line
     assert line.endswith("0.068 (0.068-0.068)")
-    assert R.floors_text(data, {}) is None
+    assert floors_text(data, {}) is None
 
 
 def test_every_control_names_rows_its_suites_have():
     """A control reads four rows by name; a name its suite file lacks would leave the control
     at "not enough data" forever instead of failing."""
-    from eval.results import CONTROLS
-    from eval.suite import load_eval_suite
+    from eval.records.suite import load_eval_suite
+    from eval.study.controls import CONTROLS
 
     for c in CONTROLS:
         for e in (c.base, c.control):

@@ -15,8 +15,8 @@ import tifffile
 from click.testing import CliRunner
 
 from eval.cli import main
-from eval.frames import read_image, score_frames
-from eval.score import PSNR_CAP_DB
+from eval.experiments.frames import read_image, score_frames
+from eval.experiments.score import PSNR_CAP_DB
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError
@@ -86,7 +86,9 @@ def test_frames_from_the_ground_truth_score_the_known_values(tiny_clip_realistic
     assert inp["hdr_negative"] == 0 and m["run"]["external"] is True
 
     # the score folder joins `eval table RUNS_DIR` under its name
-    res = CliRunner().invoke(main, ["table", str(tmp_path / "runs"), "--format", "csv"])
+    res = CliRunner().invoke(
+        main, ["table", "--columns", "all", str(tmp_path / "runs"), "--format", "csv"]
+    )
     assert res.exit_code == 0, res.output
     assert "gt-copy" in res.output
 

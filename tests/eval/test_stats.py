@@ -215,8 +215,8 @@ def test_interval_na_for_one_run_and_missing_reference():
 
 
 def test_build_tables_with_paper_values_and_seeds():
-    from eval.cli import build_tables
-    from eval.suite import TableDef
+    from eval.records.suite import TableDef
+    from eval.records.suite_data import build_tables
 
     rows, psnr, tae = _synthetic_rows()
     names = {"full": "full", "(a)": "no-video-init", "(e)": "no-tlr"}
@@ -256,7 +256,7 @@ def test_build_tables_with_paper_values_and_seeds():
 # seeds in the job list
 # --------------------------------------------------------------------------------------------------
 def test_job_list_with_seeds(tmp_path):
-    from eval.runner import find_job, job_list, seeds_present
+    from eval.experiments.runner import find_job, job_list, seeds_present
 
     one = job_list("exposure-noise", tmp_path, "tiny")
     three = job_list("exposure-noise", tmp_path, "tiny", seeds=3)
@@ -297,7 +297,7 @@ def test_job_list_with_seeds(tmp_path):
 
 
 def test_seed_suffix_is_reserved_and_suite_reference():
-    from eval.suite import SuiteError, load_eval_suite, parse_suite
+    from eval.records.suite import SuiteError, load_eval_suite, parse_suite
 
     base = {"name": "x", "scenes": "tiny"}
     with pytest.raises(SuiteError, match="seed"):
@@ -323,7 +323,7 @@ def test_seed_suffix_is_reserved_and_suite_reference():
 # --------------------------------------------------------------------------------------------------
 def test_paper_values_file():
     from eval.paper import load_paper_values, paper_records
-    from eval.suite import builtin_suites, load_eval_suite, metric_columns
+    from eval.records.suite import builtin_suites, load_eval_suite, metric_columns
 
     pv = load_paper_values()
     recs = paper_records()

@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
-from eval.view_scores import score_views
+from eval.experiments.view_scores import score_views
 from m4dgs.clip import Clip, ClipError, frame_name, level_name
 from m4dgs.core import io as mio
 

@@ -37,12 +37,14 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import yaml
 
+from eval.experiments.export import export
+from eval.experiments.runner import failed_jobs, job_list, read_failure, run_suite
+from eval.records.runs_csv import read_runs_csv
+from eval.records.suite import SuiteError, load_eval_suite, scene_suite_names
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError
 
-from .suite import SuiteError, load_eval_suite, scene_suite_names
-
-CAMPAIGNS_DIR = Path(__file__).resolve().parent / "campaigns"
+CAMPAIGNS_DIR = Path(__file__).resolve().parents[1] / "campaigns"
 _TOP_KEYS = {"name", "description", "preset", "seeds", "scene_sets", "steps"}
 _STEP_KEYS = {"suite", "scenes", "seeds"}
 
@@ -212,8 +214,6 @@ def recorded_runs(
     of another benchgen generator version; a failed row without a preset counts at every preset):
     the record of finished (or failed) runs that survives the loss of their run folders (empty
     without a CSV)."""
-    from .results import read_runs_csv
-
     if csv_path is None:
         return {}
     out = {}
@@ -257,8 +257,6 @@ def step_status(
     todo_iterations (todo_iterations here counts every job in full), with its whole-training
     share key and whether it finished with a run folder under ROOT. retry_failed False: a job
     whose last attempt failed will not run again, so it adds nothing to todo_iterations."""
-    from .runner import job_list, read_failure
-
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
     recorded = recorded or {}
     recorded_failed = recorded_failed or {}
@@ -362,9 +360,6 @@ def run_campaign(
     finished (its row stays "failed"; it is not run again, so neither the mixed-code check nor the
     final error concerns it)."""
     from m4dgs.core.errors import M4DGSError
-
-    from .results import export
-    from .runner import failed_jobs, run_suite
 
     say = log or print
     if code is None:

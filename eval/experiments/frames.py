@@ -186,7 +186,7 @@ def score_frames(
 ) -> Tuple[Path, dict]:
     """Import a prediction folder (import_frames) into `out` (default runs/<clip name>/<name>) and
     score it (eval.score.score_run, no model); returns (score folder, metrics)."""
-    from .score import score_run  # deferred: loads torch and the metrics
+    from eval.experiments.score import score_run  # deferred: loads torch and the metrics
 
     if not NAME_RE.match(name or ""):
         raise InputError(

@@ -46,11 +46,10 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
+from eval.records.suite import EvalSuite, load_eval_suite, scene_suite_names, suites_dir
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError, M4DGSError
 from m4dgs.core.lock import file_lock
-
-from .suite import EvalSuite, load_eval_suite, scene_suite_names, suites_dir
 
 PRESETS = ("tiny", "small", "paper")
 SHARE_DIR = ".shared"  # under OUT: trainer phases shared between runs (m4dgs.training.phases)
@@ -344,7 +343,9 @@ def run_job(
             steps.append("train")
         mpath = run_dir / "metrics.json"
         if force or not mpath.exists():
-            from .score import score_run  # deferred: scoring loads torch and the metrics (~1.5 s)
+            from eval.experiments.score import (
+                score_run,  # deferred: scoring loads torch and the metrics (~1.5 s)
+            )
 
             what = "scoring"
             score_run(

@@ -22,9 +22,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Sequence, Tuple
 
-from .pairs import interval_text, split_spec
-from .results import SCORED
-from .stats import mean_ci
+from eval.inspect.pairs import split_spec
+from eval.records.runs_csv import SCORED
+from eval.records.suite import LAYOUTS, metric_columns
+from eval.stats import interval_text, mean_ci
 
 HEADLINE = ("ldr_oe_psnr", "hdr_psnr", "hdr_tae")
 
@@ -53,8 +54,6 @@ def parse_side(text: str) -> Tuple[str, str]:
 
 def quality_columns() -> List[str]:
     """Every metric column of the CSV but the time, speed and memory ones."""
-    from .suite import LAYOUTS, metric_columns
-
     cost = set(LAYOUTS["cost"])
     return [k for k in metric_columns() if k not in cost]
 
@@ -116,8 +115,6 @@ def repeats_markdown(
     with one line per (scene, seed) and up to `show` differences of each pair that differs (the
     headline metrics first, then the largest relative ones), and the headline metrics' B - A over
     those pairs."""
-    from .suite import metric_columns
-
     a, b = parse_side(a_text), parse_side(b_text)
     reg = metric_columns()
     if columns is not None:

@@ -31,14 +31,16 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
+from eval.experiments.run_files import read_render_exr, resolve_clip_dir
+from eval.experiments.runner import job_list
+from eval.experiments.score import PSNR_CAP_DB
+from eval.metrics._util import psnr_from_mse
+from eval.metrics.hdr import hdr_tonemap_pair
+from eval.metrics.image import masked_psnr
+from eval.stats import interval_text, mean_ci
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError
-
-from .metrics._util import psnr_from_mse
-from .metrics.hdr import hdr_tonemap_pair
-from .metrics.image import masked_psnr
-from .score import PSNR_CAP_DB, read_render_exr, resolve_clip_dir
 
 REGIONS = ("bright", "edge", "dynamic", "static")
 
@@ -500,8 +502,6 @@ def suite_region_pairs(
     row - ref}}}, "missing": [run folders without test renders]}. Raises InputError for a row the
     suite does not have, a ROOT without the suite's runs, or two runs of a pair whose clips cannot
     be compared pixel for pixel."""
-    from .runner import job_list
-
     if domain not in ("LDR-OE", "LDR-NE", "hdr") and not domain.startswith("ldr "):
         raise InputError(
             f"domain {domain!r}: one of LDR-OE, LDR-NE, hdr or 'ldr <level>' (e.g. 'ldr 0.125')"
@@ -587,9 +587,6 @@ def format_region_pairs(result: dict, describe: bool = True) -> str:
     bright region's only where the split had one (--bright-above / --bright-top); a region_changes
     result is titled by its two effects. describe=False leaves out the line that defines the
     regions (printed once above several results)."""
-    from .pairs import interval_text
-    from .stats import mean_ci
-
     out = [describe_regions(**result["regions"]), ""] if describe else []
     for row, per_pair in result["diffs"].items():
         keys = sorted(per_pair, key=lambda k: (str(k[0]), k[1]))

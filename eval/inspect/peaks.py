@@ -25,6 +25,8 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from eval.experiments.run_files import resolve_clip_dir
+from eval.experiments.runner import read_failure
 from m4dgs.clip import Clip, frame_name
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError
@@ -35,9 +37,6 @@ def run_peaks(run_dir, clip: Optional[Clip] = None) -> Dict:
     "nonfinite"} of one run's test-frame HDR renders (renders/test/hdr/<frame>.exr) against the
     clip's ground truth (gt/hdr). clip: default the run's (run.json "clip"). Raises InputError
     when the clip has no ground-truth HDR or test frames, or a test frame's render is missing."""
-    from .runner import read_failure
-    from .score import resolve_clip_dir
-
     run_dir = Path(run_dir)
     clip = clip if clip is not None else Clip.open(resolve_clip_dir(run_dir))
     frames = list(clip.test_frames)

@@ -25,11 +25,9 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from m4dgs.clip import Clip
-from m4dgs.core.crf import get_crf
-from m4dgs.core.errors import InputError
-
-from .metrics.crf import (
+from eval.experiments.run_files import resolve_clip_dir
+from eval.experiments.runner import read_failure
+from eval.metrics.crf import (
     CRF_ERROR_SAMPLES,
     crf_error,
     crf_error_bands,
@@ -37,6 +35,9 @@ from .metrics.crf import (
     curve_channel,
     observed_exposure_range,
 )
+from m4dgs.clip import Clip
+from m4dgs.core.crf import get_crf
+from m4dgs.core.errors import InputError
 
 #: samples of the drawn curves (log2-uniform over the recorded range)
 PLOT_SAMPLES = 200
@@ -120,9 +121,6 @@ def run_response(run_dir, clip: Optional[Clip] = None, bands: int = 6, ranges=No
 
     from m4dgs.model.trained import load_model
 
-    from .runner import read_failure
-    from .score import resolve_clip_dir
-
     run_dir = Path(run_dir)
     clip = clip if clip is not None else Clip.open(resolve_clip_dir(run_dir))
     if not (run_dir / "model" / "final.pt").exists():
@@ -172,9 +170,9 @@ def format_responses(results: List[Dict]) -> str:
 def plot_responses(results: List[Dict], path) -> Path:
     """Two panels, one line per run: the learned response (channel mean) over the true one, and
     their signed difference in 8-bit codes, against log2 exposure. Written atomically as PNG."""
-    from .figures import _plt, _save
+    from eval.figures import pyplot, save_png
 
-    plt = _plt()
+    plt = pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
     first = results[0]["plot"]
     a.plot(first["log2_x"], first["true"], color="black", lw=2.0, label="true")
@@ -193,5 +191,5 @@ def plot_responses(results: List[Dict], path) -> Path:
     a.legend(fontsize=7)
     fig.tight_layout()
     path = Path(path)
-    _save(fig, path)
+    save_png(fig, path)
     return path

@@ -10,7 +10,7 @@ each view (eval.calibration.predict.dibr) with what a method has, not the truth:
   intrinsics.
 
 Writes <out>/<view>/hdr/<g>.exr and <out>/<view>/ldr/<level>/<g>.png for every test frame g, the
-layout eval.view_scores reads."""
+layout eval.experiments.view_scores reads."""
 
 from __future__ import annotations
 
@@ -19,12 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.calibration.predict import ClipFrames, dibr, ldr_at, response_of
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.outputs.views import align_to_truth, truth_to_run
 from m4dgs.run import load_torch
-
-from .predict import ClipFrames, dibr, ldr_at, response_of
 
 
 def camera_initialisation(clip_dir, work, preset: str = "small", overrides=None) -> dict:
@@ -88,6 +87,6 @@ def write_dibr_views(clip_dir, out, preset: str = "small", work=None, overrides=
 
 def ldr_at_radiance(cf: ClipFrames, i: int, g_resp) -> np.ndarray:
     """Training frame i's radiance [H, W, 3] through the estimated response."""
-    from .response import radiance
+    from eval.calibration.response import radiance
 
     return radiance(cf.ldr[i], cf.dt[i], g_resp)

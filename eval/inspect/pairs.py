@@ -37,9 +37,18 @@ from __future__ import annotations
 
 from typing import Dict, List, Optional, Sequence
 
-from .results import FAILED, SCORED, one_line, pair_differences
-from .stats import holm as holm_adjust
-from .stats import mean_ci, rows_differ, scene_heterogeneity, scene_mean_ci
+from eval.records.runs_csv import FAILED, SCORED, one_line
+from eval.records.suite import SuiteError, builtin_suites, load_eval_suite, metric_columns
+from eval.stats import (
+    heterogeneity_text,
+    interval_text,
+    mean_ci,
+    rows_differ,
+    scene_heterogeneity,
+    scene_mean_ci,
+)
+from eval.stats import holm as holm_adjust
+from eval.study.controls import pair_differences
 
 DEFAULT_METRICS = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_tae", "ldr_train_psnr")
 
@@ -57,27 +66,12 @@ def _fmt(metric: str, fmts: Dict[str, str]) -> str:
     return fmts.get(metric, ".4f")
 
 
-def interval_text(iv, f: str) -> str:
-    """mean ± half († where the interval excludes 0) (n), or n/a."""
-    if iv.mean is None:
-        return "n/a"
-    half = "n/a" if iv.half is None else format(iv.half, f)
-    return f"{iv.mean:+{f}} ± {half}{'†' if iv.excludes_zero else ''} ({iv.n})"
-
-
 ALPHA = 0.05
 
 
 def _p_text(p) -> str:
     """p with † below ALPHA; n/a without a test."""
     return "n/a" if p is None else f"{p:.3f}{'†' if p < ALPHA else ''}"
-
-
-def _heterogeneity_text(h) -> str:
-    """F(df1, df2) = F, p = p; or n/a."""
-    if h is None:
-        return "n/a"
-    return f"F({h.df_between}, {h.df_within}) = {h.f:.2f}, p = {h.p:.3f}"
 
 
 def pairs_markdown(
@@ -100,8 +94,6 @@ def pairs_markdown(
     page's Controls read it; with `differ`, whether the rows differ from one another (module
     docstring). Raises ValueError naming what the CSV lacks."""
     from pathlib import Path
-
-    from .suite import SuiteError, builtin_suites, load_eval_suite, metric_columns
 
     definition = None
     if suite not in builtin_suites() and Path(suite).is_file():
@@ -189,7 +181,7 @@ def pairs_markdown(
                 interval_text(mean_ci(v for k, v in d.items() if k[1] == sd), f) for sd in seeds
             ]
             if by_seed:
-                more.append(_heterogeneity_text(scene_heterogeneity(d)))
+                more.append(heterogeneity_text(scene_heterogeneity(d)))
             if holm:
                 pooled += " | " + _p_text(adjusted[(name, m)])
             out.append(
@@ -211,7 +203,7 @@ def pairs_markdown(
             h = rows_differ({n: diffs_of[n][m] for n in wanted})
             header = cols[m].label
             n_pairs = "n/a" if h is None else str(h.df_within // h.df_between + 1)
-            out.append(f"| {header} | {_heterogeneity_text(h)} | {n_pairs} |")
+            out.append(f"| {header} | {heterogeneity_text(h)} | {n_pairs} |")
         out.append("")
     # the pairs a failed run keeps out (a result of its configuration, not a run still to come)
     sides = {(suite, n) for n in [ref, *wanted]}

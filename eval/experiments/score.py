@@ -48,7 +48,12 @@ averaging (so a perfect render reads 100.00 and JSON stays standard). NaN is sto
 
 LDR renders are read from the 8-bit PNG files written by m4dgs.outputs.render, so LDR is scored on
 8-bit renders (the PNG round-trip convention; `roundtrip="jpeg"` adds a JPEG round trip to compare
-with the authors' numbers)."""
+with the authors' numbers).
+
+At about 890 lines this module stays one: score_run and its steps share the per-run state (_Job)
+and the metric-group helpers, and splitting them would spread one computation over files. The run
+folder as it is read (run.json, the clip, the render files) is eval.experiments.run_files; the
+conventions printed under the tables are eval.conventions."""
 
 from __future__ import annotations
 
@@ -62,8 +67,20 @@ from typing import Dict, Iterable, List, Optional, Tuple
 import numpy as np
 import torch
 
+from eval.conventions import (
+    CRF_LOG2_RANGE,
+    CRF_SAMPLES,
+    PSNR_CAP_DB,
+    TRACK_SAMPLES,
+    all_conventions,
+)
+from eval.experiments.run_files import (
+    ensure_renders,
+    read_render_exr,
+    read_run_info,
+    resolve_clip_dir,
+)
 from eval.metrics import (
-    CONVENTIONS,
     ate,
     crf_error,
     depth_absrel,
@@ -90,43 +107,11 @@ from m4dgs.clip import Cameras, Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.core.crf import get_crf
 from m4dgs.core.device import resolve_device
-from m4dgs.core.errors import InputError, NonFiniteError
+from m4dgs.core.errors import InputError
 from m4dgs.run import load_torch
 
-PSNR_CAP_DB = 100.0
 CHUNK = 8  # frames per batch when scoring (bounds memory at 864x480)
-TRACK_SAMPLES = 256
-CRF_LOG2_RANGE = (
-    -10.0,
-    10.0,
-)  # the tone mapper's input axis range used by the authors' monotonicity penalty
-CRF_SAMPLES = 81
 FPS_SIZE = (864, 480)
-
-SCORE_CONVENTIONS = {
-    "psnr_cap": f"PSNR capped at {PSNR_CAP_DB:g} dB per image (identical images) before averaging",
-    "depth_absrel_clip": "Depth AbsRel: rendered test z-depth vs GT, one median scale over all "
-    "test frames, mean "
-    "|s d - gt| / gt over gt > 0",
-    "crf_rmse": f"CRF RMSE: learned tone curve vs the true CRF, RMSE over RGB and {CRF_SAMPLES} "
-    "log2 exposures in "
-    f"[{CRF_LOG2_RANGE[0]:g}, {CRF_LOG2_RANGE[1]:g}]",
-    "track_first_frame": f"Tracks: up to {TRACK_SAMPLES} GT tracks visible at the first frame "
-    "(seed 0), induced by "
-    "the dynamic Gaussians' motion (model.track_2d)",
-    "cameras_all_frames": "Cameras: Sim(3) alignment over every frame present in both trajectories",
-    "hdr_tae_train": "HDR-TAE on the rendered training frames",
-    "hdr_tae_interior": "HDR-TAE on the rendered training frames without occlusion-edge pixels "
-    "(gt depth)",
-    "dyn_masks": "Dynamic masks: the run's dynamic masks (config masks.method) vs GT dynamic "
-    "masks on the training "
-    "frames, pixel counts pooled over frames (precision, recall, IoU)",
-}
-
-
-def all_conventions() -> Dict[str, str]:
-    """eval.metrics.CONVENTIONS plus the scoring conventions of this module."""
-    return {**CONVENTIONS, **SCORE_CONVENTIONS}
 
 
 # --------------------------------------------------------------------------------------------------
@@ -142,19 +127,6 @@ def _clean(v):
     if math.isinf(v):
         return PSNR_CAP_DB if v > 0 else -PSNR_CAP_DB
     return v
-
-
-def read_render_exr(path) -> np.ndarray:
-    """A rendered EXR (HDR or depth) of the run, refused when it holds NaN or infinite values: a
-    mean over the finite frames would score a broken model as if it were fine."""
-    a = mio.read_exr(path)
-    bad = int(a.size - np.isfinite(a).sum())
-    if bad:
-        raise NonFiniteError(
-            f"{path}: {bad} of {a.size} values are NaN or infinite; the run's model is broken "
-            "(retrain it) or the render is damaged (delete renders/ and score again)"
-        )
-    return a
 
 
 def _capped_mean(vals: Iterable[float]) -> Optional[float]:
@@ -178,73 +150,6 @@ def _weighted(pairs: List[tuple]) -> Optional[float]:
 def _chunks(seq: List, n: int = CHUNK):
     for i in range(0, len(seq), n):
         yield seq[i : i + n]
-
-
-def read_run_info(run_dir) -> dict:
-    p = Path(run_dir) / "run.json"
-    return mio.read_json(p) if p.exists() else {}
-
-
-def resolve_clip_dir(run_dir, clip=None) -> Path:
-    """The run's clip folder: `clip` if given, else run.json "clip" (absolute, relative to the run,
-    or to the cwd)."""
-    if clip is not None:
-        return Path(clip)
-    info = read_run_info(run_dir)
-    if "clip" not in info:
-        raise FileNotFoundError(
-            f"{Path(run_dir) / 'run.json'}: no 'clip' entry; pass the clip folder explicitly"
-        )
-    p = Path(info["clip"])
-    if p.is_absolute():
-        return p
-    for cand in (Path(run_dir) / p, Path(info.get("clip_abs", p)), Path.cwd() / p):
-        if (cand / "clip.json").exists():
-            return cand
-    return Path(run_dir) / p
-
-
-def render_paths(run_dir, clip: Clip) -> Dict[str, List[Path]]:
-    """The render files scoring needs (m4dgs.outputs.render layout), grouped."""
-    r = Path(run_dir) / "renders"
-    ex = clip.meta.exposures
-    out = {
-        "train_hdr": [r / "train/hdr" / frame_name(g, "exr") for g in clip.train_frames],
-        "train_ldr": [r / "train/ldr" / frame_name(g, "png") for g in clip.train_frames],
-    }
-    if clip.test_frames:
-        out["test_hdr"] = [r / "test/hdr" / frame_name(g, "exr") for g in clip.test_frames]
-        for lv in list(ex.observed) + list(ex.novel):
-            out[f"test_ldr_{level_name(lv)}"] = [
-                r / "test/ldr" / level_name(lv) / frame_name(g, "png") for g in clip.test_frames
-            ]
-    return out
-
-
-def missing_renders(run_dir, clip: Clip) -> List[Path]:
-    return [p for ps in render_paths(run_dir, clip).values() for p in ps if not p.exists()]
-
-
-def ensure_renders(run_dir, clip: Clip, progress: bool = False, device: str = "cpu") -> bool:
-    """Render what is missing through m4dgs.outputs.render.render_run; returns True when it had to
-    render."""
-    if not missing_renders(run_dir, clip):
-        return False
-    # the trainer's entry points are imported when called (tests replace them in sys.modules)
-    from m4dgs.outputs.render import render_run
-
-    render_run(
-        run_dir,
-        overwrite=False,
-        progress=progress,
-        **({"device": device} if device != "cpu" else {}),
-    )
-    still = missing_renders(run_dir, clip)
-    if still:
-        raise FileNotFoundError(
-            f"{run_dir}: render_run left {len(still)} render(s) missing, e.g. {still[0]}"
-        )
-    return True
 
 
 def _ldr_pred(path: Path, rt):

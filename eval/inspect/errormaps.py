@@ -29,12 +29,12 @@ from typing import Dict, List, Optional, Sequence
 
 import numpy as np
 
+from eval.conventions import PSNR_CAP_DB
+from eval.experiments.run_files import resolve_clip_dir
+from eval.inspect.regions import check_comparable, frame_pair, renders_root
+from eval.metrics._util import psnr_from_mse
 from m4dgs.clip import Clip, level_name
 from m4dgs.core.errors import InputError
-
-from .metrics._util import psnr_from_mse
-from .regions import check_comparable, frame_pair, renders_root
-from .score import PSNR_CAP_DB
 
 
 def parse_domain(clip: Clip, domain: Optional[str]) -> Optional[float]:
@@ -160,9 +160,9 @@ def _scale(values: Sequence[np.ndarray], q: float = 99.5) -> float:
 
 def draw_error_maps(panels: dict, out_png, title: str = "") -> Path:
     """The figure of error_panels' output as a PNG (written atomically)."""
-    from .figures import _plt, _save
+    from eval.figures import pyplot, save_png
 
-    plt = _plt()
+    plt = pyplot()
     ref = panels["ref"]
     cols = [("ground truth", panels["gt"], None)]
     if ref is not None:
@@ -202,15 +202,13 @@ def draw_error_maps(panels: dict, out_png, title: str = "") -> Path:
     if im_d is not None:
         fig.colorbar(im_d, cax=fig.add_subplot(grid[2, -1]), label="sq. error - ref's")
     fig.suptitle(title or f"frame {panels['frame']}, {panels['domain']}", fontsize=9)
-    return _save(fig, out_png)
+    return save_png(fig, out_png)
 
 
 def _open_runs(runs: Sequence, ref, clip_dir) -> tuple:
     """([(run, Clip)], (ref, Clip) or None, the clip the frames and levels come from: the
     reference's, else the first run's), each run's clip from its run.json unless clip_dir; the
     clips must agree pixel for pixel (regions.check_comparable) and have ground truth."""
-    from .score import resolve_clip_dir
-
     if not runs:
         raise InputError("no run to draw")
     clips = [Clip.open(resolve_clip_dir(r, clip_dir)) for r in runs]

@@ -1,0 +1,269 @@
+"""`m4dgs-eval report table|results`: a suite's tables and the results page (eval.records,
+eval.report). The old flat names (`table`, `results`) are hidden aliases (eval.cli)."""
+
+from __future__ import annotations
+
+import os
+import shlex
+from pathlib import Path
+
+import click
+
+from eval.cli._options import DEFAULT_OUT, parse_scenes, scenes_opt
+from eval.experiments.collect import collect_runs_dir, collect_suite
+from eval.records.suite_data import build_tables, compact_tables
+from m4dgs.core import io as mio
+
+
+@click.group(
+    "report",
+    short_help="Tables and the results page: table, results.",
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+def group():
+    """Tables and the results page: a suite's or a folder's tables, the results page
+    from the runs CSV."""
+
+
+def _no_scored_runs(target: str, name: str, root, entries: list) -> str:
+    """One line for `table SUITE` when none of the suite's runs under ROOT has a metrics.json:
+    the folder it searched, what it looked for there, and what to run."""
+    where = os.path.join(os.path.abspath(root), "runs", name)
+    todo = f"m4dgs-eval run {shlex.quote(target)} --root {shlex.quote(str(root))}"
+    made = [e for e in entries if Path(e["run_dir"]).is_dir()]
+    if made:
+        return (
+            f"{len(made)} of the {len(entries)} run folder(s) of suite {name!r} exist under "
+            f"{where} but none has a metrics.json yet (searched <scene>/<row>/metrics.json); "
+            f"finish and score them with `{todo}`"
+        )
+    why = ""
+    if not os.path.isdir(root):
+        why = "; the experiment root does not exist"
+    elif not os.path.isdir(where):
+        why = "; that folder does not exist"
+    return (
+        f"no runs of suite {name!r} under {where} (searched <scene>/<row>/metrics.json for its "
+        f"{len(entries)} job(s){why}); train them with `{todo}`"
+    )
+
+
+@group.command()
+@click.argument("target")
+@click.option(
+    "--root",
+    "out",
+    default=DEFAULT_OUT,
+    show_default=True,
+    type=click.Path(file_okay=False),
+    metavar="ROOT",
+    help="Experiment root of a suite (runs in ROOT/runs/<suite>, figures to ROOT/figures/<suite>).",
+)
+@click.option(
+    "--format",
+    "fmt",
+    type=click.Choice(["md", "latex", "csv"]),
+    default="md",
+    show_default=True,
+    help="Table format (Markdown with bold best values; LaTeX booktabs; CSV without bold).",
+)
+@click.option(
+    "--out",
+    "out_file",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Write the tables to this file (atomically) instead of stdout.",
+)
+@click.option(
+    "--columns",
+    type=click.Choice(["compact", "all"]),
+    default="compact",
+    show_default=True,
+    help="compact: one table of LDR-OE PSNR, HDR PSNR, HDR-TAE and training time, the `full` row "
+    "labelled as the method, columns without any value left out; all: every table of the suite "
+    "(or of the folder of runs) with every column.",
+)
+@scenes_opt
+@click.option(
+    "--seeds",
+    default=None,
+    type=click.IntRange(min=1),
+    help="Trainer seeds 0..N-1 to tabulate (default: up to the largest seed with a run folder).",
+)
+@click.option(
+    "--no-figures",
+    is_flag=True,
+    help="Do not write the figures (CRF curves, loss curves, image grids).",
+)
+@click.option(
+    "--figures-dir",
+    default=None,
+    type=click.Path(file_okay=False),
+    help="Folder for the figures (default ROOT/figures/<suite>, or <runs dir>/../figures/<name>).",
+)
+def table(target, out, fmt, columns, out_file, scenes, seeds, no_figures, figures_dir):
+    """Print the paper-style tables of TARGET: a suite (name or YAML; runs under ROOT) or a folder
+    of runs (linked run and scene folders count like real ones)."""
+    from eval.records.suite import TableDef, load_eval_suite
+    from m4dgs.core.errors import InputError
+
+    if Path(target).is_dir():
+        entries = collect_runs_dir(target)
+        if not entries:
+            raise InputError(
+                f"no scored runs under {os.path.abspath(target)} (searched it and every folder "
+                "below it, links included, for metrics.json); score a run folder with "
+                "`m4dgs-eval score RUN`, or give a suite's name with --root ROOT"
+            )
+        reference = "full" if any(e["row"] == "full" for e in entries) else None
+        defs = [
+            TableDef(f"Runs under {target}", "paper"),
+            TableDef("Training frames", "train"),
+            TableDef("Geometry", "geometry"),
+            TableDef("Cost", "cost"),
+        ]
+        # beside the folder as named (a linked folder's figures stay in this tree)
+        given = Path(os.path.abspath(target))
+        fig_dir = Path(figures_dir) if figures_dir else given.parent / "figures" / given.name
+    else:
+        if os.sep in target and not Path(target).exists():
+            raise InputError(
+                f"{target}: no such folder of runs ({os.path.abspath(target)}) nor suite file; "
+                "give a folder of runs, a suite YAML file or a built-in suite's name "
+                "(`m4dgs-eval suites`)"
+            )
+        s = load_eval_suite(target)
+        entries = collect_suite(target, out, parse_scenes(scenes), seeds=seeds)
+        defs, reference = s.tables, s.reference
+        fig_dir = Path(figures_dir) if figures_dir else Path(out) / "figures" / s.name
+        if not any(e["metrics"] for e in entries):
+            raise InputError(_no_scored_runs(target, s.name, out, entries))
+    if columns == "compact":
+        entries, defs = compact_tables(entries, defs[0].title if defs else str(target))
+    text = build_tables(entries, defs, fmt, reference)
+    if out_file:
+        mio.write_text_atomic(out_file, text)
+        click.echo(f"wrote {out_file}", err=True)
+    else:
+        click.echo(text, nl=False)
+    if not no_figures:
+        from eval.figures import suite_figures
+
+        # seed 0 only
+        paths = suite_figures([e for e in entries if e["metrics"] and not e.get("seed")], fig_dir)
+        click.echo(f"wrote {len(paths)} figure(s) to {fig_dir}", err=True)
+
+
+@group.command()
+@click.option(
+    "--csv",
+    "csv_path",
+    default="results/runs.csv",
+    show_default=True,
+    type=click.Path(dir_okay=False),
+    help="Runs CSV written by `export`, with its <name>-crf.csv and <name>-floors.csv beside it "
+    "(a missing file gives a page that says the runs are pending).",
+)
+@click.option(
+    "--out",
+    "out_md",
+    default="docs/results.md",
+    show_default=True,
+    type=click.Path(dir_okay=False),
+    help="The results page to write.",
+)
+@click.option(
+    "--figures",
+    "figures_dir",
+    default=None,
+    type=click.Path(file_okay=False),
+    help="Folder for the figures; PNGs in it named as the page's figures (<suite>_<kind>.png) that "
+    "it no longer makes are removed (default: <folder of --out>/figures/<name of --out without "
+    ".md>, e.g. docs/figures/results).",
+)
+@click.option("--no-figures", is_flag=True, help="Write no figures (and link none).")
+@click.option(
+    "--readme",
+    default="README.md",
+    show_default=True,
+    type=click.Path(dir_okay=False),
+    help="README whose block between <!-- results:main:start --> and <!-- results:main:end --> "
+    "is replaced by the main table.",
+)
+@click.option("--no-readme", is_flag=True, help="Leave the README alone.")
+@click.option(
+    "--title",
+    default="Results",
+    show_default=True,
+    help="The page's heading (e.g. for a page of runs on an earlier benchmark version).",
+)
+@click.option(
+    "--notes",
+    default=None,
+    type=click.Path(dir_okay=False),
+    help="Hand-written notes linked from the page (default: results-notes.md beside --out, else "
+    "the research record's lab/results-notes.md in the folder above --out's, when it exists).",
+)
+@click.option(
+    "--suite",
+    "suite_files",
+    multiple=True,
+    type=click.Path(exists=True, dir_okay=False),
+    help="YAML file of a suite of the CSV that is not built in (repeat for several): its section "
+    "then shows the definition, the reference row and the row order. A CSV of only such suites "
+    "gets no sections on the paper's findings and controls.",
+)
+def results(
+    csv_path, out_md, figures_dir, no_figures, readme, no_readme, title, notes, suite_files
+):
+    """Regenerate the results page (every suite's tables with intervals, the paper's values and
+    the agreement column, figures, findings) and the README's main table from the runs CSV."""
+    from eval.report.page import render_results
+
+    notes_given = notes is not None
+    if notes is None:
+        here = Path(out_md).parent
+        cands = [here / "results-notes.md", here.parent / "lab" / "results-notes.md"]
+        notes = next((str(c) for c in cands if c.exists()), None)
+    default_fig = str(Path(out_md).parent / "figures" / Path(out_md).stem)
+    fig = None if no_figures else (figures_dir or default_fig)
+    # the command written into the page regenerates it as it is
+    q = shlex.quote
+    cmd = f"m4dgs-eval results --csv {q(str(csv_path))} --out {q(str(out_md))}"
+    if no_figures:
+        cmd += " --no-figures"
+    elif figures_dir and figures_dir != default_fig:
+        cmd += f" --figures {q(str(figures_dir))}"
+    if no_readme:
+        cmd += " --no-readme"
+    elif readme != "README.md":
+        cmd += f" --readme {q(str(readme))}"
+    if title != "Results":
+        cmd += f" --title {q(title)}"
+    if notes_given:
+        cmd += f" --notes {q(str(notes))}"
+    for f in suite_files:
+        cmd += f" --suite {q(str(f))}"
+    res = render_results(
+        csv_path,
+        out_md,
+        figures_dir=fig,
+        readme=None if no_readme else readme,
+        notes=notes,
+        command=cmd,
+        title=title,
+        suite_files=suite_files,
+    )
+    click.echo(
+        f"wrote {out_md} ({len(res['suites'])} suite(s), {len(res['figures'])} figure(s))"
+        + (f"; updated {res['readme']}" if res["readme"] else ""),
+        err=True,
+    )
+    for name, pm in res["partial_metrics"].items():
+        click.echo(
+            f"warning: suite {name}: some scored runs lack metrics their rows report elsewhere: "
+            + ", ".join(f"{k} in {h} of {n} runs" for k, (h, n) in pm.items())
+            + " (scored before the metric existed, or rows written back by an older export: "
+            "re-export them with `m4dgs-eval export` while their run folders exist)",
+            err=True,
+        )

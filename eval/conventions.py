@@ -1,0 +1,42 @@
+"""The scoring conventions printed under the tables (eval.experiments.score applies them): the PSNR
+cap, the CRF sampling, the track sample count and one line per convention. Free of torch, so that
+tables and the results page can name them without loading the scorer."""
+
+from __future__ import annotations
+
+from typing import Dict
+
+PSNR_CAP_DB = 100.0
+TRACK_SAMPLES = 256
+CRF_LOG2_RANGE = (
+    -10.0,
+    10.0,
+)  # the tone mapper's input axis range used by the authors' monotonicity penalty
+CRF_SAMPLES = 81
+
+SCORE_CONVENTIONS = {
+    "psnr_cap": f"PSNR capped at {PSNR_CAP_DB:g} dB per image (identical images) before averaging",
+    "depth_absrel_clip": "Depth AbsRel: rendered test z-depth vs GT, one median scale over all "
+    "test frames, mean "
+    "|s d - gt| / gt over gt > 0",
+    "crf_rmse": f"CRF RMSE: learned tone curve vs the true CRF, RMSE over RGB and {CRF_SAMPLES} "
+    "log2 exposures in "
+    f"[{CRF_LOG2_RANGE[0]:g}, {CRF_LOG2_RANGE[1]:g}]",
+    "track_first_frame": f"Tracks: up to {TRACK_SAMPLES} GT tracks visible at the first frame "
+    "(seed 0), induced by "
+    "the dynamic Gaussians' motion (model.track_2d)",
+    "cameras_all_frames": "Cameras: Sim(3) alignment over every frame present in both trajectories",
+    "hdr_tae_train": "HDR-TAE on the rendered training frames",
+    "hdr_tae_interior": "HDR-TAE on the rendered training frames without occlusion-edge pixels "
+    "(gt depth)",
+    "dyn_masks": "Dynamic masks: the run's dynamic masks (config masks.method) vs GT dynamic "
+    "masks on the training "
+    "frames, pixel counts pooled over frames (precision, recall, IoU)",
+}
+
+
+def all_conventions() -> Dict[str, str]:
+    """eval.metrics.CONVENTIONS plus the scoring conventions of this module."""
+    from eval.metrics import CONVENTIONS  # deferred: the metrics load torch
+
+    return {**CONVENTIONS, **SCORE_CONVENTIONS}

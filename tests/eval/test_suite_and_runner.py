@@ -1,0 +1,83 @@
+"""Focused tests of the suite definitions (eval.records.suite), the runner's job list and run
+names (eval.experiments.runner) and the run folder as the scorer reads it
+(eval.experiments.run_files), without training anything."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from eval.experiments.run_files import read_run_info, resolve_clip_dir
+from eval.experiments.runner import job_list, seed_run_name, split_run_name
+from eval.records.suite import (
+    SuiteError,
+    builtin_suites,
+    find_eval_suite,
+    load_eval_suite,
+    parse_suite,
+)
+
+
+def test_builtin_suites_are_found_by_name():
+    names = builtin_suites()
+    assert {"tiny", "paper-main", "paper-ablation", "crf"} <= set(names)
+    assert names == sorted(names)
+    for n in names:
+        assert find_eval_suite(n).stem == n
+        assert load_eval_suite(n).name == n
+
+
+def test_unknown_suite_names_the_shipped_ones():
+    with pytest.raises(SuiteError) as e:
+        find_eval_suite("no-such-suite")
+    assert "tiny" in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "d, key",
+    [
+        ([], "<root>"),
+        ({"name": "x", "scenes": "tiny"}, "rows"),
+        ({"name": "x/y", "scenes": "tiny", "rows": []}, "name"),
+        ({"name": "x", "scenes": "tiny", "rows": [], "colour": 1}, "colour"),
+    ],
+)
+def test_parse_suite_names_the_bad_key(d, key):
+    with pytest.raises(SuiteError) as e:
+        parse_suite(d, "s.yaml")
+    assert key in str(e.value) and "s.yaml" in str(e.value)
+
+
+@pytest.mark.parametrize("row, seed", [("full", 0), ("full", 2), ("no-tlr-seed-x", 0), ("a", 11)])
+def test_run_names_round_trip(row, seed):
+    assert split_run_name(seed_run_name(row, seed)) == (row, seed)
+    assert seed_run_name(row, 0) == row
+
+
+def test_job_list_covers_scenes_rows_and_seeds(tmp_path):
+    s = load_eval_suite("tiny")
+    one = job_list("tiny", tmp_path, "tiny")
+    two = job_list("tiny", tmp_path, "tiny", seeds=2)
+    assert len(one) * 2 == len(two)
+    assert {j.row for j in one} == {r.name for r in s.rows}
+    assert all(j.seed == 0 for j in one) and {j.seed for j in two} == {0, 1}
+    seed1 = [j for j in two if j.seed == 1]
+    assert all(j.run_dir.endswith(seed_run_name(j.row, 1)) for j in seed1)
+    with pytest.raises(ValueError):
+        job_list("tiny", tmp_path, "huge")
+
+
+def test_resolve_clip_dir(tmp_path):
+    run, clip = tmp_path / "run", tmp_path / "clip"
+    run.mkdir()
+    clip.mkdir()
+    (clip / "clip.json").write_text("{}")
+    assert read_run_info(run) == {}
+    with pytest.raises(FileNotFoundError):
+        resolve_clip_dir(run)
+    assert resolve_clip_dir(run, clip) == clip
+    (run / "run.json").write_text(json.dumps({"clip": "../clip"}))
+    assert resolve_clip_dir(run).resolve() == clip.resolve()
+    (run / "run.json").write_text(json.dumps({"clip": str(clip)}))
+    assert resolve_clip_dir(run) == clip
