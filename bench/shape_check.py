@@ -1,4 +1,4 @@
-"""Evidence for issue 63 (eval reshaped, no number moved): the outputs of `m4dgs-eval` that read
+"""Evidence that reshaping eval moved no number: the outputs of `m4dgs-eval` that read
 only the committed runs CSVs, recorded once on the untouched code and compared after every step.
 
     python bench/shape_check.py --record    # writes bench/shape_check.txt (the baseline)
@@ -158,7 +158,8 @@ def collect(cwd: Path) -> list[tuple[str, str]]:
         "table paper-main --root shape-runs --no-figures --format csv",
         "table shape-runs/runs/control-tlr --no-figures",
     ]
-    # `table` prints a compact table by default since issue 63; --columns all is the table of before
+    # `table` prints a compact table by default since eval's reshaping; --columns all is the
+    # table of before
     tables = [f"{t} --columns all || {t}" for t in tables]
     for cmd in tables:
         new, old = _split(cmd)

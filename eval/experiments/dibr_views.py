@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from eval.calibration.predict import ClipFrames, dibr, ldr_at, response_of
+from eval.calibration.response import radiance
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.outputs.views import align_to_truth, truth_to_run
@@ -66,7 +67,7 @@ def write_dibr_views(clip_dir, out, preset: str = "small", work=None, overrides=
         for j, g in enumerate(clip.test_frames):
             i = int(np.argmin(np.abs(t - g) + 1e-9 * (t > g)))
             hdr, _ = dibr(
-                np.asarray(ldr_at_radiance(cf, i, g_resp)),
+                radiance(cf.ldr[i], cf.dt[i], g_resp),
                 ci["depth"][i],
                 ci["K"],
                 ci["c2w"][i],
@@ -83,10 +84,3 @@ def write_dibr_views(clip_dir, out, preset: str = "small", work=None, overrides=
                     ldr_at(hdr, float(lv), g_resp),
                 )
     return out
-
-
-def ldr_at_radiance(cf: ClipFrames, i: int, g_resp) -> np.ndarray:
-    """Training frame i's radiance [H, W, 3] through the estimated response."""
-    from eval.calibration.response import radiance
-
-    return radiance(cf.ldr[i], cf.dt[i], g_resp)

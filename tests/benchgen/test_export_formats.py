@@ -1,4 +1,4 @@
-"""`benchgen export --format` and `m4dgs import-clip --format` (issue 66, docs/clip-format.md
+"""`benchgen export --format` and `m4dgs import-clip --format` (docs/clip-format.md
 "Other formats"): an export and its import give the clip back, the exported cameras put the
 ground-truth 3D points on their ground-truth pixels when projected as each format's own
 documentation says (code written here, not this project's camera code), hand-made folders in each
