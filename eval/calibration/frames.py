@@ -17,9 +17,19 @@ from pathlib import Path
 from m4dgs.clip import frame_name, level_name
 from m4dgs.core import io as mio
 
+from . import TEMPORAL_ROWS as ROWS
 from .predict import ClipFrames, ldr_at, predict, response_of
 
-ROWS = ("copy-nearest", "flow-merge")
+
+def response_record(row: str, g_resp) -> dict:
+    """response.json of a calibration row: the row, how the response was estimated, and g (natural
+    log exposure per channel [3] and code [256])."""
+    return {
+        "row": row,
+        "method": "Debevec-Malik least squares on quantile samples of bracketed training "
+        "frames, anchored at clip.json unit_exposure_value (eval.calibration.response)",
+        "g": g_resp.tolist(),
+    }
 
 
 def write_prediction(clip, out, row: str) -> Path:
@@ -38,13 +48,5 @@ def write_prediction(clip, out, row: str) -> Path:
                 out / "test" / "ldr" / level_name(lv) / frame_name(g, "png"),
                 ldr_at(hdr, float(lv), g_resp),
             )
-    mio.write_json(
-        out / "response.json",
-        {
-            "row": row,
-            "method": "Debevec-Malik least squares on quantile samples of bracketed training "
-            "frames, anchored at clip.json unit_exposure_value (eval.calibration.response)",
-            "g": g_resp.tolist(),
-        },
-    )
+    mio.write_json(out / "response.json", response_record(row, g_resp))
     return out

@@ -44,7 +44,12 @@ def suites():
         click.echo(f"{s.name}: {s.description}  [scenes: {s.scenes}]")
         for r in s.rows:
             ov = f" {r.overrides}" if r.overrides else ""
-            click.echo(f"  - {r.name}: variant {r.variant}{ov}, clip {r.clip}  ({r.label})")
+            what = (
+                f"calibration row {r.calibration}"
+                if r.calibration is not None
+                else f"variant {r.variant}{ov}"
+            )
+            click.echo(f"  - {r.name}: {what}, clip {r.clip}  ({r.label})")
         bad = check_variants(s)
         if bad:
             click.echo(f"  ! variants unknown to m4dgs.training.variants: {bad}")

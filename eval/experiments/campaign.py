@@ -166,6 +166,8 @@ def job_training_key(job) -> str:
 def job_plan(job) -> Tuple[Optional[str], int, int, str]:
     """job_cost's three values and job_training_key, from one resolution of the job's
     configuration (m4dgs.training.variants.run_plan)."""
+    if getattr(job, "calibration", None) is not None:
+        return None, 0, 0, ""  # a calibration row trains nothing
     from m4dgs.training.variants import run_plan
 
     return run_plan(job.preset, job.variant, job.overrides, str(job.clip_dir))

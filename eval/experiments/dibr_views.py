@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eval.calibration.frames import response_record
 from eval.calibration.predict import ClipFrames, dibr, ldr_at, response_of
 from eval.calibration.response import radiance
 from m4dgs.clip import Clip, frame_name, level_name
@@ -27,14 +28,19 @@ from m4dgs.outputs.views import align_to_truth, truth_to_run
 from m4dgs.run import load_torch
 
 
-def camera_initialisation(clip_dir, work, preset: str = "small", overrides=None) -> dict:
+def camera_initialisation(
+    clip_dir, work, preset: str = "small", overrides=None, share_dir=None
+) -> dict:
     """The trainer's camera initialisation of a clip (m4dgs.training.pipeline.Trainer, variant
     full at `preset`), run in the folder `work`: {"K" [3, 3], "c2w" [T, 4, 4], "depth" [T, H, W]
     (the depth priors times their per-frame scale: world units)}; `overrides`: config overrides by
-    dotted key, as `m4dgs train --set`."""
+    dotted key, as `m4dgs train --set`; `share_dir`: the suite's share folder (OUT/.shared), where
+    the phase is taken from a run of the same clip, configuration and seed that computed it."""
     from m4dgs.training.pipeline import Trainer
 
-    trainer = Trainer(clip_dir, work, preset, "full", overrides, progress=False)
+    trainer = Trainer(
+        clip_dir, work, preset, "full", overrides, progress=False, share_dir=share_dir
+    )
     trainer.run_phase("camera_init")
     ci = load_torch(Path(work) / "model" / "camera_init.pt")
     depth = (
@@ -44,10 +50,19 @@ def camera_initialisation(clip_dir, work, preset: str = "small", overrides=None)
     return {"K": ci["K"].double().numpy(), "c2w": ci["c2w"].double().numpy(), "depth": depth}
 
 
-def write_dibr_views(clip_dir, out, preset: str = "small", work=None, overrides=None) -> Path:
+def write_dibr_views(
+    clip_dir,
+    out,
+    preset: str = "small",
+    work=None,
+    overrides=None,
+    share_dir=None,
+    response_json=None,
+) -> Path:
     """Write the dibr row's predictions at every held-out view of the clip into `out` (module
     docstring); `work`: the folder for the camera initialisation (default a temporary one),
-    `overrides`: its config overrides."""
+    `overrides` and `share_dir`: as camera_initialisation's; `response_json`: where to write the
+    estimated response (eval.calibration.frames's response.json), if given."""
     clip = Clip.open(clip_dir)
     out = Path(out)
     views = clip.view_names()
@@ -55,8 +70,12 @@ def write_dibr_views(clip_dir, out, preset: str = "small", work=None, overrides=
         raise ValueError(f"{clip.root}: the clip has no held-out views (gt/views/)")
     cf = ClipFrames.of(clip)
     g_resp = response_of(cf)
+    if response_json is not None:
+        mio.write_json(response_json, response_record("dibr", g_resp))
     with tempfile.TemporaryDirectory() as tmp:
-        ci = camera_initialisation(clip_dir, work or Path(tmp) / "run", preset, overrides)
+        ci = camera_initialisation(
+            clip_dir, work or Path(tmp) / "run", preset, overrides, share_dir
+        )
     gt = clip.load_gt_cameras()
     idx = [list(gt.frames).index(g) for g in cf.frames]
     al = align_to_truth(ci["c2w"], gt.c2w[idx])

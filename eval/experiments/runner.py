@@ -122,6 +122,9 @@ class Job:
     seed: int = (
         0  # trainer seed index (0: the row as it is; n > 0: overrides["seed"] = row seed + n)
     )
+    # a calibration row (eval.calibration.ROWS): predicted and scored, not trained
+    # (eval.experiments.calibration_rows); its seed reaches dibr's camera initialisation
+    calibration: Optional[str] = None
 
     @property
     def id(self) -> str:
@@ -226,6 +229,7 @@ def job_list(
                             preset,
                             str(out),
                             seed,
+                            r.calibration,
                         )
                     )
     return jobs
@@ -335,6 +339,8 @@ def run_job(
         res.update(seconds=round(time.perf_counter() - t0, 2), steps=steps)
         return res
     run_dir = Path(job.run_dir)
+    if job.calibration is not None:
+        return _run_calibration_job(job, res, steps, t0, force, lpips_weights, share)
     status = run_dir / "status.json"
     what = "training"
     try:
@@ -360,6 +366,35 @@ def run_job(
         record_failure(run_dir, f"{what}: {error_line(exc)}")
         raise
     (run_dir / FAILURE_FILE).unlink(missing_ok=True)  # an earlier attempt's record
+    res.update(metrics=str(mpath), seconds=round(time.perf_counter() - t0, 2), steps=steps)
+    return res
+
+
+def _run_calibration_job(job: Job, res, steps, t0, force, lpips_weights, share) -> dict:
+    """run_job for a calibration row: predict and score (eval.experiments.calibration_rows) unless
+    metrics.json exists (or force)."""
+    run_dir = Path(job.run_dir)
+    mpath = run_dir / "metrics.json"
+    try:
+        if force or not mpath.exists():
+            from eval.experiments.calibration_rows import make_calibration_run
+
+            make_calibration_run(
+                job.calibration,
+                job.row,
+                job.clip_dir,
+                run_dir,
+                preset=job.preset,
+                overrides=job.overrides,
+                share_dir=job.share_dir if share else None,
+                lpips_weights=lpips_weights,
+            )
+            steps.append("predict")
+            steps.append("score")
+    except Exception as exc:
+        record_failure(run_dir, f"calibration row {job.calibration}: {error_line(exc)}")
+        raise
+    (run_dir / FAILURE_FILE).unlink(missing_ok=True)
     res.update(metrics=str(mpath), seconds=round(time.perf_counter() - t0, 2), steps=steps)
     return res
 

@@ -18,7 +18,10 @@ A suite file names
   folder (default: the variant), ``label`` the text in the table (default: the name), ``variant`` a
   name of ``m4dgs.training.variants.VARIANTS`` (default ``full``), ``overrides`` extra dotted config
   overrides (e.g. ``{"exposure.perturb_ev": 0.5}``), ``clip`` the clip setting (default
-  ``default``);
+  ``default``); or ``{name, label, calibration, clip}``: a calibration row (``calibration`` one of
+  ``eval.calibration.ROWS``: ``copy-nearest``, ``flow-merge``, ``dibr``), a 2D prediction that
+  reconstructs nothing in 3D, made and scored like another method's frames instead of trained
+  (eval.experiments.calibration_rows; no variant or overrides);
 - ``tables``: each ``{title, columns, paper}`` with ``columns`` a layout name of ``LAYOUTS``
   (``paper`` is ``eval.tables.paper_table_spec``) or a list of metric keys of ``metric_columns()``,
   and ``paper`` (optional) a table of ``eval/paper_values.yaml`` whose values are shown beside ours
@@ -43,6 +46,7 @@ from pathlib import Path
 from typing import Any, Dict, List, Optional
 
 from benchgen.suite import load_suite
+from eval.calibration import ROWS as CALIBRATION_ROWS
 from eval.paper import load_paper_values
 from eval.tables import Column, TableSpec, paper_table_spec
 from m4dgs.core import io as mio
@@ -69,7 +73,7 @@ _SEED_SUFFIX_RE = re.compile(r"-seed-[0-9]+$")
 # the keys a suite file may use, per level
 SUITE_KEYS = ("name", "description", "scenes", "clips", "rows", "tables", "reference")
 CLIP_KEYS = ("schedule", "priors", "observed", "novel", "seed", "crf")
-ROW_KEYS = ("name", "label", "variant", "overrides", "clip")
+ROW_KEYS = ("name", "label", "variant", "overrides", "clip", "calibration")
 TABLE_KEYS = ("title", "columns", "paper")
 
 
@@ -122,6 +126,9 @@ class Row:
     variant: str = "full"
     overrides: Dict[str, Any] = field(default_factory=dict)
     clip: str = "default"
+    # a calibration row (eval.calibration.ROWS): a 2D prediction made and scored instead of a
+    # trained run; variant is then "calibration"
+    calibration: Optional[str] = None
 
 
 @dataclass
@@ -158,7 +165,8 @@ class EvalSuite:
 
     @property
     def variants(self) -> List[str]:
-        return sorted({r.variant for r in self.rows})
+        """The trained variants of the rows (calibration rows train nothing)."""
+        return sorted({r.variant for r in self.rows if r.calibration is None})
 
 
 # --------------------------------------------------------------------------------------------------
@@ -414,8 +422,23 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
         bad = sorted(unknown_keys(r, ROW_KEYS))
         if bad:
             raise SuiteError(path, f"rows[{i}].{bad[0]}", f"unknown key ({', '.join(ROW_KEYS)})")
-        variant = str(r.get("variant", "full"))
-        rname = str(r.get("name", variant))
+        cal = r.get("calibration")
+        if cal is not None:
+            if cal not in CALIBRATION_ROWS:
+                raise SuiteError(
+                    path,
+                    f"rows[{i}].calibration",
+                    f"unknown calibration row {cal!r} (known: {', '.join(CALIBRATION_ROWS)})",
+                )
+            both = [k for k in ("variant", "overrides") if k in r]
+            if both:
+                raise SuiteError(
+                    path,
+                    f"rows[{i}].{both[0]}",
+                    "a calibration row trains nothing: it takes no variant or overrides",
+                )
+        variant = "calibration" if cal is not None else str(r.get("variant", "full"))
+        rname = str(r.get("name", cal if cal is not None else variant))
         if not _NAME_RE.match(rname):
             raise SuiteError(path, f"rows[{i}].name", f"expected a folder-safe name, got {rname!r}")
         if rname in seen:
@@ -436,7 +459,7 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
             raise SuiteError(
                 path, f"rows[{i}].clip", f"unknown clip setting {clip!r} (have {sorted(clips)})"
             )
-        rows.append(Row(rname, str(r.get("label", rname)), variant, dict(ov), clip))
+        rows.append(Row(rname, str(r.get("label", rname)), variant, dict(ov), clip, cal))
     tables = []
     for i, t in enumerate(
         d.get("tables") or [{"title": d.get("description", name), "columns": "paper"}]

@@ -1,0 +1,124 @@
+"""Calibration rows as a suite row kind (`calibration: ROW`): parsed and checked like other rows,
+carried into the job list, and run by the runner as a prediction scored like another method's
+frames, not a training. The copy-nearest run is checked against the clip itself: each test frame's
+HDR is the nearest training frame's radiance through the run's own estimated response, and its
+LDR-OE PSNR is the mean PSNR of its LDR files computed here with numpy."""
+
+from __future__ import annotations
+
+import math
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+
+from eval.calibration import ROWS, TEMPORAL_ROWS
+from eval.experiments.runner import job_list, run_job
+from eval.records.suite import SuiteError, load_eval_suite
+from m4dgs.clip import Clip, frame_name, level_name
+from m4dgs.core import io as mio
+
+
+def _suite(path, rows, folder="clips"):
+    d = {
+        "name": "cal",
+        "scenes": {"clips": folder},
+        "rows": rows,
+        "tables": [{"title": "t", "columns": "ablation"}],
+    }
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+def test_calibration_rows_parse_and_train_nothing(tmp_path):
+    (tmp_path / "clips" / "a").mkdir(parents=True)
+    (tmp_path / "clips" / "a" / "clip.json").write_text("{}")
+    s = load_eval_suite(
+        _suite(
+            tmp_path / "s.yaml",
+            [
+                {"name": "full", "variant": "full"},
+                {"calibration": "copy-nearest", "label": "2D copy"},
+                {"name": "warp", "calibration": "flow-merge"},
+            ],
+        )
+    )
+    assert [r.name for r in s.rows] == ["full", "copy-nearest", "warp"]
+    assert [r.calibration for r in s.rows] == [None, "copy-nearest", "flow-merge"]
+    assert s.rows[1].variant == "calibration" and s.rows[1].label == "2D copy"
+    assert s.variants == ["full"]  # what the trainer must know
+    jobs = job_list(s, tmp_path / "root", preset="tiny", seeds=2)
+    assert [(j.row, j.seed, j.calibration) for j in jobs][:3] == [
+        ("full", 0, None),
+        ("copy-nearest", 0, "copy-nearest"),
+        ("warp", 0, "flow-merge"),
+    ]
+    assert jobs[-1].calibration == "flow-merge" and jobs[-1].seed == 1
+    assert set(ROWS) == {"copy-nearest", "flow-merge", "dibr"}
+
+
+@pytest.mark.parametrize(
+    "row, match",
+    [
+        ({"calibration": "nearest"}, "unknown calibration row 'nearest'"),
+        ({"calibration": "dibr", "variant": "full"}, r"rows\[0\]\.variant.*trains nothing"),
+        ({"calibration": "dibr", "overrides": {"seed": 1}}, r"rows\[0\]\.overrides"),
+    ],
+)
+def test_calibration_row_errors_name_the_key(tmp_path, row, match):
+    with pytest.raises(SuiteError, match=match):
+        load_eval_suite(_suite(tmp_path / "s.yaml", [row]))
+
+
+def _psnr(a, b):
+    mse = float(np.mean((a / 255.0 - b / 255.0) ** 2))  # 8-bit images, data range 1
+    return min(100.0, 10 * math.log10(1.0 / mse)) if mse > 0 else 100.0
+
+
+def test_runner_predicts_and_scores_a_calibration_row(tiny_clip_oracle, tmp_path):
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    shutil.copytree(tiny_clip_oracle, clips / "flag")
+    s = load_eval_suite(
+        _suite(tmp_path / "s.yaml", [{"calibration": r} for r in TEMPORAL_ROWS], "clips")
+    )
+    jobs = job_list(s, tmp_path / "root", preset="tiny")
+    res = run_job(jobs[0])
+    assert res["steps"] == ["predict", "score"]
+    run = tmp_path / "root/runs/cal/flag/copy-nearest"
+    m = mio.read_json(run / "metrics.json")
+    info = mio.read_json(run / "run.json")
+    assert info["external"] and info["variant"] == "copy-nearest"
+    g_resp = np.asarray(mio.read_json(run / "response.json")["g"])  # [3, 256] natural log
+    assert g_resp.shape == (3, 256)
+
+    clip = Clip.open(clips / "flag")
+    train = list(clip.train_frames)
+    dts = clip.meta.exposures
+    for g in clip.test_frames:
+        j = int(np.argmin([abs(t - g) + 1e-9 * (t > g) for t in train]))
+        # the nearest training frame's radiance through the run's response, written here:
+        # codes -> exp(g[code]) / dt
+        codes = np.asarray(clip.load_ldr(train[j]), np.int64)
+        ref = np.stack([np.exp(g_resp[c][codes[..., c]]) for c in range(3)], -1)
+        ref /= float(clip.train_dt[j])
+        pred = mio.read_exr(run / "renders/test/hdr" / frame_name(g, "exr"))
+        assert np.allclose(pred, ref, rtol=1e-4), g
+    vals = [
+        _psnr(
+            mio.read_png(run / "renders/test/ldr" / level_name(lv) / frame_name(g, "png")),
+            clip.load_gt_ldr(lv, g),
+        )
+        for lv in dts.observed
+        for g in clip.test_frames
+    ]
+    assert m["ldr_oe_psnr"] == pytest.approx(float(np.mean(vals)), abs=1e-6)
+    assert m["ldr_oe_psnr"] > 15  # a copy of the neighbour, not noise
+    assert m["hdr_tae"] is None and m["train_minutes"] is None  # no training frames, no training
+
+    # done once: a second call scores nothing again
+    assert run_job(jobs[0])["steps"] == []
+    # flow-merge as well
+    assert run_job(jobs[1])["steps"] == ["predict", "score"]
+    assert (tmp_path / "root/runs/cal/flag/flow-merge/metrics.json").exists()
