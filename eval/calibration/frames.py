@@ -1,8 +1,10 @@
 """A calibration row's prediction folder, in the layout `m4dgs-eval score-frames` reads
 (eval.frames: DIR/test/hdr/<g>.exr and DIR/test/ldr/<level>/<g>.png at every observed and novel
-level), so that it is scored exactly like another method's frames:
+level; for a clip with held-out views the same images again as DIR/views/<view>/hdr/<g>.exr and
+DIR/views/<view>/ldr/<level>/<g>.png, since a 2D row predicts the same image whatever the
+viewpoint), so that it is scored exactly like another method's frames:
 
-    python -m eval.calibration CLIP ROW OUT        # ROW: copy-nearest | flow-merge
+    m4dgs-eval calibration CLIP ROW --out OUT      # ROW: copy-nearest | flow-merge (| dibr)
     m4dgs-eval score-frames --clip CLIP --pred OUT --name ROW
 
 The response is estimated from the clip's training frames (eval.calibration.predict.response_of)
@@ -41,12 +43,15 @@ def write_prediction(clip, out, row: str) -> Path:
     cf = ClipFrames.of(clip)
     g_resp = response_of(cf)
     levels = list(clip.meta.exposures.observed) + list(clip.meta.exposures.novel)
+    # a 2D row has no notion of viewpoint: at a held-out view it predicts what it predicts at the
+    # view's test frame (the dibr row is the one that moves the camera)
+    roots = [out / "test"] + [out / "views" / v for v in clip.view_names()]
     for g, hdr in predict(cf, clip.test_frames, row, g_resp).items():
-        mio.write_exr(out / "test" / "hdr" / frame_name(g, "exr"), hdr)
+        for root in roots:
+            mio.write_exr(root / "hdr" / frame_name(g, "exr"), hdr)
         for lv in clip.meta.test_levels_of(g) if clip.meta.exposures.test_dt else levels:
-            mio.write_png(
-                out / "test" / "ldr" / level_name(lv) / frame_name(g, "png"),
-                ldr_at(hdr, float(lv), g_resp),
-            )
+            ldr = ldr_at(hdr, float(lv), g_resp)
+            for root in roots:
+                mio.write_png(root / "ldr" / level_name(lv) / frame_name(g, "png"), ldr)
     mio.write_json(out / "response.json", response_record(row, g_resp))
     return out

@@ -6,6 +6,8 @@ beside the two scorers (docs/eval.md, "Commands"):
         write RUN/metrics.json (renders what is missing through m4dgs)
     m4dgs-eval score-frames --clip C --pred D --name N
         score another method's frames (no m4dgs model)
+    m4dgs-eval calibration CLIP ROW --out D
+        a 2D calibration row's prediction (copy-nearest, flow-merge, dibr) for score-frames
     m4dgs-eval suite list
         the shipped experiment suites and their rows
     m4dgs-eval suite run tiny --preset tiny
@@ -40,7 +42,7 @@ import os
 
 import click
 
-from eval.cli import inspect, report, score, suite
+from eval.cli import calibration, inspect, report, score, suite
 from m4dgs.core.errors import ReportingGroup
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -81,6 +83,7 @@ def hidden_alias(cmd: click.Command, name: str) -> click.Command:
 
 main.add_command(score.score)
 main.add_command(score.score_frames_cmd)
+main.add_command(calibration.calibration_cmd)
 for _g in GROUPS:
     main.add_command(_g)
 _by_name = {g.name: g for g in GROUPS}

@@ -2,8 +2,8 @@
 training, the row's 2D prediction is written and scored exactly like another method's frames
 (eval.experiments.frames.score_frames), so that it lands in the tables beside the trained rows.
 
-- copy-nearest, flow-merge: the temporal test frames (eval.calibration.frames.write_prediction);
-  the held-out views' scores are None.
+- copy-nearest, flow-merge: the temporal test frames (eval.calibration.frames.write_prediction),
+  and the same images at the held-out views (a 2D row ignores the viewpoint).
 - dibr: the held-out views only (eval.experiments.dibr_views.write_dibr_views, with the trainer's
   camera initialisation of the job's seed, taken from the suite's share folder when a trained row
   of the same clip and seed computed it); the temporal test frames' scores are None.

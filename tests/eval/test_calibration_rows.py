@@ -122,3 +122,33 @@ def test_runner_predicts_and_scores_a_calibration_row(tiny_clip_oracle, tmp_path
     # flow-merge as well
     assert run_job(jobs[1])["steps"] == ["predict", "score"]
     assert (tmp_path / "root/runs/cal/flag/flow-merge/metrics.json").exists()
+
+
+def test_calibration_command_writes_test_frames_and_the_same_images_at_the_views(
+    tiny_clip_oracle, tmp_path
+):
+    from click.testing import CliRunner
+
+    from eval.cli import main
+
+    out = tmp_path / "pred"
+    r = CliRunner().invoke(
+        main, ["calibration", str(tiny_clip_oracle), "copy-nearest", "--out", str(out)]
+    )
+    assert r.exit_code == 0, r.output
+    assert "score-frames" in r.output
+    clip = Clip.open(tiny_clip_oracle)
+    views = clip.view_names()
+    assert views  # generator 7 clips carry held-out views
+    g = clip.test_frames[0]
+    lv = clip.meta.exposures.observed[0]
+    a = (out / "test/hdr" / frame_name(g, "exr")).read_bytes()
+    for v in views:
+        # a 2D row has no viewpoint: the view's image is its test frame's
+        assert (out / "views" / v / "hdr" / frame_name(g, "exr")).read_bytes() == a
+        assert (out / "views" / v / "ldr" / level_name(lv) / frame_name(g, "png")).read_bytes() == (
+            out / "test/ldr" / level_name(lv) / frame_name(g, "png")
+        ).read_bytes()
+    assert mio.read_json(out / "response.json")["row"] == "copy-nearest"
+    bad = CliRunner().invoke(main, ["calibration", str(tiny_clip_oracle), "nearest", "--out", "x"])
+    assert bad.exit_code == 2 and "copy-nearest" in bad.output

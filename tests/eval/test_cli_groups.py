@@ -61,7 +61,7 @@ def test_old_names_are_hidden_aliases_of_the_grouped_commands():
 def test_top_level_help_lists_the_groups_one_line_each():
     out = CliRunner().invoke(main, ["--help"], prog_name="m4dgs-eval").output
     listed = re.findall(r"^  (\S+)\s{2,}\S", out.split("Commands:")[1], flags=re.M)
-    assert listed == ["inspect", "report", "score", "score-frames", "suite"]
+    assert listed == ["calibration", "inspect", "report", "score", "score-frames", "suite"]
     assert len(out.split("Commands:")[1].strip().splitlines()) == len(listed)
 
 
