@@ -13,8 +13,8 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	$(VENV)/m4dgs-eval run tiny --preset tiny --root $(OUT)
-	$(VENV)/m4dgs-eval table tiny --root $(OUT)
+	$(VENV)/m4dgs-eval suite run tiny --preset tiny --root $(OUT)
+	$(VENV)/m4dgs-eval report table tiny --root $(OUT)
 
 test: setup
 	$(VENV)/python -m pytest
@@ -30,8 +30,8 @@ format: setup
 # both results pages from their committed CSVs (each page states the command that makes it): the
 # results page in docs/, the superseded generator-5 one in the research record, lab/
 results: setup
-	$(VENV)/m4dgs-eval results
-	$(VENV)/m4dgs-eval results --csv results/runs-generator5.csv --out lab/results-generator5.md \
+	$(VENV)/m4dgs-eval report results
+	$(VENV)/m4dgs-eval report results --csv results/runs-generator5.csv --out lab/results-generator5.md \
 		--no-readme --title 'Results on the generator-5 benchmark (superseded)'
 
 test-slow: setup

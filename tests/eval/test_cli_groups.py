@@ -80,6 +80,6 @@ def test_makefile_and_campaign_files_use_names_that_resolve():
     text = (ROOT / "Makefile").read_text()
     text += "".join(p.read_text() for p in (ROOT / "eval" / "campaigns").glob("*.yaml"))
     used = set(re.findall(r"m4dgs-eval ([a-z][a-z-]*)", text))
-    assert {"run", "table", "results"} <= used
+    assert {"suite", "report"} <= used
     for name in used:
         _get([name])
