@@ -20,13 +20,40 @@ another method's frames"):
                                         exposure (ldr_train_*)
     DIR/test/depth/<g>.exr              optional: z-depth of every test frame (depth AbsRel)
     DIR/cameras.json                    optional: estimated cameras in the m4dgs format (ATE, RPE)
+    DIR/views/<view>/hdr/<g>.<ext>      a held-out view of a benchgen clip (gt/views/<view>/): HDR
+    DIR/views/<view>/ldr/<level>/<g>.<ext>  and LDR at every level of every test frame g, as for
+                                        test/ (required for each view given)
+    DIR/views/<view>/depth/<g>.exr      optional: z-depth in the view
 
-<g> is the global frame index, zero-padded to 5 digits (00007.exr). Every missing required file is
-listed in one error. Images are read through OpenImageIO: RGB or RGBA by channel name (R, G, B,
-else the first three channels; one channel is grey), any bit depth. LDR predictions with more than
-8 bits are rounded to 8 bits (round(255 x)), the precision m4dgs renders are scored at; the number
-of files of each kind is recorded in metrics.json ("options" -> "input"). HDR values must be
-finite; negative values are set to 0 and counted.
+DIR/test/ is required unless DIR/views/ is there: a method that renders only the views (a
+depth-image-based rendering baseline) gives views/ alone. An unknown view name is an error naming
+the clip's views. <g> is the global frame index, zero-padded to 5 digits (00007.exr). Every missing
+required file is listed in one error. Images are read through OpenImageIO: RGB or RGBA by
+channel name (R, G, B, else the first three channels; one channel is grey), any bit depth. LDR
+predictions with more than 8 bits are rounded to 8 bits (round(255 x)), the precision m4dgs
+renders are scored at; the number of files of each kind is recorded in metrics.json ("options" ->
+"input", with the views given and the layout). HDR values must be finite; negative values are set
+to 0 and counted.
+
+Other layouts, read as their programs write them, no renaming (`--layout`, LAYOUTS):
+
+    mono4dgs-hdr  the official Mono4DGS-HDR code's render folder <workspace>/<experiment>/world_gs/:
+                  test_ldr/<name>.jpg (each test frame at its exposures.json "test" exposure),
+                  test_ne_ldr/<name>.jpg (at its "test_ne" exposure), test_hdr_exr/<name>.exr,
+                  train_ldr/, train_hdr_exr/; <name> the stem of the workspace's test/ (train/)
+                  file: frame numbers for a clip written by `benchgen export --format
+                  mono4dgs-hdr`, else the j-th name in sorted order is the j-th test frame (the
+                  numbering of `m4dgs import-clip --format mono4dgs-hdr`). The level of each
+                  render is the one that export gives the frame; an exposures.json beside the
+                  folder (or one or two levels up) must agree.
+    nerfies       a Nerfies / DyCheck method's results/rgb/<id>.png (DIR = results/, or rgb/
+                  itself) for a clip written by `benchgen export --format nerfies`: <id> =
+                  "<camera>_<g:05d>", camera 0 the clip's camera path (test frames; training
+                  frames give ldr_train_*), camera k >= 1 the k-th held-out view; each at the level
+                  of the export's rgb/1x/. No HDR, depth or cameras: those metrics are null.
+
+A layout that renders each test frame at some of its levels only is scored at those
+(scored_clip).
 
 The frames are copied into the m4dgs render layout of a score folder (default runs/<clip>/<NAME>)
 with a run.json naming NAME as the variant, and scored by eval.score.score_run without a model:

@@ -388,12 +388,11 @@ def test_official_layout_scores_real_footage(tmp_path):
         plan_inputs(Clip.open(clip_dir), out, "mono4dgs-hdr")
 
 
-def test_official_layout_of_an_exported_clip(tiny_clip_oracle, tmp_path):
-    """A benchgen clip exported for the official code: its renders, named like the workspace's
-    test/ files, land at the level exposures.json gives them (test: an observed level, test_ne: a
-    novel one); the score sees those levels only."""
-    clip = Clip.open(tiny_clip_oracle)
-    ws = _export(tiny_clip_oracle, "mono4dgs-hdr", tmp_path / "ws")
+def _official_renders(clip: Clip, ws: Path):
+    """A perfect method's world_gs/ for a workspace exported from `clip`, written from the
+    workspace's exposures.json (the official loader's facts): test_ldr/<name> at the "test"
+    exposure of <name>, test_ne_ldr/<name> at its "test_ne" exposure, test_hdr_exr/<stem>.exr.
+    Returns (the folder, {frame: levels rendered})."""
     ex = json.loads((ws / "exposures.json").read_text())
     out = ws / "exp" / "world_gs"
     at = {}
@@ -411,6 +410,16 @@ def test_official_layout_of_an_exported_clip(tiny_clip_oracle, tmp_path):
         mio.write_exr(
             out / "test_hdr_exr" / n.replace(".png", ".exr"), clip.load_gt_hdr(int(n[:5]))
         )
+    return out, at
+
+
+def test_official_layout_of_an_exported_clip(tiny_clip_oracle, tmp_path):
+    """A benchgen clip exported for the official code: its renders, named like the workspace's
+    test/ files, land at the level exposures.json gives them (test: an observed level, test_ne: a
+    novel one); the score sees those levels only."""
+    clip = Clip.open(tiny_clip_oracle)
+    ws = _export(tiny_clip_oracle, "mono4dgs-hdr", tmp_path / "ws")
+    out, at = _official_renders(clip, ws)
     report = import_frames(clip, out, tmp_path / "s", "official", "mono4dgs-hdr")
     assert report["given"] == ["test_hdr_exr", "test_ldr", "test_ne_ldr"]
     r = tmp_path / "s/renders/test"
@@ -431,6 +440,18 @@ def test_official_layout_of_an_exported_clip(tiny_clip_oracle, tmp_path):
     )
 
 
+def _nerfies_results(exp: Path, res: Path):
+    """A perfect DyCheck-style method's results/rgb/: for every frame name of the validation
+    splits, the export's rgb/1x/<name>.png. Returns the names."""
+    names = []
+    for split in ("val", "val_path"):
+        names += json.loads((exp / "splits" / f"{split}.json").read_text())["frame_names"]
+    for n in names:
+        (res / "rgb").mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(exp / "rgb/1x" / f"{n}.png", res / "rgb" / f"{n}.png")
+    return names
+
+
 def test_nerfies_layout_maps_val_renders_onto_the_views(tiny_clip_oracle, tmp_path):
     """DyCheck writes results/rgb/<frame name>.png per image of a split (frame names of
     splits/<split>.json, "<camera id>_<time id:05d>"); the Nerfies export's validation cameras
@@ -440,13 +461,8 @@ def test_nerfies_layout_maps_val_renders_onto_the_views(tiny_clip_oracle, tmp_pa
     exp = _export(tiny_clip_oracle, "nerfies", tmp_path / "exp")
     meta = json.loads((exp / "metadata.json").read_text())
     res = tmp_path / "work" / "results"
-    names = []
-    for split in ("val", "val_path"):
-        names += json.loads((exp / "splits" / f"{split}.json").read_text())["frame_names"]
+    names = _nerfies_results(exp, res)
     assert len(names) == len(clip.test_frames) * (1 + len(clip.view_names()))
-    for n in names:
-        (res / "rgb").mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(exp / "rgb/1x" / f"{n}.png", res / "rgb" / f"{n}.png")
     # one view's two frames swapped
     v1 = [n for n in names if meta[n]["camera_id"] == 1][:2]
     a, b = (res / "rgb" / f"{n}.png" for n in v1)
@@ -476,3 +492,29 @@ def test_nerfies_layout_maps_val_renders_onto_the_views(tiny_clip_oracle, tmp_pa
     with pytest.raises(InputError, match="camera\\(s\\) 7") as e:
         plan_inputs(clip, res, "nerfies")
     assert all(v in str(e.value) for v in clip.view_names())
+
+
+PENDING_SCORE_RUN = (
+    "end to end on a benchgen clip: score_run scores the levels given (dyn_ldr_psnr reads every "
+    "observed level of a moving test frame today) and leaves HDR null without test/hdr renders; "
+    "lands with the score_run change for frames of another method"
+)
+
+
+@pytest.mark.xfail(reason=PENDING_SCORE_RUN, strict=False)
+def test_official_layout_of_an_exported_clip_scores_end_to_end(tiny_clip_oracle, tmp_path):
+    clip = Clip.open(tiny_clip_oracle)
+    out, _ = _official_renders(clip, _export(tiny_clip_oracle, "mono4dgs-hdr", tmp_path / "ws"))
+    _, m = score_frames(tiny_clip_oracle, out, "official", tmp_path / "s", layout="mono4dgs-hdr")
+    assert m["ldr_oe_psnr"] == m["ldr_ne_psnr"] == m["hdr_psnr"] == PSNR_CAP_DB
+    assert sum(v["frames"] for v in m["per_level"].values()) == 2 * len(clip.test_frames)
+
+
+@pytest.mark.xfail(reason=PENDING_SCORE_RUN, strict=False)
+def test_nerfies_layout_scores_end_to_end(tiny_clip_oracle, tmp_path):
+    exp = _export(tiny_clip_oracle, "nerfies", tmp_path / "exp")
+    _nerfies_results(exp, tmp_path / "results")
+    _, m = score_frames(
+        tiny_clip_oracle, tmp_path / "results", "dy", tmp_path / "s", layout="nerfies"
+    )
+    assert m["ldr_oe_psnr"] == PSNR_CAP_DB and m["hdr_psnr"] is None
