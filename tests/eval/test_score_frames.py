@@ -356,14 +356,23 @@ def test_official_layout_scores_real_footage(tmp_path):
         p = out / "test_ne_ldr" / n.replace(".png", ".jpg")
         p.parent.mkdir(parents=True, exist_ok=True)
         assert cv2.imwrite(str(p), mio.read_png(ws / "test_ne" / n)[..., ::-1])
+    # as the official code saves them: JPEG (here at full chroma resolution: the frames are noise)
+    q = [cv2.IMWRITE_JPEG_QUALITY, 100, cv2.IMWRITE_JPEG_SAMPLING_FACTOR]
+    q += [cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444]
     for n in ex["train"]:
         (out / "train_ldr").mkdir(exist_ok=True)
-        shutil.copyfile(ws / "images" / n, out / "train_ldr" / n)
-    _, m = score_frames(clip_dir, out, "official", tmp_path / "s", layout="mono4dgs-hdr")
-    assert m["ldr_oe_psnr"] == PSNR_CAP_DB and m["ldr_train_psnr"] == PSNR_CAP_DB
+        jpg = str(out / "train_ldr" / n.replace(".png", ".jpg"))
+        assert cv2.imwrite(jpg, mio.read_png(ws / "images" / n)[..., ::-1], q)
+    args = ["score-frames", "--clip", str(clip_dir), "--pred", str(out), "--name", "official"]
+    args += ["--out", str(tmp_path / "s"), "--layout", "mono4dgs-hdr"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "s/metrics.json").read_text())
+    assert m["ldr_oe_psnr"] == PSNR_CAP_DB and 30 < m["ldr_train_psnr"] < PSNR_CAP_DB
     assert {k: v["frames"] for k, v in m["per_level"].items()} == {"0.125": 1, "2": 1, "32": 1}
     assert m["options"]["input"]["layout"] == "mono4dgs-hdr"
     assert sorted(m["options"]["input"]["given"]) == ["test_ldr", "train_ldr"]
+    assert m["options"]["input"]["ldr_uint8"] == 3 + 4  # test PNGs, training JPEGs
     # frame_0003 is test frame 3, at exposure 2^1
     np.testing.assert_array_equal(
         mio.read_png(tmp_path / "s/renders/test/ldr/2/00003.png"),
