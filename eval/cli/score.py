@@ -112,7 +112,18 @@ def score(
     required=True,
     type=click.Path(exists=True, file_okay=False),
     help="Prediction folder: test/hdr/<g>.exr and test/ldr/<level>/<g>.png|exr|tif for every test "
-    "frame and level; optional train/hdr, train/ldr, test/depth, cameras.json (docs/eval.md).",
+    "frame and level and/or views/<view>/{hdr,ldr/<level>}/<g>.* for held-out views; optional "
+    "train/hdr, train/ldr, test/depth, views/<view>/depth, cameras.json (docs/eval.md).",
+)
+@click.option(
+    "--layout",
+    type=click.Choice(["m4dgs", "mono4dgs-hdr", "nerfies"]),
+    default="m4dgs",
+    show_default=True,
+    help="How PRED is laid out: m4dgs (above); mono4dgs-hdr, the official code's render folder "
+    "(<workspace>/<experiment>/world_gs: test_ldr, test_ne_ldr, test_hdr_exr, train_ldr, "
+    "train_hdr_exr); nerfies, a DyCheck-style method's results/rgb/<camera>_<frame>.png for a clip "
+    "exported with `benchgen export --format nerfies` (no HDR).",
 )
 @click.option(
     "--name",
@@ -134,7 +145,7 @@ def score(
 )
 @click.option("--force", is_flag=True, help="Replace an earlier score folder of the same name.")
 def score_frames_cmd(
-    clip_dir, pred, name, out, lpips_weights, roundtrip, flip, tae_train_test, force
+    clip_dir, pred, layout, name, out, lpips_weights, roundtrip, flip, tae_train_test, force
 ):
     """Score another method's rendered frames against a clip with every frame-based metric of an
     m4dgs run (no m4dgs model needed); writes OUT/metrics.json and prints the headline metrics."""
@@ -150,6 +161,7 @@ def score_frames_cmd(
         roundtrip=None if roundtrip == "none" else roundtrip,
         flip=flip,
         tae_train_test=tae_train_test,
+        layout=layout,
     )
     click.echo(f"scored {name}: {run_dir / 'metrics.json'}", err=True)
     keys = ("ldr_oe_psnr", "ldr_ne_psnr", "hdr_psnr", "hdr_ssim", "hdr_tae", "ate", "depth_absrel")

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -14,9 +16,17 @@ import pytest
 import tifffile
 from click.testing import CliRunner
 
+from benchgen.cli import main as benchgen_main
 from eval.cli import main
-from eval.experiments.frames import read_image, score_frames
+from eval.experiments.frames import (
+    import_frames,
+    plan_inputs,
+    read_image,
+    score_frames,
+    scored_clip,
+)
 from eval.experiments.score import PSNR_CAP_DB
+from m4dgs.cli import main as m4dgs_main
 from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError
@@ -162,3 +172,358 @@ def test_cli_score_frames_and_force(tiny_clip_realistic, tmp_path):
     assert r.exit_code != 0 and "--force" in r.output
     r = CliRunner().invoke(main, args + ["--force"])
     assert r.exit_code == 0, r.output
+
+
+# --------------------------------------------------------------------------------------------------
+# held-out views (DIR/views/<view>/...)
+# --------------------------------------------------------------------------------------------------
+def write_views(clip: Clip, root, views=None):
+    """Every test frame of each view from the view's ground truth: HDR as EXR, LDR at every level as
+    the ground-truth PNG bytes."""
+    for v in views or clip.view_names():
+        src = clip.root / "gt/views" / v
+        for g in clip.test_frames:
+            mio.write_exr(
+                root / "views" / v / "hdr" / frame_name(g, "exr"), clip.load_view_hdr(v, g)
+            )
+            for lv in clip.meta.test_levels_of(g):
+                rel = Path("ldr") / level_name(lv) / frame_name(g, "png")
+                (root / "views" / v / rel).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(src / rel, root / "views" / v / rel)
+    return root
+
+
+def test_views_land_at_their_frame_and_level(tiny_clip_oracle, tmp_path):
+    clip = Clip.open(tiny_clip_oracle)
+    views = clip.view_names()
+    assert len(views) == 3 and len(clip.test_frames) == 4
+    pred = write_views(clip, make_pred(clip, tmp_path / "pred", train=False))
+    # one pair of frames swapped at one level of one view
+    v, lv = views[1], level_name(clip.meta.exposures.novel[0])
+    g0, g1 = clip.test_frames[:2]
+    a, b = (pred / "views" / v / "ldr" / lv / frame_name(g, "png") for g in (g0, g1))
+    ab, bb = a.read_bytes(), b.read_bytes()
+    a.write_bytes(bb)
+    b.write_bytes(ab)
+    out = tmp_path / "s"
+    _, m = score_frames(tiny_clip_oracle, pred, "with-views", out)
+    r = out / "renders/views"
+    n_levels = len(clip.meta.exposures.observed) + len(clip.meta.exposures.novel)
+    for view in views:
+        for g in clip.test_frames:
+            np.testing.assert_array_equal(
+                mio.read_exr(r / view / "hdr" / frame_name(g, "exr")), clip.load_view_hdr(view, g)
+            )
+            for level in clip.meta.exposures.observed + clip.meta.exposures.novel:
+                got = mio.read_png(r / view / "ldr" / level_name(level) / frame_name(g, "png"))
+                want = clip.load_view_ldr(view, level, g)
+                swapped = view == v and level_name(level) == lv and g in (g0, g1)
+                assert np.array_equal(got, want) != swapped, (view, level, g)
+    # the swapped frames are each other's truth, and they differ
+    other = {g0: g1, g1: g0}
+    for g in (g0, g1):
+        got = mio.read_png(r / v / "ldr" / lv / frame_name(g, "png"))
+        assert np.array_equal(got, clip.load_view_ldr(v, float(lv), other[g]))
+    assert not np.array_equal(
+        clip.load_view_ldr(v, float(lv), g0), clip.load_view_ldr(v, float(lv), g1)
+    )
+    inp = m["options"]["input"]
+    assert inp["views"] == sorted(views) and inp["layout"] == "m4dgs"
+    # HDR: test frames and views; LDR: 16-bit / float / 8-bit test frames as before + the view PNGs
+    n_test = len(clip.test_frames)
+    assert inp["hdr"] == n_test * (1 + len(views))
+    assert (
+        inp["ldr_uint8"] == n_test * len(clip.meta.exposures.novel) + len(views) * n_test * n_levels
+    )
+    assert m["hdr_psnr"] == PSNR_CAP_DB  # the test frames score as before
+
+
+def test_a_view_missing_a_frame_and_an_unknown_view_are_named(tiny_clip_oracle, tmp_path):
+    clip = Clip.open(tiny_clip_oracle)
+    views = clip.view_names()
+    pred = write_views(clip, tmp_path / "pred", views=views[:1])
+    g = clip.test_frames[2]
+    lv = level_name(clip.meta.exposures.observed[0])
+    gone = [
+        pred / "views" / views[0] / "hdr" / frame_name(g, "exr"),
+        pred / "views" / views[0] / "ldr" / lv / frame_name(g, "png"),
+    ]
+    for p in gone:
+        p.unlink()
+    with pytest.raises(InputError, match=r"2 file\(s\) missing") as e:
+        plan_inputs(clip, pred)
+    for p in gone:
+        assert str(p.with_suffix("")) + ".{" in str(e.value)
+    (pred / "views" / "top").mkdir()
+    with pytest.raises(InputError, match="unknown view") as e:
+        plan_inputs(clip, pred)
+    assert "top" in str(e.value) and all(v in str(e.value) for v in views)
+
+
+def test_a_views_only_folder_needs_no_test_frames(tiny_clip_oracle, tmp_path):
+    """A baseline that renders only the held-out views (no DIR/test): planned and imported; without
+    DIR/views the test frames stay required."""
+    clip = Clip.open(tiny_clip_oracle)
+    views = clip.view_names()
+    pred = write_views(clip, tmp_path / "pred", views=views[1:])
+    plan = plan_inputs(clip, pred)
+    assert all(k.startswith("views/") for k in plan)
+    assert sorted({k.split("/")[1] for k in plan}) == sorted(views[1:])
+    report = import_frames(clip, pred, tmp_path / "s", "dibr-like")
+    assert report["views"] == sorted(views[1:]) and not (tmp_path / "s/renders/test").exists()
+    g = clip.test_frames[-1]
+    lv = clip.meta.exposures.observed[-1]
+    got = mio.read_png(
+        tmp_path / "s/renders/views" / views[2] / "ldr" / level_name(lv) / frame_name(g, "png")
+    )
+    np.testing.assert_array_equal(got, clip.load_view_ldr(views[2], lv, g))
+    with pytest.raises(InputError, match="test/hdr"):
+        plan_inputs(clip, tmp_path / "pred" / "views")  # neither test/ nor views/: as before
+
+
+@pytest.mark.xfail(
+    reason="end to end: score_run of a folder without test renders (None for the test-frame "
+    "metrics, the views scored from renders/views) comes with the score_run change that scores "
+    "the views",
+    strict=False,
+)
+def test_a_views_only_folder_scores_end_to_end(tiny_clip_oracle, tmp_path):
+    clip = Clip.open(tiny_clip_oracle)
+    pred = write_views(clip, tmp_path / "pred")
+    _, m = score_frames(tiny_clip_oracle, pred, "views-only", tmp_path / "s")
+    assert m["ldr_oe_psnr"] is None and m["hdr_psnr"] is None
+
+
+# --------------------------------------------------------------------------------------------------
+# --layout: other methods' render folders as they write them
+# --------------------------------------------------------------------------------------------------
+def _export(clip_dir, fmt, out):
+    r = CliRunner().invoke(
+        benchgen_main, ["export", str(clip_dir), "--format", fmt, "--out", str(out)]
+    )
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def _level_of(log2_dt, levels):
+    """The level an exposures.json value (log2 of the exposure time) names."""
+    lv = min(levels, key=lambda v: abs(math.log2(v) - log2_dt))
+    assert abs(math.log2(lv) - log2_dt) < 1e-9
+    return lv
+
+
+def _paper_folder(root):
+    """A data folder as the paper's preprocessed data look: frame_<i>.png, the even ones training
+    frames, the odd ones test frames (test/ at its own exposure, test_ne/ at another)."""
+    rng = np.random.default_rng(3)
+    names = [f"frame_{i:04d}.png" for i in range(7)]
+    ex = {"train_exp_num": 3, "train": {}, "test": {}, "test_ne": {}}
+    for i, n in enumerate(names):
+        img = rng.integers(0, 256, (24, 32, 3), dtype=np.uint8)
+        if i % 2 == 0:
+            mio.write_png(root / "images" / n, img)
+            ex["train"][n] = [-3.0, 1.0, 5.0][(i // 2) % 3]
+            (root / "depthcrafter_depth").mkdir(exist_ok=True)
+            np.savez(
+                root / "depthcrafter_depth" / n.replace(".png", ".npz"), dep=np.full((24, 32), 2.0)
+            )
+        else:
+            mio.write_png(root / "test" / n, img)
+            mio.write_png(root / "test_ne" / n, img[::-1].copy())
+            ex["test"][n] = [-3.0, 1.0, 5.0][(i // 2) % 3]
+            ex["test_ne"][n] = -1.0
+    (root / "exposures.json").write_text(json.dumps(ex))
+    return ex
+
+
+def test_official_layout_scores_real_footage(tmp_path):
+    """The official code's world_gs/ of a workspace made from paper-style data: test_ldr/<name>
+    is each test frame at its exposures.json "test" exposure, train_ldr/<name> each training frame;
+    names that are not numbers are matched in sorted order (training frame i = frame 2i, test
+    frame j = frame 2j + 1)."""
+    ws = tmp_path / "Dog"
+    ex = _paper_folder(ws)
+    clip_dir = tmp_path / "clip"
+    r = CliRunner().invoke(
+        m4dgs_main, ["import-clip", "--format", "mono4dgs-hdr", str(ws), "--out", str(clip_dir)]
+    )
+    assert r.exit_code == 0, r.output
+    out = ws / "exp" / "world_gs"  # <workspace>/<experiment>/world_gs, as the official code writes
+    for n in ex["test"]:
+        (out / "test_ldr").mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(ws / "test" / n, out / "test_ldr" / n)
+        # a novel-exposure render, as jpg: a real clip has no score for it yet
+        p = out / "test_ne_ldr" / n.replace(".png", ".jpg")
+        p.parent.mkdir(parents=True, exist_ok=True)
+        assert cv2.imwrite(str(p), mio.read_png(ws / "test_ne" / n)[..., ::-1])
+    # as the official code saves them: JPEG (here at full chroma resolution: the frames are noise)
+    q = [cv2.IMWRITE_JPEG_QUALITY, 100, cv2.IMWRITE_JPEG_SAMPLING_FACTOR]
+    q += [cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444]
+    for n in ex["train"]:
+        (out / "train_ldr").mkdir(exist_ok=True)
+        jpg = str(out / "train_ldr" / n.replace(".png", ".jpg"))
+        assert cv2.imwrite(jpg, mio.read_png(ws / "images" / n)[..., ::-1], q)
+    args = ["score-frames", "--clip", str(clip_dir), "--pred", str(out), "--name", "official"]
+    args += ["--out", str(tmp_path / "s"), "--layout", "mono4dgs-hdr"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    m = json.loads((tmp_path / "s/metrics.json").read_text())
+    assert m["ldr_oe_psnr"] == PSNR_CAP_DB and 30 < m["ldr_train_psnr"] < PSNR_CAP_DB
+    assert {k: v["frames"] for k, v in m["per_level"].items()} == {"0.125": 1, "2": 1, "32": 1}
+    assert m["options"]["input"]["layout"] == "mono4dgs-hdr"
+    assert sorted(m["options"]["input"]["given"]) == ["test_ldr", "train_ldr"]
+    assert m["options"]["input"]["ldr_uint8"] == 3 + 4  # test PNGs, training JPEGs
+    # frame_0003 is test frame 3, at exposure 2^1
+    np.testing.assert_array_equal(
+        mio.read_png(tmp_path / "s/renders/test/ldr/2/00003.png"),
+        mio.read_png(ws / "test/frame_0003.png"),
+    )
+
+    # two test frames swapped: each scores below the cap at its level
+    a, b = out / "test_ldr/frame_0001.png", out / "test_ldr/frame_0003.png"
+    ab, bb = a.read_bytes(), b.read_bytes()
+    a.write_bytes(bb)
+    b.write_bytes(ab)
+    _, m = score_frames(
+        clip_dir, out, "official", tmp_path / "s", layout="mono4dgs-hdr", force=True
+    )
+    pl = m["per_level"]
+    assert pl["0.125"]["psnr"] < 20 and pl["2"]["psnr"] < 20 and pl["32"]["psnr"] == PSNR_CAP_DB
+
+    # the workspace's exposures.json says at which exposure each render is: another split is refused
+    ex["test"]["frame_0005.png"] = 2.0
+    (ws / "exposures.json").write_text(json.dumps(ex))
+    with pytest.raises(InputError, match=r"exposures.json: field 'test.frame_0005.png'"):
+        plan_inputs(Clip.open(clip_dir), out, "mono4dgs-hdr")
+
+
+def _official_renders(clip: Clip, ws: Path):
+    """A perfect method's world_gs/ for a workspace exported from `clip`, written from the
+    workspace's exposures.json (the official loader's facts): test_ldr/<name> at the "test"
+    exposure of <name>, test_ne_ldr/<name> at its "test_ne" exposure, test_hdr_exr/<stem>.exr.
+    Returns (the folder, {frame: levels rendered})."""
+    ex = json.loads((ws / "exposures.json").read_text())
+    out = ws / "exp" / "world_gs"
+    at = {}
+    for key, folder, levels in (
+        ("test", "test_ldr", clip.meta.exposures.observed),
+        ("test_ne", "test_ne_ldr", clip.meta.exposures.novel),
+    ):
+        for n, v in ex[key].items():
+            g, lv = int(Path(n).stem), _level_of(v, levels)
+            at.setdefault(g, []).append(lv)
+            p = out / folder / n
+            p.parent.mkdir(parents=True, exist_ok=True)
+            mio.write_png(p, clip.load_gt_ldr(lv, g))
+    for n in ex["test"]:
+        mio.write_exr(
+            out / "test_hdr_exr" / n.replace(".png", ".exr"), clip.load_gt_hdr(int(n[:5]))
+        )
+    return out, at
+
+
+def test_official_layout_of_an_exported_clip(tiny_clip_oracle, tmp_path):
+    """A benchgen clip exported for the official code: its renders, named like the workspace's
+    test/ files, land at the level exposures.json gives them (test: an observed level, test_ne: a
+    novel one); the score sees those levels only."""
+    clip = Clip.open(tiny_clip_oracle)
+    ws = _export(tiny_clip_oracle, "mono4dgs-hdr", tmp_path / "ws")
+    out, at = _official_renders(clip, ws)
+    report = import_frames(clip, out, tmp_path / "s", "official", "mono4dgs-hdr")
+    assert report["given"] == ["test_hdr_exr", "test_ldr", "test_ne_ldr"]
+    r = tmp_path / "s/renders/test"
+    for g in clip.test_frames:
+        have = sorted(p.parent.name for p in r.glob(f"ldr/*/{frame_name(g, 'png')}"))
+        assert have == sorted(level_name(lv) for lv in at[g]) and len(have) == 2
+        for lv in at[g]:
+            got = mio.read_png(r / "ldr" / level_name(lv) / frame_name(g, "png"))
+            np.testing.assert_array_equal(got, clip.load_gt_ldr(lv, g))
+        np.testing.assert_array_equal(
+            mio.read_exr(r / "hdr" / frame_name(g, "exr")), clip.load_gt_hdr(g)
+        )
+    # every level is scored on some test frame, each test frame at the levels it was rendered at
+    seen = scored_clip(clip, tmp_path / "s/renders")
+    assert all(sorted(seen.meta.test_levels_of(g)) == sorted(at[g]) for g in clip.test_frames)
+    assert {lv for g in at for lv in at[g]} == set(
+        clip.meta.exposures.observed + clip.meta.exposures.novel
+    )
+
+
+def _nerfies_results(exp: Path, res: Path):
+    """A perfect DyCheck-style method's results/rgb/: for every frame name of the validation
+    splits, the export's rgb/1x/<name>.png. Returns the names."""
+    names = []
+    for split in ("val", "val_path"):
+        names += json.loads((exp / "splits" / f"{split}.json").read_text())["frame_names"]
+    for n in names:
+        (res / "rgb").mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(exp / "rgb/1x" / f"{n}.png", res / "rgb" / f"{n}.png")
+    return names
+
+
+def test_nerfies_layout_maps_val_renders_onto_the_views(tiny_clip_oracle, tmp_path):
+    """DyCheck writes results/rgb/<frame name>.png per image of a split (frame names of
+    splits/<split>.json, "<camera id>_<time id:05d>"); the Nerfies export's validation cameras
+    1, 2, ... are the held-out views, camera 0's validation images the test frames. A perfect
+    method renders rgb/1x/<id>.png of the export."""
+    clip = Clip.open(tiny_clip_oracle)
+    exp = _export(tiny_clip_oracle, "nerfies", tmp_path / "exp")
+    meta = json.loads((exp / "metadata.json").read_text())
+    res = tmp_path / "work" / "results"
+    names = _nerfies_results(exp, res)
+    assert len(names) == len(clip.test_frames) * (1 + len(clip.view_names()))
+    # one view's two frames swapped
+    v1 = [n for n in names if meta[n]["camera_id"] == 1][:2]
+    a, b = (res / "rgb" / f"{n}.png" for n in v1)
+    ab, bb = a.read_bytes(), b.read_bytes()
+    a.write_bytes(bb)
+    b.write_bytes(ab)
+    report = import_frames(clip, res, tmp_path / "s", "nerfies", "nerfies")
+    assert report["views"] == sorted(clip.view_names()) and report.get("hdr", 0) == 0
+    r = tmp_path / "s/renders"
+    for n in names:
+        e = meta[n]
+        g, cam, lv = e["warp_id"], e["camera_id"], e["exposure"]
+        if cam == 0:
+            got = mio.read_png(r / "test/ldr" / level_name(lv) / frame_name(g, "png"))
+            want = clip.load_gt_ldr(lv, g)
+        else:
+            view = clip.view_names()[cam - 1]
+            assert e["view"] == view
+            got = mio.read_png(r / "views" / view / "ldr" / level_name(lv) / frame_name(g, "png"))
+            want = clip.load_view_ldr(view, lv, g)
+        assert np.array_equal(got, want) == (n not in v1), n
+    # one level per test frame: the score sees that one
+    seen = scored_clip(clip, r)
+    assert all(len(seen.meta.test_levels_of(g)) == 1 for g in clip.test_frames)
+
+    (res / "rgb" / "7_00001.png").write_bytes(ab)
+    with pytest.raises(InputError, match="camera\\(s\\) 7") as e:
+        plan_inputs(clip, res, "nerfies")
+    assert all(v in str(e.value) for v in clip.view_names())
+
+
+PENDING_SCORE_RUN = (
+    "end to end on a benchgen clip: score_run scores the levels given (dyn_ldr_psnr reads every "
+    "observed level of a moving test frame today) and leaves HDR null without test/hdr renders; "
+    "lands with the score_run change for frames of another method"
+)
+
+
+@pytest.mark.xfail(reason=PENDING_SCORE_RUN, strict=False)
+def test_official_layout_of_an_exported_clip_scores_end_to_end(tiny_clip_oracle, tmp_path):
+    clip = Clip.open(tiny_clip_oracle)
+    out, _ = _official_renders(clip, _export(tiny_clip_oracle, "mono4dgs-hdr", tmp_path / "ws"))
+    _, m = score_frames(tiny_clip_oracle, out, "official", tmp_path / "s", layout="mono4dgs-hdr")
+    assert m["ldr_oe_psnr"] == m["ldr_ne_psnr"] == m["hdr_psnr"] == PSNR_CAP_DB
+    assert sum(v["frames"] for v in m["per_level"].values()) == 2 * len(clip.test_frames)
+
+
+@pytest.mark.xfail(reason=PENDING_SCORE_RUN, strict=False)
+def test_nerfies_layout_scores_end_to_end(tiny_clip_oracle, tmp_path):
+    exp = _export(tiny_clip_oracle, "nerfies", tmp_path / "exp")
+    _nerfies_results(exp, tmp_path / "results")
+    _, m = score_frames(
+        tiny_clip_oracle, tmp_path / "results", "dy", tmp_path / "s", layout="nerfies"
+    )
+    assert m["ldr_oe_psnr"] == PSNR_CAP_DB and m["hdr_psnr"] is None
