@@ -32,6 +32,16 @@ SCORE_CONVENTIONS = {
     "dyn_masks": "Dynamic masks: the run's dynamic masks (config masks.method) vs GT dynamic "
     "masks on the training "
     "frames, pixel counts pooled over frames (precision, recall, IoU)",
+    "nv_views": "Held-out views (nv_*): rendered at each test frame's time from the clip's view "
+    "cameras, carried into the run's frame by the Umeyama similarity of its training-camera "
+    "centres onto the true ones; LDR-OE / LDR-NE / HDR (mu-law, GT-max) per frame, means over "
+    "frames, then levels, then views",
+    "nv_masked": "Held-out views, mPSNR / mSSIM: MSE and the SSIM map averaged over the co-visible "
+    "pixels only (surface seen by at least two training frames, gt/views/<view>/covis); "
+    "covisible: their mean fraction of the view's surface pixels",
+    "camera_motion": "Camera motion (clip.json gt.camera_motion): camera_deg_s, the camera's "
+    "angular speed about its look-at point; scene_deg_s, the moving points' speed seen from the "
+    "median look-at distance; emf, their ratio",
 }
 
 

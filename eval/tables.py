@@ -49,6 +49,9 @@ class Column:
     fmt: str = ".2f"
     group: str | None = None
     convention: str | None = None  # a CONVENTIONS key or a literal sentence
+    # a ratio whose right value is `target` (e.g. 1): the best is the value closest to it, and the
+    # header's arrow reads "→1" (higher_is_better is then only the figures' reading direction)
+    target: float | None = None
 
     @property
     def label(self) -> str:
@@ -243,7 +246,11 @@ def best_flags(agg: list, spec: TableSpec) -> list:
         ]
         if not shown:
             continue
-        best = max(v for _, v in shown) if c.higher_is_better else min(v for _, v in shown)
+        if c.target is not None:
+            shown = [(i, abs(v - c.target)) for i, v in shown]
+            best = min(v for _, v in shown)
+        else:
+            best = max(v for _, v in shown) if c.higher_is_better else min(v for _, v in shown)
         for i, v in shown:
             if v == best:
                 flags[i][j] = True
@@ -303,6 +310,8 @@ def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None
 
 
 def _arrow(c: Column, latex: bool) -> str:
+    if c.target is not None:
+        return f"$\\to {c.target:g}$" if latex else f"→{c.target:g}"
     if latex:
         return "$\\uparrow$" if c.higher_is_better else "$\\downarrow$"
     return "↑" if c.higher_is_better else "↓"

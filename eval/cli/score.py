@@ -39,8 +39,10 @@ from m4dgs.core import io as mio
     "--add-missing",
     is_flag=True,
     help="Compute only the metrics an existing metrics.json lacks because it was written by an "
-    "earlier version (today: hdr_tce), leaving every other value as it is; then re-export the "
-    "suite to get them into a runs CSV.",
+    "earlier version (today: hdr_tce, hdr_psnr_p99, highlight_stops, highlight_peak_ratio, the "
+    "held-out views' nv_* and the camera motion), leaving every other value as it is; the views of "
+    "an m4dgs run are rendered first when missing. Then re-export the suite to get them into a "
+    "runs CSV.",
 )
 def score(
     run,
@@ -62,7 +64,9 @@ def score(
     if add_missing:
         if force:
             raise click.UsageError("--add-missing and --force exclude each other")
-        m, added = add_missing_metrics(run, clip=clip_dir)
+        info = Path(run) / "run.json"
+        external = not info.exists() or bool(mio.read_json(info).get("external"))
+        m, added = add_missing_metrics(run, clip=clip_dir, render_missing=not external)
         click.echo(
             f"{mpath}: added {', '.join(added)}" if added else f"{mpath}: nothing missing",
             err=True,

@@ -53,7 +53,9 @@ def resolve_clip_dir(run_dir, clip=None) -> Path:
 
 
 def render_paths(run_dir, clip: Clip) -> Dict[str, List[Path]]:
-    """The render files scoring needs (m4dgs.outputs.render layout), grouped."""
+    """The render files scoring needs (m4dgs.outputs.render layout), grouped: the training and test
+    frames, and for a clip with held-out views renders/views/<view>/{hdr,ldr/<level>}/<g> of every
+    test frame (m4dgs.outputs.views)."""
     r = Path(run_dir) / "renders"
     ex = clip.meta.exposures
     out = {
@@ -66,7 +68,25 @@ def render_paths(run_dir, clip: Clip) -> Dict[str, List[Path]]:
             out[f"test_ldr_{level_name(lv)}"] = [
                 r / "test/ldr" / level_name(lv) / frame_name(g, "png") for g in clip.test_frames
             ]
+    for v in clip.view_names() if clip.test_frames else []:
+        base = r / "views" / v
+        out[f"views_{v}_hdr"] = [base / "hdr" / frame_name(g, "exr") for g in clip.test_frames]
+        for lv in list(ex.observed) + list(ex.novel):
+            out[f"views_{v}_ldr_{level_name(lv)}"] = [
+                base / "ldr" / level_name(lv) / frame_name(g, "png") for g in clip.test_frames
+            ]
     return out
+
+
+def has_test_renders(run_dir, clip: Clip) -> bool:
+    """Whether the run folder holds any render of a test frame (renders/test/)."""
+    groups = render_paths(run_dir, clip)
+    return any(p.exists() for k, ps in groups.items() if k.startswith("test_") for p in ps)
+
+
+def has_view_renders(run_dir) -> bool:
+    """Whether the run folder holds a renders/views/ folder (held-out views)."""
+    return (Path(run_dir) / "renders" / "views").is_dir()
 
 
 def missing_renders(run_dir, clip: Clip) -> List[Path]:

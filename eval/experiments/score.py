@@ -12,6 +12,15 @@ LPIPS weights, no model, no file):
 - HDR test frames: hdr_psnr / hdr_ssim / hdr_lpips (mu-law, GT-max), hdr_psnr_ownmax (labelled
   extra), pu21_psnr, hdr_flip (only with flip=True: slow); HDR training frames: hdr_train_psnr /
   hdr_train_ssim.
+- The test frames' HDR over the whole scene (eval.experiments.score_scene, eval.metrics.scene_hdr):
+  hdr_psnr_p99 (mu-law on H / p99 of the truth's luminance), highlight_stops and
+  highlight_peak_ratio over the pixels the longest observed exposure saturates and the shortest
+  measures (through the clip's true response; highlight_pixels counts them).
+- Held-out views (clips with gt/views/, eval.experiments.view_scores on renders/views):
+  nv_<view>_<split>_<metric> (split ldr_oe, ldr_ne, hdr; metric psnr, mpsnr, ssim, mssim; mpsnr /
+  mssim over the co-visible pixels), nv_<view>_hdr_psnr_p99, nv_<view>_covisible, and the means over
+  views nv_<split>_<metric>, nv_hdr_psnr_p99, nv_covisible; None without views or their renders.
+- The clip's camera motion (clip.json gt.camera_motion): camera_deg_s, scene_deg_s, emf.
 - HDR-TAE on the rendered TRAINING frames with the exact ground-truth flow and visibility between
   consecutive training frames (gt/flow.npz; a clip made from an HDR video: the flow given with it,
   else DIS flow on its ground-truth HDR frames); without ground truth (real clips) DIS flow on the
@@ -50,10 +59,11 @@ LDR renders are read from the 8-bit PNG files written by m4dgs.outputs.render, s
 8-bit renders (the PNG round-trip convention; `roundtrip="jpeg"` adds a JPEG round trip to compare
 with the authors' numbers).
 
-At about 890 lines this module stays one: score_run and its steps share the per-run state (_Job)
-and the metric-group helpers, and splitting them would spread one computation over files. The run
-folder as it is read (run.json, the clip, the render files) is eval.experiments.run_files; the
-conventions printed under the tables are eval.conventions."""
+score_run and the steps of the paper's metrics share the per-run state (_Job) and the metric-group
+helpers here; the whole-scene steps (scene HDR, held-out views, camera motion) are
+eval.experiments.score_scene, which reads the job through the same attributes. The run folder as it
+is read (run.json, the clip, the render files) is eval.experiments.run_files; the conventions
+printed under the tables are eval.conventions."""
 
 from __future__ import annotations
 
@@ -65,24 +75,30 @@ from pathlib import Path
 from typing import Dict, Iterable, List, Optional, Tuple
 
 import numpy as np
-import torch
 
 from eval.conventions import (
-    CRF_LOG2_RANGE,
-    CRF_SAMPLES,
     PSNR_CAP_DB,
-    TRACK_SAMPLES,
     all_conventions,
 )
 from eval.experiments.run_files import (
     ensure_renders,
+    has_test_renders,
+    has_view_renders,
     read_render_exr,
     read_run_info,
     resolve_clip_dir,
 )
+from eval.experiments.score_model import score_model, to_numpy
+from eval.experiments.score_scene import (
+    CAMERA_MOTION_KEYS,
+    NV_MEAN_KEYS,
+    SCENE_HDR_KEYS,
+    camera_motion,
+    score_held_out_views,
+    score_scene_hdr,
+)
 from eval.metrics import (
     ate,
-    crf_error,
     depth_absrel,
     dis_flow,
     hdr_flip,
@@ -93,19 +109,15 @@ from eval.metrics import (
     load_lpips_weights,
     lpips_metric,
     masked_psnr,
-    measure_fps,
-    observed_exposure_range,
     psnr_per_image,
     pu21_psnr,
     rpe,
     ssim,
-    track_error,
 )
 from eval.metrics import roundtrip as ldr_roundtrip
 from eval.metrics.temporal import depth_edges, hdr_tce_pairs, interior_visibility
 from m4dgs.clip import Cameras, Clip, frame_name, level_name
 from m4dgs.core import io as mio
-from m4dgs.core.crf import get_crf
 from m4dgs.core.device import resolve_device
 from m4dgs.core.errors import InputError
 from m4dgs.run import load_torch
@@ -282,7 +294,7 @@ def mask_metrics(run_dir: Path, clip: Clip) -> Optional[Dict[str, Optional[float
     est = load_torch(p, map_location="cpu").get("masks")
     if est is None:
         return None
-    est = _to_numpy(est) > 0.5
+    est = to_numpy(est) > 0.5
     train = clip.train_frames
     if est.shape[0] != len(train):
         raise ValueError(
@@ -304,104 +316,6 @@ def mask_scores(est: np.ndarray, gt: np.ndarray) -> Dict[str, Optional[float]]:
         "mask_recall": tp / n_gt if n_gt else None,
         "mask_iou": tp / union if union else None,
     }
-
-
-def _to_numpy(x) -> np.ndarray:
-    if hasattr(x, "detach"):
-        x = x.detach().cpu().numpy()
-    return np.asarray(x, dtype=np.float64)
-
-
-def _load_model(run_dir: Path, device: str):
-    """(model, None) or (None, reason) when the trained model cannot be loaded (checkpoint
-    missing)."""
-    # the trainer's entry points are imported when called (tests replace them in sys.modules)
-    from m4dgs.model.trained import load_model
-
-    try:
-        return load_model(run_dir, device=device), None
-    except FileNotFoundError as e:
-        return None, f"no trained model ({e})"
-
-
-def _model_metrics(model, clip: Clip, fps: bool, device: str) -> dict:
-    """Track error, learned CRF and render FPS from a loaded TrainedModel."""
-    out: dict = {}
-    # learned CRF vs the true one
-    z = np.linspace(*CRF_LOG2_RANGE, CRF_SAMPLES)
-    with torch.no_grad():
-        learned = _to_numpy(model.tonemap_curve(torch.tensor(z, dtype=torch.float32)))
-    learned = learned.reshape(len(z), -1)
-    true = None
-    true_crf = None
-    if clip.meta.crf:
-        try:
-            true_crf = get_crf(clip.meta.crf)
-        except KeyError:  # a curve this installation does not know
-            true_crf = None
-    if true_crf is not None:
-        true = np.asarray(true_crf(np.exp2(z)), np.float64)
-        true_rgb = np.asarray(
-            true_crf.rgb(np.repeat(np.exp2(z)[:, None], learned.shape[1], 1)), np.float64
-        )
-        out["crf_rmse"] = float(np.sqrt(np.mean((learned - true_rgb) ** 2)))
-        if clip.has_gt and clip.has_gt_part("hdr") and clip.train_frames:
-            frames = (clip.load_gt_hdr(g) for g in clip.train_frames)
-            ranges = observed_exposure_range(frames, clip.meta.exposures.train_dt, true_crf)
-
-            def curve(log2_x):
-                with torch.no_grad():
-                    return _to_numpy(model.tonemap_curve(torch.tensor(log2_x, dtype=torch.float32)))
-
-            ce = crf_error(curve, true_crf, ranges)
-            out["crf_error"] = ce.pop("crf_error")
-            out["crf_error_detail"] = ce
-    out["crf_curve"] = {
-        "log2_x": z.tolist(),
-        "learned": learned.tolist(),
-        "true": None if true is None else true.tolist(),
-        "crf": clip.meta.crf,
-    }
-    # induced 2D tracks vs gt tracks
-    if hasattr(model, "track_2d") and clip.has_gt and (clip.root / "gt/tracks.npz").exists():
-        ts = clip.load_gt_tracks()
-        cand = np.nonzero(ts.visible[:, 0])[0]
-        if cand.size:
-            rng = np.random.default_rng(0)
-            idx = np.sort(rng.choice(cand, size=min(TRACK_SAMPLES, cand.size), replace=False))
-            uv = torch.tensor(ts.tracks[idx, 0], dtype=torch.float32)
-            with torch.no_grad():
-                pred = _to_numpy(model.track_2d(uv, int(ts.frames[0]), [int(g) for g in ts.frames]))
-            gt_tr, vis = ts.tracks[idx].astype(np.float64), ts.visible[idx]
-            # NaN: the model has no surface at the query (or it went behind the camera)
-            ok = np.isfinite(pred).all(-1)
-            out["track_coverage"] = float((ok & vis).sum() / max(int(vis.sum()), 1))
-            vis = vis & ok
-            pred = np.where(ok[..., None], pred, 0.0)
-            te = track_error(pred, gt_tr, vis)
-            out["track_epe"], out["track_delta_avg"] = te["epe"], te["delta_avg"]
-            err = np.linalg.norm(pred - gt_tr, axis=-1)[vis]  # robust companion of the mean EPE
-            out["track_epe_median"] = float(np.median(err)) if err.size else None
-            out["track_points"] = int(idx.size)
-    # render speed
-    if fps:
-        g = clip.meta.frames[len(clip.meta.frames) // 2]
-        t = model.time_of(g)
-        K, c2w = model.camera(g)
-        K = np.asarray(K, np.float64)
-        W, H = clip.width, clip.height
-
-        def at(w, h):
-            Ks = K.copy()
-            Ks[0] *= w / W
-            Ks[1] *= h / H
-            return lambda: model.render(t, c2w, Ks, w, h)
-
-        dev = getattr(model, "device", device)
-        out["fps"] = measure_fps(at(W, H), warmup=2, iters=10, device=dev)["fps"]
-        out["fps_864x480"] = measure_fps(at(*FPS_SIZE), warmup=2, iters=5, device=dev)["fps"]
-        out["fps_device"] = str(dev)
-    return out
 
 
 # --------------------------------------------------------------------------------------------------
@@ -453,6 +367,9 @@ METRIC_KEYS = [
     "fps_864x480",
     "num_gaussians",
     "peak_memory_mib",
+    *SCENE_HDR_KEYS,
+    *NV_MEAN_KEYS,
+    *CAMERA_MOTION_KEYS,
 ]
 
 
@@ -487,14 +404,18 @@ def score_run(
         device: "auto" | "cpu" | "cuda" for loading the model (tracks, CRF, FPS).
         model: load the trained model at all (tracks, CRF curve, FPS); False skips those metrics.
         write: write metrics.json.
-        render_missing: render what renders/ lacks from the run's model (m4dgs runs). False (frames
-            of another method, eval.frames): score what is there; the training-frame metrics
-            (ldr_train_*, hdr_train_*, hdr_tae, hdr_t_std) are None without training renders.
+        render_missing: render what renders/ lacks from the run's model (m4dgs runs; the held-out
+            views too). False (frames of another method, eval.frames): score what is there; the
+            training-frame metrics (ldr_train_*, hdr_train_*, hdr_tae, hdr_t_std) are None without
+            training renders, the nv_* keys None without renders/views, and a folder with view
+            renders but no test-frame render at all (a views-only prediction) has every test-frame
+            metric None.
 
     The steps, in order (each adds metrics and the keys of the conventions it used): LDR test frames
     per level, LDR training frames, HDR, temporal, cameras and dynamic masks, depth and dynamic
-    regions, run.json, model-based metrics; then the metrics are cleaned (NaN -> None, PSNR cap) and
-    the conventions, options and run description are attached.
+    regions, run.json, model-based metrics (eval.experiments.score_model); the scene-HDR, view and
+    camera-motion steps (eval.experiments.score_scene) come after HDR. Then the metrics are cleaned
+    (NaN -> None, PSNR cap) and the conventions, options and run description are attached.
     """
     t0 = time.perf_counter()
     run_dir = Path(run_dir)
@@ -526,9 +447,16 @@ def score_run(
         "lpips" if job.lpips_w is not None else "lpips_na",
     ]
     m: Dict[str, object] = {k: None for k in METRIC_KEYS}
+    # a views-only prediction (another method's frames): no test-frame metric
+    job.test_renders = (
+        render_missing or has_test_renders(run_dir, clip_obj) or not has_view_renders(run_dir)
+    )
     per_level = _score_ldr_levels(job, m)
     _score_ldr_train(job, m)
     conv_keys += _score_hdr(job, m, flip)
+    conv_keys += score_scene_hdr(job, m)
+    conv_keys += score_held_out_views(job, m) or []
+    conv_keys += camera_motion(job, m)
     conv_keys += _score_temporal(job, m, tae_train_test)
     conv_keys += _score_cameras_and_masks(job, m)
     conv_keys += _score_depth_and_dynamic(job, m)
@@ -536,7 +464,7 @@ def score_run(
     conv_keys += _run_info_metrics(info, m)
     model_note = "not loaded (model=False)"
     if model:
-        model_note, keys = _score_model(job, m, fps, dev)
+        model_note, keys = score_model(job, m, fps, dev)
         conv_keys += keys
     _finish(m, per_level, conv_keys, roundtrip)
     m["options"] = {
@@ -574,6 +502,7 @@ class _Job:
     clip: Clip
     roundtrip: Optional[str]
     lpips_w: Optional[object]
+    test_renders: bool = True  # False: a views-only prediction, no test-frame metric
 
     @property
     def renders(self) -> Path:
@@ -596,7 +525,7 @@ def _score_ldr_levels(job: _Job, m: dict) -> dict:
     clip, test = job.clip, job.clip.test_frames
     ex = clip.meta.exposures
     per_level = {}
-    if not (clip.has_gt and test):
+    if not (clip.has_gt and test and job.test_renders):
         return per_level
     for kind, levels in (("observed", ex.observed), ("novel", ex.novel)):
         for lv in levels:
@@ -650,7 +579,7 @@ def _score_hdr(job: _Job, m: dict, flip: bool) -> List[str]:
         return []
     keys = ["hdr_mu_law", "hdr_mu_law_own", "pu21"]
     test, train = clip.test_frames, clip.train_frames
-    if test:
+    if test and job.test_renders:
         h = _score_hdr_set(
             [job.render("test/hdr", g, "exr") for g in test],
             clip.load_gt_hdr,
@@ -723,14 +652,24 @@ def _score_tce(job: _Job, m: dict, flows=None) -> List[str]:
 
 
 # metrics a metrics.json of an earlier version may lack, each with the step that computes it alone
-# (`add_missing_metrics`)
-ADDABLE = {"hdr_tce": _score_tce}
+# (`add_missing_metrics`; a step computing several keys runs once)
+ADDABLE = {
+    "hdr_tce": _score_tce,
+    **{k: score_scene_hdr for k in SCENE_HDR_KEYS},
+    **{k: score_held_out_views for k in NV_MEAN_KEYS},
+    **{k: camera_motion for k in CAMERA_MOTION_KEYS},
+}
 
 
-def add_missing_metrics(run_dir, clip=None, write: bool = True) -> Tuple[dict, List[str]]:
+def add_missing_metrics(
+    run_dir, clip=None, write: bool = True, render_missing: bool = False
+) -> Tuple[dict, List[str]]:
     """Compute the metrics of ADDABLE that RUN/metrics.json lacks (scored before they existed)
     without recomputing anything else, and merge them in (with their conventions). Returns (the
-    metrics, the keys added; a key whose step finds no input is added as None)."""
+    metrics, the keys added; a key whose step finds no input is added as None, except the held-out
+    views' keys of a clip with views when the run has no renders/views: left out, to be added once
+    rendered). render_missing: first render the missing view renders from the run's model (an m4dgs
+    run; eval.experiments.run_files.ensure_renders)."""
     run_dir = Path(run_dir)
     mpath = run_dir / "metrics.json"
     if not mpath.exists():
@@ -740,16 +679,32 @@ def add_missing_metrics(run_dir, clip=None, write: bool = True) -> Tuple[dict, L
     if not todo:
         return m, []
     clip_obj = clip if isinstance(clip, Clip) else Clip.open(resolve_clip_dir(run_dir, clip))
+    if render_missing and any(ADDABLE[k] is score_held_out_views for k in todo):
+        ensure_renders(run_dir, clip_obj)
     job = _Job(run_dir, clip_obj, None, None)
+    job.test_renders = has_test_renders(run_dir, clip_obj)
     conv = all_conventions()
-    for k in todo:
-        m[k] = None
-        for c in ADDABLE[k](job, m):
+    before = set(m)
+    added: List[str] = []
+    for step in dict.fromkeys(ADDABLE[k] for k in todo):
+        had = set(m)
+        for k in todo:
+            if ADDABLE[k] is step:
+                m[k] = None
+        used = step(job, m)
+        if used is None:  # no input yet: leave its keys out
+            for k in set(m) - had:
+                del m[k]
+            continue
+        for c in used:
             m.setdefault("conventions", {})[c] = conv[c]
-        m[k] = _clean(m[k])
-    if write:
+    for k in m:
+        if k not in before:
+            m[k] = _clean(m[k]) if isinstance(m[k], float) else m[k]
+            added.append(k)
+    if write and added:
         mio.write_json(mpath, m)
-    return m, todo
+    return m, added
 
 
 def _score_temporal(job: _Job, m: dict, tae_train_test: bool) -> List[str]:
@@ -782,7 +737,7 @@ def _score_temporal(job: _Job, m: dict, tae_train_test: bool) -> List[str]:
     else:
         m["hdr_tae"] = _tae_pairwise(train, job.load_train_hdr, _dis_flows)
         keys += ["hdr_tae", "hdr_tae_train", "hdr_tae_dis_flow"]
-    if tae_train_test:
+    if tae_train_test and job.test_renders:
 
         def load_any(g):
             sub = "train" if g in set(train) else "test"
@@ -818,7 +773,7 @@ def _score_depth_and_dynamic(job: _Job, m: dict) -> List[str]:
     frames (dyn_ldr_psnr at the observed levels, dyn_hdr_psnr mu-law)."""
     clip, test = job.clip, job.clip.test_frames
     keys: List[str] = []
-    if not (clip.has_gt and test):
+    if not (clip.has_gt and test and job.test_renders):
         return keys
     dpaths = [job.render("test/depth", g, "exr") for g in test]
     if clip.has_gt_part("depth") and all(p.exists() for p in dpaths):
@@ -859,30 +814,6 @@ def _run_info_metrics(info: dict, m: dict) -> List[str]:
         if info.get(k) is not None:
             m[k] = float(info[k])
     return ["peak_mem"] if info.get("peak_memory_mib") is not None else []
-
-
-def _score_model(job: _Job, m: dict, fps: bool, device: str) -> Tuple[str, List[str]]:
-    """Track error, learned CRF and render FPS from the trained model; returns (what happened to the
-    model, convention keys)."""
-    mdl, why = _load_model(job.run_dir, device)
-    if mdl is None:
-        return why, []
-    keys: List[str] = []
-    mm = _model_metrics(mdl, job.clip, fps, device)
-    if m["num_gaussians"] is None and getattr(mdl, "num_gaussians", None) is not None:
-        m["num_gaussians"] = float(mdl.num_gaussians)
-    m["crf_curve"] = mm.pop("crf_curve")
-    if "crf_error_detail" in mm:
-        m["crf_error_detail"] = mm.pop("crf_error_detail")
-    m.update(mm)
-    keys.append("crf_rmse")
-    if mm.get("crf_error") is not None:
-        keys.append("crf_error")
-    if mm.get("track_epe") is not None:
-        keys += ["track", "track_first_frame"]
-    if fps:
-        keys.append("fps")
-    return "loaded", keys
 
 
 def _finish(m: dict, per_level: dict, conv_keys: List[str], roundtrip: Optional[str]) -> None:

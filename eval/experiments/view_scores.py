@@ -14,7 +14,9 @@ its test frames, at the observed levels (LDR-OE) and the novel ones (LDR-NE) and
 
 Keys are nv_<view>_<split>_<metric> (split ldr_oe, ldr_ne, hdr; e.g. nv_large_ldr_oe_mpsnr), the
 mean over views nv_<split>_<metric>, and nv_<view>_covisible (the mean co-visible fraction of the
-view's surface pixels). A view frame without a prediction file is an error naming the file.
+view's surface pixels). Every PSNR is capped at PSNR_CAP_DB per frame before the means (as the
+test frames' are, eval.experiments.score), so a perfect view reads 100. A view frame without a
+prediction file is an error naming the file.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
+from eval.conventions import PSNR_CAP_DB
 from eval.metrics.hdr import hdr_psnr, hdr_ssim, hdr_tonemap_pair
 from eval.metrics.image import masked_psnr, masked_ssim, psnr, ssim
 from eval.metrics.scene_hdr import hdr_psnr_p99
@@ -41,8 +44,13 @@ def _need(p: Path) -> Path:
 
 
 def _mean(vals: List[Optional[float]]) -> Optional[float]:
-    v = [x for x in vals if x is not None and not np.isnan(x)]  # +inf (a perfect frame) stays
+    v = [x for x in vals if x is not None and not np.isnan(x)]
     return float(np.mean(v)) if v else None
+
+
+def _cap(v: Optional[float]) -> Optional[float]:
+    """A frame's PSNR capped at PSNR_CAP_DB (identical images give +inf); None stays None."""
+    return None if v is None else min(float(v), PSNR_CAP_DB)
 
 
 def score_view(clip, pred_root, view: str) -> Dict[str, Optional[float]]:
@@ -61,18 +69,18 @@ def score_view(clip, pred_root, view: str) -> Dict[str, Optional[float]]:
             for lv in levels:
                 gt = clip.load_view_ldr(view, lv, g)
                 pr = mio.read_png(_need(root / "ldr" / level_name(lv) / frame_name(g, "png")))
-                out[f"{split}_psnr"].append(psnr(pr, gt))
+                out[f"{split}_psnr"].append(_cap(psnr(pr, gt)))
                 out[f"{split}_ssim"].append(ssim(pr, gt))
-                out[f"{split}_mpsnr"].append(masked_psnr(pr, gt, covis))
+                out[f"{split}_mpsnr"].append(_cap(masked_psnr(pr, gt, covis)))
                 out[f"{split}_mssim"].append(masked_ssim(pr, gt, covis))
         gt = clip.load_view_hdr(view, g)
         pr = mio.read_exr(_need(root / "hdr" / frame_name(g, "exr")))
-        out["hdr_psnr"].append(hdr_psnr(pr, gt))
+        out["hdr_psnr"].append(_cap(hdr_psnr(pr, gt)))
         out["hdr_ssim"].append(hdr_ssim(pr, gt))
         tp, tg = hdr_tonemap_pair(pr, gt)
-        out["hdr_mpsnr"].append(masked_psnr(tp[0], tg[0], covis))
+        out["hdr_mpsnr"].append(_cap(masked_psnr(tp[0], tg[0], covis)))
         out["hdr_mssim"].append(masked_ssim(tp[0], tg[0], covis))
-        out["hdr_psnr_p99"].append(hdr_psnr_p99(pr, gt))
+        out["hdr_psnr_p99"].append(_cap(hdr_psnr_p99(pr, gt)))
     res = {k: _mean(v) for k, v in out.items()}
     res["covisible"] = _mean(covis_frac)
     return res

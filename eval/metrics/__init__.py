@@ -5,7 +5,7 @@ per image and averaged) and returns python floats (None where a metric cannot be
 LPIPS without weights). `CONVENTIONS` maps a short key to the one-line convention printed under the
 tables (eval.tables)."""
 
-from . import crf, geometry, hdr, image, lpips, perf, temporal
+from . import crf, geometry, hdr, image, lpips, perf, scene_hdr, temporal
 from .crf import crf_error, crf_error_bands, crf_error_shifted, observed_exposure_range
 from .geometry import align_sim3, ate, depth_absrel, rpe, track_error
 from .hdr import hdr_flip, hdr_psnr, hdr_ssim, hdr_tonemap_pair, mu_law, pu21_encode, pu21_psnr
@@ -24,7 +24,7 @@ from .perf import measure_fps, measure_peak_memory_mib
 from .temporal import dis_flow, dis_flow_sequence, hdr_t_std, hdr_tae, hdr_tae_pairs, tonemap_8bit
 
 CONVENTIONS: dict[str, str] = {}
-for _m in (image, hdr, temporal, lpips, geometry, perf, crf):
+for _m in (image, hdr, scene_hdr, temporal, lpips, geometry, perf, crf):
     CONVENTIONS.update(_m.CONVENTIONS)
 del _m
 
@@ -68,6 +68,7 @@ __all__ = [
     "roundtrip_convention",
     "rpe",
     "save_lpips_weights",
+    "scene_hdr",
     "ssim",
     "temporal",
     "tonemap_8bit",
