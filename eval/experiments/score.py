@@ -515,6 +515,13 @@ class _Job:
     def has_all(self, sub: str, frames: List[int], ext: str) -> bool:
         return all(self.render(sub, g, ext).exists() for g in frames)
 
+    @property
+    def test_hdr(self) -> bool:
+        """Whether the test frames' HDR is scored: test renders, and an HDR render of each (another
+        method's LDR-only frames, e.g. a Nerfies-style method's, have none; an m4dgs run has them
+        all, ensure_renders sees to it)."""
+        return self.test_renders and self.has_all("test/hdr", self.clip.test_frames, "exr")
+
     def load_train_hdr(self, g: int) -> np.ndarray:
         return read_render_exr(self.render("train/hdr", g, "exr"))
 
@@ -579,7 +586,7 @@ def _score_hdr(job: _Job, m: dict, flip: bool) -> List[str]:
         return []
     keys = ["hdr_mu_law", "hdr_mu_law_own", "pu21"]
     test, train = clip.test_frames, clip.train_frames
-    if test and job.test_renders:
+    if test and job.test_hdr:
         h = _score_hdr_set(
             [job.render("test/hdr", g, "exr") for g in test],
             clip.load_gt_hdr,
@@ -789,18 +796,21 @@ def _score_depth_and_dynamic(job: _Job, m: dict) -> List[str]:
         return keys
     moving = [g for g in test if masks[g].any()]
     dl = []
-    for lv in clip.meta.exposures.observed:
-        for g in moving:
+    observed = set(clip.meta.exposures.observed)
+    for g in moving:
+        # the observed levels the frame is scored at (all of them, but for another method's
+        # frames rendered at some levels only: eval.experiments.frames.scored_clip)
+        for lv in [lv for lv in clip.meta.test_levels_of(g) if lv in observed]:
             p = _ldr_pred(job.render(f"test/ldr/{level_name(lv)}", g, "png"), job.roundtrip)
             dl.append(masked_psnr(p, clip.load_gt_ldr(lv, g), masks[g]))
     m["dyn_ldr_psnr"] = _capped_mean(dl)
     dh = []
-    for g in moving:
+    for g in moving if job.test_hdr else []:
         tp, tg = hdr_tonemap_pair(
             read_render_exr(job.render("test/hdr", g, "exr")), clip.load_gt_hdr(g)
         )
         dh.append(masked_psnr(tp, tg, masks[g]))
-    m["dyn_hdr_psnr"] = _capped_mean(dh)
+    m["dyn_hdr_psnr"] = _capped_mean(dh) if dh else None
     keys.append("masked")
     return keys
 

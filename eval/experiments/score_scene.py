@@ -61,7 +61,7 @@ def score_scene_hdr(job, m: dict) -> List[str]:
     """hdr_psnr_p99, highlight_stops, highlight_peak_ratio (and highlight_pixels) of the test HDR
     renders renders/test/hdr/<g>.exr [H, W, 3] against gt/hdr (module docstring)."""
     clip, test = job.clip, job.clip.test_frames
-    if not (clip.has_gt and clip.has_gt_part("hdr") and test and job.test_renders):
+    if not (clip.has_gt and clip.has_gt_part("hdr") and test and job.test_hdr):
         return []
     crf = true_response(clip)
     obs = list(clip.meta.exposures.observed)

@@ -15,8 +15,9 @@ its test frames, at the observed levels (LDR-OE) and the novel ones (LDR-NE) and
 Keys are nv_<view>_<split>_<metric> (split ldr_oe, ldr_ne, hdr; e.g. nv_large_ldr_oe_mpsnr), the
 mean over views nv_<split>_<metric>, and nv_<view>_covisible (the mean co-visible fraction of the
 view's surface pixels). Every PSNR is capped at PSNR_CAP_DB per frame before the means (as the
-test frames' are, eval.experiments.score), so a perfect view reads 100. A view frame without a
-prediction file is an error naming the file.
+test frames' are, eval.experiments.score), so a perfect view reads 100. A prediction may leave out
+a whole level or HDR (its folder absent: those scores are None, the split's mean is over the
+levels given); a view frame missing from a folder that exists is an error naming the file.
 """
 
 from __future__ import annotations
@@ -61,18 +62,29 @@ def score_view(clip, pred_root, view: str) -> Dict[str, Optional[float]]:
     out: Dict[str, List[Optional[float]]] = {f"{s}_{m}": [] for s in SPLITS for m in METRICS}
     out["hdr_psnr_p99"] = []
     covis_frac = []
+    # another method may predict some levels only (a Nerfies-style method: one) and no HDR: a
+    # level, or HDR, without a folder is not scored; within a folder every frame is required
+    given = [
+        lv for lv in list(ex.observed) + list(ex.novel) if (root / "ldr" / level_name(lv)).is_dir()
+    ]
+    if not given and not (root / "hdr").is_dir():
+        raise ClipError(
+            root, "<folder>", "no prediction at this held-out view (ldr/<level>/, hdr/)"
+        )
     for g in clip.test_frames:
         covis = clip.load_view_covis(view, g)
         hit = clip.load_view_depth(view, g) > 0
         covis_frac.append(float(covis.sum() / max(hit.sum(), 1)))
         for split, levels in (("ldr_oe", ex.observed), ("ldr_ne", ex.novel)):
-            for lv in levels:
+            for lv in [lv for lv in levels if lv in given]:
                 gt = clip.load_view_ldr(view, lv, g)
                 pr = mio.read_png(_need(root / "ldr" / level_name(lv) / frame_name(g, "png")))
                 out[f"{split}_psnr"].append(_cap(psnr(pr, gt)))
                 out[f"{split}_ssim"].append(ssim(pr, gt))
                 out[f"{split}_mpsnr"].append(_cap(masked_psnr(pr, gt, covis)))
                 out[f"{split}_mssim"].append(masked_ssim(pr, gt, covis))
+        if not (root / "hdr").is_dir():
+            continue
         gt = clip.load_view_hdr(view, g)
         pr = mio.read_exr(_need(root / "hdr" / frame_name(g, "exr")))
         out["hdr_psnr"].append(_cap(hdr_psnr(pr, gt)))
