@@ -52,6 +52,8 @@ class Column:
     # a ratio whose right value is `target` (e.g. 1): the best is the value closest to it, and the
     # header's arrow reads "→1" (higher_is_better is then only the figures' reading direction)
     target: float | None = None
+    # a property of the clip, not a score (e.g. the camera's motion): no arrow, never bold
+    context: bool = False
 
     @property
     def label(self) -> str:
@@ -241,6 +243,8 @@ def best_flags(agg: list, spec: TableSpec) -> list:
     True)."""
     flags = [[False] * len(spec.columns) for _ in agg]
     for j, c in enumerate(spec.columns):
+        if c.context:
+            continue
         shown = [
             (i, float(_fmt(r[c.key], c.fmt))) for i, r in enumerate(agg) if not _missing(r[c.key])
         ]
@@ -310,6 +314,8 @@ def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None
 
 
 def _arrow(c: Column, latex: bool) -> str:
+    if c.context:
+        return ""
     if c.target is not None:
         return f"$\\to {c.target:g}$" if latex else f"→{c.target:g}"
     if latex:

@@ -232,11 +232,14 @@ def metric_columns() -> Dict[str, Column]:
             Column(f"nv_{v}_ldr_oe_mpsnr", f"{v} mPSNR", True, ".2f", "Views LDR-OE", "nv_masked")
             for v in DEFAULT_VIEWS
         ],
-        Column("nv_covisible", "co-visible", True, ".3f", "Views", "nv_masked"),
-        # the clip's camera motion (clip.json gt.camera_motion): the same for every row of a scene
-        Column("camera_deg_s", "camera deg/s", True, ".1f", "Motion", "camera_motion"),
-        Column("scene_deg_s", "scene deg/s", True, ".1f", "Motion", "camera_motion"),
-        Column("emf", "EMF", True, ".2f", "Motion", "camera_motion"),
+        # properties of the clip, the same for every row of a scene (context: no arrow, no bold):
+        # the views' co-visible fraction and the camera motion (clip.json gt.camera_motion)
+        Column("nv_covisible", "co-visible", True, ".3f", "Views", "nv_masked", context=True),
+        Column(
+            "camera_deg_s", "camera deg/s", True, ".1f", "Motion", "camera_motion", context=True
+        ),
+        Column("scene_deg_s", "scene deg/s", True, ".1f", "Motion", "camera_motion", context=True),
+        Column("emf", "EMF", True, ".2f", "Motion", "camera_motion", context=True),
     ]
     cols.update({c.key: c for c in extra})
     return cols

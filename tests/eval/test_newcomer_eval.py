@@ -110,7 +110,7 @@ def test_table_of_a_suite_under_a_missing_or_empty_root_names_the_folder_searche
     line = _error_line(
         cli.invoke(main, ["table", "--columns", "all", "tiny", "--root", "out", "--no-figures"])
     )
-    assert f"1 of the 6 run folder(s) of suite 'tiny' exist under {where} " in line
+    assert f"1 of the 12 run folder(s) of suite 'tiny' exist under {where} " in line
     assert "none has a metrics.json yet" in line and "m4dgs-eval run tiny --root out" in line
 
 
