@@ -4,7 +4,7 @@
     paper_rows {row: label})} paper_records()      -> [{"table", "row", "paper_row", "metric",
     "value", "source"}, ...] (flat form)
 
-Row names are the rows of our suites (eval/suites/*.yaml); a suite table refers to a paper table
+Row names are the rows of our suites (eval/suites/*/*.yaml); a suite table refers to a paper table
 with `paper: KEY`."""
 
 from __future__ import annotations

@@ -46,7 +46,12 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
-from eval.records.suite import EvalSuite, load_eval_suite, scene_suite_names, suites_dir
+from eval.records.suite import (
+    EvalSuite,
+    is_builtin_suite_file,
+    load_eval_suite,
+    scene_suite_names,
+)
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError, M4DGSError
 from m4dgs.core.lock import file_lock
@@ -177,7 +182,7 @@ def _suite_ref(suite) -> tuple:
     """(EvalSuite, the reference to put on job command lines: the built-in name, or the file's
     absolute path)."""
     s = suite if isinstance(suite, EvalSuite) else load_eval_suite(suite)
-    builtin = s.path.resolve().parent == suites_dir().resolve()
+    builtin = is_builtin_suite_file(s.path)
     return s, (s.name if builtin else str(s.path.resolve()))
 
 

@@ -1,4 +1,5 @@
-"""Experiment suites (eval/suites/<name>.yaml): which clips, which trained variants, which tables.
+"""Experiment suites (eval/suites/<group>/<name>.yaml, called by <name>): which clips, which trained
+variants, which tables.
 
 A suite file names
 
@@ -372,18 +373,59 @@ def table_spec(
 # loading
 # --------------------------------------------------------------------------------------------------
 def suites_dir() -> Path:
-    """Folder of the shipped eval suites (package data of `eval`)."""
+    """Folder of the shipped eval suites (package data of `eval`): eval/suites/<group>/<name>.yaml,
+    the groups paper/, controls/ and extra/."""
     return Path(str(resources.files("eval"))) / "suites"
 
 
+def builtin_suite_paths() -> Dict[str, Path]:
+    """Shipped suite name -> its file, from every subfolder of suites_dir(). A name is the file's
+    stem, so two files with the same name anywhere under it are a SuiteError naming both."""
+    out: Dict[str, Path] = {}
+    for p in sorted(suites_dir().rglob("*.yaml")):
+        if p.stem in out:
+            raise SuiteError(
+                p, "<suite>", f"two shipped suites are called {p.stem!r}: {out[p.stem]} and {p}"
+            )
+        out[p.stem] = p
+    return out
+
+
 def builtin_suites() -> List[str]:
-    return sorted(p.stem for p in suites_dir().glob("*.yaml"))
+    """Names of the shipped suites (sorted), whatever subfolder of eval/suites holds them."""
+    return sorted(builtin_suite_paths())
+
+
+def builtin_suite_path(name: str) -> Optional[Path]:
+    """The file of the shipped suite called `name`, or None."""
+    return builtin_suite_paths().get(name)
+
+
+def is_builtin_suite_file(path) -> bool:
+    """Whether `path` is the file of a shipped suite (then it is called by its bare name)."""
+    p = Path(str(path)).resolve()
+    return any(p == q.resolve() for q in builtin_suite_paths().values())
+
+
+def suite_display_path(path) -> str:
+    """A suite file's path for pages and messages: eval/suites/<group>/<name>.yaml for a shipped
+    suite (the path in the repository), else the path as given."""
+    p = Path(str(path))
+    root = suites_dir().resolve()
+    try:
+        rel = p.resolve().relative_to(root)
+    except ValueError:
+        return p.as_posix()
+    return (Path("eval/suites") / rel).as_posix()
 
 
 def find_eval_suite(name_or_path) -> Path:
-    """An eval experiment suite: a suite YAML file by path, or the name of a shipped one
-    (eval/suites/<name>.yaml). Raises SuiteError naming the shipped suites."""
-    path = mio.find_file(name_or_path, suites_dir())
+    """An eval experiment suite: a suite YAML file by path, or the bare name of a shipped one
+    (eval/suites/<group>/<name>.yaml). Raises SuiteError naming the shipped suites."""
+    p = Path(str(name_or_path))
+    if p.is_file():
+        return p
+    path = builtin_suite_path(str(name_or_path))
     if path is None:
         raise SuiteError(
             name_or_path, "<suite>", f"not a suite file nor a built-in suite {builtin_suites()}"
@@ -574,7 +616,8 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
 
 
 def load_eval_suite(name_or_path) -> EvalSuite:
-    """Load a built-in suite by name (eval/suites/<name>.yaml) or any suite file by path."""
+    """Load a built-in suite by its bare name (eval/suites/<group>/<name>.yaml) or any suite file by
+    path."""
     path = find_eval_suite(name_or_path)
     return parse_suite(mio.read_yaml(path), path)
 

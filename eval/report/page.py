@@ -47,7 +47,12 @@ from eval.records.runs_csv import (
     read_floors_csv,
     read_runs_csv,
 )
-from eval.records.suite import builtin_suites, load_eval_suite, metric_columns, suites_dir
+from eval.records.suite import (
+    builtin_suites,
+    load_eval_suite,
+    metric_columns,
+    suite_display_path,
+)
 from eval.records.suite_data import SuiteData, suite_data, suite_tables, suites_in
 from eval.report.page_figures import (
     FIGURE_KINDS,
@@ -192,9 +197,8 @@ def suite_section(
     desc = data.suite.description if data.suite is not None else "(no suite definition found)"
     lines = [f"## {data.name}", "", desc, ""]
     if data.suite is not None:
-        builtin = suites_dir() / (data.name + ".yaml")
-        path = builtin if data.suite.path.resolve() == builtin.resolve() else data.suite.path
-        shown = f"eval/suites/{data.name}.yaml" if path == builtin else path.as_posix()
+        path = data.suite.path
+        shown = suite_display_path(path)
         lines += [f"Definition: [{shown}]({_rel(path, out_dir)})."]
         lines.append("")
     missing = data.missing
@@ -329,7 +333,7 @@ def replace_readme_block(text: str, block: str, path="README") -> str:
 
 def _is_results_figure(name: str) -> bool:
     """Whether a file name is one `suite_result_figures` writes: <suite>_<kind>.png, the suite a
-    shipped suite (eval/suites/*.yaml)."""
+    shipped suite (eval/suites/*/*.yaml)."""
     if name == CONTROLS_FIGURE:
         return True
     if name.startswith(FINDING_FIGURE_PREFIX) and name.endswith(".png"):
@@ -337,7 +341,7 @@ def _is_results_figure(name: str) -> bool:
     for kind in sorted(FIGURE_KINDS, key=len, reverse=True):
         tail = f"_{kind}.png"
         if name.endswith(tail):
-            return (suites_dir() / f"{name[: -len(tail)]}.yaml").is_file()
+            return name[: -len(tail)] in builtin_suites()
     return False
 
 

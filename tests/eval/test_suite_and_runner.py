@@ -28,6 +28,32 @@ def test_builtin_suites_are_found_by_name():
         assert load_eval_suite(n).name == n
 
 
+def test_shipped_suites_sit_in_group_folders_and_are_called_by_bare_name():
+    from eval.records.suite import builtin_suite_path, suite_display_path
+
+    assert builtin_suite_path("paper-main").parent.name == "paper"
+    assert builtin_suite_path("control-tlr").parent.name == "controls"
+    assert builtin_suite_path("tiny").parent.name == "extra"
+    p = find_eval_suite("paper-main")
+    assert suite_display_path(p) == "eval/suites/paper/paper-main.yaml"
+    assert find_eval_suite(p) == p  # a path still works
+    assert load_eval_suite(str(p)).name == "paper-main"
+
+
+def test_two_shipped_suites_with_one_name_are_an_error_naming_both(tmp_path, monkeypatch):
+    import eval.records.suite as suite_mod
+
+    for group in ("paper", "extra"):
+        (tmp_path / group).mkdir()
+        (tmp_path / group / "twin.yaml").write_text("name: twin\n")
+    monkeypatch.setattr(suite_mod, "suites_dir", lambda: tmp_path)
+    with pytest.raises(SuiteError) as e:
+        suite_mod.builtin_suites()
+    msg = str(e.value)
+    assert str(tmp_path / "paper" / "twin.yaml") in msg
+    assert str(tmp_path / "extra" / "twin.yaml") in msg
+
+
 def test_unknown_suite_names_the_shipped_ones():
     with pytest.raises(SuiteError) as e:
         find_eval_suite("no-such-suite")
