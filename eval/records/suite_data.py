@@ -289,7 +289,8 @@ METHOD = "Mono4DGS-HDR"
 def compact_tables(entries: list, title: str) -> tuple:
     """(entries, table definitions) of the compact table: LDR-OE PSNR, the views' LDR-OE mPSNR,
     HDR PSNR, HDR-TAE and training time (COMPACT_COLUMNS) without the columns no run has a value
-    of, and the `full` row labelled as the method ("Mono4DGS-HDR (full)") where its label does not say so."""
+    of, and the `full` row labelled as the method ("Mono4DGS-HDR (full)") where its label does
+    not say so."""
     keys = [
         k for k in COMPACT_COLUMNS if any((e["metrics"] or {}).get(k) is not None for e in entries)
     ]
