@@ -37,6 +37,7 @@ CRF_GRID = [i / 2 for i in range(-20, 21)]  # log2 exposure -10 .. 10 in half st
 CRF_KEY = KEY + ("crf",)
 SUITE_ORDER = (
     "paper-main",
+    "nv-main",
     "paper-ablation",
     "control-points",
     "exposure-schedules",
