@@ -94,6 +94,27 @@ def pyplot():
 # --------------------------------------------------------------------------------------------------
 # CRF
 # --------------------------------------------------------------------------------------------------
+def learned_crf_curve(c: dict) -> Tuple[np.ndarray, np.ndarray]:
+    """(log2 x [n], learned LDR value [n], the mean over RGB) of a crf_curve ({"log2_x", "learned"
+    [n][C] or [n], None for a missing value -> NaN})."""
+    z = np.asarray(c["log2_x"], np.float64)
+    y = np.asarray(
+        [[np.nan if v is None else v for v in np.atleast_1d(r)] for r in c["learned"]], np.float64
+    )
+    return z, y.reshape(len(z), -1).mean(axis=1)
+
+
+def true_crf_curve(name: str, lo: float, hi: float, n: int) -> Optional[Tuple[np.ndarray, ...]]:
+    """(log2 x [n] evenly over [lo, hi], the camera response `name`'s LDR value [n], the mean over
+    RGB as learned curves are drawn); None for a response this installation does not know."""
+    try:
+        f = get_crf(name)
+    except Exception:  # noqa: BLE001 - a response recorded by another version
+        return None
+    zz = np.linspace(lo, hi, n)
+    return zz, np.asarray(f.rgb(np.repeat(np.exp2(zz)[:, None], 3, 1))).mean(axis=1)
+
+
 def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> Optional[Path]:
     """Learned CRF curves vs the true CRF.
 
@@ -112,18 +133,15 @@ def crf_figure(curves: Sequence[Tuple[str, dict]], out_png, title: str = "") -> 
     # rows of one scene may have different true CRFs (suite crf): each is drawn once
     true_done = set()
     for lab, c in curves:
-        z = np.asarray(c["log2_x"], np.float64)
-        (line,) = ax.plot(
-            z,
-            np.asarray(c["learned"], np.float64).reshape(len(z), -1).mean(axis=1),
-            lw=1.4,
-            label=lab,
+        z, y = learned_crf_curve(c)
+        (line,) = ax.plot(z, y, lw=1.4, label=lab)
+        tc = (
+            true_crf_curve(c["crf"], z.min(), z.max(), 401)
+            if c.get("true") is not None and c.get("crf") not in true_done
+            else None
         )
-        if c.get("true") is not None and c.get("crf") not in true_done:
-            zz = np.linspace(z.min(), z.max(), 401)
-            f = get_crf(c["crf"])
-            # mean of RGB, as learned
-            true = np.asarray(f.rgb(np.repeat(np.exp2(zz)[:, None], 3, 1))).mean(axis=1)
+        if tc is not None:
+            zz, true = tc
             one_true = len({d.get("crf") for _, d in curves}) == 1
             style = dict(color="k") if one_true else dict(color=line.get_color())
             ax.plot(zz, true, "--", lw=1.2, label=f"true CRF ({c['crf']})", **style)

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
-from eval.figures import pyplot, save_png
+from eval.figures import learned_crf_curve, pyplot, save_png, true_crf_curve
 from eval.records.suite import LAYOUTS, metric_columns
 from eval.records.suite_data import SuiteData
 from eval.study.controls import CONTROLS, NO_CHANGE, Control, ControlResult, evaluate_control
@@ -98,7 +98,6 @@ def bars_figure(data: SuiteData, out_png) -> Optional[Path]:
 def crf_figure(data: SuiteData, curves: Dict[tuple, dict], out_png) -> Optional[Path]:
     """Learned CRFs (mean of RGB; the lowest seed of each row and scene) against the true ones
     (dashed; black when every row shares one), one panel per scene."""
-    import numpy as np
 
     panels = []
     for sc in data.scenes:
@@ -129,21 +128,16 @@ def crf_figure(data: SuiteData, curves: Dict[tuple, dict], out_png) -> Optional[
     for ax, (sc, lines) in zip(axes.flat, panels):
         done = set()
         for rn, c in lines:
-            z = np.asarray(c["log2_x"], np.float64)
-            y = np.asarray([np.nan if v is None else v for v in c["learned"]], np.float64)
+            z, y = learned_crf_curve(c)
             (h,) = ax.plot(z, y, lw=1.2, color=color[rn])
             handles.setdefault(data.labels[rn], h)
             if c["crf"] in done:
                 continue
             done.add(c["crf"])
-            try:
-                from m4dgs.core.crf import get_crf
-
-                f = get_crf(c["crf"])
-            except Exception:  # noqa: BLE001 - a response this installation does not know
+            tc = true_crf_curve(c["crf"], z.min(), z.max(), 201)
+            if tc is None:
                 continue
-            zz = np.linspace(z.min(), z.max(), 201)
-            true = np.asarray(f.rgb(np.repeat(np.exp2(zz)[:, None], 3, 1))).mean(axis=1)
+            zz, true = tc
             (h,) = ax.plot(zz, true, "--", lw=1.0, color="k" if len(crfs) == 1 else color[rn])
             handles.setdefault(f"true CRF ({c['crf']})", h)
         ax.set_title(sc, fontsize=8)
