@@ -127,10 +127,14 @@ class ClipMeta:
 
     def test_levels_of(self, g: int) -> List[float]:
         """The levels test frame g has ground-truth LDR at: its captured exposure for a real clip
-        with test frames (exposures.test_dt), else every observed and novel level."""
+        with test frames (exposures.test_dt), and the novel exposure of the same instant where the
+        clip keeps one (gt.test_ne, {frame: level}: the paper's test_ne frames); else every
+        observed and novel level."""
         ex = self.exposures
         if ex.test_dt is not None:
-            return [ex.test_dt[self.split.test.index(g)]]
+            own = ex.test_dt[self.split.test.index(g)]
+            ne = (self.gt.get("test_ne") or {}).get(str(g))
+            return [own] + ([float(ne)] if ne is not None and float(ne) != own else [])
         return list(ex.observed) + list(ex.novel)
 
     def to_dict(self) -> dict:

@@ -233,6 +233,9 @@ def read_mono4dgs_hdr(src: Path) -> _Source:
                 g, lv = g_of_test[p.stem], ne_dt[p.name]
                 s.test_ldr[g][lv] = p
                 s.gt_notes["test_ne"][str(g)] = lv
+            # the novel levels: rendered by a run at every test frame and scored as LDR-NE on
+            # the frames that have one (ClipMeta.test_levels_of)
+            s.novel = sorted({float(lv) for lv in ne_dt.values()} - set(levels))
     tr_exr = _files(src / m4f.TRAIN_EXR_DIR, (".exr",))
     te_exr = _files(src / m4f.TEST_EXR_DIR, (".exr",))
     if tr_exr or te_exr:

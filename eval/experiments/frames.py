@@ -236,7 +236,7 @@ def _official_groups(clip: Clip, pred: Path) -> Dict[str, _Group]:
         obs, nov = test_levels(clip, j, g)
         levels[tn[g]] = (obs, nov)
         oe.append((pred / "test_ldr" / tn[g], f"test/ldr/{level_name(obs)}/{frame_name(g, 'png')}"))
-        # a real clip's novel-exposure frame (clip.json gt.test_ne) has no score yet
+        # a real clip's novel-exposure frame (clip.json gt.test_ne), scored as LDR-NE
         if nov is not None and nov in clip.meta.test_levels_of(g):
             ne.append(
                 (pred / "test_ne_ldr" / tn[g], f"test/ldr/{level_name(nov)}/{frame_name(g, 'png')}")

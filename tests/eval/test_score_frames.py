@@ -350,7 +350,7 @@ def test_official_layout_scores_real_footage(tmp_path):
     for n in ex["test"]:
         (out / "test_ldr").mkdir(parents=True, exist_ok=True)
         shutil.copyfile(ws / "test" / n, out / "test_ldr" / n)
-        # a novel-exposure render, as jpg: a real clip has no score for it yet
+        # a novel-exposure render, as jpg (lossy: scored below the cap)
         p = out / "test_ne_ldr" / n.replace(".png", ".jpg")
         p.parent.mkdir(parents=True, exist_ok=True)
         assert cv2.imwrite(str(p), mio.read_png(ws / "test_ne" / n)[..., ::-1])
@@ -367,10 +367,24 @@ def test_official_layout_scores_real_footage(tmp_path):
     assert res.exit_code == 0, res.output
     m = json.loads((tmp_path / "s/metrics.json").read_text())
     assert m["ldr_oe_psnr"] == PSNR_CAP_DB and 30 < m["ldr_train_psnr"] < PSNR_CAP_DB
-    assert {k: v["frames"] for k, v in m["per_level"].items()} == {"0.125": 1, "2": 1, "32": 1}
+    assert {k: v["frames"] for k, v in m["per_level"].items()} == {
+        "0.125": 1,
+        "2": 1,
+        "32": 1,
+        "0.5": 3,  # test_ne/: the novel exposure of every test frame, LDR-NE
+    }
+    # LDR-NE is the mean PSNR of the decoded JPEGs against test_ne/, computed here
+    ne = []
+    for n in ex["test_ne"]:
+        pred = cv2.imread(str(out / "test_ne_ldr" / n.replace(".png", ".jpg")))[..., ::-1]
+        gt = mio.read_png(ws / "test_ne" / n)
+        mse = float(np.mean((pred / 255.0 - gt / 255.0) ** 2))
+        ne.append(10 * np.log10(1 / mse))
+    assert m["ldr_ne_psnr"] == pytest.approx(float(np.mean(ne)), abs=1e-6)
+    assert m["ldr_ne_psnr"] < PSNR_CAP_DB
     assert m["options"]["input"]["layout"] == "mono4dgs-hdr"
-    assert sorted(m["options"]["input"]["given"]) == ["test_ldr", "train_ldr"]
-    assert m["options"]["input"]["ldr_uint8"] == 3 + 4  # test PNGs, training JPEGs
+    assert sorted(m["options"]["input"]["given"]) == ["test_ldr", "test_ne_ldr", "train_ldr"]
+    assert m["options"]["input"]["ldr_uint8"] == 3 + 3 + 4  # test PNGs, test_ne and training JPEGs
     # frame_0003 is test frame 3, at exposure 2^1
     np.testing.assert_array_equal(
         mio.read_png(tmp_path / "s/renders/test/ldr/2/00003.png"),
