@@ -468,13 +468,24 @@ def show(clip, sheet):
     help="Folder to write (written elsewhere first and moved into place when complete).",
 )
 @click.option("--force", is_flag=True, help="Replace a folder that is not empty at --out.")
-def export(clip, fmt, out_dir, force):
+@click.option(
+    "--cameras",
+    "cameras",
+    default=None,
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    help="nerfies only: estimated cameras to export instead of the ground truth's, an m4dgs "
+    "cameras.json covering at least the training frames (e.g. RUN/cameras_ba.json, the "
+    "camera initialisation of `m4dgs train`). The other images' cameras, depths and points are "
+    "the truth's carried into that frame by the similarity fitted on the training cameras.",
+)
+def export(clip, fmt, out_dir, force, cameras):
     """Write CLIP in the layout another method reads: frames, exposures, test frames at every
     level, HDR ground truth, cameras, depth and tracks where the layout has a place for them
-    (`m4dgs import-clip --format` reads it back)."""
+    (`m4dgs import-clip --format` reads it back). The cameras are the ground truth's unless
+    --cameras gives estimated ones."""
     from .formats import export_clip
 
-    click.echo(str(export_clip(clip, fmt, out_dir, force=force)))
+    click.echo(str(export_clip(clip, fmt, out_dir, force=force, cameras=cameras)))
 
 
 if __name__ == "__main__":

@@ -12,14 +12,20 @@ from m4dgs.core.errors import InputError
 from m4dgs.formats import FORMATS
 
 
-def export_clip(clip_dir, fmt: str, out, force: bool = False) -> Path:
+def export_clip(clip_dir, fmt: str, out, force: bool = False, cameras=None) -> Path:
     """Write the clip at `clip_dir` in format `fmt` into the folder `out` (written into a hidden
-    folder beside it and renamed into place when complete); returns `out`."""
+    folder beside it and renamed into place when complete); returns `out`. `cameras`: estimated
+    cameras (an m4dgs cameras.json) for a format that carries cameras (nerfies)."""
     from . import mono4dgs_hdr, nerfies
 
     writers = {"mono4dgs-hdr": mono4dgs_hdr.export, "nerfies": nerfies.export}
     if fmt not in writers:
         raise InputError(f"--format {fmt!r}: expected one of {', '.join(FORMATS)}")
+    if cameras is not None and fmt != "nerfies":
+        raise InputError(
+            f"--cameras {cameras}: the {fmt} layout carries no cameras (the official code "
+            "estimates its own in its preprocessing)"
+        )
     clip = Clip.open(clip_dir, validate="meta")
     out = Path(out)
     if out.exists() and any(out.iterdir()) and not force:
@@ -31,7 +37,7 @@ def export_clip(clip_dir, fmt: str, out, force: bool = False) -> Path:
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)
     try:
-        writers[fmt](clip, tmp)
+        writers[fmt](clip, tmp, **({"cameras": cameras} if cameras is not None else {}))
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -18,37 +18,13 @@ from __future__ import annotations
 import math
 from typing import Dict, Tuple
 
-import numpy as np
 import torch
 
 from m4dgs.clip import frame_name, level_name
-from m4dgs.core.camera import umeyama_sim3
+from m4dgs.core.camera import align_to_truth, truth_to_run
 from m4dgs.core.io import write_exr, write_json, write_png
 
-
-def align_to_truth(run_c2w: np.ndarray, gt_c2w: np.ndarray) -> Dict[str, object]:
-    """{"s", "R" [3, 3], "t" [3], "rmse", "n"}: the similarity with s R c_run + t ~ c_gt over the
-    centres of [N, 4, 4] camera-to-world matrices (N >= 3), and the RMSE of the aligned centres."""
-    cr = np.asarray(run_c2w, np.float64)[:, :3, 3]
-    cg = np.asarray(gt_c2w, np.float64)[:, :3, 3]
-    if cr.shape != cg.shape or cr.shape[0] < 3:
-        raise ValueError(
-            f"align_to_truth: need [N >= 3] matching cameras, got {cr.shape}/{cg.shape}"
-        )
-    s, R, t = umeyama_sim3(cr, cg)
-    s, R, t = float(s), np.asarray(R, np.float64), np.asarray(t, np.float64)
-    rmse = float(np.sqrt(np.mean(np.sum((s * cr @ R.T + t - cg) ** 2, axis=1))))
-    return {"s": s, "R": R, "t": t, "rmse": rmse, "n": int(cr.shape[0])}
-
-
-def truth_to_run(c2w_gt: np.ndarray, s: float, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """[4, 4] camera-to-world in the run's frame of a camera given in the truth's (module
-    docstring)."""
-    c2w_gt = np.asarray(c2w_gt, np.float64)
-    out = np.eye(4)
-    out[:3, :3] = R.T @ c2w_gt[:3, :3]
-    out[:3, 3] = R.T @ (c2w_gt[:3, 3] - t) / s
-    return out
+__all__ = ["align_to_truth", "truth_to_run", "alignment_of", "render_views"]
 
 
 def alignment_of(model) -> Dict[str, object]:

@@ -559,3 +559,83 @@ def test_paper_style_folder_trains(tiny_clip_oracle, tmp_path, short_training):
     _, out = _import_paper_style(tiny_clip_oracle, tmp_path)
     run = train(out, tmp_path / "run", preset="tiny", overrides=short_training, progress=False)
     assert RunDir(run).done
+
+
+def _rot(axis, deg):
+    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    t = math.radians(deg)
+    return np.eye(3) + math.sin(t) * k + (1 - math.cos(t)) * k @ k
+
+
+def test_nerfies_export_with_estimated_cameras(tiny_clip_oracle, tmp_path):
+    """Estimated cameras of the training frames only, here the truth in another frame (x0.5,
+    turned 30 degrees, moved): the training images get them as given; every other image (the
+    path's test frames, the held-out views) gets its true camera in that frame, so the true 3D
+    points, moved into that frame, project through the camera JSON (read as Nerfies does, written
+    here) onto their true pixels, and the views' depth files hold the points' z in its units."""
+    clip = Clip.open(tiny_clip_oracle)
+    gt = clip.load_gt_cameras()
+    s, R, t = 2.0, _rot([0.3, 1.0, 0.2], 30.0), np.array([0.5, -1.0, 2.0])  # c_gt = s R c + t
+    rows = [list(gt.frames).index(g) for g in clip.train_frames]
+    est = []
+    for i in rows:
+        c = np.eye(4)
+        c[:3, :3] = R.T @ gt.c2w[i][:3, :3]
+        c[:3, 3] = R.T @ (gt.c2w[i][:3, 3] - t) / s
+        est.append(c)
+    f = tmp_path / "cameras_ba.json"
+    f.write_text(
+        json.dumps(
+            {
+                "frames": clip.train_frames,
+                "K": gt.K[rows].tolist(),
+                "c2w": np.stack(est).tolist(),
+            }
+        )
+    )
+    exp = tmp_path / "exp"
+    r = CliRunner().invoke(
+        benchgen_main,
+        ["export", str(tiny_clip_oracle), "--format", "nerfies", "--out", str(exp)]
+        + ["--cameras", str(f)],
+    )
+    assert r.exit_code == 0, r.output
+    extra = json.loads((exp / "extra.json").read_text())
+    assert extra["cameras"] == "estimated"
+    assert extra["similarity_to_truth"]["s"] == pytest.approx(s, rel=1e-9)
+    p3, px, vis = _gt_points(Path(tiny_clip_oracle))
+    p_est = (p3 - t) @ R / s  # the points in the estimated frame
+    meta = json.loads((exp / "metadata.json").read_text())
+    checked, agree = {"train": 0, "other": 0}, []
+    for iid, e in meta.items():
+        g = e["warp_id"]
+        cam = json.loads((exp / "camera" / f"{iid}.json").read_text())
+        local = (p_est[:, g] - np.array(cam["position"])) @ np.array(cam["orientation"]).T
+        x, y = local[:, 0] / local[:, 2], local[:, 1] / local[:, 2]
+        u = cam["focal_length"] * x + cam["skew"] * y + cam["principal_point"][0]
+        v = cam["focal_length"] * cam["pixel_aspect_ratio"] * y + cam["principal_point"][1]
+        if e["camera_id"] == 0:
+            m = vis[:, g]
+            assert np.hypot(u - px[:, g, 0], v - px[:, g, 1])[m].max() < 1e-3, iid
+            checked["train" if g in clip.train_frames else "other"] += 1
+            if g in clip.train_frames:  # as given
+                np.testing.assert_allclose(cam["position"], est[clip.train_frames.index(g)][:3, 3])
+        else:
+            depth = np.load(exp / "depth/1x" / f"{iid}.npy")[..., 0]
+            w, h = cam["image_size"]
+            ok = vis[:, g] & (local[:, 2] > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            d = depth[v[ok].astype(int), u[ok].astype(int)]
+            agree.append(np.abs(d - local[ok, 2]) <= 0.02 * local[ok, 2])
+            checked["other"] += 1
+    assert checked == {"train": 5, "other": 4 + 12}
+    agree = np.concatenate(agree)  # as with the true cameras (occluded points, depth edges)
+    assert agree.size > 100 and agree.mean() > 0.8, agree.mean()
+    bad = tmp_path / "few.json"
+    bad.write_text(json.dumps({"frames": [0], "K": [gt.K[0].tolist()], "c2w": [est[0].tolist()]}))
+    r = CliRunner().invoke(
+        benchgen_main,
+        ["export", str(tiny_clip_oracle), "--format", "nerfies", "--out", str(tmp_path / "x")]
+        + ["--cameras", str(bad)],
+    )
+    assert r.exit_code != 0 and "few.json" in r.output and "training frame" in r.output
