@@ -1,0 +1,112 @@
+"""End to end in a real browser: headless Chromium (Debian's, driven by Playwright; no browser
+download) opens the viewer, moves the time slider it finds in the page, and the picture changes to
+view_frame's frame at the new time, both as sent by the server and as the browser paints it.
+
+Skipped when Playwright or a Chromium executable is missing (scripts/setup.sh installs both). Set
+M4DGS_VIEWER_SCREENSHOT=PATH to keep the final screenshot (docs/img/viewer.png is one)."""
+
+from __future__ import annotations
+
+import io
+import math
+import os
+import shutil
+import time
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
+playwright = pytest.importorskip("playwright.sync_api", reason="playwright is not installed")
+
+CHROMIUM = os.environ.get("M4DGS_CHROMIUM") or next(
+    (p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None
+)
+pytestmark = pytest.mark.skipif(
+    CHROMIUM is None, reason="no chromium executable (apt-get install chromium; scripts/setup.sh)"
+)
+VIEWPORT = (1000, 600)
+
+
+def _wait(pred, timeout=90.0, what="condition"):
+    end = time.time() + timeout
+    while time.time() < end:
+        out = pred()
+        if out:
+            return out
+        time.sleep(0.1)
+    raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+
+
+def _full_frame(viewer, t):
+    return next((s for s in viewer.shown.values() if s.full and s.time == t), None)
+
+
+def _region(img: np.ndarray) -> np.ndarray:
+    """The part of the canvas neither the GUI panel (right), the WebGL notice (top left) nor the
+    axes gizmo (bottom left) covers."""
+    H, W = img.shape[:2]
+    return img[int(0.3 * H) : int(0.85 * H), int(0.33 * W) : int(0.62 * W), :3].astype(np.float64)
+
+
+def _as_painted(img: np.ndarray) -> np.ndarray:
+    """A rendered frame stretched over the canvas as the browser paints the background."""
+    from PIL import Image
+
+    return np.asarray(Image.fromarray(img).resize(VIEWPORT, Image.BILINEAR))
+
+
+def test_time_slider_in_the_browser_changes_the_frame(viewer_model, free_port):
+    from PIL import Image
+
+    from m4dgs.viewer.frame import view_frame
+    from m4dgs.viewer.server import Viewer
+
+    model = viewer_model
+    last = model.clip.meta.num_frames - 1
+    viewer = Viewer(model, port=free_port, show_cameras=False)
+    try:
+        with playwright.sync_playwright() as pw:
+            browser = pw.chromium.launch(
+                executable_path=CHROMIUM,
+                headless=True,
+                args=["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox"],
+            )
+            page = browser.new_page(viewport=dict(zip(("width", "height"), VIEWPORT)))
+            page.goto(f"http://127.0.0.1:{free_port}/")
+            first = _wait(lambda: _full_frame(viewer, 0.0), what="the first full render")
+            # the time slider: the one spanning the clip's frames 0 .. G-1
+            sliders = page.get_by_role("slider")
+            _wait(lambda: sliders.count() >= 1, what="the GUI sliders")
+            time_slider = next(
+                sliders.nth(i)
+                for i in range(sliders.count())
+                if sliders.nth(i).get_attribute("aria-valuemin") == "0"
+                and sliders.nth(i).get_attribute("aria-valuemax") == str(last)
+            )
+            time_slider.focus()
+            page.keyboard.press("End")
+            moved = _wait(lambda: _full_frame(viewer, float(last)), what="a render at the end")
+            assert math.isclose(float(viewer.gui_time.value), last)
+            # the server sent exactly view_frame's image for the new time, camera and exposure
+            ref = view_frame(model, moved.camera, float(last), moved.ev, moved.mode)
+            assert np.abs(moved.image.astype(int) - ref.astype(int)).max() <= 1
+            before = view_frame(model, moved.camera, 0.0, moved.ev, moved.mode)
+            change = np.abs(ref.astype(float) - before.astype(float)).mean()
+            assert change > 0.5, f"the scene hardly changes over time ({change:.2f} codes)"
+
+            # and the browser paints it: the screenshot is closer to the new frame than the old
+            def painted():
+                shot = np.asarray(Image.open(io.BytesIO(page.screenshot())))
+                new = np.abs(_region(shot) - _region(_as_painted(moved.image))).mean()
+                old = np.abs(_region(shot) - _region(_as_painted(first.image))).mean()
+                return (shot, new, old) if new < 0.5 * old and new < 12 else None
+
+            shot, new, old = _wait(painted, timeout=30, what="the browser to paint the frame")
+            print(f"painted frame vs new {new:.2f}, vs old {old:.2f} codes (mean abs)")
+            keep = os.environ.get("M4DGS_VIEWER_SCREENSHOT")
+            if keep:
+                Image.fromarray(shot[..., :3]).save(keep, optimize=True)
+            browser.close()
+    finally:
+        viewer.stop()
