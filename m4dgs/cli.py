@@ -214,7 +214,13 @@ def export_ply_cmd(run_dir, g, exposure, out_path):
     help="Address to listen on. Only this machine can connect by default; another address (e.g. "
     "0.0.0.0) lets anyone on that network connect.",
 )
-@click.option("--port", default=8080, show_default=True, type=click.IntRange(0, 65535))
+@click.option(
+    "--port",
+    default=8080,
+    show_default=True,
+    type=click.IntRange(1, 65535),
+    help="Port to listen on (the next free one when it is taken).",
+)
 @click.option(
     "--device",
     default="auto",

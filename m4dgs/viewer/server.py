@@ -12,8 +12,9 @@ from __future__ import annotations
 import math
 import threading
 import time as _time
+from collections import deque
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Tuple
+from typing import Deque, Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -24,6 +25,8 @@ from m4dgs.viewer.frame import MODES, view_frame
 POLL_S = 0.03
 STILL_S = 0.25
 MOVING_SCALE = 0.5
+LOG_LEN = 64
+TRUTH_PANEL_WIDTH = 600  # the comparison image is enlarged to at least this many pixels wide
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
@@ -52,8 +55,8 @@ class Shown:
 
 class Viewer:
     """A viser server over `model` (m4dgs.model.trained.TrainedModel). Construct, then `serve()`
-    blocks; or use it from another thread and `stop()` it. show_cameras: draw the training/test
-    cameras' frusta and the training path."""
+    blocks; or use it from another thread and `stop()` it. show_cameras: the initial state of the
+    "Cameras (3D)" switch (the frusta of the named cameras and the training path)."""
 
     def __init__(
         self,
@@ -70,6 +73,9 @@ class Viewer:
         self.cameras: List[NamedCamera] = named_cameras(model)
         self.by_label: Dict[str, NamedCamera] = {c.label: c for c in self.cameras}
         self.shown: Dict[int, Shown] = {}
+        # every image sent, oldest first (the last LOG_LEN): (client id, Shown)
+        self.log: Deque[Tuple[int, Shown]] = deque(maxlen=LOG_LEN)
+        self.log_time = 0.0  # when the last image was sent
         self._moved: Dict[int, float] = {}
         self._lock = threading.Lock()
         self._render_lock = threading.Lock()
@@ -80,9 +86,10 @@ class Viewer:
         self.server = viser.ViserServer(host=host, port=port, label="m4dgs view", verbose=verbose)
         self._scene_scale = self._estimate_scene_scale()
         self._init_camera(self.selected.camera)
-        self._build_gui()
-        if show_cameras:
-            self._draw_cameras()
+        self._camera_handles: list = []
+        self._build_gui(show_cameras)
+        self._draw_cameras()
+        self._show_cameras()
         self.server.on_client_connect(self._on_connect)
         self.server.on_client_disconnect(self._on_disconnect)
         self._player = threading.Thread(target=self._play_loop, daemon=True, name="viewer-play")
@@ -107,7 +114,7 @@ class Viewer:
 
     # -- GUI
     # ----------------------------------------------------------------------------------------------
-    def _build_gui(self) -> None:
+    def _build_gui(self, show_cameras: bool) -> None:
         gui = self.server.gui
         clip = self.clip
         G = clip.meta.num_frames
@@ -142,6 +149,7 @@ class Viewer:
                 hint="Image width as a multiple of the clip's width",
             )
             self.gui_centres = gui.add_checkbox("Gaussian centres (3D)", initial_value=False)
+            self.gui_frusta = gui.add_checkbox("Cameras (3D)", initial_value=show_cameras)
         with gui.add_folder("Cameras"):
             self.gui_camera = gui.add_dropdown(
                 "Camera", options=[c.label for c in self.cameras], initial_value=self.selected.label
@@ -162,6 +170,7 @@ class Viewer:
         self.gui_prev.on_click(lambda e: self._step_camera(-1, e))
         self.gui_next.on_click(lambda e: self._step_camera(1, e))
         self.gui_centres.on_update(lambda _: self._update_centres())
+        self.gui_frusta.on_update(lambda _: self._show_cameras())
         self.gui_time.on_update(lambda _: self._update_centres())
         self.gui_ev.on_update(lambda _: self._after_exposure())
         if self.gui_compare is not None:
@@ -239,12 +248,19 @@ class Viewer:
                 line_width=1.5,
             )
             h.on_click(lambda e, n=named: self._jump(n, e))
+            self._camera_handles.append(h)
         path = np.array([c.camera.c2w[:3, 3] for c in self.cameras if c.kind == "train"])
         if len(path) >= 2:
             seg = np.stack([path[:-1], path[1:]], axis=1)
-            self.server.scene.add_line_segments(
-                "/cameras/path", points=seg, colors=(40, 120, 255), line_width=2.0
+            self._camera_handles.append(
+                self.server.scene.add_line_segments(
+                    "/cameras/path", points=seg, colors=(40, 120, 255), line_width=2.0
+                )
             )
+
+    def _show_cameras(self) -> None:
+        for h in self._camera_handles:
+            h.visible = bool(self.gui_frusta.value)
 
     # -- 3D point cloud and truth
     # ----------------------------------------------------------------------------------------------
@@ -298,7 +314,8 @@ class Viewer:
             self.gui_truth_text.content = f"No ground truth at {self.selected.label}."
             return
         img, err = out
-        self.gui_truth_img.image = img
+        k = max(1, math.ceil(TRUTH_PANEL_WIDTH / img.shape[1]))  # small clips: whole pixels, larger
+        self.gui_truth_img.image = np.repeat(np.repeat(img, k, axis=0), k, axis=1)
         self.gui_truth_text.content = (
             f"{self.selected.label}, EV {float(self.gui_ev.value):.1f}: mean |error| "
             f"{err:.2f} codes (error map 0 .. {truth.ERROR_RANGE:g})"
@@ -371,6 +388,8 @@ class Viewer:
                 _time.sleep(1.0)
                 continue
             self.shown[cid] = Shown(img, camera, t, ev, mode, not moving)
+            self.log.append((cid, self.shown[cid]))
+            self.log_time = _time.time()
             last_key, last_full = key, not moving
 
     # -- life cycle
@@ -387,6 +406,8 @@ class Viewer:
 
     def stop(self) -> None:
         self._stop.set()
+        for th in self._threads:  # let a render in flight finish before the connections close
+            th.join(timeout=5.0)
         self.server.stop()
 
 
