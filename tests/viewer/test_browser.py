@@ -1,9 +1,11 @@
 """End to end in a real browser: headless Chromium (Debian's, driven by Playwright; no browser
 download) opens the viewer, moves the time slider it finds in the page, and the picture changes to
-view_frame's frame at the new time, both as sent by the server and as the browser paints it.
+view_frame's frame at the new time, both as sent by the server and as the browser paints it; a
+mouse drag moves the camera, with reduced-resolution frames while it moves and a full one after.
 
 Skipped when Playwright or a Chromium executable is missing (scripts/setup.sh installs both). Set
-M4DGS_VIEWER_SCREENSHOT=PATH to keep the final screenshot (docs/img/viewer.png is one)."""
+M4DGS_VIEWER_SCREENSHOT=PATH to keep a screenshot at the end and M4DGS_VIEWER_RUN=RUN to view that
+run instead of the short test run (docs/img/viewer.png is such a screenshot)."""
 
 from __future__ import annotations
 
@@ -56,13 +58,55 @@ def _as_painted(img: np.ndarray) -> np.ndarray:
     return np.asarray(Image.fromarray(img).resize(VIEWPORT, Image.BILINEAR))
 
 
-def test_time_slider_in_the_browser_changes_the_frame(viewer_model, free_port):
+def _screenshot(page, viewer, path):
+    """The page with the cameras, the ground-truth panel and a sharper image, as a PNG of at most
+    256 colours (the documentation's picture)."""
+    from PIL import Image
+
+    from m4dgs.viewer.cameras import ViewCamera
+
+    page.set_viewport_size({"width": 1280, "height": 860})
+    n = len(viewer.log)
+    viewer.gui_frusta.value = True
+    viewer.gui_res.value = 4.0
+    observed = viewer.clip.meta.exposures.observed
+    viewer.gui_ev.value = round(math.log2(sorted(observed)[len(observed) // 2]), 1)
+    # a step back and up from the first camera, so that its neighbours' frusta show
+    cam = viewer.cameras[0].camera
+    c2w = cam.c2w.copy()
+    c2w[:3, 3] += (-0.5 * c2w[:3, 2] - 0.15 * c2w[:3, 1]) * viewer._scene_scale
+    for client in viewer.server.get_clients().values():
+        viewer._set_client_camera(client, ViewCamera(cam.K, c2w, cam.width, cam.height))
+    if viewer.gui_compare is not None:
+        viewer.gui_compare.value = True
+    close = page.locator(".mantine-Notification-closeButton")
+    if close.count():
+        close.first.click()
+    time.sleep(1.0)
+    _wait(lambda: len(viewer.log) > n and viewer.log[-1][1].full, what="a sharp frame")
+    time.sleep(2.0)
+    shot = Image.open(io.BytesIO(page.screenshot())).convert("RGB")
+    shot.quantize(256, method=Image.Quantize.MEDIANCUT).save(path, optimize=True)
+
+
+@pytest.fixture
+def browser_model(request):
+    """The run M4DGS_VIEWER_RUN names (for a screenshot of a real run), else the short test run."""
+    run = os.environ.get("M4DGS_VIEWER_RUN")
+    if run:
+        from m4dgs.model.trained import load_model
+
+        return load_model(run, device="cpu")
+    return request.getfixturevalue("viewer_model")
+
+
+def test_browser_time_slider_and_camera_drag(browser_model, free_port):
     from PIL import Image
 
     from m4dgs.viewer.frame import view_frame
     from m4dgs.viewer.server import Viewer
 
-    model = viewer_model
+    model = browser_model
     last = model.clip.meta.num_frames - 1
     viewer = Viewer(model, port=free_port, show_cameras=False)
     try:
@@ -104,9 +148,33 @@ def test_time_slider_in_the_browser_changes_the_frame(viewer_model, free_port):
 
             shot, new, old = _wait(painted, timeout=30, what="the browser to paint the frame")
             print(f"painted frame vs new {new:.2f}, vs old {old:.2f} codes (mean abs)")
+
+            # dragging the camera: reduced-resolution frames while it moves, full when still
+            n_before = len(viewer.log)
+            page.mouse.move(VIEWPORT[0] * 0.3, VIEWPORT[1] * 0.5)
+            page.mouse.down()
+            for k in range(12):
+                page.mouse.move(VIEWPORT[0] * (0.3 + 0.01 * k), VIEWPORT[1] * 0.5, steps=2)
+                time.sleep(0.05)
+            page.mouse.up()
+
+            def settled():  # the camera controls glide a little after the mouse is released
+                log = list(viewer.log)[n_before:]
+                return (
+                    log if log and log[-1][1].full and time.time() - viewer.log_time > 1 else None
+                )
+
+            after = [s for _, s in _wait(settled, what="a full frame after the drag")]
+            low = [s for s in after if not s.full]
+            assert low, "no reduced frame while the camera moved"
+            full_h, full_w = after[-1].image.shape[:2]
+            assert after[-1].full and (full_w, full_h) == viewer.render_size(full_w / full_h)
+            assert all(s.image.shape[1] < full_w for s in low)
+            assert not np.allclose(after[-1].camera.c2w, moved.camera.c2w)  # the camera moved
+
             keep = os.environ.get("M4DGS_VIEWER_SCREENSHOT")
             if keep:
-                Image.fromarray(shot[..., :3]).save(keep, optimize=True)
+                _screenshot(page, viewer, keep)
             browser.close()
     finally:
         viewer.stop()
