@@ -114,8 +114,9 @@ class ClipViewer:
     overlay and the truth toggle. Same host/port rules as m4dgs.viewer.server.Viewer."""
 
     def __init__(self, clip, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False):
-        import viser
+        from m4dgs.viewer.server import import_viser
 
+        viser = import_viser()
         self.clip = clip
         self._stop = threading.Event()
         self.server = viser.ViserServer(

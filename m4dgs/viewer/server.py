@@ -30,6 +30,20 @@ TRUTH_PANEL_WIDTH = 600  # the comparison image is enlarged to at least this man
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
+def import_viser():
+    """The viser module, or an error saying how to install it (the `viewer` extra)."""
+    try:
+        import viser
+    except ImportError as e:
+        from m4dgs.core.errors import InputError
+
+        raise InputError(
+            f"m4dgs view needs the viser package ({e}); install it with: pip install -e "
+            '".[viewer]" (or pip install viser==1.1.1)'
+        ) from None
+    return viser
+
+
 def exposure_warning(host: str) -> Optional[str]:
     """The warning printed when the viewer listens beyond this machine, None for loopback."""
     if host in LOOPBACK:
@@ -66,7 +80,7 @@ class Viewer:
         show_cameras: bool = True,
         verbose: bool = False,
     ):
-        import viser
+        viser = import_viser()
 
         self.model = model
         self.clip = model.clip
@@ -245,7 +259,8 @@ class Viewer:
                 wxyz=wxyz,
                 position=pos,
                 color=colours[named.kind],
-                line_width=1.5,
+                thickness=1.5,
+                thickness_units="screen",
             )
             h.on_click(lambda e, n=named: self._jump(n, e))
             self._camera_handles.append(h)
@@ -254,7 +269,11 @@ class Viewer:
             seg = np.stack([path[:-1], path[1:]], axis=1)
             self._camera_handles.append(
                 self.server.scene.add_line_segments(
-                    "/cameras/path", points=seg, colors=(40, 120, 255), line_width=2.0
+                    "/cameras/path",
+                    points=seg,
+                    colors=(40, 120, 255),
+                    thickness=2.0,
+                    thickness_units="screen",
                 )
             )
 

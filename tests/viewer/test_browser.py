@@ -1,7 +1,8 @@
 """End to end in a real browser: headless Chromium (Debian's, driven by Playwright; no browser
 download) opens the viewer, moves the time slider it finds in the page, and the picture changes to
-view_frame's frame at the new time, both as sent by the server and as the browser paints it; a
-mouse drag moves the camera, with reduced-resolution frames while it moves and a full one after.
+view_frame's frame at the new time, both as sent by the server and as the browser paints it; the
+"Next" button puts the camera at the next named camera; a mouse drag moves the camera, with
+reduced-resolution frames while it moves and a full one after.
 
 Skipped when Playwright or a Chromium executable is missing (scripts/setup.sh installs both). Set
 M4DGS_VIEWER_SCREENSHOT=PATH to keep a screenshot at the end and M4DGS_VIEWER_RUN=RUN to view that
@@ -149,6 +150,19 @@ def test_browser_time_slider_and_camera_drag(browser_model, free_port):
             shot, new, old = _wait(painted, timeout=30, what="the browser to paint the frame")
             print(f"painted frame vs new {new:.2f}, vs old {old:.2f} codes (mean abs)")
 
+            # "Next" jumps to the second named camera: its pose, its field of view, its frame
+            target = viewer.cameras[1]
+            page.get_by_role("button", name="Next").click()
+
+            def at_target():
+                s = viewer.log[-1][1] if viewer.log else None
+                ok = s is not None and s.full and s.time == target.g
+                return s if ok and np.allclose(s.camera.c2w, target.camera.c2w, atol=1e-4) else None
+
+            jumped = _wait(at_target, what=f"a full frame at {target.label}")
+            assert viewer.gui_camera.value == target.label
+            assert jumped.camera.fov_y == pytest.approx(target.camera.fov_y, rel=1e-4)
+
             # dragging the camera: reduced-resolution frames while it moves, full when still
             n_before = len(viewer.log)
             page.mouse.move(VIEWPORT[0] * 0.3, VIEWPORT[1] * 0.5)
@@ -170,7 +184,7 @@ def test_browser_time_slider_and_camera_drag(browser_model, free_port):
             full_h, full_w = after[-1].image.shape[:2]
             assert after[-1].full and (full_w, full_h) == viewer.render_size(full_w / full_h)
             assert all(s.image.shape[1] < full_w for s in low)
-            assert not np.allclose(after[-1].camera.c2w, moved.camera.c2w)  # the camera moved
+            assert not np.allclose(after[-1].camera.c2w, jumped.camera.c2w)  # the camera moved
 
             keep = os.environ.get("M4DGS_VIEWER_SCREENSHOT")
             if keep:
