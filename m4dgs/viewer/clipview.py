@@ -6,18 +6,20 @@ as written on the input (its own exposure) with one overlay:
 
     none     the frame
     depth    the depth prior in false colour (turbo, near = red), half over the frame
-    tracks   the prior tracks visible at g as dots, each with its path over the previous
-             TRACK_TAIL training frames, one colour per track
+    tracks   the prior tracks visible at g as dots (one track in every track_stride, at most one
+             per TRACK_AREA pixels), each with its path over the previous TRACK_TAIL training
+             frames, one colour per track
     flow     the flow prior from g to the next frame it has flow to, as a colour wheel (hue =
              direction, saturation = magnitude up to the 99th percentile), half over the frame
 
 A test frame (no input) shows its ground truth only. With truth=True and a clip with gt/hdr, the
 true LDR image at the frame's exposure (the clip's camera response on gt/hdr) is put on the right.
-The server shows the image on a plane in the 3D scene (its aspect kept)."""
+The server sends it enlarged by a whole factor and letterboxed to each browser window's shape."""
 
 from __future__ import annotations
 
 import colorsys
+import math
 import threading
 import time as _time
 from typing import Optional
@@ -28,6 +30,18 @@ from m4dgs.viewer.frame import to_uint8, turbo
 
 OVERLAYS = ("none", "depth", "tracks", "flow")
 TRACK_TAIL = 4
+TRACK_AREA = 64  # pixels per drawn track (dense prior tracks would cover the frame)
+LETTERBOX_GREY = 24
+
+
+def track_stride(n_tracks: int, clip) -> int:
+    """Every how many tracks one is drawn: at most one per TRACK_AREA pixels of the frame."""
+    return max(1, math.ceil(n_tracks / max(16, clip.width * clip.height // TRACK_AREA)))
+
+
+def track_colour(n: int):
+    """RGB floats of track n (golden-ratio hues)."""
+    return colorsys.hsv_to_rgb((n * 0.618033988749895) % 1.0, 0.85, 1.0)
 
 
 def flow_colours(flow: np.ndarray) -> np.ndarray:
@@ -94,14 +108,15 @@ def clip_frame(clip, g: int, overlay: str = "none", truth: bool = True) -> np.nd
     elif overlay == "tracks":
         ts = clip.load_tracks_prior()
         i = clip.train_frames.index(g)
-        for n in range(ts.tracks.shape[0]):
+        r = 1 if min(clip.width, clip.height) >= 200 else 0
+        for n in range(0, ts.tracks.shape[0], track_stride(ts.tracks.shape[0], clip)):
             if not ts.visible[n, i]:
                 continue
-            rgb = colorsys.hsv_to_rgb((n * 0.618033988749895) % 1.0, 0.85, 1.0)
+            rgb = track_colour(n)
             for j in range(max(0, i - TRACK_TAIL), i):
                 if ts.visible[n, j]:
                     _dot(img, *ts.tracks[n, j], rgb, r=0)
-            _dot(img, *ts.tracks[n, i], rgb, r=1)
+            _dot(img, *ts.tracks[n, i], rgb, r=r)
     out = to_uint8(img)
     if gt is not None and truth:
         gap = np.full((out.shape[0], 2, 3), 255, np.uint8)
@@ -109,9 +124,26 @@ def clip_frame(clip, g: int, overlay: str = "none", truth: bool = True) -> np.nd
     return out
 
 
+def letterbox(img: np.ndarray, width: int, height: int, max_side: int = 2048) -> np.ndarray:
+    """uint8 img [h, w, 3] enlarged by a whole factor (nearest; at most fitting width x height and
+    max_side) and centred on a dark grey canvas of the aspect width / height, so that a browser
+    stretching it over a width x height canvas shows it undistorted."""
+    h, w = img.shape[:2]
+    k = max(1, min(width // w, height // h, max_side // max(h, w)))
+    big = np.repeat(np.repeat(img, k, axis=0), k, axis=1)
+    H, W = big.shape[:2]
+    aspect = width / max(height, 1)
+    cw, ch = (max(W, round(H * aspect)), H) if W / H < aspect else (W, max(H, round(W / aspect)))
+    out = np.full((ch, cw, 3), LETTERBOX_GREY, np.uint8)
+    y0, x0 = (ch - H) // 2, (cw - W) // 2
+    out[y0 : y0 + H, x0 : x0 + W] = big
+    return out
+
+
 class ClipViewer:
-    """A viser server showing `clip_frame` on a plane, with a frame slider (play/pause, FPS), the
-    overlay and the truth toggle. Same host/port rules as m4dgs.viewer.server.Viewer."""
+    """A viser server showing `clip_frame` letterboxed in each browser's window (the scene's
+    background image, so its pixels are shown as they are), with a frame slider (play/pause,
+    FPS), the overlay and the truth toggle. Same host/port rules as m4dgs.viewer.server.Viewer."""
 
     def __init__(self, clip, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False):
         from m4dgs.viewer.server import import_viser
@@ -122,8 +154,10 @@ class ClipViewer:
         self.server = viser.ViserServer(
             host=host, port=port, label="m4dgs view (clip)", verbose=verbose
         )
+        # looking along +z from the origin, as a run's first camera does: the background image
+        # alone fills the window, its pixels unchanged
         ic = self.server.initial_camera
-        ic.position, ic.look_at, ic.up, ic.fov = (0.0, 0.0, -2.2), (0.0, 0.0, 0.0), (0, -1, 0), 0.8
+        ic.position, ic.look_at, ic.up = (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0)
         gui = self.server.gui
         G = clip.meta.num_frames
         self.gui_frame = gui.add_slider("Frame", min=0, max=G - 1, step=1, initial_value=0)
@@ -133,10 +167,14 @@ class ClipViewer:
         self.gui_truth = gui.add_checkbox("Ground truth beside", initial_value=clip.has_gt)
         self.gui_info = gui.add_markdown("")
         self._playing = False
+        self._image = None
+        self._version = 0
+        self._lock = threading.Lock()
         self.gui_play.on_click(lambda _: self._toggle())
         for h in (self.gui_frame, self.gui_overlay, self.gui_truth):
             h.on_update(lambda _: self.update())
         self.update()
+        self.server.on_client_connect(self._on_connect)
         threading.Thread(target=self._play_loop, daemon=True).start()
 
     @property
@@ -155,15 +193,38 @@ class ClipViewer:
                 self.gui_frame.value = 0 if g >= self.clip.meta.num_frames else g
 
     def update(self) -> None:
+        """Compose the image of the current controls (every browser picks it up)."""
         g = int(self.gui_frame.value)
         img = clip_frame(self.clip, g, self.gui_overlay.value, bool(self.gui_truth.value))
-        h, w = img.shape[:2]
-        self.server.scene.add_image(
-            "/frame", img, render_width=2.0 * w / h, render_height=2.0, format="png"
-        )
+        with self._lock:
+            self._image, self._version = img, self._version + 1
         m = self.clip.meta
         kind = f"training frame, dt {m.train_dt_of(g):g}" if g in m.split.train else "test frame"
         self.gui_info.content = f"Frame {g:05d}: {kind}"
+
+    def _on_connect(self, client) -> None:
+        threading.Thread(target=self._client_loop, args=(client,), daemon=True).start()
+
+    def _client_loop(self, client) -> None:
+        last = None
+        while not self._stop.is_set():
+            _time.sleep(0.05)
+            cam = client.camera
+            try:
+                if cam.update_timestamp == 0.0 or cam.image_height <= 0:
+                    continue
+                size = (int(cam.image_width), int(cam.image_height))
+            except AssertionError:
+                continue
+            with self._lock:
+                img, version = self._image, self._version
+            if (version, size) == last:
+                continue
+            try:
+                client.scene.set_background_image(letterbox(img, *size), format="png")
+            except Exception:  # the browser left
+                return
+            last = (version, size)
 
     def serve(self) -> None:
         try:

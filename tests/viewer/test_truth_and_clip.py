@@ -3,7 +3,6 @@ the clip viewer's image of a frame with each prior drawn over it."""
 
 from __future__ import annotations
 
-import colorsys
 import math
 
 import numpy as np
@@ -11,7 +10,7 @@ import pytest
 
 from m4dgs.clip import Clip
 from m4dgs.viewer.cameras import named_cameras
-from m4dgs.viewer.clipview import OVERLAYS, clip_frame
+from m4dgs.viewer.clipview import OVERLAYS, clip_frame, track_colour, track_stride
 from m4dgs.viewer.frame import view_frame
 from m4dgs.viewer.truth import comparison, error_map, has_truth, mean_abs_error, truth_ldr
 
@@ -62,23 +61,27 @@ def test_clip_frame_overlays(tiny_clip_oracle):
     # every visible prior track of frame g has a dot at its position
     ts = clip.load_tracks_prior()
     i = clip.train_frames.index(g)
-    vis = np.nonzero(ts.visible[:, i])[0]
+    k = track_stride(ts.tracks.shape[0], clip)
+    drawn = [n for n in range(0, ts.tracks.shape[0], k) if ts.visible[n, i]]
+    assert k > 1 and drawn  # the dense oracle tracks are thinned on a 72x40 frame
 
     def colour(n):
-        rgb = colorsys.hsv_to_rgb((n * 0.618033988749895) % 1, 0.85, 1)
-        return tuple(int(v) for v in np.round(np.array(rgb) * 255))
+        return tuple(int(v) for v in np.round(np.array(track_colour(n)) * 255))
 
-    palette = {colour(n) for n in vis}
+    palette = {colour(n) for n in drawn}
     inside = [
         (n, int(np.floor(ts.tracks[n, i, 0])), int(np.floor(ts.tracks[n, i, 1])))
-        for n in vis
+        for n in drawn
         if 0 <= ts.tracks[n, i, 0] < W and 0 <= ts.tracks[n, i, 1] < H
     ]
     assert inside
-    # every visible track's position is painted in a track colour (dots overlap on a dense set)
+    # every drawn track's position is painted in a drawn track's colour (tails may cross it)
     assert all(tuple(int(v) for v in imgs["tracks"][y, x]) in palette for _, x, y in inside)
     top = inside[-1]  # the last track drawn is on top
     assert tuple(int(v) for v in imgs["tracks"][top[2], top[1]]) == colour(top[0])
+    # and nothing else changed: every changed pixel holds a drawn track's colour
+    changed = (imgs["tracks"] != plain).any(-1)
+    assert {tuple(int(v) for v in px) for px in imgs["tracks"][changed]} <= palette
     # with the truth beside: [frame | gap | true LDR at the frame's own exposure]
     both = clip_frame(clip, g, "none", truth=True)
     assert both.shape == (H, 2 * W + 2, 3) and np.array_equal(both[:, :W], plain)
@@ -108,3 +111,22 @@ def test_clip_viewer_serves_on_loopback(tiny_clip_oracle, free_port):
         assert "00003" in v.gui_info.content and "test frame" in v.gui_info.content
     finally:
         v.stop()
+
+
+@pytest.mark.parametrize("canvas", [(1000, 600), (400, 900), (72, 40), (50, 20)])
+def test_letterbox_keeps_the_pixels_and_fits_the_window_shape(canvas):
+    from m4dgs.viewer.clipview import LETTERBOX_GREY, letterbox
+
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, (40, 146, 3), dtype=np.uint8)
+    out = letterbox(img, *canvas)
+    H, W = out.shape[:2]
+    assert abs(W / H - canvas[0] / canvas[1]) < 2.0 / min(H, W) + 1e-9  # the window's shape
+    k = max(1, min(canvas[0] // 146, canvas[1] // 40))
+    assert H >= 40 * k and W >= 146 * k
+    y0, x0 = (H - 40 * k) // 2, (W - 146 * k) // 2
+    inner = out[y0 : y0 + 40 * k, x0 : x0 + 146 * k]
+    assert np.array_equal(inner[::k, ::k], img)  # whole-pixel enlargement, nothing resampled
+    border = out.copy()
+    border[y0 : y0 + 40 * k, x0 : x0 + 146 * k] = LETTERBOX_GREY
+    assert (border == LETTERBOX_GREY).all()
