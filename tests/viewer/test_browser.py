@@ -192,3 +192,40 @@ def test_browser_time_slider_and_camera_drag(browser_model, free_port):
             browser.close()
     finally:
         viewer.stop()
+
+
+def test_browser_clip_viewer_paints_the_frame_unchanged(tiny_clip_oracle, free_port):
+    """`m4dgs view CLIP`: the page shows the letterboxed frame with its pixel values (an 8-bit
+    frame must not look brighter or darker than it is), and the overlay control changes it."""
+    from PIL import Image
+
+    from m4dgs.clip import Clip
+    from m4dgs.viewer.clipview import clip_frame, letterbox
+    from m4dgs.viewer.server import open_target
+
+    clip = Clip.open(tiny_clip_oracle)
+    viewer = open_target(tiny_clip_oracle, port=free_port)
+    try:
+        with playwright.sync_playwright() as pw:
+            browser = pw.chromium.launch(
+                executable_path=CHROMIUM,
+                headless=True,
+                args=["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox"],
+            )
+            page = browser.new_page(viewport=dict(zip(("width", "height"), VIEWPORT)))
+            page.goto(f"http://127.0.0.1:{free_port}/")
+            g = clip.train_frames[0]
+            for overlay in ("none", "depth"):
+                viewer.gui_overlay.value = overlay
+                frame = letterbox(clip_frame(clip, g, overlay, truth=True), *VIEWPORT)
+                want = _region(_as_painted(frame))
+
+                def painted(want=want):
+                    shot = np.asarray(Image.open(io.BytesIO(page.screenshot())))
+                    err = np.abs(_region(shot) - want).mean()
+                    return err if err < 1.0 else None
+
+                _wait(painted, timeout=60, what=f"the clip frame with overlay {overlay}")
+            browser.close()
+    finally:
+        viewer.stop()
