@@ -230,7 +230,8 @@ def export_ply_cmd(run_dir, g, exposure, out_path):
 def view(target, host, port, device):
     """Interactive browser viewer of a run folder (free camera, time, exposure, display modes,
     ground truth) or of a clip folder (frames, priors, ground truth); docs/viewer.md."""
-    from m4dgs.viewer.server import exposure_warning, open_target
+    from m4dgs.viewer.server import open_target
+    from m4dgs.viewer.web import exposure_warning
 
     warning = exposure_warning(host)
     if warning:

@@ -7,5 +7,6 @@ m4dgs.viewer.frame     view_frame: one displayed image (LDR, HDR mu-law / false 
 m4dgs.viewer.truth     the ground truth at a named camera and the per-pixel error
 m4dgs.viewer.clipview  a clip's frames with their priors drawn over them
 m4dgs.viewer.server    the viser server: GUI, render loop, scene (frusta, path, centres)
+m4dgs.viewer.web       what both servers share: importing viser, the wide-host warning
 
-viser is an optional dependency (the `viewer` extra); only m4dgs.viewer.server imports it."""
+viser is an optional dependency (the `viewer` extra), imported only when a server starts."""

@@ -146,7 +146,7 @@ class ClipViewer:
     FPS), the overlay and the truth toggle. Same host/port rules as m4dgs.viewer.server.Viewer."""
 
     def __init__(self, clip, host: str = "127.0.0.1", port: int = 8080, verbose: bool = False):
-        from m4dgs.viewer.server import import_viser
+        from m4dgs.viewer.web import import_viser
 
         viser = import_viser()
         self.clip = clip

@@ -21,38 +21,13 @@ import numpy as np
 from m4dgs.viewer import truth
 from m4dgs.viewer.cameras import NamedCamera, ViewCamera, from_browser, named_cameras, to_browser
 from m4dgs.viewer.frame import MODES, view_frame
+from m4dgs.viewer.web import import_viser
 
 POLL_S = 0.03
 STILL_S = 0.25
 MOVING_SCALE = 0.5
 LOG_LEN = 64
 TRUTH_PANEL_WIDTH = 600  # the comparison image is enlarged to at least this many pixels wide
-LOOPBACK = ("127.0.0.1", "localhost", "::1")
-
-
-def import_viser():
-    """The viser module, or an error saying how to install it (the `viewer` extra)."""
-    try:
-        import viser
-    except ImportError as e:
-        from m4dgs.core.errors import InputError
-
-        raise InputError(
-            f"m4dgs view needs the viser package ({e}); install it with: pip install -e "
-            '".[viewer]" (or pip install viser==1.1.1)'
-        ) from None
-    return viser
-
-
-def exposure_warning(host: str) -> Optional[str]:
-    """The warning printed when the viewer listens beyond this machine, None for loopback."""
-    if host in LOOPBACK:
-        return None
-    return (
-        f"warning: the viewer listens on {host}: anyone who can reach this machine on that "
-        "network can connect and see the run (it serves the viewer page only; no login). Use "
-        "--host 127.0.0.1 (the default) and an SSH tunnel to keep it private."
-    )
 
 
 @dataclass

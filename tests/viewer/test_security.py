@@ -79,7 +79,7 @@ def test_wider_host_prints_the_warning(viewer_run, free_port):
 
 
 def test_default_host_prints_no_warning():
-    from m4dgs.viewer.server import exposure_warning
+    from m4dgs.viewer.web import exposure_warning
 
     assert exposure_warning("127.0.0.1") is None and exposure_warning("::1") is None
     assert "anyone" in exposure_warning("0.0.0.0")
