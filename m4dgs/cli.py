@@ -206,6 +206,45 @@ def export_ply_cmd(run_dir, g, exposure, out_path):
 
 
 @main.command()
+@click.argument("target", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option(
+    "--host",
+    default="127.0.0.1",
+    show_default=True,
+    help="Address to listen on. Only this machine can connect by default; another address (e.g. "
+    "0.0.0.0) lets anyone on that network connect.",
+)
+@click.option(
+    "--port",
+    default=8080,
+    show_default=True,
+    type=click.IntRange(1, 65535),
+    help="Port to listen on (the next free one when it is taken).",
+)
+@click.option(
+    "--device",
+    default="auto",
+    show_default=True,
+    help="Device to render a run on: auto (CUDA when available), cpu, cuda, cuda:1 ...",
+)
+def view(target, host, port, device):
+    """Interactive browser viewer of a run folder (free camera, time, exposure, display modes,
+    ground truth) or of a clip folder (frames, priors, ground truth); docs/viewer.md."""
+    from m4dgs.viewer.server import open_target
+    from m4dgs.viewer.web import exposure_warning
+
+    warning = exposure_warning(host)
+    if warning:
+        click.echo(warning, err=True)
+    viewer = open_target(target, host=host, port=port, device=device)
+    click.echo(
+        f"m4dgs view: http://{'localhost' if host in ('127.0.0.1', '::1') else host}:"
+        f"{viewer.port}  (Ctrl-C to stop)"
+    )
+    viewer.serve()
+
+
+@main.command()
 @click.option(
     "--preset",
     type=click.Choice(["tiny", "small", "paper"]),

@@ -11,13 +11,15 @@ if [ "$(id -u)" != "0" ] && command -v sudo >/dev/null 2>&1; then SUDO="sudo"; f
 # Mitsuba's fast llvm_ad_rgb variant needs LLVM 19 (the preinstalled LLVM 15 crashes it); ffmpeg for videos.
 need_apt=()
 ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* >/dev/null 2>&1 || ls /usr/lib/*/libLLVM*19* >/dev/null 2>&1 || need_apt+=(libllvm19)
+# the viewer's browser test (tests/viewer/test_browser.py) drives a headless chromium through playwright
+command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || need_apt+=(chromium)
 if [ ${#need_apt[@]} -gt 0 ]; then
   if command -v apt-get >/dev/null 2>&1; then
     echo "[setup] installing Debian packages: ${need_apt[*]}"
     $SUDO apt-get update -qq
     $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need_apt[@]}" >/dev/null
   else
-    echo "[setup] no apt-get: Mitsuba will fall back to its scalar_rgb variant (about 3x slower)" >&2
+    echo "[setup] no apt-get: Mitsuba will fall back to its scalar_rgb variant (about 3x slower) and the viewer's browser test is skipped without chromium" >&2
   fi
 fi
 

@@ -30,6 +30,7 @@ LAYERS = {
     "m4dgs.model": "model",
     "m4dgs.outputs": "outputs",
     "m4dgs.training": "training",
+    "m4dgs.viewer": "viewer",  # `m4dgs view`: the browser viewer of a run or a clip
     "m4dgs.cli": "app",
     "m4dgs.__main__": "app",
     "m4dgs": "package",
@@ -64,7 +65,9 @@ ALLOWED = {
     "model": {"core", "formats", "raster"},
     "outputs": {"core", "formats", "raster", "model"},
     "training": {"core", "formats", "priors", "raster", "losses", "model", "outputs"},
-    "app": {"core", "formats", "priors", "raster", "losses", "model", "outputs", "training"},
+    "viewer": {"core", "formats", "raster", "model", "outputs"},
+    "app": {"core", "formats", "priors", "raster", "losses", "model", "outputs", "training"}
+    | {"viewer"},
     # benchgen renders clips: it shares only the maths and the clip format with the method
     "benchgen": {"core", "formats"},
     # eval's metrics, statistics, tables and figures score files: no model, no trainer
