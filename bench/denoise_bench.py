@@ -29,16 +29,11 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
 
+from benchgen.clip_pass import BIAS_REFERENCE_SPP, NOISE_SEED_OFFSET  # noqa: E402
 from benchgen.denoise import denoise_hdr  # noqa: E402
 from benchgen.groundtruth import render_bias, render_noise  # noqa: E402
 from benchgen.make import get_preset  # noqa: E402
-from benchgen.render import (  # noqa: E402
-    BIAS_REFERENCE_SPP,
-    GUIDE_SPP,
-    NOISE_SEED_OFFSET,
-    Renderer,
-    RenderSettings,
-)
+from benchgen.render import GUIDE_SPP, Renderer, RenderSettings  # noqa: E402
 from benchgen.scene import load_scene  # noqa: E402
 from benchgen.suite import load_suite  # noqa: E402
 from m4dgs.core.temporal import depth_edges  # noqa: E402

@@ -6,11 +6,11 @@ so a folder without clip.json is an unfinished clip and is resumed, and a finish
 unless `force`):
 
 1. Light selection for next-event estimation (benchgen.render.choose_emitter_sampling).
-2. Ground truth (`benchgen.render.render_clip_gt`) at the scene's own emitter scale: denoised HDR of
-   every frame (kept in .benchgen/hdr_unit until the clip is done), z-depth, dynamic masks, cameras,
-   exact flow between consecutive training frames, point tracks over all frames; measured render
-   noise and HDR-TAE floor. A clip that differs from a finished one only in what comes after this
-   step (camera response, exposure schedule, priors, seed) takes that clip's render instead
+2. Ground truth (`benchgen.clip_pass.render_clip_gt`) at the scene's own emitter scale: denoised HDR
+   of every frame (kept in .benchgen/hdr_unit until the clip is done), z-depth, dynamic masks,
+   cameras, exact flow between consecutive training frames, point tracks over all frames; measured
+   render noise and HDR-TAE floor. A clip that differs from a finished one only in what comes after
+   this step (camera response, exposure schedule, priors, seed) takes that clip's render instead
    (`render_from`, same `render_key`), which is most of a clip's time; its gt/hdr then equals a
    fresh render's to float32 rounding (the unit frames are the finished clip's gt/hdr divided by its
    scale) and every other ground-truth file is the same bytes.
@@ -462,7 +462,7 @@ def _clip_meta(job: _Job, train_dt) -> ClipMeta:
 def _render_ground_truth(job: _Job, writer: ClipWriter, progress: bool) -> None:
     """Step 2: ground truth at the scene's own (unit) emitter scale; the HDR frames go to
     .benchgen/hdr_unit until the scale is known."""
-    from .render import render_clip_gt
+    from .clip_pass import render_clip_gt
 
     if "gt_notes" in job.state:
         return
@@ -492,8 +492,9 @@ def _render_views(job: _Job, writer: ClipWriter, progress: bool) -> None:
     mask and co-visibility mask (against every training frame) under gt/views/<view>/; the view
     cameras, their baselines and the clip's camera-motion statistics go into the resume state.
     Resumes view by view and frame by frame."""
+    from .clip_pass import frame_progress
     from .groundtruth import cameras_from_states, dynamic_mask
-    from .render import Renderer, _frame_progress
+    from .render import Renderer
     from .views import (
         baseline,
         covisibility,
@@ -523,7 +524,7 @@ def _render_views(job: _Job, writer: ClipWriter, progress: bool) -> None:
         v["name"]: {"spec": v, "angle_deg": [], "translation": [], "covisible": []} for v in views
     }
     states = {v["name"]: [] for v in views}
-    for g in _frame_progress(job.test, scene, progress):
+    for g in frame_progress(job.test, scene, progress):
         st = scene.frame(g, W, H)
         caster.update(st)
         frame_cast = caster.cast_rays()

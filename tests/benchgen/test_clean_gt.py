@@ -192,7 +192,7 @@ def _greedy(v, base, budget, block, max_blocks):
 
 
 def test_adaptive_allocation_is_the_greedy_optimum():
-    from benchgen.render import adaptive_allocation
+    from benchgen.sampling import adaptive_allocation
 
     rng = np.random.default_rng(3)
     v = rng.lognormal(0, 2, (6, 8))
@@ -250,7 +250,8 @@ def _shadow_scene(W=48, H=32):
 
 def test_adaptive_render_is_unbiased_and_spends_where_the_noise_is():
     from benchgen.groundtruth import render_noise
-    from benchgen.render import ADAPTIVE_BLOCK_SPP, Renderer, relative_variance
+    from benchgen.render import Renderer
+    from benchgen.sampling import ADAPTIVE_BLOCK_SPP, relative_variance
 
     W, H = 48, 32
     fs = _shadow_scene(W, H)

@@ -1,6 +1,7 @@
-"""Mitsuba rendering and exact ground truth (benchgen.render, benchgen.groundtruth), each against an
-independent answer: analytic plane depths, m4dgs.core.camera projection, analytic ray-box tests, an
-analytic flag deformation, inverse-depth interpolation on planes, and re-rendering from scratch."""
+"""Mitsuba rendering and exact ground truth (benchgen.render, benchgen.groundtruth,
+benchgen.clip_pass), each against an independent answer: analytic plane depths, m4dgs.core.camera
+projection, analytic ray-box tests, an analytic flag deformation, inverse-depth interpolation on
+planes, and re-rendering from scratch."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import torch
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from benchgen.clip_pass import render_clip_gt
 from benchgen.groundtruth import (
     cameras_from_states,
     dynamic_mask,
@@ -23,7 +25,7 @@ from benchgen.groundtruth import (
     sample_tracks,
     surface_points,
 )
-from benchgen.render import Renderer, render_clip_gt, sensor_to_world
+from benchgen.render import Renderer, sensor_to_world
 from m4dgs.core.camera import K_from_fov, c2w_to_w2c, make_K, project_pinhole, transform_points
 from m4dgs.core.warp import backward_warp
 
@@ -627,7 +629,7 @@ def lamp_scene_state():
 
 
 def test_emitter_sampling_weights_analytic():
-    from benchgen.render import emitter_sampling_weights, emitter_weights_for
+    from benchgen.sampling import emitter_sampling_weights, emitter_weights_for
 
     fs = lamp_scene_state()
     # hand computation: the wall's vertices all lie at camera z = 5; lamp area 0.2 * 0.2 = 0.04 m^2,
@@ -673,7 +675,8 @@ def test_light_selection_weights_do_not_bias_the_render():
 
 
 def test_choose_emitter_sampling_picks_the_least_noisy_mode():
-    from benchgen.render import EMITTER_SAMPLING_MODES, RenderSettings, choose_emitter_sampling
+    from benchgen.render import RenderSettings, choose_emitter_sampling
+    from benchgen.sampling import EMITTER_SAMPLING_MODES
 
     fs = lamp_scene_state()
     mode, scores = choose_emitter_sampling(fs, W, H, RenderSettings(spp=64))

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+import benchgen.clip_pass as bpass
 import benchgen.render as brender
 from benchgen.make import RENDER_OUTPUTS, make_clip, sibling_clips
 from benchgen.suite import builtin_scenes_dir
@@ -51,7 +52,7 @@ def clips(tmp_path_factory):
     def no_render(*a, **kw):
         raise AssertionError("the render was not reused")
 
-    mp.setattr(brender, "render_clip_gt", no_render)
+    mp.setattr(bpass, "render_clip_gt", no_render)
     mp.setattr(brender, "choose_emitter_sampling", no_render)
     try:
         reused = make(
@@ -119,14 +120,14 @@ def test_reused_render_equals_a_fresh_one(clips):
 
 def test_another_render_is_not_taken(clips, tmp_path):
     calls = []
-    real = brender.render_clip_gt
+    real = bpass.render_clip_gt
 
     def counting(*a, **kw):
         calls.append(1)
         return real(*a, **kw)
 
     mp = pytest.MonkeyPatch()
-    mp.setattr(brender, "render_clip_gt", counting)
+    mp.setattr(bpass, "render_clip_gt", counting)
     try:
         # another sample count is another render: the base clip is offered but not taken
         out = make(
@@ -189,7 +190,7 @@ def test_priors_only_sibling_has_the_same_inputs(clips):
         chosen.append(1)
         return real_choose(*a, **kw)
 
-    mp.setattr(brender, "render_clip_gt", lambda *a, **kw: pytest.fail("render not reused"))
+    mp.setattr(bpass, "render_clip_gt", lambda *a, **kw: pytest.fail("render not reused"))
     mp.setattr(bm, "choose_hdr_scale", counting)
     try:
         out = make(
