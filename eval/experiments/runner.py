@@ -39,7 +39,6 @@ import shlex
 import sys
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
@@ -464,6 +463,7 @@ def run_suite(
     skip: Optional[Callable[[Job], bool]] = None,
     on_result: Optional[Callable[[Job, dict], None]] = None,
     retry_failed: bool = True,
+    executor=None,
 ) -> List[dict]:
     """Make every missing clip, then train and score every (scene, row, seed) of a suite; resumable.
 
@@ -478,9 +478,12 @@ def run_suite(
     jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool
     of `jobs` workers, each spending cpu_count / jobs threads as m4dgs.core.threads.use_threads
     does (torch 1, the compiled kernels all of them); jobs = 1 spends every CPU that way in this
-    process while it trains. Returns the per-job results (run_job) in job order; a job that failed
-    has an "error" entry instead of metrics (and the jobs of a clip that failed to be made are not
-    started), unless fail_fast, which raises the first failure."""
+    process while it trains. executor: where the clips and jobs run instead (an open
+    eval.experiments.executors.Executor, e.g. Ray or Slurm; `jobs` is then unused, and the caller
+    closes it); outside this process the driver prints a progress line after each job. Returns
+    the per-job results (run_job) in job order; a job that failed has an "error" entry instead of
+    metrics (and the jobs of a clip that failed to be made are not started), unless fail_fast,
+    which raises the first failure."""
     every = job_list(suite, out, preset, scenes, seeds)
     recorded = {j.id for j in every if skip is not None and skip(j)}
     kept: Dict[str, str] = {}  # job id -> error of its last attempt, not retried
@@ -519,6 +522,8 @@ def run_suite(
         say(f"[eval run] FAILED {name}: {r['error']}")
         if not isinstance(exc, M4DGSError):
             say("".join(traceback.format_exception(type(exc), exc, exc.__traceback__)).rstrip())
+        elif getattr(exc, "remote_traceback", None):  # a worker's (eval.experiments.executors)
+            say(exc.remote_traceback.rstrip())
         return r
 
     def finished(job: Job, r: dict) -> dict:
@@ -547,74 +552,76 @@ def run_suite(
         say(f"[eval run] skipped {job.id}: its clip {job.clip_key} could not be made")
         return r
 
-    if jobs <= 1:
-        from m4dgs.core.threads import threads_for
+    from eval.experiments.executors import LocalExecutor
 
-        for j in todo:
-            say(f"[eval run] clip {j.clip_key}")
-            try:
-                make_job_clip(j, progress=progress)
-            except Exception as exc:
-                clip_errors[j.clip_key] = failed(j, exc, "making the clip", f"clip {j.clip_key}")
-        if clips_only:
-            return [{"id": j.id, "clip": j.clip_dir} for j in jl]
-        # this process is the one worker: every CPU, split as a worker's, while it trains
-        with threads_for(device=device):
-            results = []
-            for i, j in enumerate(jl):
-                if j.clip_key in clip_errors:
-                    results.append(skipped(j))
-                    continue
-                say(f"[eval run] {i + 1}/{len(jl)} {j.id}")
-                try:
-                    r = run_job(j, progress=progress, **kw)
-                except Exception as exc:
-                    results.append(failed(j, exc, "the job", j.id))
-                    continue
-                results.append(finished(j, r))
-            return in_order(results)
-    from m4dgs.core.threads import cpu_budget
+    own = executor is None
+    ex = LocalExecutor(jobs, device=device) if own else executor
+    try:
+        res = _execute(
+            ex, jl, todo, kw, progress, clip_errors, failed, finished, skipped, say, clips_only
+        )
+        return res if clips_only else in_order(res)
+    finally:
+        if own:
+            ex.close()  # fail fast / Ctrl-C: nothing more starts
 
-    threads = max(1, cpu_budget() // jobs)
-    with ProcessPoolExecutor(
-        max_workers=jobs,
-        mp_context=pool_context(device),
-        initializer=_worker_init,
-        initargs=(threads, device),
-    ) as ex:
-        try:
-            for wave in clip_waves(todo):
-                for j, f in [(j, ex.submit(make_job_clip, j, False)) for j in wave]:
-                    try:
-                        f.result()
-                    except Exception as exc:
-                        clip_errors[j.clip_key] = failed(
-                            j, exc, "making the clip", f"clip {j.clip_key}"
-                        )
-            if clips_only:
-                return [{"id": j.id, "clip": j.clip_dir} for j in jl]
-            futs = {
-                ex.submit(_run_job_kw, j, dict(kw, progress=False)): j
-                for j in jl
-                if j.clip_key not in clip_errors
-            }
-            results = [skipped(j) for j in jl if j.clip_key in clip_errors]
-            for f in as_completed(futs):  # as they finish: on_result exports each one at once
-                j = futs[f]
-                try:
-                    r = f.result()
-                except Exception as exc:
-                    results.append(failed(j, exc, "the job", j.id))
-                    continue
-                say(
-                    f"[eval run] done {j.id} ({', '.join(r['steps']) or 'nothing to do'}, "
-                    f"{r['seconds']} s)"
+
+def _execute(ex, jl, todo, kw, progress, clip_errors, failed, finished, skipped, say, clips_only):
+    """run_suite's work on an executor (eval.experiments.executors): the missing clips (in this
+    process one after another; elsewhere wave by wave, clip_waves), then the jobs, each result
+    handed on as it finishes. Returns the clip list when clips_only, else the job results."""
+    from eval.experiments.executors import Progress, Task
+
+    inline = ex.inline  # this process: progress bars, and a job counter before each job
+    for wave in [todo] if inline else clip_waves(todo):
+        tasks = [
+            # in this process a clip is made with the threads the process has (as before jobs)
+            Task(
+                f"clip {j.clip_key}",
+                make_job_clip,
+                (j, progress and inline),
+                {},
+                None if inline else ex.threads,
+                0,
+            )
+            for j in wave
+        ]
+        for o in ex.map(
+            tasks, on_start=(lambda t: say(f"[eval run] {t.name}")) if inline else None
+        ):
+            if o.error is not None:
+                j = o.task.args[0]
+                clip_errors[j.clip_key] = failed(
+                    j, o.error, "making the clip", f"clip {j.clip_key}"
                 )
-                results.append(finished(j, r))
-            return in_order(results)
-        except BaseException:
-            ex.shutdown(wait=True, cancel_futures=True)  # fail fast / Ctrl-C: start nothing more
-            raise
+    if clips_only:
+        return [{"id": j.id, "clip": j.clip_dir} for j in jl]
+    results = [skipped(j) for j in jl if j.clip_key in clip_errors]
+    number = {j.id: i + 1 for i, j in enumerate(jl)}
+    tasks = [
+        Task(
+            j.id, _run_job_kw, (j, dict(kw, progress=progress and inline)), {}, ex.threads, ex.gpus
+        )
+        for j in jl
+        if j.clip_key not in clip_errors
+    ]
+    bar = Progress(len(tasks), ex.slots)
+    on_start = (
+        (lambda t: say(f"[eval run] {number[t.name]}/{len(jl)} {t.name}")) if inline else None
+    )
+    for o in ex.map(tasks, on_start=on_start):  # as they finish: on_result exports each at once
+        j = o.task.args[0]
+        bar.add(o.error is None)
+        if o.error is not None:
+            results.append(failed(j, o.error, "the job", j.id))
+        else:
+            if not inline:
+                steps = ", ".join(o.result["steps"]) or "nothing to do"
+                say(f"[eval run] done {j.id} ({steps}, {o.result['seconds']} s)")
+            results.append(finished(j, o.result))
+        if not inline:
+            say(f"[eval run] {bar.line()}")
+    return results
 
 
 def list_jobs_jsonl(
