@@ -28,7 +28,9 @@ import sys
 import tempfile
 import time
 import traceback
+import warnings
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Dict, Iterator, List, Optional, Sequence
@@ -219,6 +221,40 @@ def ray_token_auth_supported(version: Optional[str] = None) -> bool:
     return tuple(parts) >= (2, 52)
 
 
+def _ray_version_has_tokens() -> bool:
+    from importlib import metadata
+
+    try:
+        return ray_token_auth_supported(metadata.version("ray"))
+    except metadata.PackageNotFoundError:
+        return False
+
+
+def _reload_ray_auth() -> None:
+    """Make an imported Ray read RAY_AUTH_MODE / RAY_AUTH_TOKEN again (it reads them on import)."""
+    if "ray" not in sys.modules:
+        return
+    try:
+        from ray._raylet import AuthenticationTokenLoader, Config
+
+        AuthenticationTokenLoader.instance().reset_cache()
+        Config.initialize("")
+    except (ImportError, AttributeError):  # another Ray version: its import-time reading stands
+        pass
+
+
+@contextmanager
+def _quiet_ray_tip():
+    """Ray 2.5x warns at ray.init that a future version will stop hiding the GPUs from a task that
+    asks for none; this executor wants them hidden (a clip or CPU job must not take a GPU), which
+    docs/cluster.md says, so the tip is not repeated on every command."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings(
+            "ignore", message="Tip: In future versions of Ray", category=FutureWarning
+        )
+        yield
+
+
 def _need(module: str, executor: str):
     import importlib
 
@@ -258,21 +294,24 @@ class RayExecutor(Executor):
         num_cpus: Optional[int] = None,
         object_store_mb: Optional[int] = None,
     ):
-        ray = _need("ray", "ray")
         self.device = device
         self.threads, self.gpus = _job_resources(threads, gpus)
         self.max_retries = int(max_retries)
         self._env_before: Dict[str, Optional[str]] = {}
         self._own_temp = None
         self.started = address is None
+        if self.started and "RAY_AUTH_MODE" not in os.environ and _ray_version_has_tokens():
+            # a fresh token for this cluster, through the environment its processes inherit (no
+            # token file written); Ray reads it when imported, or when told to reload it
+            self._set_env("RAY_AUTH_MODE", "token")
+            self._set_env("RAY_AUTH_TOKEN", secrets.token_hex(32))
+            _reload_ray_auth()
+        ray = _need("ray", "ray")
         if ray.is_initialized():
             raise InputError("Ray is already initialised in this process; run one executor at once")
         if self.started:
-            if ray_token_auth_supported(ray.__version__) and "RAY_AUTH_MODE" not in os.environ:
-                # a fresh token for this cluster, through the environment its processes inherit
-                # (no token file written)
-                self._set_env("RAY_AUTH_MODE", "token")
-                self._set_env("RAY_AUTH_TOKEN", secrets.token_hex(32))
+            if "RAY_USAGE_STATS_ENABLED" not in os.environ:
+                self._set_env("RAY_USAGE_STATS_ENABLED", "0")  # no reports to Ray's servers
             if temp_dir is None:
                 # short: Ray's Unix socket paths live under it (a 107-byte limit)
                 temp_dir = self._own_temp = tempfile.mkdtemp(prefix="m4ray-")
@@ -288,9 +327,11 @@ class RayExecutor(Executor):
                 kw["object_store_memory"] = int(object_store_mb) * 1024 * 1024
             if dashboard:
                 kw["dashboard_host"] = "127.0.0.1"
-            ray.init(**kw)
+            with _quiet_ray_tip():
+                ray.init(**kw)
         else:
-            ray.init(address=address, log_to_driver=False, configure_logging=False)
+            with _quiet_ray_tip():
+                ray.init(address=address, log_to_driver=False, configure_logging=False)
         self._ray = ray
         self._remote = ray.remote(run_task)
         self._pending: List[Any] = []
@@ -365,6 +406,8 @@ class RayExecutor(Executor):
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+        if self._env_before:
+            _reload_ray_auth()
         self._env_before = {}
         if self._own_temp is not None:
             import shutil
