@@ -316,6 +316,9 @@ class RayExecutor(Executor):
                 # short: Ray's Unix socket paths live under it (a 107-byte limit)
                 temp_dir = self._own_temp = tempfile.mkdtemp(prefix="m4ray-")
             kw = dict(
+                # a new cluster even where `ray start` left one on this machine (ray.init() would
+                # join that one)
+                address="local",
                 include_dashboard=bool(dashboard),
                 _node_ip_address="127.0.0.1",
                 _temp_dir=str(Path(temp_dir).resolve()),
@@ -345,8 +348,14 @@ class RayExecutor(Executor):
 
     @property
     def slots(self) -> int:
-        # how many one-CPU tasks fit at once: an upper bound of what runs (the progress line)
-        return max(1, int(sum(r.get("CPU", 0) for r in self.node_resources())))
+        """How many jobs fit on the cluster at once (the progress line's bound on "running")."""
+        n = 0
+        for r in self.node_resources():
+            fit = int(r.get("CPU", 0) // self.threads)
+            if self.gpus:
+                fit = min(fit, int(r.get("GPU", 0) // self.gpus))
+            n += fit
+        return max(1, n)
 
     def check_fits(self, threads: int, gpus: int) -> None:
         """Raise InputError naming the option when no alive node has `threads` CPUs and `gpus` GPUs
@@ -454,7 +463,8 @@ class SlurmExecutor(Executor):
 
     @property
     def slots(self) -> int:
-        return int(self.array_parallelism or 0) or max(1, len(self._pending))
+        # every submitted array task counts as running (queued ones too), unless capped
+        return int(self.array_parallelism or 0) or 10**9
 
     def map(self, tasks, on_start=None):
         groups: Dict[tuple, List[Task]] = {}
@@ -499,7 +509,8 @@ class SlurmExecutor(Executor):
                     env = j.result()
                 except Exception as exc:  # killed, timed out, node failure ...
                     line = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-                    yield Outcome(t, error=RemoteError(f"{type(exc).__name__}: {line} ({j.paths})"))
+                    logs = f"logs: {j.paths.stdout}, {j.paths.stderr}"
+                    yield Outcome(t, error=RemoteError(f"{type(exc).__name__}: {line} ({logs})"))
                     continue
                 yield _unwrap(t, env)
             self._pending = still

@@ -5,10 +5,10 @@ The job list of a suite is (clip setting, scene, row) (eval.suite), times the tr
 `seeds` (0 .. N-1; the clip is the same for every seed). Seed 0 trains into
 OUT/runs/<suite>/<scene>/<row> with the row's config as it is, seed n > 0 into
 OUT/runs/<suite>/<scene>/<row>-seed-<n> with the override `seed` = the row's seed + n. `run_suite`
-works through it locally, with a process pool for `jobs > 1`; `job_list` / `run_job` are the same
-work one job at a time, which is how the list is fanned out to a cluster (`m4dgs-eval run SUITE
---list-jobs` prints one JSON line per job with its `python -m eval job ...` command line;
-docs/cluster.md).
+works through it on an executor (eval.experiments.executors): locally, with a process pool for
+`jobs > 1`, or on a Ray cluster or Slurm; `job_list` / `run_job` are the same work one job at a
+time (`m4dgs-eval run SUITE --list-jobs` prints one JSON line per job with its `python -m eval job
+...` command line, for other schedulers; docs/cluster.md).
 
 Concurrency: making a clip and training a run each hold an exclusive `fcntl.flock` on a lock file
 beside the folder (`<folder>.lock`), so two workers given the same clip or run wait for each other

@@ -206,6 +206,42 @@ def _loopback(ip: str) -> bool:
     return ip in ("127.0.0.1", "::1", "::ffff:127.0.0.1")
 
 
+@pytest.mark.slow
+def test_ray_cluster_of_its_own(tiny1, tmp_path):
+    """--executor ray without --address: the executor starts a cluster on this machine (its own
+    temp dir, every port on 127.0.0.1, token authentication where this Ray has it), runs the
+    suite to the local metrics, and leaves nothing behind (slow: Ray's start-up on a busy 2-core
+    machine takes 20-40 s)."""
+    ray = pytest.importorskip("ray")
+    from eval.experiments.executors import RayExecutor
+
+    suite, local = tiny1
+    keys = ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_USAGE_STATS_ENABLED")
+    before = {k: os.environ.get(k) for k in keys}
+    with RayExecutor(threads=1, num_cpus=2) as ex:
+        temp = Path(ex._own_temp)
+        assert temp.is_dir()
+        if ray_token_auth_supported(ray.__version__) and before["RAY_AUTH_MODE"] is None:
+            assert (
+                os.environ["RAY_AUTH_MODE"] == "token" and len(os.environ["RAY_AUTH_TOKEN"]) == 64
+            )
+        assert ex.slots == 2
+        res = run_suite(
+            suite, tmp_path / "root", "tiny", score_kw={"fps": False}, log=print, executor=ex
+        )
+        ports = _listening(_descendants(os.getpid()))
+        assert ports and all(_loopback(ip) for ip, _ in ports), ports
+    assert all(r["steps"] == ["train", "score"] for r in res), res
+    assert metrics(tmp_path / "root") == local
+    assert not temp.exists()
+    assert {k: os.environ.get(k) for k in keys} == before
+    # its processes are gone (they may take a moment to exit)
+    deadline = time.monotonic() + 20
+    while [p for p in _descendants(os.getpid()) if "ray" in _cmdline(p)]:
+        assert time.monotonic() < deadline, "Ray processes left running"
+        time.sleep(0.2)
+
+
 @pytest.fixture(scope="module")
 def ray_cluster():
     """The address of a Ray cluster of three processes on this machine, started here: a head and
