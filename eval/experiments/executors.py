@@ -73,12 +73,41 @@ class Outcome:
 
 class RemoteError(M4DGSError):
     """A task that failed in another process (a Ray or Slurm worker): str() is the one-line error
-    (eval.experiments.runner.error_line) the worker saw; `remote_traceback` the traceback of an
+    (error_line) the worker saw; `remote_traceback` the traceback of an
     exception that is not one of the project's own errors (None for those)."""
 
     def __init__(self, line: str, remote_traceback: Optional[str] = None):
         super().__init__(line)
         self.remote_traceback = remote_traceback
+
+
+def error_line(exc: BaseException) -> str:
+    """One line for an error: the message of the project's own errors (they name the file, key or
+    stage), the type and first line of any other exception."""
+    one = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return one if isinstance(exc, M4DGSError) else f"{type(exc).__name__}: {one}"
+
+
+def _worker_init(threads: int, device: str = "auto") -> None:
+    """Spend a worker's `threads` CPUs as m4dgs.core.threads.use_threads does (on the CPU: torch 1,
+    the compiled kernels `threads`)."""
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    # deferred: job listing and locking stay torch-free
+    from m4dgs.core.threads import use_threads
+
+    use_threads(max(1, threads), device)
+
+
+def pool_context(device: str = "auto"):
+    """The multiprocessing context of `run --jobs N` workers: "spawn" where they train on CUDA (a
+    forked child cannot use CUDA once its parent has touched it, and spawn is what PyTorch supports
+    for CUDA in subprocesses), else the platform default (fork on Linux: no re-imports)."""
+    import multiprocessing
+
+    from m4dgs.core.device import resolve_device
+
+    cuda = device is not None and resolve_device(device).type == "cuda"
+    return multiprocessing.get_context("spawn" if cuda else None)
 
 
 def run_task(fn: Callable, args: tuple, kwargs: dict, threads: Optional[int], device: str) -> dict:
@@ -87,7 +116,6 @@ def run_task(fn: Callable, args: tuple, kwargs: dict, threads: Optional[int], de
     (an envelope instead of a raised exception, so that the driver gets the message without
     unpickling the worker's exception classes, and Ray reruns only a task whose worker died)."""
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    from eval.experiments.runner import error_line
     from m4dgs.core.threads import use_threads
 
     if threads is not None:
@@ -139,8 +167,8 @@ class Executor:
 class LocalExecutor(Executor):
     """jobs 1: the tasks one after another in this process, each with `threads` CPU threads
     (default: every CPU of the process) while it runs; jobs > 1: a process pool of `jobs` workers
-    with `threads` each (default cpu_budget / jobs), started with eval.experiments.runner
-    .pool_context (spawn on CUDA, the platform default otherwise)."""
+    with `threads` each (default cpu_budget / jobs), started with pool_context (spawn on CUDA,
+    the platform default otherwise)."""
 
     name = "local"
 
@@ -161,8 +189,6 @@ class LocalExecutor(Executor):
 
     def _get_pool(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            from eval.experiments.runner import _worker_init, pool_context
-
             self._pool = ProcessPoolExecutor(
                 max_workers=self.jobs,
                 mp_context=pool_context(self.device),

@@ -33,7 +33,6 @@ the file when it scores."""
 from __future__ import annotations
 
 import json
-import os
 import re
 import shlex
 import sys
@@ -45,6 +44,9 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
+
+# defined with the executors; importable from here as before
+from eval.experiments.executors import _worker_init, error_line, pool_context  # noqa: F401
 from eval.records.suite import EvalSuite, load_eval_suite, scene_suite_names, suites_dir
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError, M4DGSError
@@ -56,13 +58,6 @@ SHARE_DIR = ".shared"  # under OUT: trainer phases shared between runs (m4dgs.tr
 
 SEED_SUFFIX = "-seed-"
 FAILURE_FILE = "failure.json"  # in a run folder: the last attempt of its job failed
-
-
-def error_line(exc: BaseException) -> str:
-    """One line for an error: the message of the project's own errors (they name the file, key or
-    stage), the type and first line of any other exception."""
-    one = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-    return one if isinstance(exc, M4DGSError) else f"{type(exc).__name__}: {one}"
 
 
 def record_failure(run_dir, error: str) -> None:
@@ -396,28 +391,6 @@ def _run_calibration_job(job: Job, res, steps, t0, force, lpips_weights, share) 
     (run_dir / FAILURE_FILE).unlink(missing_ok=True)
     res.update(metrics=str(mpath), seconds=round(time.perf_counter() - t0, 2), steps=steps)
     return res
-
-
-def _worker_init(threads: int, device: str = "auto") -> None:
-    """Spend a worker's `threads` CPUs as m4dgs.core.threads.use_threads does (on the CPU: torch 1,
-    the compiled kernels `threads`)."""
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    # deferred: job listing and locking stay torch-free
-    from m4dgs.core.threads import use_threads
-
-    use_threads(max(1, threads), device)
-
-
-def pool_context(device: str = "auto"):
-    """The multiprocessing context of `run --jobs N` workers: "spawn" where they train on CUDA (a
-    forked child cannot use CUDA once its parent has touched it, and spawn is what PyTorch supports
-    for CUDA in subprocesses), else the platform default (fork on Linux: no re-imports)."""
-    import multiprocessing
-
-    from m4dgs.core.device import resolve_device
-
-    cuda = device is not None and resolve_device(device).type == "cuda"
-    return multiprocessing.get_context("spawn" if cuda else None)
 
 
 def _run_job_kw(job: Job, kw: dict) -> dict:
