@@ -482,7 +482,13 @@ class SlurmExecutor(Executor):
         self.array_parallelism = array_parallelism
         self.cluster = cluster
         self.poll_s = float(poll_s)
-        self._ex = submitit.AutoExecutor(folder=str(self.folder / "%j"), cluster=cluster)
+        try:
+            self._ex = submitit.AutoExecutor(folder=str(self.folder / "%j"), cluster=cluster)
+        except RuntimeError as e:  # submitit: no srun / sbatch here
+            raise InputError(
+                f"--executor slurm: {e} Run the command where Slurm's commands work (a login "
+                "node), or use --executor local or ray"
+            ) from None
         if self._ex.cluster == "debug":
             raise InputError("--executor slurm: submitit's debug cluster runs nothing in parallel")
         self._pending: List[Any] = []
@@ -567,7 +573,7 @@ def make_executor(
     slurm_partition: Optional[str] = None,
     slurm_time: Optional[int] = None,
     slurm_array_parallelism: Optional[int] = None,
-    slurm_cluster: Optional[str] = None,
+    slurm_cluster: str = "slurm",
 ) -> Executor:
     """The executor the command-line options describe; raises InputError naming an option that
     does not apply to `kind` (e.g. --address without --executor ray)."""

@@ -113,6 +113,11 @@ def test_options_that_do_not_apply_are_refused(tmp_path):
         make_executor("slurm")
     with pytest.raises(InputError, match="--gpus-per-job must be 0 or 1"):
         make_executor("slurm", gpus_per_job=2, slurm_folder=str(tmp_path))
+    pytest.importorskip("submitit")
+    if not shutil.which("srun"):
+        # never the local stand-in without saying so: no Slurm here is an error naming it
+        with pytest.raises(InputError, match="--executor slurm: .*srun.*login node"):
+            make_executor("slurm", slurm_folder=str(tmp_path))
     r = CliRunner().invoke(main, ["suite", "run", "tiny", "--address", "x:1", "--root", "r"])
     assert r.exit_code == 2 and "--address applies only to --executor ray" in r.output
     assert not Path("r").exists()
