@@ -332,6 +332,17 @@ class RayExecutor(Executor):
             self._set_env("RAY_AUTH_MODE", "token")
             self._set_env("RAY_AUTH_TOKEN", secrets.token_hex(32))
             _reload_ray_auth()
+        try:
+            ray = self._init(address, dashboard, temp_dir, num_cpus, object_store_mb)
+        except BaseException:  # no Ray, a failed start: leave the environment as it was
+            self._restore()
+            raise
+        self._ray = ray
+        self._remote = ray.remote(run_task)
+        self._pending: List[Any] = []
+
+    def _init(self, address, dashboard, temp_dir, num_cpus, object_store_mb):
+        """Start (address None) or join the cluster; returns the ray module."""
         ray = _need("ray", "ray")
         if ray.is_initialized():
             raise InputError("Ray is already initialised in this process; run one executor at once")
@@ -342,8 +353,8 @@ class RayExecutor(Executor):
                 # short: Ray's Unix socket paths live under it (a 107-byte limit)
                 temp_dir = self._own_temp = tempfile.mkdtemp(prefix="m4ray-")
             kw = dict(
-                # a new cluster even where `ray start` left one on this machine (ray.init() would
-                # join that one)
+                # a new cluster even where `ray start` left one on this machine (ray.init()
+                # would join that one)
                 address="local",
                 include_dashboard=bool(dashboard),
                 _node_ip_address="127.0.0.1",
@@ -361,9 +372,23 @@ class RayExecutor(Executor):
         else:
             with _quiet_ray_tip():
                 ray.init(address=address, log_to_driver=False, configure_logging=False)
-        self._ray = ray
-        self._remote = ray.remote(run_task)
-        self._pending: List[Any] = []
+        return ray
+
+    def _restore(self) -> None:
+        """The environment variables this executor set back as they were; its own temp dir gone."""
+        for k, v in self._env_before.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+        if self._env_before:
+            _reload_ray_auth()
+        self._env_before = {}
+        if self._own_temp is not None:
+            import shutil
+
+            shutil.rmtree(self._own_temp, ignore_errors=True)
+            self._own_temp = None
 
     def _set_env(self, key: str, value: str) -> None:
         self._env_before.setdefault(key, os.environ.get(key))
@@ -436,19 +461,7 @@ class RayExecutor(Executor):
                 pass
         self._pending = []
         ray.shutdown()
-        for k, v in self._env_before.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-        if self._env_before:
-            _reload_ray_auth()
-        self._env_before = {}
-        if self._own_temp is not None:
-            import shutil
-
-            shutil.rmtree(self._own_temp, ignore_errors=True)
-            self._own_temp = None
+        self._restore()
 
 
 class SlurmExecutor(Executor):

@@ -134,6 +134,22 @@ def test_run_task_envelope_and_token_versions():
     assert not ray_token_auth_supported("2.51.2") and not ray_token_auth_supported("2.9.3")
 
 
+def test_a_ray_executor_that_cannot_start_leaves_the_environment_as_it_was(monkeypatch):
+    import eval.experiments.executors as executors
+
+    monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    monkeypatch.setattr(executors, "_ray_version_has_tokens", lambda: True)
+
+    def no_ray(module, executor):
+        raise InputError(f"--executor {executor} needs the {module!r} package")
+
+    monkeypatch.setattr(executors, "_need", no_ray)
+    before = dict(os.environ)
+    with pytest.raises(InputError, match="--executor ray needs the 'ray' package"):
+        executors.RayExecutor()
+    assert dict(os.environ) == before  # no token, no usage-stats switch left behind
+
+
 def _raise_input_error():
     raise InputError("no such clip")
 
