@@ -10,8 +10,10 @@ import click
 from eval.cli._options import (
     DEFAULT_OUT,
     device_opt,
+    executor_opts,
     jobs_opt,
     lpips_opt,
+    make_executor_from,
     no_retry_failed_opt,
     no_share_opt,
     out_opt,
@@ -89,6 +91,7 @@ def suites():
     "on; the command then exits with status 1 naming the failed jobs.",
 )
 @no_retry_failed_opt
+@executor_opts
 def run(
     suite,
     out,
@@ -104,6 +107,7 @@ def run(
     no_share,
     fail_fast,
     no_retry_failed,
+    **executor,
 ):
     """Make missing clips, train missing runs and score missing metrics of SUITE (name or YAML
     path); resumable."""
@@ -125,22 +129,24 @@ def run(
             nl=False,
         )
         return
-    res = run_suite(
-        suite,
-        out,
-        preset,
-        jobs=jobs,
-        scenes=parse_scenes(scenes),
-        force=force,
-        lpips_weights=lpips_weights,
-        device=device,
-        clips_only=clips_only,
-        log=lambda s: click.echo(s, err=True),
-        seeds=seeds,
-        share=not no_share,
-        fail_fast=fail_fast,
-        retry_failed=not no_retry_failed,
-    )
+    with make_executor_from(executor, jobs, device) as ex:
+        res = run_suite(
+            suite,
+            out,
+            preset,
+            jobs=jobs,
+            scenes=parse_scenes(scenes),
+            force=force,
+            lpips_weights=lpips_weights,
+            device=device,
+            clips_only=clips_only,
+            log=lambda s: click.echo(s, err=True),
+            seeds=seeds,
+            share=not no_share,
+            fail_fast=fail_fast,
+            retry_failed=not no_retry_failed,
+            executor=ex,
+        )
     for r in res:
         click.echo(json.dumps(r))
     bad = failed_jobs(res)
@@ -215,6 +221,7 @@ def job(suite, scene, row, seed, out, preset, clip_only, force, lpips_weights, d
 @lpips_opt
 @device_opt
 @no_share_opt
+@executor_opts
 def campaign(
     campaign,
     out,
@@ -226,6 +233,7 @@ def campaign(
     lpips_weights,
     device,
     no_share,
+    **executor,
 ):
     """Run the suites of CAMPAIGN (a name from eval/campaigns or a YAML path) one after another
     into ROOT, exporting each into the runs CSV as soon as it is done; resumable (run the same
@@ -233,17 +241,24 @@ def campaign(
     from eval.experiments.campaign import load_campaign, run_campaign
 
     c = load_campaign(campaign)
-    res = run_campaign(
-        c,
-        out,
-        csv_path,
-        jobs=jobs,
-        dry_run=dry_run,
-        allow_mixed_code=allow_mixed_code,
-        retry_failed=not no_retry_failed,
-        log=lambda s: click.echo(s, err=True),
-        run_kw=dict(lpips_weights=lpips_weights, device=device, share=not no_share),
-    )
+    run_kw = dict(lpips_weights=lpips_weights, device=device, share=not no_share)
+    # one executor (one Ray cluster, one Slurm folder) for every step; a dry run starts none
+    ex = None if dry_run else make_executor_from(executor, jobs, device)
+    try:
+        res = run_campaign(
+            c,
+            out,
+            csv_path,
+            jobs=jobs,
+            dry_run=dry_run,
+            allow_mixed_code=allow_mixed_code,
+            retry_failed=not no_retry_failed,
+            log=lambda s: click.echo(s, err=True),
+            run_kw=dict(run_kw, executor=ex) if ex is not None else run_kw,
+        )
+    finally:
+        if ex is not None:
+            ex.close()
     # a step is complete when each job scored, or failed and is not to be retried
     done = sum(
         r["scored"] + (r.get("failed", 0) if no_retry_failed else 0) == r["total"] for r in res

@@ -5,10 +5,10 @@ The job list of a suite is (clip setting, scene, row) (eval.suite), times the tr
 `seeds` (0 .. N-1; the clip is the same for every seed). Seed 0 trains into
 OUT/runs/<suite>/<scene>/<row> with the row's config as it is, seed n > 0 into
 OUT/runs/<suite>/<scene>/<row>-seed-<n> with the override `seed` = the row's seed + n. `run_suite`
-works through it locally, with a process pool for `jobs > 1`; `job_list` / `run_job` are the same
-work one job at a time, which is how the list is fanned out to a cluster (`m4dgs-eval run SUITE
---list-jobs` prints one JSON line per job with its `python -m eval job ...` command line;
-docs/cluster.md).
+works through it on an executor (eval.experiments.executors): locally, with a process pool for
+`jobs > 1`, or on a Ray cluster or Slurm; `job_list` / `run_job` are the same work one job at a
+time (`m4dgs-eval run SUITE --list-jobs` prints one JSON line per job with its `python -m eval job
+...` command line, for other schedulers; docs/cluster.md).
 
 Concurrency: making a clip and training a run each hold an exclusive `fcntl.flock` on a lock file
 beside the folder (`<folder>.lock`), so two workers given the same clip or run wait for each other
@@ -33,19 +33,20 @@ the file when it scores."""
 from __future__ import annotations
 
 import json
-import os
 import re
 import shlex
 import sys
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
+
+# defined with the executors; importable from here as before
+from eval.experiments.executors import _worker_init, error_line, pool_context  # noqa: F401
 from eval.records.suite import (
     EvalSuite,
     is_builtin_suite_file,
@@ -62,13 +63,6 @@ SHARE_DIR = ".shared"  # under OUT: trainer phases shared between runs (m4dgs.tr
 
 SEED_SUFFIX = "-seed-"
 FAILURE_FILE = "failure.json"  # in a run folder: the last attempt of its job failed
-
-
-def error_line(exc: BaseException) -> str:
-    """One line for an error: the message of the project's own errors (they name the file, key or
-    stage), the type and first line of any other exception."""
-    one = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-    return one if isinstance(exc, M4DGSError) else f"{type(exc).__name__}: {one}"
 
 
 def record_failure(run_dir, error: str) -> None:
@@ -404,28 +398,6 @@ def _run_calibration_job(job: Job, res, steps, t0, force, lpips_weights, share) 
     return res
 
 
-def _worker_init(threads: int, device: str = "auto") -> None:
-    """Spend a worker's `threads` CPUs as m4dgs.core.threads.use_threads does (on the CPU: torch 1,
-    the compiled kernels `threads`)."""
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-    # deferred: job listing and locking stay torch-free
-    from m4dgs.core.threads import use_threads
-
-    use_threads(max(1, threads), device)
-
-
-def pool_context(device: str = "auto"):
-    """The multiprocessing context of `run --jobs N` workers: "spawn" where they train on CUDA (a
-    forked child cannot use CUDA once its parent has touched it, and spawn is what PyTorch supports
-    for CUDA in subprocesses), else the platform default (fork on Linux: no re-imports)."""
-    import multiprocessing
-
-    from m4dgs.core.device import resolve_device
-
-    cuda = device is not None and resolve_device(device).type == "cuda"
-    return multiprocessing.get_context("spawn" if cuda else None)
-
-
 def _run_job_kw(job: Job, kw: dict) -> dict:
     return run_job(job, **kw)
 
@@ -469,6 +441,7 @@ def run_suite(
     skip: Optional[Callable[[Job], bool]] = None,
     on_result: Optional[Callable[[Job, dict], None]] = None,
     retry_failed: bool = True,
+    executor=None,
 ) -> List[dict]:
     """Make every missing clip, then train and score every (scene, row, seed) of a suite; resumable.
 
@@ -483,9 +456,12 @@ def run_suite(
     jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool
     of `jobs` workers, each spending cpu_count / jobs threads as m4dgs.core.threads.use_threads
     does (torch 1, the compiled kernels all of them); jobs = 1 spends every CPU that way in this
-    process while it trains. Returns the per-job results (run_job) in job order; a job that failed
-    has an "error" entry instead of metrics (and the jobs of a clip that failed to be made are not
-    started), unless fail_fast, which raises the first failure."""
+    process while it trains. executor: where the clips and jobs run instead (an open
+    eval.experiments.executors.Executor, e.g. Ray or Slurm; `jobs` is then unused, and the caller
+    closes it); outside this process the driver prints a progress line after each job. Returns
+    the per-job results (run_job) in job order; a job that failed has an "error" entry instead of
+    metrics (and the jobs of a clip that failed to be made are not started), unless fail_fast,
+    which raises the first failure."""
     every = job_list(suite, out, preset, scenes, seeds)
     recorded = {j.id for j in every if skip is not None and skip(j)}
     kept: Dict[str, str] = {}  # job id -> error of its last attempt, not retried
@@ -524,6 +500,8 @@ def run_suite(
         say(f"[eval run] FAILED {name}: {r['error']}")
         if not isinstance(exc, M4DGSError):
             say("".join(traceback.format_exception(type(exc), exc, exc.__traceback__)).rstrip())
+        elif getattr(exc, "remote_traceback", None):  # a worker's (eval.experiments.executors)
+            say(exc.remote_traceback.rstrip())
         return r
 
     def finished(job: Job, r: dict) -> dict:
@@ -552,74 +530,76 @@ def run_suite(
         say(f"[eval run] skipped {job.id}: its clip {job.clip_key} could not be made")
         return r
 
-    if jobs <= 1:
-        from m4dgs.core.threads import threads_for
+    from eval.experiments.executors import LocalExecutor
 
-        for j in todo:
-            say(f"[eval run] clip {j.clip_key}")
-            try:
-                make_job_clip(j, progress=progress)
-            except Exception as exc:
-                clip_errors[j.clip_key] = failed(j, exc, "making the clip", f"clip {j.clip_key}")
-        if clips_only:
-            return [{"id": j.id, "clip": j.clip_dir} for j in jl]
-        # this process is the one worker: every CPU, split as a worker's, while it trains
-        with threads_for(device=device):
-            results = []
-            for i, j in enumerate(jl):
-                if j.clip_key in clip_errors:
-                    results.append(skipped(j))
-                    continue
-                say(f"[eval run] {i + 1}/{len(jl)} {j.id}")
-                try:
-                    r = run_job(j, progress=progress, **kw)
-                except Exception as exc:
-                    results.append(failed(j, exc, "the job", j.id))
-                    continue
-                results.append(finished(j, r))
-            return in_order(results)
-    from m4dgs.core.threads import cpu_budget
+    own = executor is None
+    ex = LocalExecutor(jobs, device=device) if own else executor
+    try:
+        res = _execute(
+            ex, jl, todo, kw, progress, clip_errors, failed, finished, skipped, say, clips_only
+        )
+        return res if clips_only else in_order(res)
+    finally:
+        if own:
+            ex.close()  # fail fast / Ctrl-C: nothing more starts
 
-    threads = max(1, cpu_budget() // jobs)
-    with ProcessPoolExecutor(
-        max_workers=jobs,
-        mp_context=pool_context(device),
-        initializer=_worker_init,
-        initargs=(threads, device),
-    ) as ex:
-        try:
-            for wave in clip_waves(todo):
-                for j, f in [(j, ex.submit(make_job_clip, j, False)) for j in wave]:
-                    try:
-                        f.result()
-                    except Exception as exc:
-                        clip_errors[j.clip_key] = failed(
-                            j, exc, "making the clip", f"clip {j.clip_key}"
-                        )
-            if clips_only:
-                return [{"id": j.id, "clip": j.clip_dir} for j in jl]
-            futs = {
-                ex.submit(_run_job_kw, j, dict(kw, progress=False)): j
-                for j in jl
-                if j.clip_key not in clip_errors
-            }
-            results = [skipped(j) for j in jl if j.clip_key in clip_errors]
-            for f in as_completed(futs):  # as they finish: on_result exports each one at once
-                j = futs[f]
-                try:
-                    r = f.result()
-                except Exception as exc:
-                    results.append(failed(j, exc, "the job", j.id))
-                    continue
-                say(
-                    f"[eval run] done {j.id} ({', '.join(r['steps']) or 'nothing to do'}, "
-                    f"{r['seconds']} s)"
+
+def _execute(ex, jl, todo, kw, progress, clip_errors, failed, finished, skipped, say, clips_only):
+    """run_suite's work on an executor (eval.experiments.executors): the missing clips (in this
+    process one after another; elsewhere wave by wave, clip_waves), then the jobs, each result
+    handed on as it finishes. Returns the clip list when clips_only, else the job results."""
+    from eval.experiments.executors import Progress, Task
+
+    inline = ex.inline  # this process: progress bars, and a job counter before each job
+    for wave in [todo] if inline else clip_waves(todo):
+        tasks = [
+            # in this process a clip is made with the threads the process has (as before jobs)
+            Task(
+                f"clip {j.clip_key}",
+                make_job_clip,
+                (j, progress and inline),
+                {},
+                None if inline else ex.threads,
+                0,
+            )
+            for j in wave
+        ]
+        for o in ex.map(
+            tasks, on_start=(lambda t: say(f"[eval run] {t.name}")) if inline else None
+        ):
+            if o.error is not None:
+                j = o.task.args[0]
+                clip_errors[j.clip_key] = failed(
+                    j, o.error, "making the clip", f"clip {j.clip_key}"
                 )
-                results.append(finished(j, r))
-            return in_order(results)
-        except BaseException:
-            ex.shutdown(wait=True, cancel_futures=True)  # fail fast / Ctrl-C: start nothing more
-            raise
+    if clips_only:
+        return [{"id": j.id, "clip": j.clip_dir} for j in jl]
+    results = [skipped(j) for j in jl if j.clip_key in clip_errors]
+    number = {j.id: i + 1 for i, j in enumerate(jl)}
+    tasks = [
+        Task(
+            j.id, _run_job_kw, (j, dict(kw, progress=progress and inline)), {}, ex.threads, ex.gpus
+        )
+        for j in jl
+        if j.clip_key not in clip_errors
+    ]
+    bar = Progress(len(tasks), ex.slots)
+    on_start = (
+        (lambda t: say(f"[eval run] {number[t.name]}/{len(jl)} {t.name}")) if inline else None
+    )
+    for o in ex.map(tasks, on_start=on_start):  # as they finish: on_result exports each at once
+        j = o.task.args[0]
+        bar.add(o.error is None)
+        if o.error is not None:
+            results.append(failed(j, o.error, "the job", j.id))
+        else:
+            if not inline:
+                steps = ", ".join(o.result["steps"]) or "nothing to do"
+                say(f"[eval run] done {j.id} ({steps}, {o.result['seconds']} s)")
+            results.append(finished(j, o.result))
+        if not inline:
+            say(f"[eval run] {bar.line()}")
+    return results
 
 
 def list_jobs_jsonl(

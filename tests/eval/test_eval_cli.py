@@ -1353,6 +1353,41 @@ def test_campaign_runs_exports_resumes_and_guards_the_code(tmp_path, fake_traine
     assert res[1]["ran"] and len(fake_trainer["train"]) == 8  # rescored, not retrained
 
 
+def test_campaign_runs_every_step_on_the_executor_it_is_given(tmp_path, fake_trainer):
+    """run_kw["executor"] (what `suite campaign --executor ...` opens once): each step's jobs run
+    on it, it stays open between steps, the driver prints a progress line per finished job, and
+    every step is exported."""
+    import csv
+    import multiprocessing as mp
+
+    from eval.experiments.campaign import run_campaign
+    from eval.experiments.executors import LocalExecutor
+
+    if mp.get_start_method(allow_none=True) not in (None, "fork") or sys.platform != "linux":
+        pytest.skip("needs the fork start method to pass the fake trainer to the workers")
+    suite, out, csv_path, camp = _two_step_campaign(tmp_path)
+    lines = []
+    with LocalExecutor(jobs=2, threads=1) as ex:
+        run_kw = {"score_kw": {"fps": False}, "progress": False, "executor": ex}
+        res = run_campaign(
+            camp,
+            out,
+            csv_path,
+            code="0" * 64,
+            log=lines.append,
+            run_kw=run_kw,
+            allow_mixed_code=True,  # the fake runs record no code
+        )
+        pool = ex._pool
+        assert pool is not None  # the steps did not close it
+    assert [(r["scored"], r["total"], r["ran"]) for r in res] == [(2, 2, True), (8, 8, True)]
+    progress = [ln for ln in lines if " jobs: " in ln]
+    # step 1: its 2 jobs; step 2: its 8 (the 2 that step 1 finished have nothing to do)
+    assert len(progress) == 2 + 8 and progress[-1].startswith("[eval run] 8/8 jobs: 8 done")
+    with open(csv_path) as f:
+        assert len(list(csv.DictReader(f))) == 8
+
+
 def test_campaign_resumes_from_the_csv_when_the_root_is_lost(tmp_path, fake_trainer, monkeypatch):
     """The runs CSV is the record that survives: each job is exported as soon as it is scored (a
     step that stops on a failure keeps its finished jobs), and a campaign restarted into an empty
