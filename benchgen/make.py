@@ -316,6 +316,13 @@ def _finished_clip(job: _Job, force: bool, allow_misplaced: bool) -> bool:
     if (out / "clip.json").exists() and not force:
         done = Clip.open(out).meta
         old = _with_crf(done.generator)
+        key, old_key = render_key(job), done.gt.get("render_key")
+        if old_key is not None and old_key != key:
+            raise FileExistsError(
+                f"{out}: a finished clip rendered from another version of {job.scene_path.name} "
+                f"or other render settings exists (render key {old_key}, now {key}); pass force "
+                "to make it again"
+            )
         if {k: old.get(k) for k in job.gen} == job.gen:  # finished with the same settings
             check_clip_placement(
                 out, done.gt.get("placement"), allow_misplaced, job.scene_path, job.gen["preset"]
@@ -333,6 +340,19 @@ def _open_state(job: _Job, force: bool) -> None:
     if force and (out / "clip.json").exists():
         (out / "clip.json").unlink()
     state = mio.read_json(job.state_path) if job.state_path.exists() else {}
+    key, old_key = render_key(job), state.get("render_key")
+    if old_key is not None and old_key != key:
+        # the renders kept for resuming are of another scene spec (its bytes) or render settings:
+        # resuming would finish the new clip with the old frames
+        if not force:
+            raise FileExistsError(
+                f"{out}: an unfinished clip rendered from another version of "
+                f"{job.scene_path.name} or other render settings is here (render key {old_key}, "
+                f"now {key}); pass force to render it again, or pick another --out"
+            )
+        for p in list(out.iterdir()):
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+        state = {}
     if _with_crf(state.get("generator")) not in (None, job.gen):
         raise FileExistsError(
             f"{out}: an unfinished clip with other settings is here; remove it or pick another "

@@ -340,3 +340,34 @@ def test_cli_takes_a_profile_file_and_refuses_a_bad_one(tmp_path, monkeypatch):
     assert r.exit_code != 0 and "flow_noize_px" in r.output and seen == [str(prof)]
     r = CliRunner().invoke(benchgen_main, ["make", "--suite", "tiny", "--priors", "medium"])
     assert r.exit_code != 0 and "neither a built-in profile" in r.output
+
+
+def test_a_changed_spec_is_not_finished_with_the_old_renders(tmp_path):
+    """A clip folder holds the renders of a spec (resume state and clip.json carry its render key,
+    which covers the spec's bytes). Made again after the spec changed: refused without force, and
+    with force rendered anew (the new wall colour shows in gt/hdr), never finished with the old
+    frames."""
+    from benchgen.make import make_clip
+    from benchgen.suite import builtin_scenes_dir
+
+    spec = tmp_path / "tiny-lamp-box.yaml"
+    text = (builtin_scenes_dir() / "tiny-lamp-box.yaml").read_text()
+    spec.write_text(text)
+    out = tmp_path / "clip"
+    kw = dict(preset="tiny", priors="oracle", max_frames=5, allow_misplaced=True)
+    make_clip(spec, out, **kw)
+    before = mio.read_exr(out / "gt/hdr/00000.exr")
+    # the back wall's stripes from grey-brown to saturated green
+    spec.write_text(
+        text.replace("[[0.6, 0.5, 0.4], [0.2, 0.2, 0.25]]", "[[0.1, 0.8, 0.1], [0.05, 0.4, 0.05]]")
+    )
+    with pytest.raises(FileExistsError, match="render key"):
+        make_clip(spec, out, **kw)
+    # an unfinished clip of the old spec (clip.json gone, the resume state kept) is refused too
+    (out / "clip.json").unlink()
+    with pytest.raises(FileExistsError, match="render key"):
+        make_clip(spec, out, **kw)
+    make_clip(spec, out, force=True, **kw)
+    after = mio.read_exr(out / "gt/hdr/00000.exr")
+    g_over_r = lambda a: float(a[..., 1].mean() / max(a[..., 0].mean(), 1e-9))  # noqa: E731
+    assert g_over_r(after) > 1.2 * g_over_r(before), (g_over_r(before), g_over_r(after))
