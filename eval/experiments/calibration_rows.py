@@ -21,6 +21,7 @@ from typing import Optional
 
 from eval.calibration import ROWS, TEMPORAL_ROWS
 from m4dgs.clip import Clip
+from m4dgs.core import io as mio
 
 
 def make_calibration_run(
@@ -68,4 +69,10 @@ def make_calibration_run(
         )
         if response.exists():
             shutil.copyfile(response, run_dir / "response.json")
+    # the preset of the suite's runs it is compared with (dibr: of its camera initialisation), so
+    # that the runs CSV files the row with them
+    info = mio.read_json(run_dir / "run.json")
+    mio.write_json(run_dir / "run.json", {**info, "preset": preset, "calibration": row})
+    metrics["run"] = {**(metrics.get("run") or {}), "preset": preset}
+    mio.write_json(run_dir / "metrics.json", metrics)
     return metrics

@@ -90,6 +90,8 @@ def test_runner_predicts_and_scores_a_calibration_row(tiny_clip_oracle, tmp_path
     m = mio.read_json(run / "metrics.json")
     info = mio.read_json(run / "run.json")
     assert info["external"] and info["variant"] == "copy-nearest"
+    # filed at the preset of the runs it is compared with (the runs CSV's preset column)
+    assert info["preset"] == "tiny" and m["run"]["preset"] == "tiny"
     g_resp = np.asarray(mio.read_json(run / "response.json")["g"])  # [3, 256] natural log
     assert g_resp.shape == (3, 256)
 
