@@ -316,14 +316,14 @@ def _finished_clip(job: _Job, force: bool, allow_misplaced: bool) -> bool:
     if (out / "clip.json").exists() and not force:
         done = Clip.open(out).meta
         old = _with_crf(done.generator)
-        key, old_key = render_key(job), done.gt.get("render_key")
-        if old_key is not None and old_key != key:
-            raise FileExistsError(
-                f"{out}: a finished clip rendered from another version of {job.scene_path.name} "
-                f"or other render settings exists (render key {old_key}, now {key}); pass force "
-                "to make it again"
-            )
         if {k: old.get(k) for k in job.gen} == job.gen:  # finished with the same settings
+            key, old_key = render_key(job), done.gt.get("render_key")
+            if old_key is not None and old_key != key:  # ... but from another spec
+                raise FileExistsError(
+                    f"{out}: a finished clip rendered from another version of "
+                    f"{job.scene_path.name} exists (render key {old_key}, now {key}); remove the "
+                    "folder or pass force to make it again"
+                )
             check_clip_placement(
                 out, done.gt.get("placement"), allow_misplaced, job.scene_path, job.gen["preset"]
             )
@@ -341,18 +341,21 @@ def _open_state(job: _Job, force: bool) -> None:
         (out / "clip.json").unlink()
     state = mio.read_json(job.state_path) if job.state_path.exists() else {}
     key, old_key = render_key(job), state.get("render_key")
-    if old_key is not None and old_key != key:
-        # the renders kept for resuming are of another scene spec (its bytes) or render settings:
-        # resuming would finish the new clip with the old frames
-        if not force:
-            raise FileExistsError(
-                f"{out}: an unfinished clip rendered from another version of "
-                f"{job.scene_path.name} or other render settings is here (render key {old_key}, "
-                f"now {key}); pass force to render it again, or pick another --out"
-            )
+    same_settings = _with_crf(state.get("generator")) in (None, job.gen)
+    other_render = old_key is not None and old_key != key
+    if force and (other_render or not same_settings):
+        # made again from scratch: nothing kept for resuming belongs to the clip asked for
         for p in list(out.iterdir()):
             shutil.rmtree(p) if p.is_dir() else p.unlink()
         state = {}
+    elif other_render and same_settings:
+        # the renders kept for resuming are of another version of the scene spec (its bytes):
+        # resuming would finish the new clip with the old frames
+        raise FileExistsError(
+            f"{out}: an unfinished clip rendered from another version of {job.scene_path.name} "
+            f"is here (render key {old_key}, now {key}); remove the folder or pass force to "
+            "render it again, or pick another --out"
+        )
     if _with_crf(state.get("generator")) not in (None, job.gen):
         raise FileExistsError(
             f"{out}: an unfinished clip with other settings is here; remove it or pick another "
