@@ -54,6 +54,19 @@ scenes_opt = click.option(
     default=None,
     help="Comma-separated subset of the scenes (default: all of each suite's scenes).",
 )
+
+
+def found_seeds_opt(verb: str):
+    """--seeds of the commands that read run folders: seeds 0..N-1 to `verb`, by default up to the
+    largest seed with a run folder."""
+    return click.option(
+        "--seeds",
+        default=None,
+        type=click.IntRange(min=1),
+        help=f"Trainer seeds 0..N-1 to {verb} (default: up to the largest seed with a run folder).",
+    )
+
+
 preset_opt = click.option(
     "--preset",
     type=click.Choice(["tiny", "small", "paper"]),

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from eval.cli._options import DEFAULT_OUT, parse_scenes, scenes_opt
+from eval.cli._options import DEFAULT_OUT, found_seeds_opt, parse_scenes, scenes_opt
 from eval.experiments.collect import collect_runs_dir, collect_suite
 from eval.records.suite_data import build_tables, compact_tables
 from m4dgs.core import io as mio
@@ -79,17 +79,13 @@ def _no_scored_runs(target: str, name: str, root, entries: list) -> str:
     type=click.Choice(["compact", "all"]),
     default="compact",
     show_default=True,
-    help="compact: one table of LDR-OE PSNR, HDR PSNR, HDR-TAE and training time, the `full` row "
+    help="compact: one table of LDR-OE PSNR, the held-out views' LDR-OE mPSNR (clips with views), "
+    "HDR PSNR, HDR-TAE and training time, the `full` row "
     "labelled as the method, columns without any value left out; all: every table of the suite "
     "(or of the folder of runs) with every column.",
 )
 @scenes_opt
-@click.option(
-    "--seeds",
-    default=None,
-    type=click.IntRange(min=1),
-    help="Trainer seeds 0..N-1 to tabulate (default: up to the largest seed with a run folder).",
-)
+@found_seeds_opt("tabulate")
 @click.option(
     "--no-figures",
     is_flag=True,

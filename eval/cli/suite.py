@@ -11,6 +11,7 @@ from eval.cli._options import (
     DEFAULT_OUT,
     device_opt,
     executor_opts,
+    found_seeds_opt,
     jobs_opt,
     lpips_opt,
     make_executor_from,
@@ -279,12 +280,7 @@ def campaign(
 )
 @runs_csv_opt
 @scenes_opt
-@click.option(
-    "--seeds",
-    default=None,
-    type=click.IntRange(min=1),
-    help="Trainer seeds 0..N-1 to collect (default: up to the largest seed with a run folder).",
-)
+@found_seeds_opt("collect")
 @click.option(
     "--add-missing",
     is_flag=True,

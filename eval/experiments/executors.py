@@ -22,6 +22,7 @@ Ray and submitit are optional (`pip install -e .[cluster]`) and imported only by
 
 from __future__ import annotations
 
+import abc
 import os
 import secrets
 import sys
@@ -133,8 +134,8 @@ def _unwrap(task: Task, env: Any) -> Outcome:
     return Outcome(task, result=env["result"])
 
 
-class Executor:
-    """Base class. `map(tasks)` yields an Outcome per task as they finish; `slots` is how many tasks
+class Executor(abc.ABC):
+    """Base class: `map(tasks)` yields an Outcome per task as they finish; `slots` is how many tasks
     run at once (for the progress line); `inline` is true when tasks run in this process (they
     may then show progress bars). Use as a context manager: leaving it cancels what has not
     started (fail fast, Ctrl-C) and releases the workers or the cluster."""
@@ -148,13 +149,15 @@ class Executor:
     def slots(self) -> int:
         return 1
 
+    @abc.abstractmethod
     def map(
         self, tasks: Sequence[Task], on_start: Optional[Callable[[Task], None]] = None
     ) -> Iterator[Outcome]:
-        raise NotImplementedError
+        """Run `tasks` (calling on_start(task) as each starts) and yield their Outcomes as they
+        finish."""
 
-    def close(self) -> None:
-        pass
+    def close(self) -> None:  # noqa: B027 - nothing to release unless a subclass holds workers
+        return None
 
     def __enter__(self):
         return self
