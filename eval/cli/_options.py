@@ -12,7 +12,8 @@ DEFAULT_OUT = "experiments"
 FORMATS = {"md": "markdown", "markdown": "markdown", "latex": "latex", "csv": "csv"}
 
 
-def parse_scenes(text):
+def parse_names(text):
+    """A comma-separated list of names (None for an empty one: all of them)."""
     return None if not text else [s.strip() for s in text.split(",") if s.strip()]
 
 
@@ -48,6 +49,12 @@ out_opt = click.option(
     help="Experiment root (the same as --root of `table` and `export`; --out is its older name): "
     "clips in ROOT/clips/<setting>/<scene>, runs in ROOT/runs/<suite>/<scene>/<row>, figures in "
     "ROOT/figures/<suite>. One ROOT per preset.",
+)
+rows_opt = click.option(
+    "--rows",
+    default=None,
+    help="Comma-separated subset of the suite's rows (default: all of them), e.g. the full "
+    "method and the calibration rows before the ablations.",
 )
 scenes_opt = click.option(
     "--scenes",

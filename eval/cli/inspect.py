@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from eval.cli._options import out_opt, parse_scenes, read_csv_opt, runs_clip_opt, scenes_opt
+from eval.cli._options import out_opt, parse_names, read_csv_opt, runs_clip_opt, scenes_opt
 from eval.inspect.pairs import DEFAULT_METRICS as DEFAULT_PAIR_METRICS
 from m4dgs.core import io as mio
 
@@ -425,7 +425,7 @@ def region_pairs(
     rows = [n.strip() for n in row_names.split(",") if n.strip()]
     base_spec = _against_spec(against)
     kw = dict(
-        scenes=parse_scenes(scenes),
+        scenes=parse_names(scenes),
         seeds=seeds,
         domain=domain,
         bright_above=bright_above,

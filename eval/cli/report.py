@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from eval.cli._options import DEFAULT_OUT, found_seeds_opt, parse_scenes, scenes_opt
+from eval.cli._options import DEFAULT_OUT, found_seeds_opt, parse_names, scenes_opt
 from eval.experiments.collect import collect_runs_dir, collect_suite
 from eval.records.suite_data import build_tables, compact_tables
 from m4dgs.core import io as mio
@@ -129,7 +129,7 @@ def table(target, out, fmt, columns, out_file, scenes, seeds, no_figures, figure
                 "(`m4dgs-eval suites`)"
             )
         s = load_eval_suite(target)
-        entries = collect_suite(target, out, parse_scenes(scenes), seeds=seeds)
+        entries = collect_suite(target, out, parse_names(scenes), seeds=seeds)
         defs, reference = s.tables, s.reference
         fig_dir = Path(figures_dir) if figures_dir else Path(out) / "figures" / s.name
         if not any(e["metrics"] for e in entries):

@@ -18,8 +18,9 @@ from eval.cli._options import (
     no_retry_failed_opt,
     no_share_opt,
     out_opt,
-    parse_scenes,
+    parse_names,
     preset_opt,
+    rows_opt,
     runs_csv_opt,
     scenes_opt,
 )
@@ -64,6 +65,7 @@ def suites():
 @preset_opt
 @jobs_opt
 @scenes_opt
+@rows_opt
 @click.option(
     "--seeds",
     default=1,
@@ -99,6 +101,7 @@ def run(
     preset,
     jobs,
     scenes,
+    rows,
     seeds,
     force,
     list_jobs,
@@ -121,11 +124,12 @@ def run(
                 suite,
                 out,
                 preset,
-                parse_scenes(scenes),
+                parse_names(scenes),
                 lpips_weights=lpips_weights,
                 device=None if device == "auto" else device,
                 seeds=seeds,
                 share=not no_share,
+                rows=parse_names(rows),
             ),
             nl=False,
         )
@@ -136,7 +140,7 @@ def run(
             out,
             preset,
             jobs=jobs,
-            scenes=parse_scenes(scenes),
+            scenes=parse_names(scenes),
             force=force,
             lpips_weights=lpips_weights,
             device=device,
@@ -147,6 +151,7 @@ def run(
             fail_fast=fail_fast,
             retry_failed=not no_retry_failed,
             executor=ex,
+            rows=parse_names(rows),
         )
     for r in res:
         click.echo(json.dumps(r))
@@ -300,7 +305,7 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
         suites,
         out,
         csv_path,
-        parse_scenes(scenes),
+        parse_names(scenes),
         seeds,
         log=lambda s: click.echo(s, err=True),
         add_missing=add_missing,

@@ -181,10 +181,16 @@ def _suite_ref(suite) -> tuple:
 
 
 def job_list(
-    suite, out, preset: str = "small", scenes: Optional[Sequence[str]] = None, seeds: int = 1
+    suite,
+    out,
+    preset: str = "small",
+    scenes: Optional[Sequence[str]] = None,
+    seeds: int = 1,
+    rows: Optional[Sequence[str]] = None,
 ) -> List[Job]:
     """Every job of a suite for trainer seeds 0 .. seeds-1: seed by seed, each ordered by clip
-    setting, scene, row (seeds=1 is the job list before seeds existed)."""
+    setting, scene, row (seeds=1 is the job list before seeds existed). scenes / rows: only these
+    scenes / rows of the suite (a name it lacks is a ValueError)."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r} (known: {PRESETS})")
     if int(seeds) < 1:
@@ -195,15 +201,21 @@ def job_list(
     if scenes is not None:
         unknown = sorted(set(scenes) - set(names))
         if unknown:
-            raise ValueError(f"suite {s.name!r} has no scene(s) {unknown} (it has {names})")
+            raise InputError(f"suite {s.name!r} has no scene(s) {unknown} (it has {names})")
         names = [n for n in names if n in scenes]
+    if rows is not None:
+        unknown = sorted(set(rows) - {r.name for r in s.rows})
+        if unknown:
+            raise InputError(
+                f"suite {s.name!r} has no row(s) {unknown} (it has {[r.name for r in s.rows]})"
+            )
     jobs = []
     for seed in range(int(seeds)):
         for key, setting in s.clips.items():
             sid = setting.setting_id(s.scenes)
             for scene in names:
                 for r in s.rows:
-                    if r.clip != key:
+                    if r.clip != key or (rows is not None and r.name not in rows):
                         continue
                     ov = dict(r.overrides)
                     if seed:
@@ -442,6 +454,7 @@ def run_suite(
     on_result: Optional[Callable[[Job, dict], None]] = None,
     retry_failed: bool = True,
     executor=None,
+    rows: Optional[Sequence[str]] = None,
 ) -> List[dict]:
     """Make every missing clip, then train and score every (scene, row, seed) of a suite; resumable.
 
@@ -458,11 +471,12 @@ def run_suite(
     does (torch 1, the compiled kernels all of them); jobs = 1 spends every CPU that way in this
     process while it trains. executor: where the clips and jobs run instead (an open
     eval.experiments.executors.Executor, e.g. Ray or Slurm; `jobs` is then unused, and the caller
-    closes it); outside this process the driver prints a progress line after each job. Returns
+    closes it); outside this process the driver prints a progress line after each job. rows: only
+    these rows (e.g. the full method and the calibration rows first, the rest later). Returns
     the per-job results (run_job) in job order; a job that failed has an "error" entry instead of
     metrics (and the jobs of a clip that failed to be made are not started), unless fail_fast,
     which raises the first failure."""
-    every = job_list(suite, out, preset, scenes, seeds)
+    every = job_list(suite, out, preset, scenes, seeds, rows)
     recorded = {j.id for j in every if skip is not None and skip(j)}
     kept: Dict[str, str] = {}  # job id -> error of its last attempt, not retried
     if not retry_failed:
@@ -611,11 +625,12 @@ def list_jobs_jsonl(
     device=None,
     seeds: int = 1,
     share: bool = True,
+    rows=None,
 ) -> str:
     """The job list as JSON lines (one job per line, with its `python -m eval job ...` command)."""
     return "".join(
         json.dumps(j.to_json(lpips_weights=lpips_weights, device=device, share=share)) + "\n"
-        for j in job_list(suite, out, preset, scenes, seeds)
+        for j in job_list(suite, out, preset, scenes, seeds, rows)
     )
 
 

@@ -94,6 +94,21 @@ def test_job_list_covers_scenes_rows_and_seeds(tmp_path):
         job_list("tiny", tmp_path, "huge")
 
 
+def test_job_list_rows_subset(tmp_path):
+    """--rows keeps the named rows of every scene and seed, in the suite's order; a row the suite
+    lacks is named in the error, with the rows it has."""
+    s = load_eval_suite("tiny")
+    names = [r.name for r in s.rows]
+    pick = [names[-1], names[0]]
+    two = job_list("tiny", tmp_path, "tiny", seeds=2, rows=pick)
+    every = job_list("tiny", tmp_path, "tiny", seeds=2)
+    assert [j.id for j in two] == [j.id for j in every if j.row in pick]
+    assert {j.row for j in two} == set(pick) and {j.seed for j in two} == {0, 1}
+    with pytest.raises(ValueError, match="no-such-row") as e:
+        job_list("tiny", tmp_path, "tiny", rows=["no-such-row"])
+    assert names[0] in str(e.value)
+
+
 def test_resolve_clip_dir(tmp_path):
     run, clip = tmp_path / "run", tmp_path / "clip"
     run.mkdir()
@@ -107,3 +122,19 @@ def test_resolve_clip_dir(tmp_path):
     assert resolve_clip_dir(run).resolve() == clip.resolve()
     (run / "run.json").write_text(json.dumps({"clip": str(clip)}))
     assert resolve_clip_dir(run) == clip
+
+
+def test_suite_run_rows_option_filters_the_job_list(tmp_path):
+    from click.testing import CliRunner
+
+    from eval.cli import main
+
+    rows = [r.name for r in load_eval_suite("tiny").rows]
+    args = ["suite", "run", "tiny", "--root", str(tmp_path), "--preset", "tiny", "--list-jobs"]
+    r = CliRunner().invoke(main, args + ["--rows", f"{rows[0]}, {rows[-1]}"])
+    assert r.exit_code == 0, r.output
+    got = [json.loads(line)["row"] for line in r.output.splitlines()]
+    n_scenes = len({j.scene for j in job_list("tiny", tmp_path, "tiny")})
+    assert got == [rows[0], rows[-1]] * n_scenes
+    r = CliRunner().invoke(main, args + ["--rows", "nope"])
+    assert r.exit_code != 0 and "nope" in r.output
