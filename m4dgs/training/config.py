@@ -566,8 +566,13 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
                 f"config key '{key}': {value!r} is not a value (a number, true/false, a word, "
                 "or a YAML list such as [1, 2])"
             ) from None
-        if base is float and isinstance(value, str) and text.lower() in ("nan", "inf", "-inf"):
-            value = float(text)  # Python's spelling: the range check names the key
+        if base in (float, int) and isinstance(value, str):
+            # YAML 1.1 reads 2e-5 (no dot) and nan / inf as words; Python's float() reads them as
+            # numbers, as a user typing --set ...=2e-5 means (the range check names the key)
+            try:
+                value = float(text)
+            except ValueError:
+                pass
     if value is None:
         if optional or base is Any:
             return None

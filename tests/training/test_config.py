@@ -302,3 +302,27 @@ def test_every_preset_and_variant_is_in_range():
             config.validate(variant_config(p, v))  # no error
     # a variant without stage 1 has stage1.iterations = 0, which is allowed there
     assert variant_config("small", "world-only").stage1.iterations == 0
+
+
+@pytest.mark.parametrize(
+    "key, text, expected",
+    [
+        ("stage1.densify.grad_threshold", "2e-5", 2e-5),  # YAML 1.1 reads this as a word
+        ("stage1.densify.grad_threshold", "2.0e-5", 2e-5),
+        ("stage2.loss.lambda_tlr", "1E-2", 0.01),
+        ("stage1.iterations", "1e3", 1000),
+        ("stage1.loss.lambda_dep", " 0.5 ", 0.5),
+    ],
+)
+def test_numbers_in_exponent_notation_are_numbers(key, text, expected):
+    """--set KEY=2e-5 (and a YAML config's `2e-5`) is the number a user means, not a word."""
+    cfg = apply_overrides(preset("tiny"), {key: text})
+    obj = cfg
+    for part in key.split("."):
+        obj = getattr(obj, part)
+    assert obj == pytest.approx(expected) and type(obj) is type(expected)
+
+
+def test_a_word_for_a_number_still_names_the_key():
+    with pytest.raises(ValueError, match="stage1.densify.grad_threshold"):
+        apply_overrides(preset("tiny"), {"stage1.densify.grad_threshold": "small"})
