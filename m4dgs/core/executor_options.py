@@ -6,6 +6,8 @@ EXECUTOR_OPTS, and turns them into an executor with make_executor_from."""
 
 from __future__ import annotations
 
+from typing import Optional
+
 import click
 
 EXECUTOR_OPTS = (
@@ -23,12 +25,13 @@ EXECUTOR_OPTS = (
 )
 
 
-def executor_options(*, where: str, cpus: str, gpus: str, task: str = "job"):
+def executor_options(*, where: str, cpus: str, gpus: Optional[str], task: str = "job"):
     """A decorator adding --executor and the options of each executor to a click command.
 
     where: help of --executor (what runs where); cpus, gpus: help of --cpus-per-job and
-    --gpus-per-job in the command's terms; task: what one task is called in the other options'
-    help ("job", "render task")."""
+    --gpus-per-job in the command's terms (gpus None: no --gpus-per-job, the command decides a
+    task's GPUs itself); task: what one task is called in the other options' help ("job",
+    "render task")."""
 
     def decorate(f):
         opts = [
@@ -42,7 +45,9 @@ def executor_options(*, where: str, cpus: str, gpus: str, task: str = "job"):
             click.option("--cpus-per-job", type=click.IntRange(min=1), default=None, help=cpus),
             click.option(
                 "--gpus-per-job", type=click.IntRange(min=0, max=1), default=None, help=gpus
-            ),
+            )
+            if gpus is not None
+            else None,
             click.option(
                 "--address",
                 default=None,
@@ -91,7 +96,8 @@ def executor_options(*, where: str, cpus: str, gpus: str, task: str = "job"):
             ),
         ]
         for o in reversed(opts):
-            f = o(f)
+            if o is not None:
+                f = o(f)
         return f
 
     return decorate
@@ -104,13 +110,13 @@ def make_executor_from(opts: dict, jobs: int, device: str):
     from m4dgs.core.errors import InputError
     from m4dgs.core.executors import make_executor
 
-    kw = {k: opts[k] for k in EXECUTOR_OPTS if k != "executor"}
+    kw = {k: opts.get(k) for k in EXECUTOR_OPTS if k != "executor"}
     try:
         return make_executor(
             opts["executor"],
             jobs=jobs,
             device=device,
-            dashboard=kw.pop("ray_dashboard"),
+            dashboard=bool(kw.pop("ray_dashboard")),
             **kw,
         )
     except InputError as e:
