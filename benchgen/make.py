@@ -90,6 +90,21 @@ from .scene import load_scene
 # statistics (clip.json gt.camera_motion); the training and test frames are the same as version 6's
 GENERATOR_VERSION = 7
 
+#: the fields of a finished clip's JSON files that measure wall-clock time, by file (paths of keys):
+#: the only bytes in which two makes of the same clip on one machine differ, wherever its frames
+#: rendered (docs/cluster.md); timing_s_per_frame.render counts the frames render tasks made too
+WALL_CLOCK_FIELDS = {
+    "clip.json": (
+        ("generator", "seconds"),
+        ("gt", "timing_s_per_frame", "render"),
+        ("gt", "timing_s_per_frame", "ray_cast"),
+    ),
+    ".benchgen/state.json": (
+        ("gt_notes", "timing_s_per_frame", "render"),
+        ("gt_notes", "timing_s_per_frame", "ray_cast"),
+    ),
+}
+
 #: where the unit-scale HDR frames wait for the clip's scale (removed when the clip is finished)
 UNIT_HDR_DIR = (".benchgen", "hdr_unit")
 #: what step 2 writes besides the unit-scale HDR frames (copied when a finished clip's render is
