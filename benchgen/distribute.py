@@ -46,15 +46,15 @@ STATS_DIR = "stats"
 class RenderSpec:
     """One render task: `frames` of one clip.
 
-    kind "frames": the unit-scale HDR frames g of `frames` into CLIP/.benchgen/hdr_unit/;
-    kind "views": every held-out view (the spec's camera.views) of the test frames `frames` into
-    CLIP/.benchgen/hdr_unit/views/<view>/. render: RenderSettings fields with the clip's light
+    kind "frames": the unit-scale HDR frames g of `frames` into `hdr_dir` (the clip's
+    .benchgen/hdr_unit/); kind "views": every held-out view (the spec's camera.views) of the test
+    frames `frames` into hdr_dir/views/<view>/. render: RenderSettings fields with the clip's light
     selection resolved; variant: the Mitsuba variant to render with; spec_sha256: the scene spec's
     bytes as the driver read them (a worker that sees another file refuses); threads: Mitsuba's
     threads in the task."""
 
     name: str
-    clip: str
+    hdr_dir: str
     scene_path: str
     spec_sha256: str
     width: int
@@ -83,19 +83,14 @@ def file_sha256(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def unit_dir(clip) -> Path:
-    from .make import UNIT_HDR_DIR
-
-    return Path(clip).joinpath(*UNIT_HDR_DIR)
-
-
-def read_frame_stats(clip, frames: Sequence[int]) -> Dict[int, dict]:
-    """{g: {"extra_spp", "seconds"}} of the frames of `frames` that a render task rendered (their
-    stats JSON is there; frames rendered by make_clip itself have none)."""
+def read_frame_stats(hdr_dir, frames: Sequence[int]) -> Dict[int, dict]:
+    """{g: {"extra_spp", "seconds"}} of the frames of `frames` that a render task rendered into
+    `hdr_dir` (a clip's .benchgen/hdr_unit: their stats JSON is there; frames rendered by
+    make_clip itself have none)."""
     from m4dgs.clip import frame_name
     from m4dgs.core import io as mio
 
-    d = unit_dir(clip) / STATS_DIR
+    d = Path(hdr_dir) / STATS_DIR
     out = {}
     for g in frames:
         p = d / frame_name(int(g), "json")
@@ -153,7 +148,7 @@ def _render_frames(spec: RenderSpec) -> List[int]:
     from m4dgs.clip import frame_name
     from m4dgs.core import io as mio
 
-    d = unit_dir(spec.clip)
+    d = Path(spec.hdr_dir)
     todo = [g for g in spec.frames if not (d / frame_name(g, "exr")).exists()]
     if not todo:
         return []
@@ -178,10 +173,9 @@ def _render_views(spec: RenderSpec) -> List[int]:
     from m4dgs.clip import frame_name
     from m4dgs.core import io as mio
 
-    from .make import view_seed
-    from .views import pivot_distance, placement_problem, view_c2w, view_state
+    from .views import pivot_distance, placement_problem, view_c2w, view_seed, view_state
 
-    d = unit_dir(spec.clip) / "views"
+    d = Path(spec.hdr_dir) / "views"
     spec_views = None
     done = []
     scene = r = None
@@ -254,15 +248,15 @@ def render_specs(
     return results
 
 
-def clip_specs(job, frames_per_task: int, threads: Optional[int]) -> List[RenderSpec]:
-    """The render tasks of a planned clip (benchgen.make._Job after step 1): its missing unit-scale
-    frames (none once the ground truth is done) and its missing views (none once they are done),
-    in chunks of `frames_per_task`."""
+def clip_specs(job, hdr_dir, frames_per_task: int, threads: Optional[int]) -> List[RenderSpec]:
+    """The render tasks of a planned clip (benchgen.make._Job after step 1) whose unit-scale frames
+    go to `hdr_dir`: its missing frames (none once the ground truth is done) and its missing views
+    (none once they are done), in chunks of `frames_per_task`."""
     from m4dgs.clip import frame_name
 
     from .render import pick_variant
 
-    state, d = job.state, unit_dir(job.out)
+    state, d = job.state, Path(hdr_dir)
     frames = (
         []
         if "gt_notes" in state
@@ -279,7 +273,7 @@ def clip_specs(job, frames_per_task: int, threads: Optional[int]) -> List[Render
     if not frames and not tests:
         return []
     base = dict(
-        clip=str(job.out),
+        hdr_dir=str(d.resolve()),
         scene_path=str(job.scene_path.resolve()),
         spec_sha256=file_sha256(job.scene_path),
         width=job.W,

@@ -313,7 +313,9 @@ def plan_clip(
     _reuse_render(job, render_from)
     _choose_light_selection(job)  # 1
     job.save_state()
-    return clip_specs(job, frames_per_task or DEFAULT_FRAMES_PER_TASK, threads)
+    return clip_specs(
+        job, job.out.joinpath(*UNIT_HDR_DIR), frames_per_task or DEFAULT_FRAMES_PER_TASK, threads
+    )
 
 
 def _prepare_job(scene_path, out_dir, preset, settings, priors, seed, crf, max_frames, spp) -> _Job:
@@ -555,21 +557,9 @@ def _render_ground_truth(job: _Job, writer: ClipWriter, progress: bool) -> None:
         num_dynamic=job.preset.track_dynamic,
         hdr_dir=UNIT_HDR_DIR,
         # frames that render tasks made (benchgen.distribute) count as rendered here
-        rendered=read_frame_stats(job.out, job.frames),
+        rendered=read_frame_stats(job.out.joinpath(*UNIT_HDR_DIR), job.frames),
     )
     job.save_state()
-
-
-#: seeds of the views' renders: apart from the frames' own (settings.seed + g), so that a view's
-#: noise is not the test frame's
-VIEW_SEED_OFFSET = 7_000_003
-
-
-def view_seed(base_seed: int, i: int, g: int) -> int:
-    """Sampler seed of view i (its index in the spec's camera.views) of test frame g: per frame
-    and view, so that the views render the same wherever and in whatever order they are
-    rendered."""
-    return int(base_seed) + VIEW_SEED_OFFSET * (int(i) + 1) + int(g)
 
 
 def _render_views(job: _Job, writer: ClipWriter, progress: bool) -> None:
@@ -587,6 +577,7 @@ def _render_views(job: _Job, writer: ClipWriter, progress: bool) -> None:
         pivot_distance,
         placement_problem,
         view_c2w,
+        view_seed,
         view_state,
     )
 
