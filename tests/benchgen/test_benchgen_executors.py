@@ -132,6 +132,35 @@ def test_frame_chunks():
     assert frame_chunks([], 3) == []
 
 
+def test_a_failed_render_task_is_named_after_the_others_finish(tmp_path):
+    """A task whose worker sees another scene spec than the driver's fails naming the file; the
+    command's error names every failed task (and keeps what the others rendered)."""
+    from benchgen.distribute import RenderSpec, RenderTaskError, render_specs
+    from benchgen.suite import builtin_scenes_dir
+    from m4dgs.core.executors import LocalExecutor
+
+    spec = RenderSpec(
+        name="render:x:frames:0-2",
+        hdr_dir=str(tmp_path / "hdr"),
+        scene_path=str(builtin_scenes_dir() / f"{SCENE}.yaml"),
+        spec_sha256="0" * 64,  # not the file's
+        width=72,
+        height=40,
+        render={},
+        variant="scalar_rgb",
+        kind="frames",
+        frames=(0, 1, 2),
+    )
+    lines = []
+    with LocalExecutor(jobs=1, threads=1) as ex, pytest.raises(RenderTaskError) as e:
+        render_specs(ex, [spec], log=lines.append)
+    msg = str(e.value)
+    assert "1 of 1 render task(s) failed" in msg and "render:x:frames:0-2: " in msg
+    assert "differs from the driver's" in msg and f"{SCENE}.yaml" in msg
+    assert "1/1 render tasks: 0 done, 0 running, 1 failed" in lines[-1]
+    assert not (tmp_path / "hdr").exists()
+
+
 # ----------------------------------------------------------------------------------------- Ray
 def test_ray_cluster_makes_the_local_bytes(local_clip, ray_cluster, tmp_path):
     root = tmp_path / "ray"
