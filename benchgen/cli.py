@@ -19,6 +19,7 @@ import click
 
 from benchgen.exposure import SCHEDULES
 from m4dgs.core.errors import InputError, ReportingGroup
+from m4dgs.core.executor_options import executor_options
 from m4dgs.footage_options import prior_file_options
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -166,6 +167,25 @@ class PriorsParam(click.ParamType):
     "version) takes its ground truth and HDR frames instead of rendering again, e.g. the clips "
     "of another --crf, --schedule or --priors. Without it, clips under --out are reused.",
 )
+@executor_options(
+    where="Where the HDR frames render: local (this process, or --jobs clip processes), ray "
+    "(frame-range render tasks on a Ray cluster: --address, or one started on this machine) or "
+    "slurm (the render tasks as job arrays through submitit); this process then makes every clip "
+    "from the rendered frames, and the clips are the same bytes as local ones. docs/cluster.md.",
+    cpus="ray and slurm: CPU threads of one render task (default 2): Ray's num_cpus, Slurm's "
+    "--cpus-per-task and Mitsuba's threads in the task. A task also asks for one GPU when "
+    "BENCHGEN_MI_VARIANT names a CUDA variant of Mitsuba (e.g. cuda_ad_rgb).",
+    gpus=None,
+    task="render task",
+)
+@click.option(
+    "--frames-per-task",
+    type=click.IntRange(min=1),
+    default=None,
+    help="ray and slurm: frames of one render task (default 8; the held-out views go in tasks of "
+    "as many test frames). Smaller tasks spread a clip over more workers; each task loads the "
+    "scene once.",
+)
 def make(
     suite,
     scenes,
@@ -183,8 +203,12 @@ def make(
     spp,
     allow_misplaced,
     reuse_root,
+    frames_per_task,
+    **executor,
 ):
-    """Generate the clips of a suite (resumable: finished clips and frames are skipped)."""
+    """Generate the clips of a suite (resumable: finished clips and frames are skipped). With
+    --executor ray or slurm the HDR frames and views render as tasks on a cluster and this process
+    makes the clips from them (docs/cluster.md)."""
     from m4dgs.core.crf import CLIP_CRFS
 
     from .make import make_suite
@@ -197,6 +221,7 @@ def make(
 
     from .make import PlacementError
 
+    ex = _render_executor(executor, jobs, frames_per_task)
     try:
         paths = make_suite(
             suite,
@@ -215,11 +240,48 @@ def make(
             crf=crf,
             allow_misplaced=allow_misplaced,
             reuse_root=reuse_root,
+            executor=ex,
+            frames_per_task=frames_per_task,
         )
     except PlacementError as e:
         raise click.ClickException(str(e)) from None
+    finally:
+        if ex is not None:
+            ex.close()
     for p in paths:
         click.echo(str(p))
+
+
+def _render_executor(opts: dict, jobs: int, frames_per_task):
+    """The executor of `benchgen make`'s --executor options, None for local (the clips render in
+    this process or in --jobs clip processes, as they always did); a misplaced option is a
+    click.UsageError naming it."""
+    from m4dgs.core.executor_options import make_executor_from
+
+    if opts["executor"] == "local":
+        local_only = [
+            o
+            for o, v in (
+                ("--cpus-per-job", opts["cpus_per_job"]),
+                ("--frames-per-task", frames_per_task),
+            )
+            if v is not None
+        ]
+        if local_only:
+            raise click.UsageError(
+                f"{', '.join(local_only)} appl{'ies' if len(local_only) == 1 else 'y'} to "
+                "--executor ray and slurm (render tasks); the local executor renders each clip "
+                "in one process (--jobs clips at once)"
+            )
+    # a task renders on the GPU when the Mitsuba variant is a CUDA one (benchgen.render)
+    cuda = os.environ.get("BENCHGEN_MI_VARIANT", "").startswith("cuda")
+    local = opts["executor"] == "local"
+    # checks the misplaced options (a local --jobs 0 stays what it was: one clip at a time)
+    ex = make_executor_from(opts, max(1, jobs) if local else jobs, "cuda" if cuda else "cpu")
+    if local:
+        ex.close()
+        return None
+    return ex
 
 
 @main.command("from-hdr")

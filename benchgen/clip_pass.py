@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import List, Optional
+from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -46,6 +46,7 @@ def render_clip_gt(
     num_ref: int = 4,
     rtol: float = DEFAULT_DEPTH_RTOL,
     hdr_dir=("gt", "hdr"),
+    rendered: Optional[Dict[int, dict]] = None,
 ) -> dict:
     """Render and write the ground truth of a clip through a m4dgs.clip.ClipWriter.
 
@@ -58,7 +59,11 @@ def render_clip_gt(
     from two seeds of the first frame, hdr_tae_floor (HDR-TAE of the ground-truth training sequence
     with its exact flow and visibility) and hdr_tae_floor_interior (the same without occlusion-edge
     pixels), render settings, variant and timings. Does not call out.finalize() (the caller owns
-    clip.json)."""
+    clip.json).
+
+    rendered: {g: {"extra_spp", "seconds"}} of the frames in `hdr_dir` that a render task made
+    (benchgen.distribute): they count in the notes' adaptive samples and render time as if this
+    pass had rendered them, so that the notes do not depend on where the frames were rendered."""
     from .groundtruth import default_reference_indices
 
     settings = RenderSettings.resolve(preset)
@@ -75,7 +80,7 @@ def render_clip_gt(
         scene, renderer, first, frames, refs, num_grid, num_dynamic, settings.seed
     )
     # pass 2: every frame once
-    gt = _GroundTruthPass(renderer, out, queries, train, rtol, hdr_dir)
+    gt = _GroundTruthPass(renderer, out, queries, train, rtol, hdr_dir, rendered)
     for g in frame_progress(frames, scene, progress):
         gt.add_frame(g, first if g == frames[0] else scene.frame(g, width, height), g == frames[0])
     gt.write(frames)
@@ -127,8 +132,9 @@ class _GroundTruthPass:
     clip), depth and dynamic mask, track positions, and for consecutive training frames the exact
     flow and the HDR-TAE floor terms; then the clip files and the notes."""
 
-    def __init__(self, renderer, out, queries, train, rtol, hdr_dir):
+    def __init__(self, renderer, out, queries, train, rtol, hdr_dir, rendered=None):
         self.renderer, self.out, self.q = renderer, out, queries
+        self.rendered = dict(rendered or {})  # frames a render task made: their stats
         self.train, self.rtol, self.hdr_dir = set(train), rtol, tuple(hdr_dir)
         self.cams, self.tr_uv, self.tr_p3, self.tr_vis = [], [], [], []
         self.pairs, self.flows, self.valids = [], [], []
@@ -164,11 +170,18 @@ class _GroundTruthPass:
             self.prev = (g, st, cast, hdr)
 
     def _hdr(self, g: int, need: bool) -> Optional[np.ndarray]:
-        """The frame's HDR: rendered and written, or read back from a resumed clip when `need`."""
+        """The frame's HDR: rendered and written, or read back from a resumed clip (or a render
+        task, whose stats count as if rendered here) when `need`."""
         from m4dgs.core import io as mio
 
         rel = self.hdr_dir + (frame_name(g, "exr"),)
         if self.out.exists(*rel):
+            stats = self.rendered.get(g)
+            if stats is not None:
+                self.t_render += float(stats["seconds"])
+                self.n_render += 1
+                if stats.get("extra_spp") is not None:
+                    self.extra_spp.append(float(stats["extra_spp"]))
             return mio.read_exr(self.out.root.joinpath(*rel)).astype(np.float32) if need else None
         t0 = time.perf_counter()
         hdr = self.renderer.render_hdr()

@@ -90,6 +90,21 @@ from .scene import load_scene
 # statistics (clip.json gt.camera_motion); the training and test frames are the same as version 6's
 GENERATOR_VERSION = 7
 
+#: the fields of a finished clip's JSON files that measure wall-clock time, by file (paths of keys):
+#: the only bytes in which two makes of the same clip on one machine differ, wherever its frames
+#: rendered (docs/cluster.md); timing_s_per_frame.render counts the frames render tasks made too
+WALL_CLOCK_FIELDS = {
+    "clip.json": (
+        ("generator", "seconds"),
+        ("gt", "timing_s_per_frame", "render"),
+        ("gt", "timing_s_per_frame", "ray_cast"),
+    ),
+    ".benchgen/state.json": (
+        ("gt_notes", "timing_s_per_frame", "render"),
+        ("gt_notes", "timing_s_per_frame", "ray_cast"),
+    ),
+}
+
 #: where the unit-scale HDR frames wait for the clip's scale (removed when the clip is finished)
 UNIT_HDR_DIR = (".benchgen", "hdr_unit")
 #: what step 2 writes besides the unit-scale HDR frames (copied when a finished clip's render is
@@ -261,6 +276,46 @@ def make_clip(
     meta.generator["host"] = {**host_info(), **renderer_info()}
     _finish(job, writer, meta, targets, allow_misplaced)  # 6
     return job.out
+
+
+def plan_clip(
+    scene_path,
+    out_dir,
+    preset: str = "small",
+    settings: Optional[ExposureSettings] = None,
+    priors: str = "realistic",
+    seed: int = 0,
+    crf: str = "hdrnerf",
+    force: bool = False,
+    max_frames: Optional[int] = None,
+    spp: Optional[int] = None,
+    render_from: Sequence = (),
+    frames_per_task: Optional[int] = None,
+    threads: Optional[int] = None,
+) -> list:
+    """What make_clip does before its renders, for `benchgen make --executor ray|slurm`: the
+    finished-clip check, the resume state (started over under `force` as make_clip does), a reused
+    render and the light selection (step 1), kept in the resume state; returns the render tasks
+    (benchgen.distribute.RenderSpec) of the frames and views still to render, [] for a finished
+    clip. make_clip with the same arguments (force False) then makes the clip from their frames.
+
+    frames_per_task: frames of one task (default benchgen.distribute.DEFAULT_FRAMES_PER_TASK);
+    threads: Mitsuba's threads in each task."""
+    from .distribute import DEFAULT_FRAMES_PER_TASK, clip_specs
+
+    job = _prepare_job(scene_path, out_dir, preset, settings, priors, seed, crf, max_frames, spp)
+    try:
+        if _finished_clip(job, force, allow_misplaced=False):
+            return []
+    except PlacementError:
+        return []  # finished: make_clip reports the miss
+    _open_state(job, force)
+    _reuse_render(job, render_from)
+    _choose_light_selection(job)  # 1
+    job.save_state()
+    return clip_specs(
+        job, job.out.joinpath(*UNIT_HDR_DIR), frames_per_task or DEFAULT_FRAMES_PER_TASK, threads
+    )
 
 
 def _prepare_job(scene_path, out_dir, preset, settings, priors, seed, crf, max_frames, spp) -> _Job:
@@ -486,6 +541,7 @@ def _render_ground_truth(job: _Job, writer: ClipWriter, progress: bool) -> None:
     """Step 2: ground truth at the scene's own (unit) emitter scale; the HDR frames go to
     .benchgen/hdr_unit until the scale is known."""
     from .clip_pass import render_clip_gt
+    from .distribute import read_frame_stats
 
     if "gt_notes" in job.state:
         return
@@ -500,13 +556,10 @@ def _render_ground_truth(job: _Job, writer: ClipWriter, progress: bool) -> None:
         num_grid=job.preset.track_grid,
         num_dynamic=job.preset.track_dynamic,
         hdr_dir=UNIT_HDR_DIR,
+        # frames that render tasks made (benchgen.distribute) count as rendered here
+        rendered=read_frame_stats(job.out.joinpath(*UNIT_HDR_DIR), job.frames),
     )
     job.save_state()
-
-
-#: seeds of the views' renders: apart from the frames' own (settings.seed + g), so that a view's
-#: noise is not the test frame's
-VIEW_SEED_OFFSET = 7_000_003
 
 
 def _render_views(job: _Job, writer: ClipWriter, progress: bool) -> None:
@@ -524,6 +577,7 @@ def _render_views(job: _Job, writer: ClipWriter, progress: bool) -> None:
         pivot_distance,
         placement_problem,
         view_c2w,
+        view_seed,
         view_state,
     )
 
@@ -576,7 +630,7 @@ def _render_views(job: _Job, writer: ClipWriter, progress: bool) -> None:
             notes[name]["covisible"].append(float(covis.sum() / max(cast.hit.sum(), 1)))
             hdr_path = unit / name / frame_name(g, "exr")
             if not hdr_path.exists():
-                hdr = caster.render_hdr(seed=job.render.seed + VIEW_SEED_OFFSET * (i + 1) + g)
+                hdr = caster.render_hdr(seed=view_seed(job.render.seed, i, g))
                 mio.write_exr(hdr_path, hdr)
             writer.write_view_depth(name, g, cast.depth)
             writer.write_view_mask(name, "masks/dynamic", g, dynamic_mask(cast.instance, vst))
@@ -971,9 +1025,18 @@ def make_suite(
     crf: str = "hdrnerf",
     allow_misplaced: bool = False,
     reuse_root=None,
+    executor=None,
+    frames_per_task: Optional[int] = None,
+    log=None,
 ) -> List[Path]:
     """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in
     parallel processes.
+
+    executor: an m4dgs.core.executors.Executor (`benchgen make --executor ray|slurm`): every clip
+    is planned first (plan_clip: its light selection, on this process), the HDR frames and views
+    still missing in all clips are rendered as tasks of at most `frames_per_task` frames on the
+    executor (benchgen.distribute.render_specs; `log` gets a line per task), then each clip is
+    made from them here by make_clip, as without an executor. `jobs` must then be 1.
 
     reuse_root: a root of earlier clips (default out_root); a scene's finished clips there
     (reuse_root/<any suite>/<scene>) are offered to make_clip as render_from.
@@ -1011,6 +1074,29 @@ def make_suite(
     kw = dict(
         crf=crf, force=force, spp=spp, allow_misplaced=allow_misplaced or s.placement == "warn"
     )
+    if executor is not None:
+        from .distribute import render_specs
+
+        if jobs != 1:
+            raise ValueError(f"jobs must be 1 with an executor, got {jobs}")
+        specs = []
+        for p, o, rf in jobs_list:
+            specs += plan_clip(
+                p,
+                o,
+                preset,
+                settings,
+                priors,
+                seed,
+                crf=crf,
+                force=force,
+                spp=spp,
+                render_from=rf,
+                frames_per_task=frames_per_task,
+                threads=executor.threads,
+            )
+        render_specs(executor, specs, log)
+        kw["force"] = False  # plan_clip started the forced clips over
     # every clip is made even when an earlier one misses its placement targets; the misses are
     # reported together
     results, misplaced = [], []

@@ -223,6 +223,28 @@ def pick_variant() -> str:
     return variant
 
 
+def use_variant(variant: str) -> str:
+    """Render with `variant` in this process from now on (a render task takes the variant its
+    driver picked, so that a worker never probes and picks another); raises InputError naming it
+    when this machine's Mitsuba does not have it."""
+    global _CHOSEN_VARIANT
+    import mitsuba as mi
+
+    from m4dgs.core.errors import InputError
+
+    if "DRJIT_LIBLLVM_PATH" not in os.environ and os.path.exists(DEFAULT_LIBLLVM):
+        os.environ["DRJIT_LIBLLVM_PATH"] = DEFAULT_LIBLLVM
+    if variant not in mi.variants():
+        raise InputError(
+            f"the Mitsuba variant {variant!r} the clip is rendered with is not installed on this "
+            f"worker (it has {', '.join(mi.variants())})"
+        )
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    _CHOSEN_VARIANT = variant
+    return variant
+
+
 def renderer_info() -> dict:
     """{"mitsuba", "drjit", "oidn", "variant"}: the package versions the renders and the denoiser
     come from, and the Mitsuba variant this process picked (None when it rendered nothing, e.g. a

@@ -45,6 +45,18 @@ MIN_NEAR_FRACTION = 0.05
 MIN_SURFACE_RATIO = 0.5
 
 
+#: seeds of the views' renders: apart from the frames' own (settings.seed + g), so that a view's
+#: noise is not the test frame's
+VIEW_SEED_OFFSET = 7_000_003
+
+
+def view_seed(base_seed: int, i: int, g: int) -> int:
+    """Sampler seed of view i (its index in the spec's camera.views) of test frame g: per frame
+    and view, so that the views render the same wherever and in whatever order they are
+    rendered."""
+    return int(base_seed) + VIEW_SEED_OFFSET * (int(i) + 1) + int(g)
+
+
 def pivot_distance(depth: np.ndarray) -> float:
     """The look-at distance of a frame: the median z-depth of the surface pixels (depth > 0) in the
     central CENTRE_FRACTION of the image, else of all surface pixels; NaN without any. depth [H,

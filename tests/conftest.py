@@ -87,3 +87,15 @@ def short_training():
         "tonemap.pretrain_steps": 10,
         "v2w.scale_refit_steps": 5,
     }
+
+
+@pytest.fixture(scope="module")
+def ray_cluster():
+    """The address of a Ray cluster of three processes on this machine, started for the test
+    module (tests/ray_helpers.py, start_ray_cluster): a head and two worker nodes, one CPU each,
+    127.0.0.1 only, token authentication where this Ray has it; skipped without Ray."""
+    pytest.importorskip("ray")
+    from ray_helpers import start_ray_cluster
+
+    with start_ray_cluster() as address:
+        yield address

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from m4dgs.core.executor_options import executor_options
+
 # Each command imports the modules it runs when it runs: `eval --help` and the listing commands stay
 # free of torch (scoring), the trainer and the renderer stack, and tests can replace the trainer's
 # entry points.
@@ -149,113 +151,13 @@ runs_clip_opt = click.option(
 
 
 # --------------------------------------------------------------------------------------------------
-# where `suite run` and `suite campaign` run their jobs (eval.experiments.executors)
-EXECUTOR_OPTS = (
-    "executor",
-    "cpus_per_job",
-    "gpus_per_job",
-    "address",
-    "max_retries",
-    "ray_dashboard",
-    "ray_temp_dir",
-    "slurm_folder",
-    "slurm_partition",
-    "slurm_time",
-    "slurm_array_parallelism",
+# where `suite run` and `suite campaign` run their jobs (m4dgs.core.executors; the options are
+# shared with `benchgen make`, m4dgs.core.executor_options)
+executor_opts = executor_options(
+    where="Where the clips and jobs run: local (this machine, --jobs workers), ray (a Ray "
+    "cluster: --address, or one started on this machine) or slurm (job arrays through "
+    "submitit). docs/cluster.md.",
+    cpus="CPU threads of one job (default: local cpu_count / --jobs; ray and slurm 2).",
+    gpus="GPUs of one training job, 0 or 1, for ray and slurm (default: 1 with --device "
+    "cuda, else 0); clips take none.",
 )
-
-
-def executor_opts(f):
-    """--executor local|ray|slurm and the options of each; the command receives them as keyword
-    arguments named in EXECUTOR_OPTS (make_executor_from turns them into an executor)."""
-    opts = [
-        click.option(
-            "--executor",
-            type=click.Choice(["local", "ray", "slurm"]),
-            default="local",
-            show_default=True,
-            help="Where the clips and jobs run: local (this machine, --jobs workers), ray (a Ray "
-            "cluster: --address, or one started on this machine) or slurm (job arrays through "
-            "submitit). docs/cluster.md.",
-        ),
-        click.option(
-            "--cpus-per-job",
-            type=click.IntRange(min=1),
-            default=None,
-            help="CPU threads of one job (default: local cpu_count / --jobs; ray and slurm 2).",
-        ),
-        click.option(
-            "--gpus-per-job",
-            type=click.IntRange(min=0, max=1),
-            default=None,
-            help="GPUs of one training job, 0 or 1, for ray and slurm (default: 1 with --device "
-            "cuda, else 0); clips take none.",
-        ),
-        click.option(
-            "--address",
-            default=None,
-            help="Ray: the cluster to connect to ('auto', or HOST:PORT of the head); without it "
-            "a cluster on this machine is started for the command (127.0.0.1 only).",
-        ),
-        click.option(
-            "--max-retries",
-            default=3,
-            show_default=True,
-            type=click.IntRange(min=0),
-            help="Ray: reruns of a job whose worker process died (a job that fails is not rerun).",
-        ),
-        click.option(
-            "--ray-dashboard",
-            is_flag=True,
-            help="Ray, with a cluster started here: start its dashboard (127.0.0.1:8265).",
-        ),
-        click.option(
-            "--ray-temp-dir",
-            default=None,
-            type=click.Path(file_okay=False),
-            help="Ray, with a cluster started here: its temp dir (default: a new one, removed at "
-            "the end).",
-        ),
-        click.option(
-            "--slurm-folder",
-            default=None,
-            type=click.Path(file_okay=False),
-            help="Slurm: folder for the array tasks' logs and submitit's files, on storage every "
-            "node sees (required with --executor slurm).",
-        ),
-        click.option("--slurm-partition", default=None, help="Slurm: the partition."),
-        click.option(
-            "--slurm-time",
-            default=None,
-            type=click.IntRange(min=1),
-            help="Slurm: time limit of one array task in minutes (default 240).",
-        ),
-        click.option(
-            "--slurm-array-parallelism",
-            default=None,
-            type=click.IntRange(min=1),
-            help="Slurm: at most this many array tasks at once (default: Slurm's limit).",
-        ),
-    ]
-    for o in reversed(opts):
-        f = o(f)
-    return f
-
-
-def make_executor_from(opts: dict, jobs: int, device: str):
-    """The executor of the EXECUTOR_OPTS values in `opts` (eval.experiments.executors.make_executor;
-    a misplaced option raises click.UsageError naming it)."""
-    from eval.experiments.executors import make_executor
-    from m4dgs.core.errors import InputError
-
-    kw = {k: opts[k] for k in EXECUTOR_OPTS if k != "executor"}
-    try:
-        return make_executor(
-            opts["executor"],
-            jobs=jobs,
-            device=device,
-            dashboard=kw.pop("ray_dashboard"),
-            **kw,
-        )
-    except InputError as e:
-        raise click.UsageError(str(e)) from None

@@ -14,7 +14,6 @@ from eval.cli._options import (
     found_seeds_opt,
     jobs_opt,
     lpips_opt,
-    make_executor_from,
     no_retry_failed_opt,
     no_share_opt,
     out_opt,
@@ -24,6 +23,7 @@ from eval.cli._options import (
     runs_csv_opt,
     scenes_opt,
 )
+from m4dgs.core.executor_options import make_executor_from
 
 
 @click.group(

@@ -5,7 +5,7 @@ The job list of a suite is (clip setting, scene, row) (eval.suite), times the tr
 `seeds` (0 .. N-1; the clip is the same for every seed). Seed 0 trains into
 OUT/runs/<suite>/<scene>/<row> with the row's config as it is, seed n > 0 into
 OUT/runs/<suite>/<scene>/<row>-seed-<n> with the override `seed` = the row's seed + n. `run_suite`
-works through it on an executor (eval.experiments.executors): locally, with a process pool for
+works through it on an executor (m4dgs.core.executors): locally, with a process pool for
 `jobs > 1`, or on a Ray cluster or Slurm; `job_list` / `run_job` are the same work one job at a
 time (`m4dgs-eval run SUITE --list-jobs` prints one JSON line per job with its `python -m eval job
 ...` command line, for other schedulers; docs/cluster.md).
@@ -44,9 +44,6 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
-
-# defined with the executors; importable from here as before
-from eval.experiments.executors import _worker_init, error_line, pool_context  # noqa: F401
 from eval.records.suite import (
     EvalSuite,
     is_builtin_suite_file,
@@ -55,6 +52,7 @@ from eval.records.suite import (
 )
 from m4dgs.core import io as mio
 from m4dgs.core.errors import InputError, M4DGSError
+from m4dgs.core.executors import error_line
 from m4dgs.core.lock import file_lock
 
 PRESETS = ("tiny", "small", "paper")
@@ -470,7 +468,7 @@ def run_suite(
     of `jobs` workers, each spending cpu_count / jobs threads as m4dgs.core.threads.use_threads
     does (torch 1, the compiled kernels all of them); jobs = 1 spends every CPU that way in this
     process while it trains. executor: where the clips and jobs run instead (an open
-    eval.experiments.executors.Executor, e.g. Ray or Slurm; `jobs` is then unused, and the caller
+    m4dgs.core.executors.Executor, e.g. Ray or Slurm; `jobs` is then unused, and the caller
     closes it); outside this process the driver prints a progress line after each job. rows: only
     these rows (e.g. the full method and the calibration rows first, the rest later). Returns
     the per-job results (run_job) in job order; a job that failed has an "error" entry instead of
@@ -514,7 +512,7 @@ def run_suite(
         say(f"[eval run] FAILED {name}: {r['error']}")
         if not isinstance(exc, M4DGSError):
             say("".join(traceback.format_exception(type(exc), exc, exc.__traceback__)).rstrip())
-        elif getattr(exc, "remote_traceback", None):  # a worker's (eval.experiments.executors)
+        elif getattr(exc, "remote_traceback", None):  # a worker's (m4dgs.core.executors)
             say(exc.remote_traceback.rstrip())
         return r
 
@@ -544,7 +542,7 @@ def run_suite(
         say(f"[eval run] skipped {job.id}: its clip {job.clip_key} could not be made")
         return r
 
-    from eval.experiments.executors import LocalExecutor
+    from m4dgs.core.executors import LocalExecutor
 
     own = executor is None
     ex = LocalExecutor(jobs, device=device) if own else executor
@@ -559,10 +557,10 @@ def run_suite(
 
 
 def _execute(ex, jl, todo, kw, progress, clip_errors, failed, finished, skipped, say, clips_only):
-    """run_suite's work on an executor (eval.experiments.executors): the missing clips (in this
+    """run_suite's work on an executor (m4dgs.core.executors): the missing clips (in this
     process one after another; elsewhere wave by wave, clip_waves), then the jobs, each result
     handed on as it finishes. Returns the clip list when clips_only, else the job results."""
-    from eval.experiments.executors import Progress, Task
+    from m4dgs.core.executors import Progress, Task
 
     inline = ex.inline  # this process: progress bars, and a job counter before each job
     for wave in [todo] if inline else clip_waves(todo):

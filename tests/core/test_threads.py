@@ -117,7 +117,7 @@ def test_run_workers_spawn_for_cuda_and_set_their_threads():
     spends its budget as use_threads does."""
     from concurrent.futures import ProcessPoolExecutor
 
-    from eval.experiments.runner import _worker_init, pool_context
+    from m4dgs.core.executors import _worker_init, pool_context
 
     assert pool_context("cuda").get_start_method() == "spawn"
     assert pool_context("cuda:0").get_start_method() == "spawn"

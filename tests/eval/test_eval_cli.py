@@ -1361,7 +1361,7 @@ def test_campaign_runs_every_step_on_the_executor_it_is_given(tmp_path, fake_tra
     import multiprocessing as mp
 
     from eval.experiments.campaign import run_campaign
-    from eval.experiments.executors import LocalExecutor
+    from m4dgs.core.executors import LocalExecutor
 
     if mp.get_start_method(allow_none=True) not in (None, "fork") or sys.platform != "linux":
         pytest.skip("needs the fork start method to pass the fake trainer to the workers")

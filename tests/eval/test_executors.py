@@ -1,4 +1,4 @@
-"""The executors of the suite runner (eval.experiments.executors): the tiny suite's rows on one tiny
+"""The executors of the suite runner (m4dgs.core.executors): the tiny suite's rows on one tiny
 clip with a short training, run by the local executor, by a Ray cluster of three processes (a head
 and two workers, one CPU each, token authentication, no dashboard) and by submitit's local
 executor, give the same metrics (training on one thread is deterministic); a Ray worker killed in
@@ -10,8 +10,6 @@ import json
 import os
 import shutil
 import signal
-import socket
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -19,9 +17,12 @@ from pathlib import Path
 import pytest
 import yaml
 from click.testing import CliRunner
+from ray_helpers import cmdline, descendants, listening, loopback  # tests/ray_helpers.py
 
 from eval.cli import main
-from eval.experiments.executors import (
+from eval.experiments.runner import job_list, run_suite
+from m4dgs.core.errors import InputError
+from m4dgs.core.executors import (
     LocalExecutor,
     Progress,
     RemoteError,
@@ -30,8 +31,6 @@ from eval.experiments.executors import (
     ray_token_auth_supported,
     run_task,
 )
-from eval.experiments.runner import job_list, run_suite
-from m4dgs.core.errors import InputError
 
 # metrics.json entries that measure the machine or say how it was scored, not the model
 MACHINE = ("seconds", "minutes", "fps", "peak_mem", "conventions", "options")
@@ -135,7 +134,7 @@ def test_run_task_envelope_and_token_versions():
 
 
 def test_a_ray_executor_that_cannot_start_leaves_the_environment_as_it_was(monkeypatch):
-    import eval.experiments.executors as executors
+    import m4dgs.core.executors as executors
 
     monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
     monkeypatch.setattr(executors, "_ray_version_has_tokens", lambda: True)
@@ -164,69 +163,6 @@ def test_local_pool_yields_as_tasks_finish():
 
 
 # ----------------------------------------------------------------------------------------- Ray
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _descendants(pid: int) -> list:
-    """PIDs of the processes below `pid` (from /proc: the test's own processes only)."""
-    children = {}
-    for p in Path("/proc").iterdir():
-        if not p.name.isdigit():
-            continue
-        try:
-            ppid = int((p / "stat").read_text().rsplit(")", 1)[1].split()[1])
-        except (OSError, IndexError, ValueError):
-            continue
-        children.setdefault(ppid, []).append(int(p.name))
-    out, todo = [], [pid]
-    while todo:
-        for c in children.get(todo.pop(), []):
-            out.append(c)
-            todo.append(c)
-    return out
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-    except OSError:
-        return ""
-
-
-def _listening(pids) -> set:
-    """(address, port) of the TCP sockets the processes `pids` listen on (/proc/net/tcp[6])."""
-    inodes = set()
-    for pid in pids:
-        try:
-            for fd in Path(f"/proc/{pid}/fd").iterdir():
-                link = os.readlink(fd)
-                if link.startswith("socket:["):
-                    inodes.add(link[8:-1])
-        except OSError:
-            continue
-    out = set()
-    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
-        for line in Path(table).read_text().splitlines()[1:]:
-            f = line.split()
-            if f[3] == "0A" and f[9] in inodes:  # 0A: LISTEN
-                addr, port = f[1].split(":")
-                raw = bytes.fromhex(addr)
-                if len(raw) == 4:
-                    ip = ".".join(str(b) for b in raw[::-1])
-                else:  # four little-endian 32-bit words
-                    words = [raw[i : i + 4][::-1] for i in range(0, 16, 4)]
-                    ip = socket.inet_ntop(socket.AF_INET6, b"".join(words))
-                out.add((ip, int(port, 16)))
-    return out
-
-
-def _loopback(ip: str) -> bool:
-    return ip in ("127.0.0.1", "::1", "::ffff:127.0.0.1")
-
-
 @pytest.mark.slow
 def test_ray_cluster_of_its_own(tiny1, tmp_path):
     """--executor ray without --address: the executor starts a cluster on this machine (its own
@@ -234,7 +170,7 @@ def test_ray_cluster_of_its_own(tiny1, tmp_path):
     suite to the local metrics, and leaves nothing behind (slow: Ray's start-up on a busy 2-core
     machine takes 20-40 s)."""
     ray = pytest.importorskip("ray")
-    from eval.experiments.executors import RayExecutor
+    from m4dgs.core.executors import RayExecutor
 
     suite, local = tiny1
     keys = ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_USAGE_STATS_ENABLED")
@@ -250,70 +186,17 @@ def test_ray_cluster_of_its_own(tiny1, tmp_path):
         res = run_suite(
             suite, tmp_path / "root", "tiny", score_kw={"fps": False}, log=print, executor=ex
         )
-        ports = _listening(_descendants(os.getpid()))
-        assert ports and all(_loopback(ip) for ip, _ in ports), ports
+        ports = listening(descendants(os.getpid()))
+        assert ports and all(loopback(ip) for ip, _ in ports), ports
     assert all(r["steps"] == ["train", "score"] for r in res), res
     assert metrics(tmp_path / "root") == local
     assert not temp.exists()
     assert {k: os.environ.get(k) for k in keys} == before
     # its processes are gone (they may take a moment to exit)
     deadline = time.monotonic() + 20
-    while [p for p in _descendants(os.getpid()) if "ray" in _cmdline(p)]:
+    while [p for p in descendants(os.getpid()) if "ray" in cmdline(p)]:
         assert time.monotonic() < deadline, "Ray processes left running"
         time.sleep(0.2)
-
-
-@pytest.fixture(scope="module")
-def ray_cluster():
-    """The address of a Ray cluster of three processes on this machine, started here: a head and
-    two worker nodes, one CPU and an 80 MB object store each, no dashboard, bound to 127.0.0.1,
-    token authentication where this Ray has it, no usage reports, everything under a temp dir
-    removed at the end."""
-    ray = pytest.importorskip("ray")
-    import ray._private.ray_constants as ray_constants
-    from ray.cluster_utils import Cluster
-
-    from eval.experiments.executors import _reload_ray_auth
-
-    tmp = tempfile.mkdtemp(prefix="m4rt-")  # short: Ray's socket paths live under it
-    os.makedirs(os.path.join(tmp, "ray"))  # Ray writes the cluster's address there
-    # one machine: 127.0.0.1 stays 127.0.0.1 (Ray otherwise swaps it for the machine's address)
-    env = {
-        "RAY_TMPDIR": tmp,
-        "RAY_USAGE_STATS_ENABLED": "0",
-        "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
-    }
-    if ray_token_auth_supported(ray.__version__):
-        env.update(RAY_AUTH_MODE="token", RAY_AUTH_TOKEN="m4dgs-test-" + "0" * 40)
-    before = {k: os.environ.get(k) for k in env}
-    one_machine = ray_constants.ENABLE_RAY_CLUSTER
-    os.environ.update(env)
-    ray_constants.ENABLE_RAY_CLUSTER = False
-    _reload_ray_auth()
-    node = dict(
-        num_cpus=1,
-        object_store_memory=80 * 1024 * 1024,
-        include_dashboard=False,
-        node_ip_address="127.0.0.1",
-        temp_dir=tmp,
-    )
-    cluster = Cluster(shutdown_at_exit=False)
-    try:
-        port = _free_port()
-        cluster.add_node(**node, gcs_server_port=port, include_log_monitor=False)
-        for _ in range(2):
-            cluster.add_node(**node)
-        yield f"127.0.0.1:{port}"
-    finally:
-        cluster.shutdown()
-        ray_constants.ENABLE_RAY_CLUSTER = one_machine
-        for k, v in before.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-        _reload_ray_auth()
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def test_ray_cluster_gives_the_local_metrics(tiny1, ray_cluster, tmp_path):
@@ -340,16 +223,16 @@ def test_ray_cluster_gives_the_local_metrics(tiny1, ray_cluster, tmp_path):
     assert metrics(tmp_path / "ray") == local
     assert "3/3 jobs: 3 done, 0 running, 0 failed" in r.output
     # every port of the cluster's processes is on the loopback interface only
-    ports = _listening(_descendants(os.getpid()))
-    assert ports and all(_loopback(ip) for ip, _ in ports), ports
+    ports = listening(descendants(os.getpid()))
+    assert ports and all(loopback(ip) for ip, _ in ports), ports
 
 
 def test_ray_reruns_the_job_of_a_killed_worker(tiny1, ray_cluster, tmp_path):
     """The worker running the full row's job is killed (SIGKILL) once the job trains; Ray reruns
     it (the run-folder lock died with the worker: the rerun resumes the run), and it finishes
     with the local metrics."""
-    from eval.experiments.executors import RayExecutor
     from eval.experiments.runner import _run_job_kw
+    from m4dgs.core.executors import RayExecutor
 
     suite, local = tiny1
     job = next(j for j in job_list(suite, tmp_path / "root", "tiny") if j.row == "full")
@@ -359,8 +242,8 @@ def test_ray_reruns_the_job_of_a_killed_worker(tiny1, ray_cluster, tmp_path):
         deadline = time.monotonic() + 240
         while time.monotonic() < deadline and not killed:
             if (Path(job.run_dir) / "status.json").exists():
-                for pid in _descendants(os.getpid()):
-                    title = _cmdline(pid)
+                for pid in descendants(os.getpid()):
+                    title = cmdline(pid)
                     # the worker executing the job (Ray titles it after the task's name, the job
                     # id), not Ray's own processes (e.g. a dashboard agent, which some Ray
                     # installations start)
@@ -384,7 +267,7 @@ def test_ray_reruns_the_job_of_a_killed_worker(tiny1, ray_cluster, tmp_path):
 # ------------------------------------------------------------------------------------ submitit
 def test_submitit_local_executor_runs_the_job_list(tiny1, tmp_path):
     pytest.importorskip("submitit")
-    from eval.experiments.executors import SlurmExecutor
+    from m4dgs.core.executors import SlurmExecutor
 
     suite, local = tiny1
     with SlurmExecutor(tmp_path / "slurm", threads=1, cluster="local", poll_s=0.5) as ex:

@@ -1,23 +1,24 @@
-"""Where the suite runner's tasks run: this process, a local process pool, a Ray cluster or Slurm
-(through submitit).
+"""Where a command's tasks run: this process, a local process pool, a Ray cluster or Slurm
+(through submitit). Shared by `m4dgs-eval suite run / campaign` (eval.experiments.runner: clips,
+then training jobs) and `benchgen make` (benchgen.distribute: frame-range render tasks).
 
 An executor takes a list of tasks (a module-level function, its arguments, the CPU threads and the
 GPUs, 0 or 1, the task needs) and yields one Outcome per task as the tasks finish, in whatever
-order they finish. `eval.experiments.runner.run_suite` hands it the clips to make (wave by wave,
-eval.experiments.runner.clip_waves), then the jobs; each task runs the same function
-(make_job_clip, run_job) wherever it runs, so the run-folder locks and the share folder
-(ROOT/.shared) work alike everywhere, as long as ROOT is on storage every worker sees.
+order they finish. Each task runs the same function wherever it runs, so the folder locks and the
+files the tasks share work alike everywhere, as long as the output root is on storage every worker
+sees.
 
-- local: `jobs` 1 runs the tasks one after another in this process (as `m4dgs-eval suite run`
-  always did); `jobs` > 1 in a pool of that many worker processes.
+- local: `jobs` 1 runs the tasks one after another in this process; `jobs` > 1 in a pool of that
+  many worker processes.
 - ray: each task is a Ray task (num_cpus = its threads, num_gpus = its GPUs, rerun up to
   max_retries times when its worker dies). Without an address the executor starts a one-machine
   cluster of its own (bound to 127.0.0.1, no dashboard unless asked, its own temp dir, token
   authentication where the installed Ray has it) and stops it at the end; with one it connects.
-- slurm: the tasks of a wave become Slurm job arrays through submitit (`cluster="local"` runs them
-  as local processes instead: what the tests use).
+- slurm: the tasks of each map() call become Slurm job arrays through submitit (`cluster="local"`
+  runs them as local processes instead: what the tests use).
 
 Ray and submitit are optional (`pip install -e .[cluster]`) and imported only by their executors.
+The command-line options that choose an executor are in m4dgs.core.executor_options.
 """
 
 from __future__ import annotations
