@@ -78,6 +78,11 @@ class VideoInitConfig:
     # second-difference weight of the control-point fit (fills invisible spans)
     fit_smooth: float = 1e-3
     seed: int = 0
+    # beyond the paper (off = the paper): also lift tracks of the video's bright blobs, so that
+    # small bright movers that point tracks lose get Gaussians that follow them
+    # (m4dgs.priors.highlight_tracks; docs/method.md, "Small bright movers")
+    highlight_tracks: bool = False
+    highlight_points: int = 16  # tracks per linked blob chain
 
 
 # --------------------------------------------------------------------------------------------------
@@ -450,6 +455,7 @@ def init_video_gaussians(
     height: int,
     cfg: Optional[VideoInitConfig] = None,
     model: Optional[ModelConfig] = None,
+    always: Optional[Tensor] = None,
 ) -> VideoGaussians:
     """Lift 2D tracks with the depth prior to video Gaussians (appendix "Video Gaussian
     Representation").
@@ -466,6 +472,8 @@ def init_video_gaussians(
         bool. depth: [T, H, W] depth prior. cfg: initialisation settings (cap on the number of
         tracks, random subsample with cfg.seed); model: the
             representation (N_s, feature size, scale activation, rotation init).
+        always: [N] bool, tracks kept whatever the cap (the highlight tracks); the cap's random
+            subsample is drawn from the others. None: none.
     Returns:
         VideoGaussians on the device / dtype of `depth`.
     """
@@ -489,7 +497,15 @@ def init_video_gaussians(
     keep = torch.where(valid.sum(1) >= max(cfg.min_visible, 1))[0]
     gen = torch.Generator(device=device)
     gen.manual_seed(cfg.seed)
-    if keep.numel() > cfg.max_gaussians:
+    if always is not None and bool(always.any()):
+        fixed = keep[always.to(device)[keep]]
+        rest = keep[~always.to(device)[keep]]
+        room = max(cfg.max_gaussians - fixed.numel(), 0)
+        if rest.numel() > room:
+            pick = torch.randperm(rest.numel(), generator=gen, device=device)[:room]
+            rest = rest[pick.sort().values]
+        keep = torch.cat([rest, fixed]).sort().values
+    elif keep.numel() > cfg.max_gaussians:
         pick = torch.randperm(keep.numel(), generator=gen, device=device)[: cfg.max_gaussians]
         keep = keep[pick.sort().values]
     tracks, valid = tracks[keep], valid[keep]

@@ -169,3 +169,25 @@ def load_training_data(
         unit_exposure_value=float(clip.meta.unit_exposure_value),
         num_levels=clip.meta.num_exposure_levels,
     )
+
+
+def init_tracks(data: TrainingData, init) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The tracks the video Gaussians are lifted from: the prior tracks, and with
+    `init.highlight_tracks` (beyond the paper) the tracks of the video's bright blobs
+    (m4dgs.priors.highlight_tracks) after them. Returns (tracks [N, T, 2], visible [N, T], always
+    [N] bool: the highlight tracks, which the initialisation's cap keeps), on data's device."""
+    tracks, vis = data.tracks, data.track_vis
+    always = torch.zeros(tracks.shape[0], dtype=torch.bool, device=tracks.device)
+    if not getattr(init, "highlight_tracks", False):
+        return tracks, vis, always
+    from m4dgs.priors.highlight_tracks import highlight_tracks
+
+    ldr = data.ldr.detach().cpu().numpy()
+    dts = np.exp2(data.log2_dt.detach().cpu().numpy().astype(np.float64))
+    ht, hv = highlight_tracks(ldr, dts, points=int(init.highlight_points))
+    if ht.shape[0] == 0:
+        return tracks, vis, always
+    ht_t = torch.from_numpy(ht).to(device=tracks.device, dtype=tracks.dtype)
+    hv_t = torch.from_numpy(hv).to(device=tracks.device)
+    one = torch.ones(ht.shape[0], dtype=torch.bool, device=tracks.device)
+    return torch.cat([tracks, ht_t]), torch.cat([vis, hv_t]), torch.cat([always, one])

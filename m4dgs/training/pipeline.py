@@ -51,7 +51,7 @@ from m4dgs.priors.epipolar import dynamic_masks, epipolar_error_maps, opencv_flo
 from m4dgs.priors.rigidity import rigidity_masks
 from m4dgs.run import RunDir, load_torch, save_torch
 from m4dgs.training.config import TrainConfig, to_dict, upgrade_dict, validate
-from m4dgs.training.data import TrainingData, load_training_data
+from m4dgs.training.data import TrainingData, init_tracks, load_training_data
 from m4dgs.training.exposure import training_exposures
 from m4dgs.training.phases import SHARED_PHASES, PhaseCache, code_fingerprint, phase_keys
 from m4dgs.training.stage1 import VideoStage, build_appearance, train_stage1
@@ -405,8 +405,9 @@ class Trainer:
         else:
             # lifted tracks/depth without the video-Gaussian optimisation (ablation (a) and the
             # world-only baselines)
+            tracks, vis, always = init_tracks(d, cfg.stage1.init)
             video = init_video_gaussians(
-                d.tracks, d.track_vis, d.depth, d.width, d.height, cfg.stage1.init, cfg.model
+                tracks, vis, d.depth, d.width, d.height, cfg.stage1.init, cfg.model, always=always
             )
             depth = d.depth
             appearance = None

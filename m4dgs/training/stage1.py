@@ -25,7 +25,7 @@ from m4dgs.model.gaussians import VideoGaussians, init_video_gaussians
 from m4dgs.model.render import RenderResult, render_gaussians
 from m4dgs.model.tonemap import ToneMapper, pretrain_tonemapper
 from m4dgs.training.config import TrainConfig
-from m4dgs.training.data import TrainingData
+from m4dgs.training.data import TrainingData, init_tracks
 from m4dgs.training.densify import Strategy
 from m4dgs.training.objective import CameraModel, Trajectories
 from m4dgs.training.stage import (
@@ -103,14 +103,16 @@ class VideoStage(Stage):
         self.camera = CameraModel()  # the orthographic video camera: no poses, prior-depth units
         self.gauss: Optional[VideoGaussians] = None
         if init:
+            tracks, vis, always = init_tracks(data, cfg.stage1.init)
             g = init_video_gaussians(
-                data.tracks.to(self.device),
-                data.track_vis.to(self.device),
+                tracks.to(self.device),
+                vis.to(self.device),
                 data.depth.to(self.device),
                 self.W,
                 self.H,
                 cfg.stage1.init,
                 cfg.model,
+                always=always.to(self.device),
             )
             self._setup(g, *build_appearance(cfg, self.c0, self.device))
 

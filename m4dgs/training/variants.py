@@ -39,6 +39,9 @@ VARIANTS: Dict[str, Dict[str, Any]] = {
     # dynamic masks from the paper's epipolar test alone (the tiny/small presets OR in the rigidity
     # test, m4dgs.priors.rigidity)
     "epipolar-masks": {"masks.method": "epipolar"},
+    # beyond the paper: the full method plus tracks of the video's bright blobs at the
+    # initialisation (m4dgs.priors.highlight_tracks), for small bright movers
+    "full-highlights": {"stage1.init.highlight_tracks": True},
     # adapted baselines (paper sec. 4.2)
     "static-hdr": {
         "method": "static-hdr",
@@ -91,6 +94,8 @@ DESCRIPTIONS: Dict[str, str] = {
     "no-track-loss": "prior ablation: no flow/track loss",
     "epipolar-masks": "dynamic masks from the epipolar test alone (sec. 3.2 as written), no "
     "rigidity test",
+    "full-highlights": "BEYOND THE PAPER: full plus Gaussians lifted from tracks of the video's "
+    "bright blobs (small bright movers that point tracks lose; docs/method.md)",
     "static-hdr": "baseline (GaussHDR-style): static HDR Gaussians with the bundle-adjustment "
     "cameras (fixed)",
     "world-only": "ablation (a) without TLR: world Gaussians from lifted tracks/depth (no stage "

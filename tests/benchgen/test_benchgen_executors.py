@@ -230,6 +230,8 @@ def test_a_killed_render_task_reruns_to_the_local_bytes(local_clip, ray_cluster,
 
 
 # ------------------------------------------------------------------------------------ submitit
+# ~35 s: slow; the default run keeps the Ray tests (submitit: tests/eval/test_executors.py)
+@pytest.mark.slow
 def test_a_half_rendered_clip_continues_on_submitit(local_clip, tmp_path):
     """Two of the five render tasks run here, then the command runs again with submitit's local
     executor (the Slurm executor's stand-in): it renders only the three missing tasks and makes

@@ -1,0 +1,184 @@
+"""Tracks of small bright movers from the input frames alone: the brightest blobs, linked over time.
+
+Why (docs/method.md, "Small bright movers"): the method's only source of motion is its point tracks.
+A lamp, a headlight or a glint is a uniform, saturated patch whose look changes with the exposure,
+so point trackers and optical flow lose it (on the disc clip of bench/small_mover_bench.py the
+few DIS-chained tracks that land on the disc stay one or two frames and mostly follow the plane
+under it) and no Gaussian follows it. Given a few tracks with the right motion the method keeps
+it; given tracks a quarter too slow it loses it. A bright blob's centroid, on the other hand,
+moves with the mover whatever its interior looks like.
+
+The tracker (beyond the paper; `stage1.init.highlight_tracks`):
+
+1. Blobs: in each training frame, the 4-connected components of its brightest pixels (brightest
+   channel within `margin` codes of the frame's brightest, and at least `min_code`), `min_area`
+   pixels and more, and at most `max_area` of the image (a sunlit wall or a window is not a small
+   mover). A highlight is the brightest thing at a short exposure even where it does not saturate
+   it; at the longest exposure it shares the white with the bright parts of the scene.
+2. Links: chains over the training frames, greedily by distance between a chain's predicted
+   centroid (constant velocity once it has two frames) and a blob's, within `max_step` x the image
+   diagonal per frame elapsed, skipping at most `max_gap` frames without a blob, and with blob
+   areas within a factor `area_ratio` of each other (one blob per chain and frame, nearest first).
+   A chain must hold blobs at two exposure levels or more: the bright parts of the scene that are
+   the brightest only at the longest exposure are left to the point tracks.
+3. Tracks: each chain of at least two frames gives `points` tracks, the chain's centroids plus
+   fixed offsets inside the blob (a regular pattern within 0.6 x the blob's radius at its first
+   frame), visible on the chain's frames. A static highlight gives tracks that do not move.
+
+Pixel coordinates: continuous, pixel centres at +0.5 (m4dgs.clip.TrackSet). Pure numpy + scipy.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import List, Sequence, Tuple
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Blob:
+    """One saturated component of a frame: centroid (x, y) in pixels (centres at +0.5), area in
+    pixels."""
+
+    x: float
+    y: float
+    area: int
+
+
+def brightest_blobs(
+    ldr: np.ndarray,
+    margin: int = 8,
+    min_code: int = 128,
+    min_area: int = 3,
+    max_area: float = 0.02,
+) -> List[Blob]:
+    """Blobs of one frame (module docstring, step 1).
+
+    Args:
+        ldr: [H, W, 3] uint8, or float in [0, 1] (scaled by 255).
+        margin, min_code: a pixel is a highlight when its brightest channel's code is within
+            `margin` of the frame's brightest code and at least `min_code`.
+        min_area: smallest blob in pixels; max_area: largest, as a fraction of H x W.
+    Returns:
+        Blobs sorted by area, largest first.
+    """
+    from scipy import ndimage
+
+    a = np.asarray(ldr)
+    codes = (a if a.dtype == np.uint8 else np.round(np.clip(a, 0.0, 1.0) * 255.0)).max(axis=-1)
+    top = int(codes.max())
+    sat = codes >= max(top - int(margin), int(min_code))
+    H, W = sat.shape
+    labels, n = ndimage.label(sat)
+    if n == 0:
+        return []
+    idx = np.arange(1, n + 1)
+    area = ndimage.sum_labels(np.ones_like(labels), labels, idx).astype(np.int64)
+    cy, cx = np.asarray(ndimage.center_of_mass(sat, labels, idx), np.float64).reshape(-1, 2).T
+    keep = (area >= int(min_area)) & (area <= float(max_area) * H * W)
+    blobs = [
+        Blob(float(x) + 0.5, float(y) + 0.5, int(s)) for x, y, s, k in zip(cx, cy, area, keep) if k
+    ]
+    return sorted(blobs, key=lambda b: -b.area)
+
+
+def link_blobs(
+    blobs: Sequence[Sequence[Blob]],
+    diagonal: float,
+    max_step: float = 0.1,
+    max_gap: int = 2,
+    area_ratio: float = 3.0,
+) -> List[List[Tuple[int, Blob]]]:
+    """Chains of blobs over frames 0..T-1 (module docstring, step 2): each a list of (frame, blob),
+    frames increasing. Chains of one blob are returned too (the caller drops them)."""
+    chains: List[List[Tuple[int, Blob]]] = []
+    open_: List[int] = []  # indices of chains that may still grow
+    for t, frame in enumerate(blobs):
+        cands = []
+        for ci in open_:
+            ch = chains[ci]
+            t1, b1 = ch[-1]
+            gap = t - t1
+            if gap > max_gap + 1:
+                continue
+            if len(ch) >= 2:
+                t0, b0 = ch[-2]
+                vx, vy = (b1.x - b0.x) / (t1 - t0), (b1.y - b0.y) / (t1 - t0)
+            else:
+                vx = vy = 0.0
+            px, py = b1.x + vx * gap, b1.y + vy * gap
+            for bi, b in enumerate(frame):
+                d = math.hypot(b.x - px, b.y - py)
+                ratio = max(b.area, b1.area) / max(min(b.area, b1.area), 1)
+                if d <= max_step * diagonal * gap and ratio <= area_ratio:
+                    cands.append((d, ci, bi))
+        used_c, used_b = set(), set()
+        for _, ci, bi in sorted(cands):
+            if ci in used_c or bi in used_b:
+                continue
+            chains[ci].append((t, frame[bi]))
+            used_c.add(ci)
+            used_b.add(bi)
+        for bi, b in enumerate(frame):
+            if bi not in used_b:
+                chains.append([(t, b)])
+        open_ = [ci for ci, ch in enumerate(chains) if t - ch[-1][0] <= max_gap]
+    return chains
+
+
+def blob_offsets(area: int, points: int) -> np.ndarray:
+    """[points, 2] offsets from a blob's centroid: the centre, then rings within 0.6 x its radius
+    (sqrt(area / pi)), evenly spread (a sunflower pattern)."""
+    r = 0.6 * math.sqrt(max(area, 1) / math.pi)
+    k = np.arange(points, dtype=np.float64)
+    rad = r * np.sqrt(k / max(points - 1, 1))
+    ang = k * math.pi * (3.0 - math.sqrt(5.0))
+    return np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=1)
+
+
+def highlight_tracks(
+    ldr_frames: np.ndarray,
+    dts: Sequence[float],
+    points: int = 16,
+    margin: int = 8,
+    min_code: int = 128,
+    min_area: int = 3,
+    max_area: float = 0.02,
+    max_step: float = 0.1,
+    max_gap: int = 2,
+    area_ratio: float = 3.0,
+) -> Tuple[np.ndarray, np.ndarray]:
+    """Tracks of the brightest blobs of a video (module docstring).
+
+    Args:
+        ldr_frames: [T, H, W, 3] uint8 or float in [0, 1], the training frames in order.
+        dts: [T] their exposure times. A chain is kept when it has blobs at two exposure levels or
+            more (all of them when the clip has one): a patch that is the brightest only at the
+            longest exposure is a bright part of the scene, not a highlight.
+        points: tracks per chain. The other arguments: brightest_blobs and link_blobs.
+    Returns:
+        (tracks [M, T, 2] float32 pixels, centres at +0.5, and visible [M, T] bool); M = points x
+        the number of chains of two frames or more (0 when there is none).
+    """
+    frames = np.asarray(ldr_frames)
+    T, H, W = frames.shape[:3]
+    blobs = [brightest_blobs(f, margin, min_code, min_area, max_area) for f in frames]
+    levels = np.unique(np.round(np.log2(np.asarray(dts, np.float64)), 6))
+    need = min(2, len(levels))
+    chains = [
+        c
+        for c in link_blobs(blobs, math.hypot(W, H), max_step, max_gap, area_ratio)
+        if len(c) >= 2 and len({round(math.log2(float(dts[t])), 6) for t, _ in c}) >= need
+    ]
+    tracks = np.zeros((len(chains) * points, T, 2), np.float32)
+    vis = np.zeros((len(chains) * points, T), bool)
+    for k, ch in enumerate(chains):
+        off = blob_offsets(ch[0][1].area, points)
+        rows = slice(k * points, (k + 1) * points)
+        for t, b in ch:
+            tracks[rows, t, 0] = np.clip(b.x + off[:, 0], 0.0, W)
+            tracks[rows, t, 1] = np.clip(b.y + off[:, 1], 0.0, H)
+            vis[rows, t] = True
+    return tracks, vis
