@@ -16,6 +16,7 @@ import torch
 
 from m4dgs.clip import Clip
 from m4dgs.core.errors import InputError
+from m4dgs.model.gaussians import VideoInitConfig
 
 
 @dataclass
@@ -171,14 +172,16 @@ def load_training_data(
     )
 
 
-def init_tracks(data: TrainingData, init) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def init_tracks(
+    data: TrainingData, init: VideoInitConfig
+) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The tracks the video Gaussians are lifted from: the prior tracks, and with
     `init.highlight_tracks` (beyond the paper) the tracks of the video's bright blobs
     (m4dgs.priors.highlight_tracks) after them. Returns (tracks [N, T, 2], visible [N, T], always
     [N] bool: the highlight tracks, which the initialisation's cap keeps), on data's device."""
     tracks, vis = data.tracks, data.track_vis
     always = torch.zeros(tracks.shape[0], dtype=torch.bool, device=tracks.device)
-    if not getattr(init, "highlight_tracks", False):
+    if not init.highlight_tracks:
         return tracks, vis, always
     from m4dgs.priors.highlight_tracks import highlight_tracks
 
