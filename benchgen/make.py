@@ -254,11 +254,8 @@ def make_clip(
     (benchgen.render.RENDER_PRESETS)."""
     t_start = time.perf_counter()
     job = _prepare_job(scene_path, out_dir, preset, settings, priors, seed, crf, max_frames, spp)
-    if _finished_clip(job, force, allow_misplaced):
+    if not _start_job(job, force, allow_misplaced, render_from):
         return job.out
-    _open_state(job, force)
-    _reuse_render(job, render_from)
-    _choose_light_selection(job)  # 1
     train_dt = schedule_train_dt(len(job.train), job.settings, job.seed)
     meta = _clip_meta(job, train_dt)
     writer = ClipWriter(job.out, meta)
@@ -305,17 +302,26 @@ def plan_clip(
 
     job = _prepare_job(scene_path, out_dir, preset, settings, priors, seed, crf, max_frames, spp)
     try:
-        if _finished_clip(job, force, allow_misplaced=False):
+        if not _start_job(job, force, False, render_from):
             return []
     except PlacementError:
         return []  # finished: make_clip reports the miss
-    _open_state(job, force)
-    _reuse_render(job, render_from)
-    _choose_light_selection(job)  # 1
     job.save_state()
     return clip_specs(
         job, job.out.joinpath(*UNIT_HDR_DIR), frames_per_task or DEFAULT_FRAMES_PER_TASK, threads
     )
+
+
+def _start_job(job: _Job, force: bool, allow_misplaced: bool, render_from: Sequence) -> bool:
+    """What comes before a clip's renders, in make_clip and plan_clip alike: False for a finished
+    clip (_finished_clip); else the resume state opened (started over under `force`), a reused
+    render taken (render_from) and the light selection chosen (step 1); True."""
+    if _finished_clip(job, force, allow_misplaced):
+        return False
+    _open_state(job, force)
+    _reuse_render(job, render_from)
+    _choose_light_selection(job)  # 1
+    return True
 
 
 def _prepare_job(scene_path, out_dir, preset, settings, priors, seed, crf, max_frames, spp) -> _Job:

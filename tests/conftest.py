@@ -40,7 +40,7 @@ def tiny_clip_realistic(tmp_path_factory):
     return _make(tmp_path_factory, "tiny-flag-arm", "realistic")
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def load_bench():
     """load_bench(name): import the script bench/<name>.py as a module (bench/ is not a package)."""
     import importlib.util

@@ -497,17 +497,14 @@ def init_video_gaussians(
     keep = torch.where(valid.sum(1) >= max(cfg.min_visible, 1))[0]
     gen = torch.Generator(device=device)
     gen.manual_seed(cfg.seed)
-    if always is not None and bool(always.any()):
-        fixed = keep[always.to(device)[keep]]
-        rest = keep[~always.to(device)[keep]]
-        room = max(cfg.max_gaussians - fixed.numel(), 0)
-        if rest.numel() > room:
-            pick = torch.randperm(rest.numel(), generator=gen, device=device)[:room]
-            rest = rest[pick.sort().values]
-        keep = torch.cat([rest, fixed]).sort().values
-    elif keep.numel() > cfg.max_gaussians:
-        pick = torch.randperm(keep.numel(), generator=gen, device=device)[: cfg.max_gaussians]
-        keep = keep[pick.sort().values]
+    # the cap: the `always` tracks, and a seeded random subset of the others in the room left
+    a = torch.zeros_like(keep, dtype=torch.bool) if always is None else always.to(device)[keep]
+    fixed, rest = keep[a], keep[~a]
+    room = max(cfg.max_gaussians - fixed.numel(), 0)
+    if rest.numel() > room:
+        pick = torch.randperm(rest.numel(), generator=gen, device=device)[:room]
+        rest = rest[pick.sort().values]
+    keep = torch.cat([rest, fixed]).sort().values
     tracks, valid = tracks[keep], valid[keep]
     n = keep.numel()
 

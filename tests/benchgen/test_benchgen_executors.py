@@ -161,6 +161,24 @@ def test_a_failed_render_task_is_named_after_the_others_finish(tmp_path):
     assert not (tmp_path / "hdr").exists()
 
 
+def _make_tiny(root, executor, lines):
+    """benchgen make of the tiny scene under `root` on `executor`, tasks of 3 frames; its log lines
+    into `lines`."""
+    from benchgen.make import make_suite
+
+    make_suite(
+        "tiny",
+        root,
+        preset="tiny",
+        scenes=[SCENE],
+        priors="oracle",
+        progress=False,
+        executor=executor,
+        frames_per_task=3,
+        log=lines.append,
+    )
+
+
 # ----------------------------------------------------------------------------------------- Ray
 def test_ray_cluster_makes_the_local_bytes(local_clip, ray_cluster, tmp_path):
     root = tmp_path / "ray"
@@ -187,7 +205,6 @@ def test_ray_cluster_makes_the_local_bytes(local_clip, ray_cluster, tmp_path):
 def test_a_killed_render_task_reruns_to_the_local_bytes(local_clip, ray_cluster, tmp_path):
     """The worker rendering frames 3-5 is killed (SIGKILL) once frame 3 is on disk; Ray reruns the
     task, which skips frame 3 and renders the rest, and the clip is the local one."""
-    from benchgen.make import make_suite
     from m4dgs.core.executors import RayExecutor
 
     root = tmp_path / "killed"
@@ -210,17 +227,7 @@ def test_a_killed_render_task_reruns_to_the_local_bytes(local_clip, ray_cluster,
     watcher = threading.Thread(target=kill_after_frame_3, daemon=True)
     with RayExecutor(ray_cluster, threads=1, max_retries=2) as ex:
         watcher.start()
-        make_suite(
-            "tiny",
-            root,
-            preset="tiny",
-            scenes=[SCENE],
-            priors="oracle",
-            progress=False,
-            executor=ex,
-            frames_per_task=3,
-            log=lines.append,
-        )
+        _make_tiny(root, ex, lines)
     watcher.join()
     assert len(killed) == 1, killed
     done = [ln for ln in lines if ln.startswith(f"[benchgen] rendered {name} ")]
@@ -238,7 +245,7 @@ def test_a_half_rendered_clip_continues_on_submitit(local_clip, tmp_path):
     the local clip."""
     pytest.importorskip("submitit")
     from benchgen.distribute import render_specs
-    from benchgen.make import make_suite, plan_clip
+    from benchgen.make import plan_clip
     from benchgen.suite import builtin_scenes_dir
     from m4dgs.core.executors import LocalExecutor, SlurmExecutor
 
@@ -252,17 +259,7 @@ def test_a_half_rendered_clip_continues_on_submitit(local_clip, tmp_path):
         render_specs(ex, specs[:2], log=lambda m: None)
     lines = []
     with SlurmExecutor(tmp_path / "slurm", threads=1, cluster="local", poll_s=0.5) as ex:
-        make_suite(
-            "tiny",
-            root,
-            preset="tiny",
-            scenes=[SCENE],
-            priors="oracle",
-            progress=False,
-            executor=ex,
-            frames_per_task=3,
-            log=lines.append,
-        )
+        _make_tiny(root, ex, lines)
     assert "3/3 render tasks: 3 done, 0 running, 0 failed, ETA 0 s" in lines[-1], lines
     assert differing_files(local_clip, _clip(root)) == []
     assert list((tmp_path / "slurm").glob("*/*_log.out"))  # the array tasks' logs

@@ -142,20 +142,12 @@ def test_init_tracks_adds_nothing_unless_asked(on):
     assert tr.shape[0] == (7 + 4 if on else 7) and int(always.sum()) == (4 if on else 0)
 
 
-def test_the_disc_clip_of_the_regression_test_is_tracked():
+def test_the_disc_clip_of_the_regression_test_is_tracked(load_bench):
     """The frames tests/training/test_small_mover.py trains on (bench/small_mover_bench.py, through
     the clip's hdrnerf response at benchgen's alternating exposures): one chain, on the disc."""
-    import sys
-    from pathlib import Path
-
     from m4dgs.core.crf import clip_crf, tonemap_ldr
 
-    bench = str(Path(__file__).resolve().parents[2] / "bench")
-    sys.path.insert(0, bench)
-    try:
-        import small_mover_bench as smb
-    finally:
-        sys.path.remove(bench)
+    smb = load_bench("small_mover_bench")
     hdr, _, centres = smb.disc_frames()
     train = list(range(0, hdr.shape[0], 2))
     dts = [[0.125, 2.0, 32.0][i % 3] for i in range(len(train))]
