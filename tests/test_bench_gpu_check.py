@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,15 +28,11 @@ def test_gpu_check_dry_run_on_a_clip_without_ground_truth(tiny_clip_realistic, t
         "--out",
         str(out),
         "--steps",
-        "env,train,fps,fps_scale,profile,jobs",
+        "env,train,fps,fps_scale,profile",
         "--preset",
         "tiny",
         "--iters",
         "10",
-        "--jobs",
-        "1,2",
-        "--jobs-iters",
-        "5",
         "--fps-counts",
         "1,2000",
         "--profile-steps",
@@ -45,7 +42,7 @@ def test_gpu_check_dry_run_on_a_clip_without_ground_truth(tiny_clip_realistic, t
     assert p.returncode == 0, p.stdout + p.stderr
     res = json.loads((out / "gpu_check.json").read_text())
     steps = res["steps"]
-    assert list(steps) == ["env", "train", "fps", "fps_scale", "profile", "jobs"]
+    assert list(steps) == ["env", "train", "fps", "fps_scale", "profile"]
     assert steps["env"]["device"] in ("cpu", "cuda")
     assert steps["train"]["rc"] == 0
     table = "\n".join(steps["train"]["table"])
@@ -68,7 +65,20 @@ def test_gpu_check_dry_run_on_a_clip_without_ground_truth(tiny_clip_realistic, t
     # stage 2 from the final model at the middle of its 10 iterations, 2 timed steps, profiled
     assert prof["start"] == 5 and "stage2 steps 10..11" in prof["ms_per_step"], prof
     assert any("Self CPU" in ln for ln in prof["lines"])
-    runs = steps["jobs"]["runs"]
+
+
+@pytest.mark.slow  # three trainings in their own processes (~50 s)
+def test_gpu_check_jobs_step_runs_concurrent_trainings(tiny_clip_realistic, tmp_path):
+    """The jobs step: N trainings of the clip at once, each with cpu_count / N threads and its own
+    trainer seed, throughput against the first N."""
+    out = tmp_path / "out"
+    cmd = [sys.executable, str(ROOT / "bench" / "gpu_check.py"), str(tiny_clip_realistic)]
+    cmd += ["--out", str(out), "--steps", "jobs", "--preset", "tiny"]
+    cmd += ["--jobs", "1,2", "--jobs-iters", "5"]
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stdout + p.stderr
+    res = json.loads((out / "gpu_check.json").read_text())
+    runs = res["steps"]["jobs"]["runs"]
     assert runs["1"]["rc"] == [0] and runs["2"]["rc"] == [0, 0]
     assert runs["1"]["throughput_vs_first"] == 1.0
     # each of N concurrent trainings gets cpu_count / N threads, as `m4dgs-eval run --jobs N` does
