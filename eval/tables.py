@@ -84,6 +84,10 @@ class TableSpec:
     )
     paper_source: str | None = None  # the paper table those values come from (footnote)
     level: float = 0.95  # confidence level of the intervals
+    # methods whose runs are one prediction repeated for every trainer seed (the calibration rows
+    # copy-nearest and flow-merge): their n and interval count each scene once (a copy is not a
+    # second sample); their paired differences still pair them with every seed's reference run
+    seed_free: frozenset = frozenset()
 
     @classmethod
     def from_dict(cls, d: dict) -> "TableSpec":
@@ -96,6 +100,17 @@ def _missing(v) -> bool:
     return v is None or (isinstance(v, float) and math.isnan(v))
 
 
+def _own_runs(mrows: list, method: str, spec: TableSpec) -> list:
+    """The runs of a method that count as samples of its own mean: all of them, or for a
+    seed-free method (spec.seed_free) the lowest seed's run of each scene."""
+    if method not in spec.seed_free:
+        return mrows
+    first = {}
+    for r in sorted(mrows, key=lambda r: r.get("seed") or 0):
+        first.setdefault(r.get("scene"), r)
+    return list(first.values())
+
+
 def aggregate(rows: list, spec: TableSpec) -> list:
     """Per-method mean over scenes -> list of {"method", "n_scenes", <key>: float | None} in the
     table's row order."""
@@ -106,7 +121,7 @@ def aggregate(rows: list, spec: TableSpec) -> list:
             order.append(r["method"])
     out = []
     for m in order:
-        mrows = [r for r in rows if r["method"] == m]
+        mrows = _own_runs([r for r in rows if r["method"] == m], m, spec)
         agg = {
             "method": m,
             "n_scenes": len({r.get("scene") for r in mrows}),
@@ -156,7 +171,7 @@ def cell_stats(rows: list, spec: TableSpec, agg: list | None = None) -> list:
         for c in spec.columns:
             st = CellStats(is_reference=has_ref and m == spec.reference)
             if a[c.key] is not None:
-                st.ci = mean_ci([r.get(c.key) for r in mrows], spec.level)
+                st.ci = mean_ci([r.get(c.key) for r in _own_runs(mrows, m, spec)], spec.level)
                 if has_ref and m != spec.reference and ref_agg[c.key] is not None:
                     st.diff = paired_diff(by_key(mrows, c.key), by_key(ref_rows, c.key), spec.level)
             st.paper = paper.get(m, {}).get(c.key)
@@ -286,6 +301,14 @@ def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None
             "with n - 1 "
             "degrees of freedom); n/a for n < 2."
         )
+        if spec.seed_free:
+            names = ", ".join(m for m in (spec.methods or []) if m in spec.seed_free) or ", ".join(
+                sorted(spec.seed_free)
+            )
+            notes.append(
+                f"{names}: the same prediction for every trainer seed, so n and the interval count "
+                "each scene once; Δ pairs it with every seed's run."
+            )
     ref = (
         spec.reference
         if (spec.reference is not None and (agg is None or _has_reference(agg, spec)))

@@ -8,3 +8,6 @@ estimated from the bracketed training frames (eval.calibration.response, Debevec
 TEMPORAL_ROWS = ("copy-nearest", "flow-merge")
 VIEW_ROWS = ("dibr",)
 ROWS = TEMPORAL_ROWS + VIEW_ROWS
+# the rows whose prediction is the same for every trainer seed (dibr's camera initialisation is
+# seeded): a table counts each scene of theirs once (eval.tables.TableSpec.seed_free)
+SEED_FREE_ROWS = TEMPORAL_ROWS

@@ -1,12 +1,13 @@
 """The runs of a suite (its job list under an experiment root) or of a folder of runs, as the
 entries that tables and the export read: {"scene", "row", "label", "seed", "run_dir", "clip_dir",
-"metrics"}."""
+"metrics", "same_every_seed" (a calibration row whose prediction no trainer seed changes)}."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
+from eval.calibration import SEED_FREE_ROWS
 from eval.experiments.run_files import read_run_info
 from eval.experiments.runner import job_list, seeds_present, split_run_name
 from m4dgs.core import io as mio
@@ -31,6 +32,7 @@ def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) ->
                 "run_dir": j.run_dir,
                 "clip_dir": j.clip_dir,
                 "metrics": mio.read_json(mp) if mp.exists() else None,
+                "same_every_seed": j.calibration in SEED_FREE_ROWS,
             }
         )
     return entries
@@ -77,6 +79,7 @@ def collect_runs_dir(runs_dir) -> list:
                 "run_dir": str(rd),
                 "clip_dir": run_meta.get("clip"),
                 "metrics": m,
+                "same_every_seed": info.get("calibration") in SEED_FREE_ROWS,
             }
         )
     seen = {}

@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Dict, List, Mapping, Optional, Tuple
 
+from eval.calibration import SEED_FREE_ROWS
 from eval.conventions import PSNR_CAP_DB, all_conventions
 from eval.records.runs_csv import FAILED, SCORED, SUITE_ORDER, metric_keys, row_key
 from eval.records.suite import TableDef, builtin_suites, load_eval_suite, table_spec
@@ -167,6 +168,10 @@ def suite_data(
         labels[rn] = next(r.get("label") or rn for r in by.values() if r["row"] == rn)
     groups.append(extra)
     row_names = ([r.name for r in s.rows] if s is not None else []) + extra
+    # the calibration rows whose prediction no trainer seed changes (from the suite's definition)
+    seed_free = (
+        {r.name for r in s.rows if r.calibration in SEED_FREE_ROWS} if s is not None else set()
+    )
     entries = []
     for seed in seeds:
         for group in groups:
@@ -190,6 +195,7 @@ def suite_data(
                             "clip_dir": None,
                             "metrics": metrics,
                             "error": error,
+                            "same_every_seed": rn in seed_free,
                         }
                     )
     return SuiteData(
@@ -249,6 +255,7 @@ def build_tables(
     for td in table_defs:
         spec = table_spec(td, lpips_available=lp, ldr_convention=ldr_conv, methods=methods)
         spec.intervals, spec.reference = True, ref_label
+        spec.seed_free = frozenset(e["label"] for e in entries if e.get("same_every_seed"))
         if getattr(td, "paper", None):
             from eval.paper import load_paper_values
 

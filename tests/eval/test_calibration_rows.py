@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from eval.calibration import ROWS, TEMPORAL_ROWS
+from eval.calibration import ROWS, SEED_FREE_ROWS, TEMPORAL_ROWS
 from eval.experiments.runner import job_list, run_job
 from eval.records.suite import SuiteError, load_eval_suite
 from m4dgs.clip import Clip, frame_name, level_name
@@ -56,6 +56,23 @@ def test_calibration_rows_parse_and_train_nothing(tmp_path):
     ]
     assert jobs[-1].calibration == "flow-merge" and jobs[-1].seed == 1
     assert set(ROWS) == {"copy-nearest", "flow-merge", "dibr"}
+    # the tables count a seed-free row's scene once: the entries of both sources say which rows
+    # those are (copy-nearest and flow-merge predict the same frames for every seed; dibr's camera
+    # initialisation is seeded)
+    from eval.experiments.collect import collect_suite
+    from eval.records.suite_data import suite_data
+
+    seed_free = {"full": False, "copy-nearest": True, "warp": True}
+    ent = collect_suite(s, tmp_path / "root", preset="tiny", seeds=2)
+    assert {e["row"]: e["same_every_seed"] for e in ent} == seed_free
+    csv_rows = [
+        {"suite": "cal", "scene": "a", "row": r, "seed": k, "status": "scored", "ldr_oe_psnr": 20.0}
+        for r in seed_free
+        for k in (0, 1)
+    ]
+    ent = suite_data("cal", csv_rows, definitions={"cal": s}).entries
+    assert {e["row"]: e["same_every_seed"] for e in ent} == seed_free
+    assert SEED_FREE_ROWS == TEMPORAL_ROWS
 
 
 @pytest.mark.parametrize(

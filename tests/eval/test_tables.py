@@ -127,3 +127,44 @@ def test_inf_and_spec_from_dict_and_paper_layout():
     assert any("mu-law" in n for n in notes) and any("n/a" in n for n in notes)
     with pytest.raises(ValueError):
         tables.render(rows, spec, "html")
+
+
+def test_a_seed_free_row_counts_each_scene_once_and_pairs_every_seed():
+    """A calibration row repeated for two trainer seeds (copy-nearest: one prediction) is one
+    sample per scene in its n and interval; its paired difference still uses every seed's pair. The
+    reference: scipy's Student-t interval on the values written out by hand."""
+    from scipy import stats as sst
+
+    ours = {("a", 0): 30.0, ("a", 1): 31.0, ("b", 0): 32.0, ("b", 1): 32.5, ("c", 0): 28.0}
+    ours[("c", 1)] = 29.5
+    copy = {"a": 29.0, "b": 33.0, "c": 27.0}
+    rows = [{"method": "Ours", "scene": s, "seed": k, "psnr": v} for (s, k), v in ours.items()]
+    rows += [
+        {"method": "Copy", "scene": s, "seed": k, "psnr": copy[s]} for s in copy for k in (0, 1)
+    ]
+    cols = [Column("psnr", "PSNR", True, ".2f", "LDR-OE", None)]
+
+    def half(values):
+        v = list(values)
+        return sst.t.ppf(0.975, len(v) - 1) * sst.sem(v)
+
+    for seed_free in (frozenset(), frozenset({"Copy"})):
+        spec = TableSpec(columns=cols, intervals=True, reference="Ours", seed_free=seed_free)
+        agg = {a["method"]: a for a in tables.aggregate(rows, spec)}
+        st = dict(
+            zip([a["method"] for a in tables.aggregate(rows, spec)], tables.cell_stats(rows, spec))
+        )
+        assert agg["Copy"]["psnr"] == pytest.approx(sum(copy.values()) / 3)
+        samples = list(copy.values()) if seed_free else [v for v in copy.values() for _ in (0, 1)]
+        assert agg["Copy"]["n_runs"] == len(samples)
+        assert st["Copy"][0].ci.half == pytest.approx(half(samples))
+        # the reference row is not seed-free: six runs
+        assert agg["Ours"]["n_runs"] == 6
+        assert st["Ours"][0].ci.half == pytest.approx(half(ours.values()))
+        # Δ pairs Copy with every seed of Ours, either way
+        diffs = [copy[s] - v for (s, _), v in ours.items()]
+        assert st["Copy"][0].diff.mean == pytest.approx(sum(diffs) / 6)
+        assert st["Copy"][0].diff.half == pytest.approx(half(diffs))
+    text = tables.render_markdown(rows, spec, conventions=CONV)
+    assert "Copy: the same prediction for every trainer seed" in text
+    assert "| Copy | 3 |" in text
