@@ -10,7 +10,11 @@ training, the row's 2D prediction is written and scored exactly like another met
 
 The prediction is written to a temporary folder beside the run folder and imported by
 score_frames into the run folder's renders/, with the row's estimated response as
-<run>/response.json. Like a trained run, a calibration run is done when its metrics.json exists."""
+<run>/response.json. Like a trained run, a calibration run is done when its metrics.json exists.
+
+copy-nearest and flow-merge predict the same frames for every trainer seed
+(eval.calibration.SEED_FREE_ROWS): the runner makes seed 0's and gives the other seeds a copy of it
+(copy_seed_free_run) instead of predicting and scoring the same frames again."""
 
 from __future__ import annotations
 
@@ -44,6 +48,8 @@ def make_calibration_run(
 
     run_dir = Path(run_dir)
     run_dir.parent.mkdir(parents=True, exist_ok=True)
+    if (run_dir / "renders").is_symlink():  # a copy's link (copy_seed_free_run): made here now
+        (run_dir / "renders").unlink()
     with tempfile.TemporaryDirectory(dir=run_dir.parent, prefix=f".{run_dir.name}-pred-") as tmp:
         pred = Path(tmp) / "pred"
         if row in TEMPORAL_ROWS:
@@ -74,5 +80,30 @@ def make_calibration_run(
     info = mio.read_json(run_dir / "run.json")
     mio.write_json(run_dir / "run.json", {**info, "preset": preset, "calibration": row})
     metrics["run"] = {**(metrics.get("run") or {}), "preset": preset}
+    mio.write_json(run_dir / "metrics.json", metrics)
+    return metrics
+
+
+def copy_seed_free_run(src, run_dir) -> dict:
+    """Another trainer seed's run of a seed-free calibration row (eval.calibration.SEED_FREE_ROWS),
+    from the finished run `src` of the same row and clip: run.json (with `same_as`, the source
+    folder relative to this one), response.json and metrics.json copied, renders/ a relative link
+    to the source's. metrics.json is written last, so an interrupted copy is made again. Returns
+    the metrics."""
+    src, run_dir = Path(src), Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    rel = Path("..") / src.name if src.parent == run_dir.parent else src.resolve()
+    info = mio.read_json(src / "run.json")
+    mio.write_json(run_dir / "run.json", {**info, "same_as": str(rel)})
+    if (src / "response.json").exists():
+        shutil.copyfile(src / "response.json", run_dir / "response.json")
+    renders = run_dir / "renders"
+    if renders.is_symlink() or renders.is_file():
+        renders.unlink()
+    elif renders.exists():
+        shutil.rmtree(renders)
+    if (src / "renders").exists():
+        renders.symlink_to(rel / "renders", target_is_directory=True)
+    metrics = mio.read_json(src / "metrics.json")
     mio.write_json(run_dir / "metrics.json", metrics)
     return metrics

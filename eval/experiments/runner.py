@@ -44,6 +44,7 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
+from eval.calibration import SEED_FREE_ROWS
 from eval.records.suite import (
     EvalSuite,
     is_builtin_suite_file,
@@ -381,11 +382,25 @@ def run_job(
 
 def _run_calibration_job(job: Job, res, steps, t0, force, lpips_weights, share) -> dict:
     """run_job for a calibration row: predict and score (eval.experiments.calibration_rows) unless
-    metrics.json exists (or force)."""
+    metrics.json exists (or force); another seed of a seed-free row (copy-nearest, flow-merge)
+    copies seed 0's finished run instead (calibration_rows.copy_seed_free_run)."""
     run_dir = Path(job.run_dir)
     mpath = run_dir / "metrics.json"
+    # a seed-free row's other seeds take seed 0's run (the same frames, the same scores)
+    first = run_dir.parent / seed_run_name(job.row, 0)
     try:
-        if force or not mpath.exists():
+        if (
+            not force
+            and not mpath.exists()
+            and job.seed > 0
+            and job.calibration in SEED_FREE_ROWS
+            and (first / "metrics.json").exists()
+        ):
+            from eval.experiments.calibration_rows import copy_seed_free_run
+
+            copy_seed_free_run(first, run_dir)
+            steps.append("copy")
+        elif force or not mpath.exists():
             from eval.experiments.calibration_rows import make_calibration_run
 
             make_calibration_run(

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -171,3 +172,40 @@ def test_calibration_command_writes_test_frames_and_the_same_images_at_the_views
     assert mio.read_json(out / "response.json")["row"] == "copy-nearest"
     bad = CliRunner().invoke(main, ["calibration", str(tiny_clip_oracle), "nearest", "--out", "x"])
     assert bad.exit_code == 2 and "copy-nearest" in bad.output
+
+
+def test_a_seed_free_row_predicts_once_and_copies_for_the_other_seeds(
+    tiny_clip_oracle, tmp_path, monkeypatch
+):
+    """copy-nearest at two trainer seeds: seed 0 is predicted and scored, seed 1 is a copy of it
+    (metrics, response, run.json naming its source; renders linked), with no second prediction."""
+    import eval.experiments.calibration_rows as cr
+
+    clips = tmp_path / "clips"
+    clips.mkdir()
+    shutil.copytree(tiny_clip_oracle, clips / "flag")
+    s = load_eval_suite(_suite(tmp_path / "s.yaml", [{"calibration": "copy-nearest"}], "clips"))
+    made = []
+    real = cr.make_calibration_run
+    monkeypatch.setattr(cr, "make_calibration_run", lambda *a, **k: made.append(a) or real(*a, **k))
+    jobs = job_list(s, tmp_path / "root", preset="tiny", seeds=2)
+    assert [j.seed for j in jobs] == [0, 1]
+    assert run_job(jobs[0])["steps"] == ["predict", "score"]
+    assert run_job(jobs[1])["steps"] == ["copy"]
+    assert len(made) == 1
+    first, other = (Path(j.run_dir) for j in jobs)
+    assert other.name == "copy-nearest-seed-1"
+    for f in ("metrics.json", "response.json"):
+        assert (other / f).read_bytes() == (first / f).read_bytes()
+    info = mio.read_json(other / "run.json")
+    assert info["same_as"] == "../copy-nearest" and info["calibration"] == "copy-nearest"
+    assert (other / "renders").is_symlink()
+    assert sorted(p.name for p in (other / "renders").iterdir()) == sorted(
+        p.name for p in (first / "renders").iterdir()
+    )
+    # done: run again, nothing happens; without seed 0's run a seed is predicted as before
+    assert run_job(jobs[1])["steps"] == []
+    shutil.rmtree(first)
+    (other / "metrics.json").unlink()
+    assert run_job(jobs[1])["steps"] == ["predict", "score"] and len(made) == 2
+    assert not (other / "renders").is_symlink()
