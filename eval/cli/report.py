@@ -48,6 +48,20 @@ def _no_scored_runs(target: str, name: str, root, entries: list) -> str:
     )
 
 
+def _complete_scenes_hint(entries: list):
+    """For a suite part of whose runs are not scored yet (a campaign under way): the scenes whose
+    runs are all scored, as the --scenes option that tabulates them; None when every scene or no
+    scene is complete."""
+    scenes = list(dict.fromkeys(e["scene"] for e in entries))
+    done = [sc for sc in scenes if all(e["metrics"] for e in entries if e["scene"] == sc)]
+    if not done or len(done) == len(scenes):
+        return None
+    return (
+        f"[table] {len(done)} of {len(scenes)} scenes have every run scored; the rows' means stay "
+        f"n/a until the others have theirs, or tabulate those with --scenes {','.join(done)}"
+    )
+
+
 @group.command()
 @click.argument("target")
 @click.option(
@@ -137,6 +151,9 @@ def table(target, out, fmt, columns, out_file, scenes, seeds, no_figures, figure
     if columns == "compact":
         entries, defs = compact_tables(entries, defs[0].title if defs else str(target))
     text = build_tables(entries, defs, fmt, reference)
+    hint = _complete_scenes_hint(entries) if not Path(target).is_dir() and not scenes else None
+    if hint:
+        click.echo(hint, err=True)
     if out_file:
         mio.write_text_atomic(out_file, text)
         click.echo(f"wrote {out_file}", err=True)

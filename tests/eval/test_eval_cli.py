@@ -654,6 +654,15 @@ def test_run_suite_resumable_and_table(tmp_path, fake_trainer):
         and "1 of 4 runs have no metrics.json" in r.output
     )
     assert base_line.startswith("| Baseline | 1 | n/a | n/a |")
+    # ... and the scenes whose runs are all scored are named as the option that tabulates them
+    assert "1 of 2 scenes have every run scored" in r.output
+    assert "--scenes tiny-lamp-box" in r.output
+    args = ["table", "--columns", "all", str(suite), "--root", str(out), "--no-figures"]
+    r = CliRunner().invoke(main, args + ["--scenes", "tiny-lamp-box"])
+    base_line = next(ln for ln in r.output.splitlines() if ln.startswith("| Baseline"))
+    # HDR PSNR on that scene: Baseline 30, Ours 33
+    assert r.exit_code == 0 and "| 30.00 ± n/a | -3.00 ± n/a |" in base_line, base_line
+    assert "scenes have every run scored" not in r.output
     mp.write_bytes(saved)
     # latex / csv / runs-dir forms
     r = CliRunner().invoke(
