@@ -306,8 +306,8 @@ def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None
                 sorted(spec.seed_free)
             )
             notes.append(
-                f"{names}: the same prediction for every trainer seed, so n and the interval count "
-                "each scene once; Δ pairs it with every seed's run."
+                f"{names}: one prediction for every trainer seed, so their n and interval count "
+                "each scene once; their Δ pairs them with every seed's run."
             )
     ref = (
         spec.reference

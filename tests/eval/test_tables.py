@@ -166,5 +166,5 @@ def test_a_seed_free_row_counts_each_scene_once_and_pairs_every_seed():
         assert st["Copy"][0].diff.mean == pytest.approx(sum(diffs) / 6)
         assert st["Copy"][0].diff.half == pytest.approx(half(diffs))
     text = tables.render_markdown(rows, spec, conventions=CONV)
-    assert "Copy: the same prediction for every trainer seed" in text
+    assert "Copy: one prediction for every trainer seed" in text
     assert "| Copy | 3 |" in text
