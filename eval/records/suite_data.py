@@ -255,7 +255,10 @@ def build_tables(
     for td in table_defs:
         spec = table_spec(td, lpips_available=lp, ldr_convention=ldr_conv, methods=methods)
         spec.intervals, spec.reference = True, ref_label
-        spec.seed_free = frozenset(e["label"] for e in entries if e.get("same_every_seed"))
+        # (only where a second seed repeats them: with one seed there is nothing to count once)
+        spec.seed_free = frozenset(
+            e["label"] for e in entries if e.get("same_every_seed") and e.get("seed")
+        )
         if getattr(td, "paper", None):
             from eval.paper import load_paper_values
 

@@ -73,6 +73,14 @@ def test_calibration_rows_parse_and_train_nothing(tmp_path):
     ]
     ent = suite_data("cal", csv_rows, definitions={"cal": s}).entries
     assert {e["row"]: e["same_every_seed"] for e in ent} == seed_free
+    # the table counts their scene once and says so; with one seed there is nothing to say
+    from eval.records.suite_data import build_tables
+
+    text = build_tables(ent, s.tables, "markdown", "full")
+    assert "| 2D copy | 1 |" in text and "| full | 2 |" in text
+    assert "2D copy, warp: one prediction for every trainer seed" in text
+    text = build_tables([e for e in ent if e["seed"] == 0], s.tables, "markdown", "full")
+    assert "| 2D copy | 1 |" in text and "one prediction for every trainer seed" not in text
     assert SEED_FREE_ROWS == TEMPORAL_ROWS
 
 
