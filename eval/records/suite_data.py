@@ -116,11 +116,17 @@ class SuiteData:
 
     def provenance(self, column: str) -> Dict[str, int]:
         """{value: number of scored runs} of a provenance column ("code", "generator",
-        "torch_threads", "host"); runs whose CSV row does not say count under "not recorded"."""
+        "torch_threads", "host"); runs whose CSV row does not say count under "not recorded", but
+        the calibration rows, which train nothing, under "none (2D rows)" for the m4dgs code and
+        the torch threads."""
         out: Dict[str, int] = {}
         for r in self.rows:
             if r.get("status") == SCORED:
-                v = str(r.get(column) or "") or "not recorded"
+                v = str(r.get(column) or "") or (
+                    "none (2D rows)"
+                    if r.get("variant") == "calibration" and column in ("code", "torch_threads")
+                    else "not recorded"
+                )
                 out[v] = out.get(v, 0) + 1
         return dict(sorted(out.items()))
 

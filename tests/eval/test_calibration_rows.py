@@ -217,3 +217,25 @@ def test_a_seed_free_row_predicts_once_and_copies_for_the_other_seeds(
     (other / "metrics.json").unlink()
     assert run_job(jobs[1])["steps"] == ["predict", "score"] and len(made) == 2
     assert not (other / "renders").is_symlink()
+
+
+def test_the_provenance_of_a_2d_row_is_no_code_not_an_unrecorded_one():
+    """The results page's provenance line: a calibration row trains nothing, so its m4dgs code and
+    torch threads read "none (2D rows)", not "not recorded" (a run that should have said)."""
+    from eval.records.suite_data import suite_data
+
+    base = {"suite": "nv-main", "scene": "lamp-room-orbit", "seed": 0, "status": "scored"}
+    rows = [
+        {**base, "row": "full", "variant": "full", "code": "abcdef012345", "torch_threads": "1"},
+        {**base, "row": "copy-nearest", "variant": "calibration", "code": "", "generator": "7"},
+        {**base, "row": "world-only", "variant": "world-only", "code": ""},
+    ]
+    d = suite_data("nv-main", rows)
+    assert d.provenance("code") == {
+        "abcdef012345": 1,
+        "none (2D rows)": 1,
+        "not recorded": 1,
+    }
+    assert d.provenance("torch_threads") == {"1": 1, "none (2D rows)": 1, "not recorded": 1}
+    assert d.provenance("host") == {"not recorded": 3}
+    assert d.provenance("generator") == {"7": 1, "not recorded": 2}
