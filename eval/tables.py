@@ -167,11 +167,12 @@ def cell_stats(rows: list, spec: TableSpec, agg: list | None = None) -> list:
     for a in agg:
         m = a["method"]
         mrows = [r for r in rows if r["method"] == m]
+        own = _own_runs(mrows, m, spec)
         line = []
         for c in spec.columns:
             st = CellStats(is_reference=has_ref and m == spec.reference)
             if a[c.key] is not None:
-                st.ci = mean_ci([r.get(c.key) for r in _own_runs(mrows, m, spec)], spec.level)
+                st.ci = mean_ci([r.get(c.key) for r in own], spec.level)
                 if has_ref and m != spec.reference and ref_agg[c.key] is not None:
                     st.diff = paired_diff(by_key(mrows, c.key), by_key(ref_rows, c.key), spec.level)
             st.paper = paper.get(m, {}).get(c.key)
@@ -302,9 +303,8 @@ def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None
             "degrees of freedom); n/a for n < 2."
         )
         if spec.seed_free:
-            names = ", ".join(m for m in (spec.methods or []) if m in spec.seed_free) or ", ".join(
-                sorted(spec.seed_free)
-            )
+            order = list(spec.methods or []) + sorted(spec.seed_free)
+            names = ", ".join(m for m in dict.fromkeys(order) if m in spec.seed_free)
             notes.append(
                 f"{names}: one prediction for every trainer seed, so their n and interval count "
                 "each scene once; their Δ pairs them with every seed's run."

@@ -8,6 +8,8 @@ estimated from the bracketed training frames (eval.calibration.response, Debevec
 TEMPORAL_ROWS = ("copy-nearest", "flow-merge")
 VIEW_ROWS = ("dibr",)
 ROWS = TEMPORAL_ROWS + VIEW_ROWS
+# the `variant` of a calibration row (suite definitions, runs CSV): it trains nothing
+VARIANT = "calibration"
 # the rows whose prediction is the same for every trainer seed (dibr's camera initialisation is
 # seeded): a table counts each scene of theirs once (eval.tables.TableSpec.seed_free)
 SEED_FREE_ROWS = TEMPORAL_ROWS

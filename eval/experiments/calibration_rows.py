@@ -98,7 +98,7 @@ def copy_seed_free_run(src, run_dir) -> dict:
     if (src / "response.json").exists():
         shutil.copyfile(src / "response.json", run_dir / "response.json")
     renders = run_dir / "renders"
-    if renders.is_symlink() or renders.is_file():
+    if renders.is_symlink():
         renders.unlink()
     elif renders.exists():
         shutil.rmtree(renders)

@@ -48,6 +48,7 @@ from typing import Any, Dict, List, Optional
 
 from benchgen.suite import load_suite
 from eval.calibration import ROWS as CALIBRATION_ROWS
+from eval.calibration import VARIANT as CALIBRATION_VARIANT
 from eval.paper import load_paper_values
 from eval.tables import Column, TableSpec, paper_table_spec
 from m4dgs.core import io as mio
@@ -535,7 +536,7 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
                     f"rows[{i}].{both[0]}",
                     "a calibration row trains nothing: it takes no variant or overrides",
                 )
-        variant = "calibration" if cal is not None else str(r.get("variant", "full"))
+        variant = CALIBRATION_VARIANT if cal is not None else str(r.get("variant", "full"))
         rname = str(r.get("name", cal if cal is not None else variant))
         if not _NAME_RE.match(rname):
             raise SuiteError(path, f"rows[{i}].name", f"expected a folder-safe name, got {rname!r}")

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Dict, List, Mapping, Optional, Tuple
 
 from eval.calibration import SEED_FREE_ROWS
+from eval.calibration import VARIANT as CALIBRATION_VARIANT
 from eval.conventions import PSNR_CAP_DB, all_conventions
 from eval.records.runs_csv import FAILED, SCORED, SUITE_ORDER, metric_keys, row_key
 from eval.records.suite import TableDef, builtin_suites, load_eval_suite, table_spec
@@ -124,7 +125,8 @@ class SuiteData:
             if r.get("status") == SCORED:
                 v = str(r.get(column) or "") or (
                     "none (2D rows)"
-                    if r.get("variant") == "calibration" and column in ("code", "torch_threads")
+                    if r.get("variant") == CALIBRATION_VARIANT
+                    and column in ("code", "torch_threads")
                     else "not recorded"
                 )
                 out[v] = out.get(v, 0) + 1
