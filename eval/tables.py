@@ -88,6 +88,8 @@ class TableSpec:
     # copy-nearest and flow-merge): their n and interval count each scene once (a copy is not a
     # second sample); their paired differences still pair them with every seed's reference run
     seed_free: frozenset = frozenset()
+    # methods that are 2D calibration rows (eval.calibration): a footnote says what they are
+    calibration: frozenset = frozenset()
 
     @classmethod
     def from_dict(cls, d: dict) -> "TableSpec":
@@ -277,6 +279,12 @@ def best_flags(agg: list, spec: TableSpec) -> list:
     return flags
 
 
+def _names(spec: TableSpec, methods: frozenset) -> str:
+    """The given methods' names, comma-separated, in the table's row order."""
+    order = list(spec.methods or []) + sorted(methods)
+    return ", ".join(m for m in dict.fromkeys(order) if m in methods)
+
+
 def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None = None) -> list:
     """Convention sentences for the table: each column's, then the spec's extras, de-duplicated, in
     order, then the statistics notes (intervals, paired differences, paper values; `agg` tells
@@ -294,6 +302,10 @@ def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None
     else:
         notes.append("Means over scenes; n/a where a method lacks the value for a scene.")
     pct = f"{100 * spec.level:g} %"
+    seed_note = (
+        "one prediction for every trainer seed, so their n and interval count each scene once; "
+        "their Δ pairs them with every seed's run."
+    )
     if spec.intervals:
         notes.append(
             f"mean ± h: h is the half-width of the Student-t {pct} confidence interval of the "
@@ -302,13 +314,16 @@ def footnotes(spec: TableSpec, conventions: dict | None = None, agg: list | None
             "with n - 1 "
             "degrees of freedom); n/a for n < 2."
         )
-        if spec.seed_free:
-            order = list(spec.methods or []) + sorted(spec.seed_free)
-            names = ", ".join(m for m in dict.fromkeys(order) if m in spec.seed_free)
-            notes.append(
-                f"{names}: one prediction for every trainer seed, so their n and interval count "
-                "each scene once; their Δ pairs them with every seed's run."
-            )
+    if spec.calibration:
+        notes.append(
+            f"{_names(spec, spec.calibration)}: 2D calibration rows, predictions that reconstruct "
+            'nothing, scored like the trained rows (docs/eval.md, "Calibration rows"): a trained '
+            "row's lead over them is what its reconstruction adds; they appear in the tables where "
+            "they have values"
+            + (f"; {seed_note}" if spec.intervals and spec.seed_free == spec.calibration else ".")
+        )
+    if spec.intervals and spec.seed_free and spec.seed_free != spec.calibration:
+        notes.append(f"{_names(spec, spec.seed_free)}: {seed_note}")
     ref = (
         spec.reference
         if (spec.reference is not None and (agg is None or _has_reference(agg, spec)))

@@ -47,8 +47,8 @@ def _against_spec(against):
     "--rows",
     "row_names",
     default=None,
-    help="Comma-separated rows to compare with --ref (default: every other row of the suite in "
-    "the CSV).",
+    help="Comma-separated rows to compare with --ref (default: every other trained row of the "
+    "suite in the CSV; the 2D calibration rows, e.g. flow-merge, only when named here).",
 )
 @click.option(
     "--metrics",

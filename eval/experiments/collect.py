@@ -1,6 +1,8 @@
 """The runs of a suite (its job list under an experiment root) or of a folder of runs, as the
 entries that tables and the export read: {"scene", "row", "label", "seed", "run_dir", "clip_dir",
-"metrics", "same_every_seed" (a calibration row whose prediction no trainer seed changes)}."""
+"metrics", "calibration" (the calibration row a 2D prediction is, eval.calibration.ROWS, or None
+for a trained row), "same_every_seed" (a calibration row whose prediction no trainer seed
+changes)}."""
 
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ def collect_suite(suite, out, scenes=None, preset: str = "small", seeds=None) ->
                 "run_dir": j.run_dir,
                 "clip_dir": j.clip_dir,
                 "metrics": mio.read_json(mp) if mp.exists() else None,
+                "calibration": j.calibration,
                 "same_every_seed": j.calibration in SEED_FREE_ROWS,
             }
         )
@@ -79,6 +82,7 @@ def collect_runs_dir(runs_dir) -> list:
                 "run_dir": str(rd),
                 "clip_dir": run_meta.get("clip"),
                 "metrics": m,
+                "calibration": info.get("calibration"),
                 "same_every_seed": info.get("calibration") in SEED_FREE_ROWS,
             }
         )

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from typing import Dict, List, Optional, Sequence
 
+from eval.calibration import VARIANT as CALIBRATION_VARIANT
 from eval.records.runs_csv import FAILED, SCORED, one_line
 from eval.records.suite import SuiteError, builtin_suites, load_eval_suite, metric_columns
 from eval.stats import (
@@ -85,14 +86,14 @@ def pairs_markdown(
     against: Optional[Sequence[str]] = None,
     differ: bool = False,
 ) -> str:
-    """Markdown tables of the paired differences of `row_names` (default: every row of the suite
-    in the CSV but the reference) against `ref` (default: the suite file's reference row). `suite`
-    is a built-in suite's name or a suite YAML file (its `name` is the CSV's suite); with
-    `by_seed`, also per trainer seed and the F-test of scene differences; with `holm`, the
-    Holm-adjusted p-values over every printed comparison; with `against` = (suite, ref, row), each
-    difference less that suite's row - ref of the same (scene, seed): the change, as the results
-    page's Controls read it; with `differ`, whether the rows differ from one another (module
-    docstring). Raises ValueError naming what the CSV lacks."""
+    """Markdown tables of the paired differences of `row_names` (default: every trained row of the
+    suite in the CSV but the reference; 2D calibration rows when named) against `ref` (default:
+    the suite file's reference row). `suite` is a built-in suite's name or a suite YAML file (its
+    `name` is the CSV's suite); with `by_seed`, also per trainer seed and the F-test of scene
+    differences; with `holm`, the Holm-adjusted p-values over every printed comparison; with
+    `against` = (suite, ref, row), each difference less that suite's row - ref of the same (scene,
+    seed): the change, as the results page's Controls read it; with `differ`, whether the rows
+    differ from one another (module docstring). Raises ValueError naming what the CSV lacks."""
     from pathlib import Path
 
     definition = None
@@ -115,7 +116,12 @@ def pairs_markdown(
         ref = definition.reference
     if ref not in names:
         raise ValueError(f"suite {suite!r} has no scored run of row {ref!r} (rows: {names})")
-    wanted = [n for n in names if n != ref] if row_names is None else list(row_names)
+    # by default the trained rows: a 2D calibration row joins the family (Holm, --rows-differ)
+    # only when named
+    cal = {r["row"] for r in present if r.get("variant") == CALIBRATION_VARIANT}
+    wanted = (
+        [n for n in names if n != ref and n not in cal] if row_names is None else list(row_names)
+    )
     unknown = [n for n in wanted if n not in names]
     if unknown:
         raise ValueError(f"suite {suite!r} has no scored run of rows {unknown} (rows: {names})")

@@ -107,9 +107,13 @@ class SuiteData:
 
     def seed_noise(self, metric: str):
         """eval.stats.SeedNoise of one metric over the suite's (scene, row) groups with runs of two
-        or more trainer seeds (every scored run, not only the tables' complete pairs), or None."""
+        or more trainer seeds (every scored run, not only the tables' complete pairs; not the
+        rows that make one prediction for every seed, whose copies would read as zero noise), or
+        None."""
         groups: Dict[Tuple[str, str], List[float]] = {}
         for e in self.scored:
+            if e.get("same_every_seed"):
+                continue
             v = e["metrics"].get(metric)
             if v is not None:
                 groups.setdefault((e["scene"], e["row"]), []).append(float(v))
@@ -176,10 +180,16 @@ def suite_data(
         labels[rn] = next(r.get("label") or rn for r in by.values() if r["row"] == rn)
     groups.append(extra)
     row_names = ([r.name for r in s.rows] if s is not None else []) + extra
-    # the calibration rows whose prediction no trainer seed changes (from the suite's definition)
-    seed_free = (
-        {r.name for r in s.rows if r.calibration in SEED_FREE_ROWS} if s is not None else set()
+    # the calibration rows (from the suite's definition, else the CSV's variant) and those whose
+    # prediction no trainer seed changes
+    calibration = (
+        {r.name: r.calibration for r in s.rows if r.calibration is not None}
+        if s is not None
+        else {
+            r["row"]: r["variant"] for r in by.values() if r.get("variant") == CALIBRATION_VARIANT
+        }
     )
+    seed_free = {rn for rn, cal in calibration.items() if cal in SEED_FREE_ROWS}
     entries = []
     for seed in seeds:
         for group in groups:
@@ -203,6 +213,7 @@ def suite_data(
                             "clip_dir": None,
                             "metrics": metrics,
                             "error": error,
+                            "calibration": calibration.get(rn),
                             "same_every_seed": rn in seed_free,
                         }
                     )
@@ -234,7 +245,8 @@ def build_tables(
     """Render every table of a suite from collected entries: mean +- 95 % t-interval over the
     (scene, seed) runs of each row, best mean in bold, the paired difference to the `reference` row
     (a row name; its label in the table), for tables with `paper` the paper's values and the
-    direction agreement, footnotes."""
+    direction agreement, footnotes. A calibration row (entry "calibration") with scored runs
+    appears in the tables where it has a value."""
     present = [e for e in entries if e["metrics"]]
     methods = list(dict.fromkeys(e["label"] for e in entries))
     label_of = {}
@@ -251,6 +263,8 @@ def build_tables(
                 {k: v for k, v in e["metrics"].items() if isinstance(v, (int, float)) or v is None}
             )
         rows.append(r)
+    calibration = {e["label"] for e in entries if e.get("calibration")}
+    scored_labels = {e["label"] for e in present}
     lp = any(r.get(k) is not None for r in rows for k in r if k.endswith("_lpips"))
     convs = {e["metrics"].get("ldr_convention", "ldr_png") for e in present}
     ldr_conv = (
@@ -263,9 +277,21 @@ def build_tables(
     for td in table_defs:
         spec = table_spec(td, lpips_available=lp, ldr_convention=ldr_conv, methods=methods)
         spec.intervals, spec.reference = True, ref_label
+        # a scored calibration row stays out of a table where it has no value (a 2D prediction
+        # has no training time, cameras or training-frame renders); one without runs yet stays, n/a
+        keys = [c.key for c in spec.columns]
+        valued = {r["method"] for r in rows if any(r.get(k) is not None for k in keys)}
+        spec.methods = [
+            m for m in methods if m not in calibration or m in valued or m not in scored_labels
+        ]
+        spec.calibration = frozenset(
+            m for m in calibration if m in spec.methods and m in scored_labels
+        )
         # (only where a second seed repeats them: with one seed there is nothing to count once)
         spec.seed_free = frozenset(
-            e["label"] for e in entries if e.get("same_every_seed") and e.get("seed")
+            e["label"]
+            for e in entries
+            if e.get("same_every_seed") and e.get("seed") and e["label"] in spec.methods
         )
         if getattr(td, "paper", None):
             from eval.paper import load_paper_values

@@ -137,6 +137,13 @@ def floors_text(data: SuiteData, floors: Dict[tuple, Dict[str, Optional[float]]]
     have = [floors[c] for c in clips if c in floors]
     if not have:
         return None
+    scenes = len({sc for sc, _ in clips})
+    # a scene's clips of two generator versions (e.g. 2D rows made on newer clips) are two clips
+    of = f"{len(have)} of its {len(clips)} clips" + (
+        f" ({scenes} scenes, clips of {len({g for _, g in clips})} generator versions)"
+        if scenes < len(clips)
+        else ""
+    )
 
     def stat(col):
         v = [f[col] for f in have if f.get(col) is not None]
@@ -146,7 +153,7 @@ def floors_text(data: SuiteData, floors: Dict[tuple, Dict[str, Optional[float]]]
         "- Ground-truth HDR-TAE floor of its clips (clip.json `gt.hdr_tae_floor`: the metric "
         "scored on the ground truth itself, the level a method's HDR-TAE is read against, "
         "docs/rendering.md): "
-        f"mean {stat('hdr_tae_floor')} over {len(have)} of its {len(clips)} clips; edge-excluded "
+        f"mean {stat('hdr_tae_floor')} over {of}; edge-excluded "
         f"(`gt.hdr_tae_floor_interior`, for `hdr_tae_interior`) {stat('hdr_tae_floor_interior')}"
     )
 

@@ -78,7 +78,8 @@ def test_calibration_rows_parse_and_train_nothing(tmp_path):
 
     text = build_tables(ent, s.tables, "markdown", "full")
     assert "| 2D copy | 1 |" in text and "| full | 2 |" in text
-    assert "2D copy, warp: one prediction for every trainer seed" in text
+    assert "2D copy, warp: 2D calibration rows" in text
+    assert "where they have values; one prediction for every trainer seed" in text
     text = build_tables([e for e in ent if e["seed"] == 0], s.tables, "markdown", "full")
     assert "| 2D copy | 1 |" in text and "one prediction for every trainer seed" not in text
     assert SEED_FREE_ROWS == TEMPORAL_ROWS
@@ -239,3 +240,57 @@ def test_the_provenance_of_a_2d_row_is_no_code_not_an_unrecorded_one():
     assert d.provenance("torch_threads") == {"1": 1, "none (2D rows)": 1, "not recorded": 1}
     assert d.provenance("host") == {"not recorded": 3}
     assert d.provenance("generator") == {"7": 1, "not recorded": 2}
+
+
+def test_a_2d_row_appears_only_in_the_tables_where_it_has_values(tmp_path):
+    """A calibration row has no training time, cameras or training-frame renders: a table of those
+    leaves it out (a trained row without values stays, as n/a: its missing value is news), and the
+    footnote naming the 2D rows follows the rows the table shows. Both entry sources (a suite's
+    definition, a CSV without one) know which rows are 2D."""
+    from eval.records.suite import TableDef
+    from eval.records.suite_data import build_tables, suite_data
+
+    (tmp_path / "clips" / "a").mkdir(parents=True)
+    (tmp_path / "clips" / "a" / "clip.json").write_text("{}")
+    s = load_eval_suite(
+        _suite(
+            tmp_path / "s.yaml",
+            [
+                {"name": "full", "variant": "full"},
+                {"name": "no-tlr", "variant": "no-tlr"},
+                {"name": "copy-nearest", "label": "2D copy", "calibration": "copy-nearest"},
+            ],
+        )
+    )
+    base = {"suite": "cal", "status": "scored"}
+    rows = []
+    for sc, k in [("a", 0), ("a", 1), ("b", 0), ("b", 1)]:
+        psnr = {"full": 30.0 + k, "no-tlr": 29.0, "copy-nearest": 28.0}
+        for rn in psnr:
+            r = {**base, "scene": sc, "seed": k, "row": rn, "ldr_oe_psnr": psnr[rn]}
+            r["variant"] = "calibration" if rn == "copy-nearest" else rn
+            if rn == "full":
+                r["train_minutes"] = 10.0
+            rows.append(r)
+    defs = [TableDef("frames", ["ldr_oe_psnr"]), TableDef("cost", ["train_minutes"])]
+    for ent in (
+        suite_data("cal", rows, definitions={"cal": s}).entries,
+        suite_data("cal", rows, definitions={}).entries,
+    ):
+        assert {e["row"]: bool(e["calibration"]) for e in ent} == {
+            "full": False,
+            "no-tlr": False,
+            "copy-nearest": True,
+        }
+        frames, cost = build_tables(ent, defs, "markdown", "full").split("**cost**")
+        label = next(e["label"] for e in ent if e["row"] == "copy-nearest")
+        assert f"| {label} |" in frames and "2D calibration rows" in frames
+        assert f"| {label} |" not in cost and "2D calibration rows" not in cost
+        assert "| no-tlr |" in cost and "n/a" in cost.split("| no-tlr |")[1].split("\n")[0]
+        # its Δ in the frames table pairs it with the reference's runs: 28 - mean(30, 31)
+        cells = frames.split(f"| {label} |")[1].split("|")
+        assert cells[2].strip().startswith("-2.50")
+    # a 2D row without any scored run yet stays in every table, n/a, like a trained row
+    ent = suite_data("cal", [r for r in rows if r["row"] != "copy-nearest"], {"cal": s}).entries
+    cost = build_tables(ent, defs, "markdown", "full").split("**cost**")[1]
+    assert "| 2D copy |" in cost and "2D calibration rows" not in cost

@@ -41,6 +41,7 @@ OFFSETS = {
     "world-only": (-0.8, -0.7, -1.1, -0.01, 0.005),
 }
 MISSING = ("paper-ablation", "robot-arm-dolly", "no-reproj", 1)  # a run folder without metrics
+CAL_ROWS = ["copy-nearest", "flow-merge"]  # the 2D calibration rows every shipped suite carries
 
 
 def _value(rng, scene_base, row, k):
@@ -55,7 +56,9 @@ def _write_run(root, suite, scene, row, seed, vals, curve_gain=None):
     d.mkdir(parents=True, exist_ok=True)
     code = hashlib.sha256(suite.encode()).hexdigest()  # one code version per suite
     info = {"variant": row, "preset": "small", "code": code, "torch_threads": 1 + seed}
-    if seed == 0:  # seed 1's run.json predates the host record
+    if row in CAL_ROWS:  # a 2D row's run.json (eval.experiments.calibration_rows)
+        info = {"variant": row, "preset": "small", "method": "external", "calibration": row}
+    if seed == 0 and row not in CAL_ROWS:  # seed 1's run.json predates the host record
         info["host"] = {
             "machine": "x86_64",
             "cpu": "Some CPU",
@@ -94,7 +97,15 @@ def _write_run(root, suite, scene, row, seed, vals, curve_gain=None):
 
 def make_runs(root):
     """paper-ablation: 3 scenes x 6 rows x 2 seeds (one run without metrics); paper-main: 2
-    scenes x 5 rows x 1 seed."""
+    scenes x 5 rows x 1 seed; and each suite's two 2D rows, one prediction for every seed (their
+    values from a generator of their own, so that the trained rows' draws stay as they were)."""
+    cal_rng = np.random.default_rng(11)
+    for suite, scenes, seeds in (("paper-ablation", ABL_SCENES, 2), ("paper-main", MAIN_SCENES, 1)):
+        for sc in scenes:
+            for row in CAL_ROWS:
+                vals = {k: float(cal_rng.uniform(20, 30)) for k in METRICS if k != "hdr_tae"}
+                for seed in range(seeds):
+                    _write_run(root, suite, sc, row, seed, vals)
     rng = np.random.default_rng(7)
     for suite, scenes, rows, seeds in (
         ("paper-ablation", ABL_SCENES, ABL_ROWS, 2),
@@ -215,9 +226,18 @@ def check_table(table, csv_rows, suite, labels, ref, paper=None):
                 continue
             vals = runs(row, metric)
             value = unbold(cells[name + arrow])
-            m, h = mean_ci(list(vals.values()))
+            if not vals:  # a 2D row has no temporal scores
+                assert value == "n/a" and cells[f"Δ {name}"] == "n/a", (row, metric)
+                continue
+            own = vals
+            if row in CAL_ROWS:  # one prediction for every seed: each scene counts once
+                first = {}
+                for sc, seed in sorted(vals):
+                    first.setdefault(sc, (sc, seed))
+                own = {k: vals[k] for k in first.values()}
+            m, h = mean_ci(list(own.values()))
             assert value == f"{m:{fmt}} ± {h:{fmt}}", (row, metric, value)
-            assert cells["n"] == str(len(vals))
+            assert cells["n"] == str(len(own))
             if row == ref:
                 assert cells[f"Δ {name}"] == "ref"
                 continue
@@ -267,12 +287,12 @@ def test_export_merge_results_readme(tmp_path):
         ],
     )
     assert r.exit_code == 0, r.output
-    assert "paper-ablation: 35 scored, 1 without metrics.json" in r.output
+    assert "paper-ablation: 47 scored, 1 without metrics.json" in r.output
     # paper-main without --scenes: only the scenes that have run folders
     r = cli.invoke(main, ["export", "paper-main", "--root", str(root), "--csv", str(csvp)])
     assert r.exit_code == 0, r.output
     rows = read_csv(csvp)
-    assert len(rows) == 36 + 10
+    assert len(rows) == 48 + 14
     assert {r["scene"] for r in rows if r["suite"] == "paper-main"} == set(MAIN_SCENES)
     miss = [r for r in rows if r["status"] == "missing"]
     assert [(r["suite"], r["scene"], r["row"], int(r["seed"])) for r in miss] == [MISSING]
@@ -287,7 +307,11 @@ def test_export_merge_results_readme(tmp_path):
     # provenance from run.json and clip.json; "" where a file does not say
     code = hashlib.sha256(b"paper-ablation").hexdigest()[:12]
     assert (one["code"], one["generator"], one["torch_threads"]) == (code, "7", "1")
-    other = next(r for r in rows if r["scene"] != "lamp-room-orbit" and r["seed"] == "1")
+    other = next(
+        r
+        for r in rows
+        if r["scene"] != "lamp-room-orbit" and r["seed"] == "1" and r["row"] not in CAL_ROWS
+    )
     assert other["generator"] == "" and other["torch_threads"] == "2"
     assert one["host"] == "Some CPU / AVX2" and other["host"] == ""
     assert "mixes" not in r.output
@@ -350,9 +374,9 @@ def test_export_merge_results_readme(tmp_path):
             ",".join(ABL_SCENES),
         ],
     )
-    assert r.exit_code == 0 and "34 scored, 2 without metrics.json" in r.output, r.output
+    assert r.exit_code == 0 and "46 scored, 2 without metrics.json" in r.output, r.output
     rows = read_csv(csvp)
-    assert len(rows) == 46
+    assert len(rows) == 62
     full = next(
         r
         for r in rows
@@ -368,7 +392,7 @@ def test_export_merge_results_readme(tmp_path):
     # a wrong root adds nothing
     r = cli.invoke(main, ["export", "priors", "--root", str(tmp_path / "nope"), "--csv", str(csvp)])
     assert r.exit_code == 1 and "no metrics.json found" in r.output
-    assert len(read_csv(csvp)) == 46
+    assert len(read_csv(csvp)) == 62
 
     # results
     readme = tmp_path / "README.md"
@@ -419,21 +443,22 @@ def test_export_merge_results_readme(tmp_path):
     assert check_table(t, rows, "paper-main", main_labels, "full", main_paper) == 4
     # what stands behind each suite
     assert (
-        "- Runs: 35 scored of 36 (= 3 scenes x 6 rows x 2 seeds); missing: 1 "
+        "- Runs: 47 scored of 48 (= 3 scenes x 8 rows x 2 seeds); missing: 1 "
         "(`paper-ablation/robot-arm-dolly/no-reproj-seed-1`)" in text
     )
     assert (
         "- **Incomplete pairs**: the tables and figures use the 5 of 6 (scene, seed) pairs on "
         "which every row with runs is scored (lamp-room-orbit seed 0, robot-arm-dolly seed 0, "
         "pendulum-lamp-handheld seed 0, lamp-room-orbit seed 1, pendulum-lamp-handheld seed 1), "
-        "so that every row is compared on the same runs; the 5 scored run(s) of the other pairs "
+        "so that every row is compared on the same runs; the 7 scored run(s) of the other pairs "
         "wait for the missing runs above" in text
     )
-    assert "- Runs: 10 scored of 10 (= 2 scenes x 5 rows x 1 seeds); missing: 0" in text
+    assert "- Runs: 14 scored of 14 (= 2 scenes x 7 rows x 1 seeds); missing: 0" in text
     assert text.count("**Incomplete pairs**") == 1  # paper-main is complete
     assert "- Preset: small" in text and "[results-notes.md](../lab/results-notes.md)" in text
     # the hosts: seed 0's run.json records one, seed 1's (older) none
-    assert "; host Some CPU / AVX2 (18 runs), not recorded (17 runs)" in text
+    # (a 2D row records none: 12 runs)
+    assert "; host Some CPU / AVX2 (18 runs), not recorded (29 runs)" in text
     # the floor line: paper-ablation's clips are lamp-room-orbit (generator 7, floors recorded)
     # and two scenes whose clips say no generator
     n_abl = len({(r["scene"], r["generator"]) for r in rows if r["suite"] == "paper-ablation"})
@@ -444,7 +469,7 @@ def test_export_merge_results_readme(tmp_path):
     )
     assert "the clips' HDR-TAE floors in `runs-floors.csv`" in text
     assert (
-        "| [paper-ablation](#paper-ablation) | 3 of 9 | 6 | 2 | small | 35 of 36 | 0 | 1 |" in text
+        "| [paper-ablation](#paper-ablation) | 3 of 9 | 8 | 2 | small | 47 of 48 | 0 | 1 |" in text
     )
     # figures
     figs = docs / "figures" / "results"
@@ -594,7 +619,7 @@ def test_export_merge_results_readme(tmp_path):
     assert rd.startswith("# Project\n\nintro\n\n## Results\n\n<!-- results:main:start -->")
     assert rd.endswith("<!-- results:main:end -->\n\n## Next\n\ntail\n") and "stale" not in rd
     block = rd.split("<!-- results:main:start -->")[1].split("<!-- results:main:end -->")[0]
-    assert "[docs/results.md](docs/results.md)" in block and "10 of 10 runs scored" in block
+    assert "[docs/results.md](docs/results.md)" in block and "14 of 14 runs scored" in block
     t = table_after(block, "Syn-Exp-3 test frames (paper Table 1)")
     assert check_table(t, rows, "paper-main", main_labels, "full") == 5
     # the findings at a glance, under the README's table and atop results.md's findings: the
@@ -711,8 +736,9 @@ def test_results_of_a_suite_in_progress(tmp_path):
     assert r.exit_code == 0, r.output
     block = readme.read_text()
     assert "The result tables are pending" in block and "has 2 scored run(s)" in block
-    # both scenes complete at seed 0, one row of seed 1: two complete pairs of three
-    rows = [row(sc, n, 0) for sc in MAIN_SCENES for n in MAIN_ROWS]
+    # both scenes complete at seed 0 (the 2D rows included), one row of seed 1: two complete
+    # pairs of three
+    rows = [row(sc, n, 0) for sc in MAIN_SCENES for n in MAIN_ROWS + CAL_ROWS]
     rows.append(row(MAIN_SCENES[1], "full", 1))
     write_runs_csv(csvp, rows)
     r = CliRunner().invoke(main, args)
@@ -753,7 +779,7 @@ def test_results_lists_failed_runs_and_leaves_their_pair_out(tmp_path):
             r["error"] = err
         return r
 
-    rows = [row(sc, n) for sc in MAIN_SCENES for n in MAIN_ROWS]
+    rows = [row(sc, n) for sc in MAIN_SCENES for n in MAIN_ROWS + CAL_ROWS]
     failed = (MAIN_SCENES[1], "full")
     rows = [r if (r["scene"], r["row"]) != failed else row(*failed, FAILED) for r in rows]
     write_runs_csv(csvp, rows)
@@ -762,11 +788,11 @@ def test_results_lists_failed_runs_and_leaves_their_pair_out(tmp_path):
     r = CliRunner().invoke(main, args + ["--no-figures"])
     assert r.exit_code == 0, r.output
     text = out.read_text()
-    n = len(MAIN_SCENES) * len(MAIN_ROWS)
+    n = len(MAIN_SCENES) * len(MAIN_ROWS + CAL_ROWS)
     assert (
-        f"| [paper-main](#paper-main) | 2 of 9 | 5 | 1 | small | {n - 1} of {n} | 1 | 0 |" in text
+        f"| [paper-main](#paper-main) | 2 of 9 | 7 | 1 | small | {n - 1} of {n} | 1 | 0 |" in text
     )
-    assert f"scored of {n} (= 2 scenes x 5 rows x 1 seeds); failed: 1; missing: 0" in text
+    assert f"scored of {n} (= 2 scenes x 7 rows x 1 seeds); failed: 1; missing: 0" in text
     assert "- **Failed runs** (" in text and f"`paper-main/{failed[0]}/full`: {err}" in text
     assert "the 1 of 2 (scene, seed) pairs" in text
     assert "or are left out with the failed run(s) of their pair" in text
@@ -848,6 +874,10 @@ def test_results_section_gives_the_seed_noise_of_its_runs(tmp_path):
     assert CliRunner().invoke(main, args).exit_code == 0
     assert "Seed noise" not in out.read_text()
     rows += [row(sc, n, 1) for sc in MAIN_SCENES for n in MAIN_ROWS]
+    # a 2D row's seed 1 is a copy of its seed 0 (one prediction for every seed): not seed noise
+    for sc in MAIN_SCENES:
+        cal = dict(row(sc, "copy-nearest", 0), variant="calibration")
+        rows += [cal, dict(cal, seed=1)]
     write_runs_csv(csvp, rows)
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 0, r.output
@@ -1272,9 +1302,20 @@ def test_floor_line_mean_and_range_over_the_suites_clips(tmp_path):
     }
     line = floors_text(data, floors)
     f = np.array([0.118, 0.126])
-    assert f"mean {f.mean():.3f} ({f.min():.3f}-{f.max():.3f}) over 2 of its 3 clips" in line
+    assert f"mean {f.mean():.3f} ({f.min():.3f}-{f.max():.3f}) over 2 of its 3 clips;" in line
     assert line.endswith("0.068 (0.068-0.068)")
     assert floors_text(data, {}) is None
+    # one scene's clips of two generator versions (2D rows made on newer clips) are two clips,
+    # and the line says how many scenes they are
+    rows = read_runs_csv(csv_path)
+    rows.append(dict(rows[0], row="copy-nearest", variant="calibration", generator="7"))
+    floors[(rows[0]["scene"], "7")] = {"hdr_tae_floor": 0.119, "hdr_tae_floor_interior": 0.069}
+    line = floors_text(suite_data("control-video-init-priors", rows), floors)
+    f = np.array([0.118, 0.126, 0.119])
+    assert (
+        f"mean {f.mean():.3f} ({f.min():.3f}-{f.max():.3f}) over 3 of its 4 clips "
+        "(3 scenes, clips of 2 generator versions);"
+    ) in line
 
 
 def test_every_control_names_rows_its_suites_have():
