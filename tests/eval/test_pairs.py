@@ -407,3 +407,32 @@ def test_pairs_rows_differ(tmp_path):
     assert r.exit_code == 0 and r.output.strip() == text.strip()
     r = _pairs_cli(csv_path, "paper-ablation", "ldr_oe_psnr", "--rows", "no-tlr", "--rows-differ")
     assert r.exit_code != 0 and "--rows-differ compares two or more rows" in r.output
+
+
+def test_pairs_compare_the_trained_rows_unless_a_2d_row_is_named(tmp_path):
+    """By default `pairs` compares every trained row with the reference, so a suite's Holm family
+    and --rows-differ stay the study's; a 2D calibration row (CSV variant "calibration") is
+    compared, and joins the family, only when named."""
+    from eval.inspect.pairs import pairs_markdown
+
+    rows = _rows(np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    for scene in ("a-scene", "b-scene", "c-scene"):
+        v = 31 + rng.random()
+        for seed in (0, 1):
+            rows.append(
+                dict(suite="paper-ablation", scene=scene, row="flow-merge", seed=seed)
+                | dict(status="scored", variant="calibration", ldr_oe_psnr=v)
+            )
+    text = pairs_markdown(rows, "paper-ablation", metrics=["ldr_oe_psnr"], holm=True)
+    assert "no-reproj - full" in text and "flow-merge" not in text
+    assert "Holm's correction over the 1 comparisons" in text
+    text = pairs_markdown(
+        rows,
+        "paper-ablation",
+        metrics=["ldr_oe_psnr"],
+        holm=True,
+        row_names=["no-reproj", "flow-merge"],
+    )
+    assert "paper-ablation: flow-merge - full" in text
+    assert "Holm's correction over the 2 comparisons" in text
