@@ -45,7 +45,7 @@ def _main_metric(data: SuiteData) -> str:
 
 def bars_figure(data: SuiteData, out_png) -> Optional[Path]:
     """Per-scene bars of the suite's main metric (first column of its first table), one bar per row
-    = the mean over seeds, a dot per seed."""
+    with a value = the mean over seeds, a dot per seed."""
     key = _main_metric(data)
     col = metric_columns()[key]
     vals = {}
@@ -58,7 +58,9 @@ def bars_figure(data: SuiteData, out_png) -> Optional[Path]:
     if not vals:
         return None
     plt = pyplot()
-    rows, scenes = data.row_names, data.scenes
+    scenes = data.scenes
+    # a row without a value (e.g. a 2D row never made on these clips) takes no slot
+    rows = [rn for rn in data.row_names if any((sc, rn) in vals for sc in scenes)]
     w = 0.8 / max(1, len(rows))
     fig, ax = plt.subplots(figsize=(max(5.0, 0.35 * len(scenes) * len(rows) + 1.5), 3.6))
     allv = [v for vs in vals.values() for v in vs]

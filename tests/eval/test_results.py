@@ -1328,3 +1328,33 @@ def test_every_control_names_rows_its_suites_have():
         for e in (c.base, c.control):
             rows = {r.name for r in load_eval_suite(e.suite).rows}
             assert {e.row, e.ref} <= rows, (c.key, e.suite, {e.row, e.ref} - rows)
+
+
+def test_bars_leave_no_slot_for_a_row_without_values(tmp_path, monkeypatch):
+    """The per-scene bars give each row with a value one slot: a row the CSV has no value of
+    (a 2D row never made on a superseded page's clips) leaves no gap, and each bar's height is its
+    row's mean over the seeds."""
+    import eval.report.page_figures as pf
+    from eval.records.runs_csv import SCORED
+    from eval.records.suite_data import suite_data
+
+    figs = []
+    monkeypatch.setattr(pf, "save_png", lambda fig, path: figs.append(fig) or Path(path))
+    rows = []
+    for sc in MAIN_SCENES:
+        for k, name in enumerate(MAIN_ROWS):
+            for seed in (0, 1):
+                r = {"suite": "paper-main", "scene": sc, "row": name, "seed": seed, "label": name}
+                r.update(variant=name, preset="small", status=SCORED, ldr_convention="ldr_png")
+                r["ldr_oe_psnr"] = 20.0 + k + seed
+                rows.append(r)
+    data = suite_data("paper-main", rows)
+    assert set(MAIN_ROWS) < set(data.row_names)  # the suite's 2D rows have no runs here
+    pf.bars_figure(data, tmp_path / "bars.png")
+    bars = [p for p in figs[0].axes[0].patches]
+    assert len(bars) == len(MAIN_SCENES) * len(MAIN_ROWS)
+    width = 0.8 / len(MAIN_ROWS)
+    assert all(abs(b.get_width() - 0.9 * width) < 1e-9 for b in bars)
+    assert sorted({round(b.get_height(), 6) for b in bars}) == [
+        20.5 + k for k in range(len(MAIN_ROWS))
+    ]
