@@ -32,18 +32,21 @@ def _suite(path, rows, folder="clips"):
     return path
 
 
-def test_calibration_rows_parse_and_train_nothing(tmp_path):
+def _suite_of_one_clip(tmp_path, rows):
+    """The loaded suite `cal` of ROWS on one (empty) clip folder, tmp_path/clips/a."""
     (tmp_path / "clips" / "a").mkdir(parents=True)
     (tmp_path / "clips" / "a" / "clip.json").write_text("{}")
-    s = load_eval_suite(
-        _suite(
-            tmp_path / "s.yaml",
-            [
-                {"name": "full", "variant": "full"},
-                {"calibration": "copy-nearest", "label": "2D copy"},
-                {"name": "warp", "calibration": "flow-merge"},
-            ],
-        )
+    return load_eval_suite(_suite(tmp_path / "s.yaml", rows))
+
+
+def test_calibration_rows_parse_and_train_nothing(tmp_path):
+    s = _suite_of_one_clip(
+        tmp_path,
+        [
+            {"name": "full", "variant": "full"},
+            {"calibration": "copy-nearest", "label": "2D copy"},
+            {"name": "warp", "calibration": "flow-merge"},
+        ],
     )
     assert [r.name for r in s.rows] == ["full", "copy-nearest", "warp"]
     assert [r.calibration for r in s.rows] == [None, "copy-nearest", "flow-merge"]
@@ -250,17 +253,13 @@ def test_a_2d_row_appears_only_in_the_tables_where_it_has_values(tmp_path):
     from eval.records.suite import TableDef
     from eval.records.suite_data import build_tables, suite_data
 
-    (tmp_path / "clips" / "a").mkdir(parents=True)
-    (tmp_path / "clips" / "a" / "clip.json").write_text("{}")
-    s = load_eval_suite(
-        _suite(
-            tmp_path / "s.yaml",
-            [
-                {"name": "full", "variant": "full"},
-                {"name": "no-tlr", "variant": "no-tlr"},
-                {"name": "copy-nearest", "label": "2D copy", "calibration": "copy-nearest"},
-            ],
-        )
+    s = _suite_of_one_clip(
+        tmp_path,
+        [
+            {"name": "full", "variant": "full"},
+            {"name": "no-tlr", "variant": "no-tlr"},
+            {"name": "copy-nearest", "label": "2D copy", "calibration": "copy-nearest"},
+        ],
     )
     base = {"suite": "cal", "status": "scored"}
     rows = []
