@@ -279,17 +279,21 @@ def step_status(
             failed += 1  # kept as it is: nothing to train, nothing shared
             continue
         costs.append((done, key, s1, s2, tkey, (run / "metrics.json").exists()))
+        # a calibration row trains nothing: it has no m4dgs code to mix with the trained rows'
+        trained = getattr(j, "calibration", None) is None
         if row is not None and not run.exists():  # a run folder, even unscored, wins
             scored += 1
             in_csv += 1
-            codes[str(row.get("code") or "unknown")[:12]] += 1
+            if trained:
+                codes[str(row.get("code") or "unknown")[:12]] += 1
             minutes = row.get("train_minutes")
             if isinstance(minutes, (int, float)) and minutes > 0:
                 rates.append(60.0 * float(minutes) / max(s1 + s2, 1))
         elif (run / "metrics.json").exists():
             scored += 1
             info = mio.read_json(run / "run.json") if (run / "run.json").exists() else {}
-            codes[str(info.get("code") or "unknown")[:12]] += 1
+            if trained:
+                codes[str(info.get("code") or "unknown")[:12]] += 1
             sec = info.get("train_seconds")
             if isinstance(sec, (int, float)) and sec > 0:
                 rates.append(float(sec) / max(s1 + s2, 1))

@@ -1371,6 +1371,47 @@ def test_campaign_runs_exports_resumes_and_guards_the_code(tmp_path, fake_traine
     assert res[1]["ran"] and len(fake_trainer["train"]) == 8  # rescored, not retrained
 
 
+def test_campaign_code_guard_ignores_the_calibration_rows(tmp_path):
+    """A calibration row trains nothing and records no m4dgs code (run.json or CSV): a finished
+    one must not read as "code unknown" and stop a campaign restarted on the same code, whether
+    its record is a run folder or only a CSV row; a trained run of other code still counts."""
+    from eval.experiments.campaign import Step, job_key, step_status
+    from eval.experiments.runner import job_list
+
+    suite = tmp_path / "t2c.yaml"
+    suite.write_text(
+        SUITE_YAML.replace(
+            "rows:\n",
+            "rows:\n  - {name: copy-nearest, label: '2D', calibration: copy-nearest}\n"
+            "  - {name: flow-merge, label: '2D flow', calibration: flow-merge}\n",
+        )
+    )
+    out = tmp_path / "exp"
+    jl = job_list(suite, out, "tiny")
+    by_row = {j.row: j for j in jl if j.scene == jl[0].scene}
+    assert by_row["copy-nearest"].calibration == "copy-nearest"
+    code = "c0ffee" + "0" * 58
+
+    def finish(job, info):
+        run = Path(job.run_dir)
+        run.mkdir(parents=True)
+        mio.write_json(run / "run.json", info)
+        mio.write_json(run / "metrics.json", {})
+
+    finish(by_row["copy-nearest"], {"calibration": "copy-nearest"})  # no code: trains nothing
+    finish(by_row["full"], {"code": code, "train_seconds": 10.0})
+    # flow-merge's record is only a CSV row (its run folder lost), without a code either
+    recorded = {job_key(by_row["flow-merge"]): {"status": "scored", "code": ""}}
+    step = Step(suite=str(suite), scenes=[jl[0].scene], seeds=1)
+    s = step_status(step, out, "tiny", recorded)
+    assert s["scored"] == 3 and s["recorded"] == 1
+    assert dict(s["codes"]) == {code[:12]: 1}
+    # a trained run without a code is still one of unknown code
+    finish(by_row["base"], {"train_seconds": 10.0})
+    s = step_status(step, out, "tiny", recorded)
+    assert dict(s["codes"]) == {code[:12]: 1, "unknown": 1}
+
+
 def test_campaign_runs_every_step_on_the_executor_it_is_given(tmp_path, fake_trainer):
     """run_kw["executor"] (what `suite campaign --executor ...` opens once): each step's jobs run
     on it, it stays open between steps, the driver prints a progress line per finished job, and
