@@ -186,6 +186,14 @@ class PriorsParam(click.ParamType):
     "as many test frames). Smaller tasks spread a clip over more workers; each task loads the "
     "scene once.",
 )
+@click.option(
+    "--render-only",
+    is_flag=True,
+    help="Only render the HDR frames and held-out views (into each clip's .benchgen/hdr_unit/, as "
+    "render tasks on --executor; local: --jobs task processes), print each clip's render seconds "
+    "a frame, and stop; the same command without it then makes the clips from those frames. For "
+    "rendering on GPU or render nodes and making the clips (ray casts, priors) elsewhere.",
+)
 def make(
     suite,
     scenes,
@@ -204,6 +212,7 @@ def make(
     allow_misplaced,
     reuse_root,
     frames_per_task,
+    render_only,
     **executor,
 ):
     """Generate the clips of a suite (resumable: finished clips and frames are skipped). With
@@ -221,7 +230,9 @@ def make(
 
     from .make import PlacementError
 
-    ex = _render_executor(executor, jobs, frames_per_task)
+    ex = _render_executor(executor, jobs, frames_per_task, render_only)
+    if render_only and ex is not None and executor["executor"] == "local":
+        jobs = 1  # the --jobs render processes are the executor's
     try:
         paths = make_suite(
             suite,
@@ -242,23 +253,27 @@ def make(
             reuse_root=reuse_root,
             executor=ex,
             frames_per_task=frames_per_task,
+            render_only=render_only,
         )
     except PlacementError as e:
         raise click.ClickException(str(e)) from None
     finally:
         if ex is not None:
             ex.close()
+    if render_only:
+        return  # make_suite summarised each clip's renders
     for p in paths:
         click.echo(str(p))
 
 
-def _render_executor(opts: dict, jobs: int, frames_per_task):
+def _render_executor(opts: dict, jobs: int, frames_per_task, render_only: bool = False):
     """The executor of `benchgen make`'s --executor options, None for local (the clips render in
-    this process or in --jobs clip processes, as they always did); a misplaced option is a
-    click.UsageError naming it."""
+    this process or in --jobs clip processes, as they always did) unless render_only (then a
+    local executor of --jobs processes of --cpus-per-job threads runs the render tasks); a
+    misplaced option is a click.UsageError naming it."""
     from m4dgs.core.executor_options import make_executor_from
 
-    if opts["executor"] == "local":
+    if opts["executor"] == "local" and not render_only:
         local_only = [
             o
             for o, v in (
@@ -270,15 +285,15 @@ def _render_executor(opts: dict, jobs: int, frames_per_task):
         if local_only:
             raise click.UsageError(
                 f"{', '.join(local_only)} appl{'ies' if len(local_only) == 1 else 'y'} to "
-                "--executor ray and slurm (render tasks); the local executor renders each clip "
-                "in one process (--jobs clips at once)"
+                "--executor ray and slurm (render tasks) and to --render-only; the local "
+                "executor renders each clip in one process (--jobs clips at once)"
             )
     # a task renders on the GPU when the Mitsuba variant is a CUDA one (benchgen.render)
     cuda = os.environ.get("BENCHGEN_MI_VARIANT", "").startswith("cuda")
     local = opts["executor"] == "local"
     # checks the misplaced options (a local --jobs 0 stays what it was: one clip at a time)
     ex = make_executor_from(opts, max(1, jobs) if local else jobs, "cuda" if cuda else "cpu")
-    if local:
+    if local and not render_only:
         ex.close()
         return None
     return ex

@@ -129,7 +129,13 @@ def render_task(spec: RenderSpec) -> dict:
             raise ValueError(f"render task {spec.name}: unknown kind {spec.kind!r}")
     finally:
         dr.set_thread_count(before)
-    return {"name": spec.name, "rendered": done, "seconds": round(time.perf_counter() - t0, 2)}
+    return {
+        "name": spec.name,
+        "kind": spec.kind,
+        "hdr_dir": spec.hdr_dir,
+        "rendered": done,
+        "seconds": round(time.perf_counter() - t0, 2),
+    }
 
 
 def _scene_and_renderer(spec: RenderSpec):
@@ -246,6 +252,34 @@ def render_specs(
             "retry them; finished frames are kept):\n  " + "\n  ".join(failed)
         )
     return results
+
+
+def render_summary(hdr_dir, results: Sequence[dict]) -> str:
+    """One line on what the render tasks of `results` (render_task's) did for the clip whose
+    unit-scale frames are in `hdr_dir`: its frames on disk, the frames these tasks rendered and
+    their median render seconds a frame (the stats beside each frame: the render alone), and the
+    test frames whose views they rendered with the seconds a test frame (task time, scene loading
+    and ray casts included)."""
+    import statistics
+
+    d = Path(hdr_dir)
+    mine = [r for r in results if Path(r.get("hdr_dir", "")) == d]
+    frames = sorted(g for r in mine if r.get("kind") == "frames" for g in r["rendered"])
+    stats = read_frame_stats(d, frames)
+    on_disk = len(list(d.glob("*.exr"))) if d.is_dir() else 0
+    parts = [f"{on_disk} HDR frame(s) on disk"]
+    if stats:
+        secs = [float(v["seconds"]) for v in stats.values()]
+        parts.append(
+            f"{len(frames)} rendered now, median {statistics.median(secs):.2f} s a frame "
+            f"(range {min(secs):.2f}-{max(secs):.2f})"
+        )
+    views = [r for r in mine if r.get("kind") == "views" and r["rendered"]]
+    if views:
+        n = sum(len(r["rendered"]) for r in views)
+        t = sum(float(r["seconds"]) for r in views)
+        parts.append(f"views of {n} test frame(s) rendered now, {t / n:.2f} s a test frame")
+    return "; ".join(parts) + " (render only: the same command without it makes the clip)"
 
 
 def clip_specs(job, hdr_dir, frames_per_task: int, threads: Optional[int]) -> List[RenderSpec]:

@@ -36,6 +36,7 @@ import hashlib
 import json
 import os
 import shutil
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -1034,9 +1035,16 @@ def make_suite(
     executor=None,
     frames_per_task: Optional[int] = None,
     log=None,
+    render_only: bool = False,
 ) -> List[Path]:
     """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in
     parallel processes.
+
+    render_only: only plan each clip and render its HDR frames and views (as tasks on `executor`,
+    or, without one, on a local executor of `jobs` processes), then stop: the same call without it
+    makes the clips from those frames (e.g. render on GPU nodes, make the clips where the priors'
+    dependencies are). Returns the folders of the clips not finished yet, each summarised on `log`
+    (render_summary).
 
     executor: an m4dgs.core.executors.Executor (`benchgen make --executor ray|slurm`): every clip
     is planned first (plan_clip: its light selection, on this process), the HDR frames and views
@@ -1080,8 +1088,14 @@ def make_suite(
     kw = dict(
         crf=crf, force=force, spp=spp, allow_misplaced=allow_misplaced or s.placement == "warn"
     )
+    own_executor = None
+    if render_only and executor is None:
+        from m4dgs.core.executors import LocalExecutor
+
+        executor = own_executor = LocalExecutor(jobs=max(1, int(jobs)))
+        jobs = 1
     if executor is not None:
-        from .distribute import render_specs
+        from .distribute import render_specs, render_summary
 
         if jobs != 1:
             raise ValueError(f"jobs must be 1 with an executor, got {jobs}")
@@ -1101,7 +1115,17 @@ def make_suite(
                 frames_per_task=frames_per_task,
                 threads=executor.threads,
             )
-        render_specs(executor, specs, log)
+        try:
+            done = render_specs(executor, specs, log)
+        finally:
+            if own_executor is not None:
+                own_executor.close()
+        if render_only:
+            say = log or (lambda m: print(m, file=sys.stderr, flush=True))
+            left = [o for _, o, _ in jobs_list if not (o / "clip.json").exists()]
+            for o in left:
+                say(f"[benchgen] {o}: " + render_summary(o.joinpath(*UNIT_HDR_DIR), done))
+            return left
         kw["force"] = False  # plan_clip started the forced clips over
     # every clip is made even when an earlier one misses its placement targets; the misses are
     # reported together

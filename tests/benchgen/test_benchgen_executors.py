@@ -179,6 +179,35 @@ def _make_tiny(root, executor, lines):
     )
 
 
+def test_render_only_then_make_is_the_local_clip(local_clip, tmp_path):
+    """--render-only on the local executor (tasks of --frames-per-task, --cpus-per-job threads)
+    renders the frames and views, prints the clip's seconds a frame and makes no clip; run again
+    it finds nothing to render; the same command without it makes the local clip's bytes."""
+    import re
+
+    root = tmp_path / "render-only"
+    args = ARGS + ["--out", str(root), "--render-only"]
+    r = CliRunner().invoke(main, args + ["--frames-per-task", "3", "--cpus-per-job", "1"])
+    assert r.exit_code == 0, r.output
+    clip = _clip(root)
+    unit = clip.joinpath(*UNIT_HDR_DIR)
+    assert not (clip / "clip.json").exists()
+    assert sorted(p.name for p in unit.glob("*.exr")) == [frame_name(g, "exr") for g in range(9)]
+    assert f"{TASKS}/{TASKS} render tasks: {TASKS} done, 0 running, 0 failed" in r.output
+    line = [ln for ln in r.output.splitlines() if ln.startswith(f"[benchgen] {clip}: ")]
+    assert len(line) == 1, r.output
+    assert re.search(
+        r"9 HDR frame\(s\) on disk; 9 rendered now, median \d+\.\d\d s a frame", line[0]
+    )
+    assert "views of 4 test frame(s) rendered now" in line[0]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0 and "render tasks" not in r.output, r.output
+    assert "9 HDR frame(s) on disk (render only" in r.output
+    r = CliRunner().invoke(main, ARGS + ["--out", str(root)])
+    assert r.exit_code == 0, r.output
+    assert differing_files(local_clip, clip) == []
+
+
 # ----------------------------------------------------------------------------------------- Ray
 def test_ray_cluster_makes_the_local_bytes(local_clip, ray_cluster, tmp_path):
     root = tmp_path / "ray"
