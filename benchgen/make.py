@@ -1042,9 +1042,8 @@ def make_suite(
 
     render_only: only plan each clip and render its HDR frames and views (as tasks on `executor`,
     or, without one, on a local executor of `jobs` processes), then stop: the same call without it
-    makes the clips from those frames (e.g. render on GPU nodes, make the clips where the priors'
-    dependencies are). Returns the folders of the clips not finished yet, each summarised on `log`
-    (render_summary).
+    makes the clips from those frames (e.g. render on GPU nodes, make the clips elsewhere). Returns
+    the folders of the clips not finished yet, each summarised on `log` (render_summary).
 
     executor: an m4dgs.core.executors.Executor (`benchgen make --executor ray|slurm`): every clip
     is planned first (plan_clip: its light selection, on this process), the HDR frames and views
