@@ -262,8 +262,8 @@ def render_summary(hdr_dir, results: Sequence[dict]) -> str:
     and ray casts included)."""
     import statistics
 
-    d = Path(hdr_dir)
-    mine = [r for r in results if Path(r.get("hdr_dir", "")) == d]
+    d = Path(hdr_dir).resolve()  # a task's hdr_dir is absolute, --out may be relative
+    mine = [r for r in results if "hdr_dir" in r and Path(r["hdr_dir"]).resolve() == d]
     frames = sorted(g for r in mine if r.get("kind") == "frames" for g in r["rendered"])
     stats = read_frame_stats(d, frames)
     on_disk = len(list(d.glob("*.exr"))) if d.is_dir() else 0
