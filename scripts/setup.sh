@@ -13,6 +13,8 @@ need_apt=()
 ls /usr/lib/x86_64-linux-gnu/libLLVM.so.19* >/dev/null 2>&1 || ls /usr/lib/*/libLLVM*19* >/dev/null 2>&1 || need_apt+=(libllvm19)
 # the viewer's browser test (tests/viewer/test_browser.py) drives a headless chromium through playwright
 command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || need_apt+=(chromium)
+# xz: tar -J in bench/gpu_render.sh and its test (tests/test_bench_gpu_render.py)
+command -v xz >/dev/null 2>&1 || need_apt+=(xz-utils)
 if [ ${#need_apt[@]} -gt 0 ]; then
   if command -v apt-get >/dev/null 2>&1; then
     echo "[setup] installing Debian packages: ${need_apt[*]}"
