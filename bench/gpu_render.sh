@@ -13,7 +13,8 @@
 # cut at T_RENDER seconds (every finished frame stays on disk, so stage b again continues where it stopped). If the
 # Ray run renders nothing and its log says Ray failed to start, it renders once more with the local executor and
 # says so. Last, $OUT/render.json: the render seconds of every frame rendered (each frame's stats file), the views'
-# task seconds per test frame, how many frames and views are on disk, the executor, the GPU, the versions.
+# task seconds per test frame, how many frames and views are on disk, the executor used; $OUT/gpu.txt and env.txt
+# the GPU and the versions, render-EXECUTOR.txt each render command's log.
 #
 # Environment: GR (default /tmp/gpu_render: outside the repository, so a warm machine keeps it between calls),
 # KIT (.gpu: where the two parts are), SUITE (none: --exposures 3, i.e. syn-exp-3), SCENE (lamp-room-orbit),
