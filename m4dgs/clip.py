@@ -59,6 +59,9 @@ class ClipError(InputError):
         self.problem = problem
         super().__init__(f"{path}: field '{field_name}': {problem}")
 
+    def __reduce__(self):  # pickles (a worker process's error reaches its driver)
+        return (type(self), (self.path, self.field, self.problem))
+
 
 def frame_name(g: int, ext: str) -> str:
     """File name of global frame g, e.g. frame_name(7, 'png') == '00007.png'."""

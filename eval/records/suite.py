@@ -83,7 +83,11 @@ class SuiteError(InputError):
     """A malformed eval suite file; the message names the file and the key."""
 
     def __init__(self, path, key: str, problem: str):
+        self._parts = (str(path), key, problem)
         super().__init__(f"{path}: '{key}': {problem}")
+
+    def __reduce__(self):  # pickles (a worker process's error reaches its driver)
+        return (type(self), self._parts)
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import abc
 import os
+import pickle
 import secrets
 import sys
 import tempfile
@@ -129,6 +130,21 @@ def run_task(fn: Callable, args: tuple, kwargs: dict, threads: Optional[int], de
         return {"error": error_line(exc), "traceback": tb}
 
 
+def _pool_call(fn: Callable, args: tuple, kwargs: dict) -> Any:
+    """fn(*args, **kwargs) in a LocalExecutor pool worker. An exception goes back to the driver as
+    it is when it survives pickling, else as a RemoteError with its one-line message and traceback:
+    an exception the driver cannot unpickle (one whose __init__ needs more than its message)
+    would otherwise break the pool and fail every task after it."""
+    try:
+        return fn(*args, **kwargs)
+    except Exception as exc:
+        try:
+            pickle.loads(pickle.dumps(exc))
+        except Exception:
+            raise RemoteError(error_line(exc), traceback.format_exc()) from None
+        raise
+
+
 def _unwrap(task: Task, env: Any) -> Outcome:
     if isinstance(env, dict) and "error" in env:
         return Outcome(task, error=RemoteError(env["error"], env.get("traceback")))
@@ -220,7 +236,7 @@ class LocalExecutor(Executor):
                 yield Outcome(t, result=res)
             return
         pool = self._get_pool()
-        futs = {pool.submit(t.fn, *t.args, **t.kwargs): t for t in tasks}
+        futs = {pool.submit(_pool_call, t.fn, t.args, t.kwargs): t for t in tasks}
         if on_start is not None:
             for t in futs.values():
                 on_start(t)

@@ -153,6 +153,54 @@ def _raise_input_error():
     raise InputError("no such clip")
 
 
+class _NeedsTwoArgs(Exception):
+    """An exception that does not survive pickling: its __init__ needs more than its message."""
+
+    def __init__(self, a, b):
+        super().__init__(f"{a} and {b}")
+
+
+def _raise_needs_two_args():
+    raise _NeedsTwoArgs("one", "two")
+
+
+def _raise_clip_error():
+    from m4dgs.clip import ClipError
+
+    raise ClipError("x/tracks.npz", "tracks", "bad points")
+
+
+def test_an_exception_that_does_not_pickle_fails_only_its_task():
+    """A task whose exception cannot be unpickled used to break the pool and fail every task
+    after it (seen in a campaign: one clip's ClipError failed 33 jobs); now it fails alone, with
+    its message, and the project's own errors keep their type."""
+    import pickle
+
+    from m4dgs.clip import ClipError
+    from m4dgs.core.executors import RemoteError
+
+    e = pickle.loads(pickle.dumps(ClipError("x/tracks.npz", "tracks", "bad points")))
+    assert (e.path, e.field, e.problem) == ("x/tracks.npz", "tracks", "bad points")
+    from eval.records.suite import SuiteError
+
+    e = SuiteError("s.yaml", "rows", "no row")
+    assert str(pickle.loads(pickle.dumps(e))) == str(e) == "s.yaml: 'rows': no row"
+    tasks = [Task("bad", _raise_needs_two_args, ())]
+    tasks += [Task(f"ok{i}", abs, (-i,)) for i in range(4)] + [Task("clip", _raise_clip_error, ())]
+    with LocalExecutor(jobs=2, threads=1) as ex:
+        out = {o.task.name: o for o in ex.map(tasks)}
+    assert {n: out[n].result for n in ("ok0", "ok1", "ok2", "ok3")} == {
+        "ok0": 0,
+        "ok1": 1,
+        "ok2": 2,
+        "ok3": 3,
+    }
+    assert isinstance(out["bad"].error, RemoteError)
+    assert str(out["bad"].error) == "_NeedsTwoArgs: one and two"
+    assert "_raise_needs_two_args" in out["bad"].error.remote_traceback
+    assert isinstance(out["clip"].error, ClipError) and out["clip"].error.field == "tracks"
+
+
 def test_local_pool_yields_as_tasks_finish():
     with LocalExecutor(jobs=2, threads=1) as ex:
         got = [
