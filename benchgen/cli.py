@@ -231,7 +231,7 @@ def make(
     from .make import PlacementError
 
     ex = _render_executor(executor, jobs, frames_per_task, render_only)
-    if render_only and ex is not None and executor["executor"] == "local":
+    if render_only and executor["executor"] == "local":
         jobs = 1  # the --jobs render processes are the executor's
     try:
         paths = make_suite(

@@ -1040,10 +1040,11 @@ def make_suite(
     """Generate every clip of a suite under out_root/<suite>/<scene>; `jobs` > 1 renders clips in
     parallel processes.
 
-    render_only: only plan each clip and render its HDR frames and views (as tasks on `executor`,
-    or, without one, on a local executor of `jobs` processes), then stop: the same call without it
-    makes the clips from those frames (e.g. render on GPU nodes, make the clips elsewhere). Returns
-    the folders of the clips not finished yet, each summarised on `log` (render_summary).
+    render_only: only plan each clip and render its HDR frames and views as tasks on `executor`
+    (required; m4dgs.core.executors.LocalExecutor renders them on this machine), then stop: the
+    same call without it makes the clips from those frames (e.g. render on GPU nodes, make the
+    clips elsewhere). Returns the folders of the clips not finished yet, each summarised on `log`
+    (render_summary).
 
     executor: an m4dgs.core.executors.Executor (`benchgen make --executor ray|slurm`): every clip
     is planned first (plan_clip: its light selection, on this process), the HDR frames and views
@@ -1087,12 +1088,8 @@ def make_suite(
     kw = dict(
         crf=crf, force=force, spp=spp, allow_misplaced=allow_misplaced or s.placement == "warn"
     )
-    own_executor = None
     if render_only and executor is None:
-        from m4dgs.core.executors import LocalExecutor
-
-        executor = own_executor = LocalExecutor(jobs=max(1, int(jobs)))
-        jobs = 1
+        raise ValueError("render_only renders as tasks on an executor: pass one")
     if executor is not None:
         from .distribute import render_specs, render_summary
 
@@ -1114,11 +1111,7 @@ def make_suite(
                 frames_per_task=frames_per_task,
                 threads=executor.threads,
             )
-        try:
-            done = render_specs(executor, specs, log)
-        finally:
-            if own_executor is not None:
-                own_executor.close()
+        done = render_specs(executor, specs, log)
         if render_only:
             say = log or (lambda m: print(m, file=sys.stderr, flush=True))
             left = [o for _, o, _ in jobs_list if not (o / "clip.json").exists()]
