@@ -45,6 +45,13 @@ def summary(clip: Clip) -> dict:
             out[k] = m.gt[k]
     if "render_noise" in out:
         out["render_noise"] = render_noise_view(out["render_noise"])
+    if clip.has_gt:
+        from .relighting import clip_relighting
+
+        # computed here from gt/tracks.npz and gt/hdr (not recorded in clip.json)
+        relit = clip_relighting(clip.root)
+        if relit is not None:
+            out["relighting"] = relit
     return out
 
 
