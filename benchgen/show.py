@@ -48,8 +48,12 @@ def summary(clip: Clip) -> dict:
     if clip.has_gt:
         from .relighting import clip_relighting
 
-        # computed here from gt/tracks.npz and gt/hdr (not recorded in clip.json)
-        relit = clip_relighting(clip.root)
+        # computed here from gt/tracks.npz and gt/hdr (not recorded in clip.json); a summary still
+        # prints when those files are incomplete, saying why this part is missing
+        try:
+            relit = clip_relighting(clip.root)
+        except (ValueError, OSError) as e:
+            relit = {"unavailable": str(e)}
         if relit is not None:
             out["relighting"] = relit
     return out

@@ -115,3 +115,18 @@ def test_show_prints_the_relighting_of_a_generated_clip(tiny_clip_oracle):
     relit = printed["relighting"]
     assert relit["points"] > 0 and relit["median_ratio"] >= 1.0 and 0.0 <= relit["relit_fraction"] <= 1.0
     assert relit == clip_relighting(Path(tiny_clip_oracle))
+
+
+def test_show_says_why_when_the_ground_truth_tracks_are_incomplete(tiny_clip_oracle, tmp_path):
+    import shutil
+
+    from benchgen.show import summary
+    from m4dgs.clip import Clip
+
+    root = tmp_path / "clip"
+    shutil.copytree(tiny_clip_oracle, root)
+    with np.load(root / "gt" / "tracks.npz") as d:
+        kept = {k: d[k] for k in d.files if k != "dynamic"}
+    np.savez(root / "gt" / "tracks.npz", **kept)
+    s = summary(Clip.open(root))
+    assert "no field 'dynamic'" in s["relighting"]["unavailable"] and s["frames"] > 0
