@@ -7,13 +7,14 @@ headlights) or an object shadows it, is then outside the model: the method canno
 training frames there, while a 2D prediction (a copy of the nearest frame) copies the lighting.
 
 `static_relighting` measures that change from exact ground truth: for every static ground-truth
-track point seen on at least `min_frames` frames (every frame of a shorter clip), the ratio of the 90th to the 10th percentile of
-its HDR luminance (a 3x3 box mean around its pixel, against render noise) over the frames that see
-it. 1 means constant light; glossy surfaces seen from a moving camera also change with the view, so
-a few percent above 1 is normal. The clip's figure is the median of that ratio over the points, with
-the fraction of points whose ratio exceeds `RELIT_RATIO` (for scenes where only part of the room is
-relit; points on high-contrast edges, where a sub-pixel shift changes the box mean, count there too,
-4-15 % of the points in the shipped scenes whose lights do not move).
+track point seen on at least `min_frames` frames (every frame of a shorter clip), the ratio of the
+90th to the 10th percentile of its HDR luminance (a 3x3 box mean around its pixel, against render
+noise) over the frames that see it. 1 means constant light; glossy surfaces seen from a moving
+camera also change with the view, so a few percent above 1 is normal. The clip's figure is the
+median of that ratio over the points, with the fraction of points whose ratio exceeds `RELIT_RATIO`
+(for scenes where only part of the room is relit; points on high-contrast edges, where a sub-pixel
+shift changes the box mean, count there too, 4-15 % of the points in the shipped scenes whose
+lights do not move).
 
 Pure functions of numpy arrays; `clip_relighting` reads a clip's gt/tracks.npz and gt/hdr/.
 """
@@ -66,8 +67,8 @@ def static_relighting(
     t, h, w = lum.shape
     if tracks.shape[:2] != (len(dynamic), t) or visible.shape != tracks.shape[:2]:
         raise ValueError(
-            f"tracks {tracks.shape}, visible {visible.shape} and dynamic {dynamic.shape} do not match "
-            f"{t} frames of luminance"
+            f"tracks {tracks.shape}, visible {visible.shape} and dynamic {dynamic.shape} do not "
+            f"match {t} frames of luminance"
         )
     smooth = np.stack([box_mean(f, box) for f in lum])
     keep = ~dynamic
@@ -91,7 +92,9 @@ def static_relighting(
     }
 
 
-def clip_relighting(clip_root, min_frames: int = MIN_FRAMES) -> Optional[Dict[str, Optional[float]]]:
+def clip_relighting(
+    clip_root, min_frames: int = MIN_FRAMES
+) -> Optional[Dict[str, Optional[float]]]:
     """static_relighting of a clip folder from gt/tracks.npz (tracks, visible, dynamic, frames) and
     gt/hdr/<frame>.exr; None when the clip has no ground-truth tracks."""
     from m4dgs.core.io import read_exr
@@ -103,12 +106,18 @@ def clip_relighting(clip_root, min_frames: int = MIN_FRAMES) -> Optional[Dict[st
     with np.load(path) as d:
         missing = [k for k in ("tracks", "visible", "dynamic", "frames") if k not in d.files]
         if missing:
-            raise ValueError(f"{path}: no field {missing[0]!r} (expected tracks, visible, dynamic, frames)")
-        tracks, visible, dynamic, frames = (d[k] for k in ("tracks", "visible", "dynamic", "frames"))
+            raise ValueError(
+                f"{path}: no field {missing[0]!r} (expected tracks, visible, dynamic, frames)"
+            )
+        tracks, visible, dynamic, frames = (
+            d[k] for k in ("tracks", "visible", "dynamic", "frames")
+        )
     lum = []
     for f in frames:
         exr = root / "gt" / "hdr" / f"{int(f):05d}.exr"
         if not exr.exists():
-            raise FileNotFoundError(f"{exr}: missing (gt/tracks.npz field 'frames' lists frame {int(f)})")
+            raise FileNotFoundError(
+                f"{exr}: missing (gt/tracks.npz field 'frames' lists frame {int(f)})"
+            )
         lum.append(read_exr(exr)[..., :3] @ LUMA)
     return static_relighting(np.stack(lum), tracks, visible, dynamic, min_frames=min_frames)

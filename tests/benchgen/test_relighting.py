@@ -88,8 +88,17 @@ def _write_clip(root: Path, gain):
     lum, tracks, visible, dynamic = _scene(gain)
     (root / "gt" / "hdr").mkdir(parents=True)
     for t in range(T):
-        write_exr(root / "gt" / "hdr" / f"{t:05d}.exr", np.repeat(lum[t][..., None], 3, -1).astype(np.float32))
-    np.savez(root / "gt" / "tracks.npz", tracks=tracks, visible=visible, dynamic=dynamic, frames=np.arange(T))
+        write_exr(
+            root / "gt" / "hdr" / f"{t:05d}.exr",
+            np.repeat(lum[t][..., None], 3, -1).astype(np.float32),
+        )
+    np.savez(
+        root / "gt" / "tracks.npz",
+        tracks=tracks,
+        visible=visible,
+        dynamic=dynamic,
+        frames=np.arange(T),
+    )
 
 
 def test_clip_relighting_reads_the_ground_truth(tmp_path):
@@ -113,7 +122,11 @@ def test_show_prints_the_relighting_of_a_generated_clip(tiny_clip_oracle):
     assert r.exit_code == 0, r.output
     printed = json.loads(r.output[r.output.index("{") : r.output.rindex("}") + 1])
     relit = printed["relighting"]
-    assert relit["points"] > 0 and relit["median_ratio"] >= 1.0 and 0.0 <= relit["relit_fraction"] <= 1.0
+    assert (
+        relit["points"] > 0
+        and relit["median_ratio"] >= 1.0
+        and 0.0 <= relit["relit_fraction"] <= 1.0
+    )
     assert relit == clip_relighting(Path(tiny_clip_oracle))
 
 
