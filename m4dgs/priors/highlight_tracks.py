@@ -25,6 +25,14 @@ The tracker (beyond the paper; `stage1.init.highlight_tracks`):
    fixed offsets inside the blob (a regular pattern within 0.6 x the blob's radius at its first
    frame), visible on the chain's frames. A static highlight gives tracks that do not move.
 
+4. Masks (`highlight_masks`, beyond the variant: `masks.highlight_blobs`): the same chains, less
+   those that stand still (every centroid within `still_px` of the chain's mean: a lamp seen by a
+   still camera), painted into per-frame masks as discs of the blob's radius plus `dilate_px`
+   around each centroid, on the chain's frames and, linearly interpolated, on the frames of its
+   gaps. A mover a few pixels across is barely covered by the flow-based dynamic masks, so at the
+   stage-1 to stage-2 hand-over the Gaussians that follow it are classified static
+   (m4dgs.training.v2w); OR-ing these masks in marks them dynamic.
+
 Pixel coordinates: continuous, pixel centres at +0.5 (m4dgs.clip.TrackSet). Pure numpy + scipy.
 """
 
@@ -138,6 +146,65 @@ def blob_offsets(area: int, points: int) -> np.ndarray:
     return np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=1)
 
 
+def highlight_chains(
+    ldr_frames: np.ndarray,
+    dts: Sequence[float],
+    margin: int = 8,
+    min_code: int = 128,
+    min_area: int = 3,
+    max_area: float = 0.02,
+    max_step: float = 0.1,
+    max_gap: int = 2,
+    area_ratio: float = 3.0,
+) -> List[List[Tuple[int, Blob]]]:
+    """The chains `highlight_tracks` and `highlight_masks` use (module docstring, steps 1-2): of
+    two frames or more, with blobs at two exposure levels or more (all of them when the clip has
+    one). ldr_frames [T, H, W, 3], dts [T]; the other arguments: brightest_blobs and link_blobs."""
+    frames = np.asarray(ldr_frames)
+    T, H, W = frames.shape[:3]
+    blobs = [brightest_blobs(f, margin, min_code, min_area, max_area) for f in frames]
+    levels = np.unique(np.round(np.log2(np.asarray(dts, np.float64)), 6))
+    need = min(2, len(levels))
+    return [
+        c
+        for c in link_blobs(blobs, math.hypot(W, H), max_step, max_gap, area_ratio)
+        if len(c) >= 2 and len({round(math.log2(float(dts[t])), 6) for t, _ in c}) >= need
+    ]
+
+
+def highlight_masks(
+    ldr_frames: np.ndarray,
+    dts: Sequence[float],
+    dilate_px: float = 1.0,
+    still_px: float = 1.0,
+    **chain_kw,
+) -> np.ndarray:
+    """[T, H, W] bool: the pixels of moving highlight chains (module docstring, step 4).
+
+    Args:
+        ldr_frames: [T, H, W, 3] training frames in order; dts: [T] their exposure times.
+        dilate_px: added to each blob's radius sqrt(area / pi).
+        still_px: a chain whose centroids all lie within this of their mean stands still and is
+            left out.
+        chain_kw: highlight_chains' arguments.
+    """
+    frames = np.asarray(ldr_frames)
+    T, H, W = frames.shape[:3]
+    out = np.zeros((T, H, W), bool)
+    ys, xs = np.mgrid[0:H, 0:W] + 0.5
+    for ch in highlight_chains(frames, dts, **chain_kw):
+        c = np.array([[b.x, b.y] for _, b in ch])
+        if np.hypot(*(c - c.mean(0)).T).max() <= still_px:
+            continue
+        for (t0, b0), (t1, b1) in zip(ch[:-1], ch[1:]):
+            for t in range(t0, t1 + (1 if (t1, b1) == ch[-1] else 0)):
+                w = (t - t0) / (t1 - t0)
+                x, y = b0.x + w * (b1.x - b0.x), b0.y + w * (b1.y - b0.y)
+                r = math.sqrt(((1 - w) * b0.area + w * b1.area) / math.pi) + dilate_px
+                out[t] |= (xs - x) ** 2 + (ys - y) ** 2 <= r * r
+    return out
+
+
 def highlight_tracks(
     ldr_frames: np.ndarray,
     dts: Sequence[float],
@@ -164,14 +231,9 @@ def highlight_tracks(
     """
     frames = np.asarray(ldr_frames)
     T, H, W = frames.shape[:3]
-    blobs = [brightest_blobs(f, margin, min_code, min_area, max_area) for f in frames]
-    levels = np.unique(np.round(np.log2(np.asarray(dts, np.float64)), 6))
-    need = min(2, len(levels))
-    chains = [
-        c
-        for c in link_blobs(blobs, math.hypot(W, H), max_step, max_gap, area_ratio)
-        if len(c) >= 2 and len({round(math.log2(float(dts[t])), 6) for t, _ in c}) >= need
-    ]
+    chains = highlight_chains(
+        frames, dts, margin, min_code, min_area, max_area, max_step, max_gap, area_ratio
+    )
     tracks = np.zeros((len(chains) * points, T, 2), np.float32)
     vis = np.zeros((len(chains) * points, T), bool)
     for k, ch in enumerate(chains):

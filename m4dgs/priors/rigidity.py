@@ -56,6 +56,11 @@ class DynamicMaskConfig:
     # re-run bundle adjustment once with the refined masks (static tracks chosen with the better
     # masks); the final masks are then recomputed with the refined cameras
     refine_cameras: bool = True
+    # beyond the paper (off): OR the pixels of moving highlight chains into the masks after camera
+    # initialisation (m4dgs.priors.highlight_tracks.highlight_masks), so that the Gaussians that
+    # follow a mover a few pixels across are dynamic at the V2W hand-over; the bundle adjustment
+    # keeps its own masks
+    highlight_blobs: bool = False
 
     def validate(self) -> None:
         if self.method not in METHODS:

@@ -260,6 +260,20 @@ class Trainer:
         )
         if cfg.masks.method != "epipolar" and "warning" not in res.diagnostics:
             masks, mask_diag, res = self._rigidity_masks(fs, depth, masks_epi, res, ts)
+        if cfg.masks.highlight_blobs:
+            from m4dgs.priors.highlight_tracks import highlight_masks
+
+            hl = highlight_masks(
+                d.ldr.detach().cpu().numpy(), np.exp2(d.log2_dt.detach().cpu().numpy()).tolist()
+            )
+            hl_t = torch.from_numpy(hl).to(masks.device)
+            mask_diag = {
+                **mask_diag,
+                "fraction_highlight": float(hl.mean()),
+                "fraction_before_highlight": float(masks.float().mean()),
+            }
+            masks = masks.bool() | hl_t
+            mask_diag["fraction"] = float(masks.float().mean())
         save_torch(
             self.run.path("model", "camera_init.pt"),
             {

@@ -8,7 +8,13 @@ import pytest
 import torch
 
 from m4dgs.model.gaussians import VideoInitConfig, init_video_gaussians
-from m4dgs.priors.highlight_tracks import Blob, brightest_blobs, highlight_tracks, link_blobs
+from m4dgs.priors.highlight_tracks import (
+    Blob,
+    brightest_blobs,
+    highlight_masks,
+    highlight_tracks,
+    link_blobs,
+)
 
 W, H, T = 96, 64, 12
 DTS = [0.25, 2.0, 16.0] * (T // 3)
@@ -57,6 +63,26 @@ def test_a_bright_disc_is_tracked_across_exposures():
     # every track moves with the disc and stays inside it
     assert np.allclose(np.diff(tr[:, seen], axis=1), np.diff(centre[seen], axis=0), atol=0.5)
     assert (np.hypot(*(tr[:, seen] - centre[seen]).transpose(2, 0, 1)) <= 5.0).all()
+
+
+def test_highlight_masks_cover_a_small_mover_and_leave_a_still_lamp_out():
+    # a disc of radius 2 (the size the flow-based masks miss), 4 px a frame, and a still lamp as
+    # bright: the lamp's chain stands still, so only the mover is masked
+    video = _video([(15.0, 20.0, 4.0, 1.5, 2.0, 3.0)], static_bright=(80.0, 50.0, 2.5, 3.0))
+    # frame 5 loses the mover (drawn dim): a gap the mask fills by interpolation
+    dim = _video([], static_bright=(80.0, 50.0, 2.5, 3.0))
+    video[5] = dim[5]
+    masks = highlight_masks(video, DTS, dilate_px=1.0)
+    assert masks.shape == (T, H, W)
+    for t in range(T):
+        disc = _disc(15.0 + 4.0 * t, 20.0 + 1.5 * t, 2.0)
+        assert masks[t][disc].all(), t  # every pixel of the mover, the gap frame included
+        # and nothing far from it (radius + dilation + the blob's own anti-aliasing margin)
+        far = ~_disc(15.0 + 4.0 * t, 20.0 + 1.5 * t, 5.0)
+        assert not masks[t][far].any(), t
+    assert not masks[:, _disc(80.0, 50.0, 3.0)].any()  # the still lamp
+    # without movers there is nothing to mask
+    assert not highlight_masks(dim, DTS).any()
 
 
 def test_a_patch_bright_only_at_the_longest_exposure_gives_no_track():
