@@ -209,13 +209,7 @@ def highlight_tracks(
     ldr_frames: np.ndarray,
     dts: Sequence[float],
     points: int = 16,
-    margin: int = 8,
-    min_code: int = 128,
-    min_area: int = 3,
-    max_area: float = 0.02,
-    max_step: float = 0.1,
-    max_gap: int = 2,
-    area_ratio: float = 3.0,
+    **chain_kw,
 ) -> Tuple[np.ndarray, np.ndarray]:
     """Tracks of the brightest blobs of a video (module docstring).
 
@@ -224,16 +218,15 @@ def highlight_tracks(
         dts: [T] their exposure times. A chain is kept when it has blobs at two exposure levels or
             more (all of them when the clip has one): a patch that is the brightest only at the
             longest exposure is a bright part of the scene, not a highlight.
-        points: tracks per chain. The other arguments: brightest_blobs and link_blobs.
+        points: tracks per chain.
+        chain_kw: highlight_chains' arguments (those of brightest_blobs and link_blobs).
     Returns:
         (tracks [M, T, 2] float32 pixels, centres at +0.5, and visible [M, T] bool); M = points x
         the number of chains of two frames or more (0 when there is none).
     """
     frames = np.asarray(ldr_frames)
     T, H, W = frames.shape[:3]
-    chains = highlight_chains(
-        frames, dts, margin, min_code, min_area, max_area, max_step, max_gap, area_ratio
-    )
+    chains = highlight_chains(frames, dts, **chain_kw)
     tracks = np.zeros((len(chains) * points, T, 2), np.float32)
     vis = np.zeros((len(chains) * points, T), bool)
     for k, ch in enumerate(chains):

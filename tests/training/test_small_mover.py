@@ -10,23 +10,30 @@ from __future__ import annotations
 import pytest
 
 
-# about 75 s on 2 cores; the tracker itself is checked on these frames in
-# tests/priors/test_highlight_tracks.py within the default run
-@pytest.mark.slow
-def test_full_highlights_renders_the_disc(tmp_path, load_bench):
+def _train_disc(tmp_path, load_bench, radius, overrides=None):
+    """Make the disc clip (radius px, 4 px a frame, 50x the plane) and train `full-highlights` on
+    it at the tiny preset; returns (run folder, bench module)."""
     from m4dgs.core.threads import threads_for
     from m4dgs.training.pipeline import train
 
     smb = load_bench("small_mover_bench")
     smb.make_disc_clip(
-        tmp_path, frames=24, width=160, height=96, radius=9.0, speed=4.0, contrast=50.0
+        tmp_path, frames=24, width=160, height=96, radius=radius, speed=4.0, contrast=50.0
     )
     run = tmp_path / "run"
     with threads_for(device="cpu"):
         train(
-            tmp_path / "clip", run, preset="tiny", variant="full-highlights", device="cpu",
-            progress=False,
+            tmp_path / "clip", run, preset="tiny", variant="full-highlights", overrides=overrides,
+            device="cpu", progress=False,
         )  # fmt: skip
+    return run, smb
+
+
+# about 75 s on 2 cores; the tracker itself is checked on these frames in
+# tests/priors/test_highlight_tracks.py within the default run
+@pytest.mark.slow
+def test_full_highlights_renders_the_disc(tmp_path, load_bench):
+    run, smb = _train_disc(tmp_path, load_bench, radius=9.0)
     s = smb.score_run(run)
     for split in ("train", "test"):
         assert 0.5 <= s[f"{split}_disc_ratio"] <= 2.0, s
@@ -42,19 +49,7 @@ def test_highlight_masks_keep_a_small_disc_dynamic(tmp_path, load_bench):
     lab/notes/small-movers.md); with `masks.highlight_blobs` they stay dynamic (0.26 measured)."""
     import torch
 
-    from m4dgs.core.threads import threads_for
-    from m4dgs.training.pipeline import train
-
-    smb = load_bench("small_mover_bench")
-    smb.make_disc_clip(
-        tmp_path, frames=24, width=160, height=96, radius=2.5, speed=4.0, contrast=50.0
-    )
-    run = tmp_path / "run"
-    with threads_for(device="cpu"):
-        train(
-            tmp_path / "clip", run, preset="tiny", variant="full-highlights",
-            overrides={"masks.highlight_blobs": True}, device="cpu", progress=False,
-        )  # fmt: skip
+    run, smb = _train_disc(tmp_path, load_bench, 2.5, {"masks.highlight_blobs": True})
     diag = torch.load(run / "model" / "camera_init.pt", weights_only=False)["diagnostics"]["masks"]
     assert diag["fraction_highlight"] > 0 and diag["fraction"] > diag["fraction_before_highlight"]
     s = smb.score_run(run)
