@@ -172,6 +172,13 @@ def load_training_data(
     )
 
 
+def frames_and_exposures(data: TrainingData) -> Tuple[np.ndarray, np.ndarray]:
+    """The training frames as numpy [T, H, W, 3] (data.ldr, floats in [0, 1]) and their exposure
+    times [T] float64: what the highlight tracker reads (m4dgs.priors.highlight_tracks)."""
+    ldr = data.ldr.detach().cpu().numpy()
+    return ldr, np.exp2(data.log2_dt.detach().cpu().numpy().astype(np.float64))
+
+
 def init_tracks(
     data: TrainingData, init: VideoInitConfig
 ) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -185,9 +192,7 @@ def init_tracks(
         return tracks, vis, always
     from m4dgs.priors.highlight_tracks import highlight_tracks
 
-    ldr = data.ldr.detach().cpu().numpy()
-    dts = np.exp2(data.log2_dt.detach().cpu().numpy().astype(np.float64))
-    ht, hv = highlight_tracks(ldr, dts, points=int(init.highlight_points))
+    ht, hv = highlight_tracks(*frames_and_exposures(data), points=int(init.highlight_points))
     if ht.shape[0] == 0:
         return tracks, vis, always
     ht_t = torch.from_numpy(ht).to(device=tracks.device, dtype=tracks.dtype)

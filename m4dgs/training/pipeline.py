@@ -51,7 +51,12 @@ from m4dgs.priors.epipolar import dynamic_masks, epipolar_error_maps, opencv_flo
 from m4dgs.priors.rigidity import rigidity_masks
 from m4dgs.run import RunDir, load_torch, save_torch
 from m4dgs.training.config import TrainConfig, to_dict, upgrade_dict, validate
-from m4dgs.training.data import TrainingData, init_tracks, load_training_data
+from m4dgs.training.data import (
+    TrainingData,
+    frames_and_exposures,
+    init_tracks,
+    load_training_data,
+)
 from m4dgs.training.exposure import training_exposures
 from m4dgs.training.phases import SHARED_PHASES, PhaseCache, code_fingerprint, phase_keys
 from m4dgs.training.stage1 import VideoStage, build_appearance, train_stage1
@@ -263,9 +268,7 @@ class Trainer:
         if cfg.masks.highlight_blobs:
             from m4dgs.priors.highlight_tracks import highlight_masks
 
-            hl = highlight_masks(
-                d.ldr.detach().cpu().numpy(), np.exp2(d.log2_dt.detach().cpu().numpy()).tolist()
-            )
+            hl = highlight_masks(*frames_and_exposures(d))
             hl_t = torch.from_numpy(hl).to(masks.device)
             mask_diag = {
                 **mask_diag,
