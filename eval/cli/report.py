@@ -275,7 +275,7 @@ def results(
     for name, pm in res["partial_metrics"].items():
         click.echo(
             f"warning: suite {name}: some scored runs lack metrics their rows report elsewhere: "
-            + ", ".join(f"{k} in {h} of {n} runs" for k, (h, n) in pm.items())
+            + ", ".join(f"{k} present in {h} of {n} runs" for k, (h, n) in pm.items())
             + " (scored before the metric existed, or rows written back by an older export: "
             "re-export them with `m4dgs-eval export` while their run folders exist)",
             err=True,

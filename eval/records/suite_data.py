@@ -93,12 +93,18 @@ class SuiteData:
         metrics that some scored runs of a row have and others of the same row lack: a run scored
         before the metric existed, or a row written back by an export that did not know it. A
         metric that a row never has (LPIPS without weights, tracks of a row without them) is not
-        partial."""
+        partial, nor one of eval.experiments.score.MOVING_CONTENT_KEYS that no run of a scene has
+        (the dynamic-pixel scores of a scene where nothing moves): the counts leave such scenes
+        out."""
+        from eval.experiments.score import MOVING_CONTENT_KEYS
+
         out: Dict[str, Tuple[int, int]] = {}
         for k in metric_keys():
+            scenes = {e["scene"] for e in self.scored if e["metrics"].get(k) is not None}
             by_row: Dict[str, List[bool]] = {}
             for e in self.scored:
-                by_row.setdefault(e["row"], []).append(e["metrics"].get(k) is not None)
+                if e["scene"] in scenes or k not in MOVING_CONTENT_KEYS:
+                    by_row.setdefault(e["row"], []).append(e["metrics"].get(k) is not None)
             reported = [v for v in by_row.values() if any(v)]
             have, total = sum(sum(v) for v in reported), sum(len(v) for v in reported)
             if have < total:

@@ -249,7 +249,7 @@ def suite_section(
         lines.append(
             "- Metrics some runs lack (scored before the metric existed, or written back by an "
             "export that did not know it): "
-            + ", ".join(f"`{k}` in {h} of {n} runs" for k, (h, n) in pm.items())
+            + ", ".join(f"`{k}` present in {h} of {n} runs" for k, (h, n) in pm.items())
             + "; the tables show n/a for it where a row lacks a run's value, the findings pair "
             "only the runs that have it"
         )

@@ -819,7 +819,8 @@ def test_results_lists_failed_runs_and_leaves_their_pair_out(tmp_path):
 def test_results_warns_of_runs_that_lack_a_metric_their_row_reports(tmp_path):
     """A row whose runs have a metric in some runs and not in others (a run scored before the
     metric existed, or written back by an older export) is named on the page and in a warning; a
-    metric that a row never has (here HDR-TCE of static-hdr) is not."""
+    metric that a row never has (here HDR-TCE of static-hdr), or a dynamic-pixel score that no run
+    of a scene has, is not."""
     from eval.records.runs_csv import SCORED, write_runs_csv
 
     csvp, out = tmp_path / "runs.csv", tmp_path / "results.md"
@@ -848,9 +849,32 @@ def test_results_warns_of_runs_that_lack_a_metric_their_row_reports(tmp_path):
     assert r.exit_code == 0, r.output
     # 4 runs (2 rows x 2 scenes at seed 1) of the 16 of the four rows that report it lack it
     assert "warning: suite paper-main: some scored runs lack" in r.output
-    assert "hdr_tce in 12 of 16 runs" in r.output
+    assert "hdr_tce present in 12 of 16 runs" in r.output
     assert "- Metrics some runs lack" in out.read_text()
-    assert "`hdr_tce` in 12 of 16 runs" in out.read_text()
+    assert "`hdr_tce` present in 12 of 16 runs" in out.read_text()
+    # a whole scene without it still counts: hdr_tce does not depend on what the scene holds
+    for r in rows:
+        if r["scene"] == MAIN_SCENES[0]:
+            r["hdr_tce"] = None
+    write_runs_csv(csvp, rows)
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    assert "hdr_tce present in 6 of 16 runs" in r.output
+    # but the dynamic-pixel scores of a scene where nothing moves are not partial: no run of
+    # night-street-orbit has dyn_ldr_psnr, every run of the other scene has it
+    for r in rows:
+        r["hdr_tce"] = None if r["row"] == "static-hdr" else 0.01
+        r["dyn_ldr_psnr"] = 20.0 if r["scene"] == MAIN_SCENES[0] else None
+    write_runs_csv(csvp, rows)
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    assert "warning" not in r.output and "Metrics some runs lack" not in out.read_text()
+    # one run of the moving scene without it is partial again, counted over that scene only
+    rows[0]["dyn_ldr_psnr"] = None
+    write_runs_csv(csvp, rows)
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    assert "dyn_ldr_psnr present in 9 of 10 runs" in r.output
 
 
 def test_results_section_gives_the_seed_noise_of_its_runs(tmp_path):
