@@ -50,3 +50,17 @@ def all_conventions() -> Dict[str, str]:
     from eval.metrics import CONVENTIONS  # deferred: the metrics load torch
 
     return {**CONVENTIONS, **SCORE_CONVENTIONS}
+
+
+# metrics that a clip where nothing moves has no value for (no dynamic pixels to score over or to
+# recall, no moving points to measure the speed of): their absence from every run of such a scene
+# says nothing about when the runs were scored
+MOVING_CONTENT_KEYS = (
+    "dyn_ldr_psnr",
+    "dyn_hdr_psnr",
+    "mask_precision",
+    "mask_recall",
+    "mask_iou",
+    "scene_deg_s",
+    "emf",
+)

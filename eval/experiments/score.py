@@ -309,20 +309,6 @@ def mask_metrics(run_dir: Path, clip: Clip) -> Optional[Dict[str, Optional[float
     return mask_scores(est, gt)
 
 
-# metrics that a clip where nothing moves has no value for (no dynamic pixels to score over or to
-# recall, no moving points to measure the speed of): their absence from every run of such a scene
-# says nothing about when the runs were scored
-MOVING_CONTENT_KEYS = (
-    "dyn_ldr_psnr",
-    "dyn_hdr_psnr",
-    "mask_precision",
-    "mask_recall",
-    "mask_iou",
-    "scene_deg_s",
-    "emf",
-)
-
-
 def mask_scores(est: np.ndarray, gt: np.ndarray) -> Dict[str, Optional[float]]:
     """Precision / recall / IoU of boolean masks `est` against `gt` (same shape), pixel counts
     pooled over the whole array; None where a count it divides by is 0."""

@@ -9,7 +9,7 @@ from typing import Dict, List, Mapping, Optional, Tuple
 
 from eval.calibration import SEED_FREE_ROWS
 from eval.calibration import VARIANT as CALIBRATION_VARIANT
-from eval.conventions import PSNR_CAP_DB, all_conventions
+from eval.conventions import MOVING_CONTENT_KEYS, PSNR_CAP_DB, all_conventions
 from eval.records.runs_csv import FAILED, SCORED, SUITE_ORDER, metric_keys, row_key
 from eval.records.suite import TableDef, builtin_suites, load_eval_suite, table_spec
 from eval.stats import seed_noise
@@ -93,11 +93,9 @@ class SuiteData:
         metrics that some scored runs of a row have and others of the same row lack: a run scored
         before the metric existed, or a row written back by an export that did not know it. A
         metric that a row never has (LPIPS without weights, tracks of a row without them) is not
-        partial, nor one of eval.experiments.score.MOVING_CONTENT_KEYS that no run of a scene has
+        partial, nor one of eval.conventions.MOVING_CONTENT_KEYS that no run of a scene has
         (the dynamic-pixel scores of a scene where nothing moves): the counts leave such scenes
         out."""
-        from eval.experiments.score import MOVING_CONTENT_KEYS
-
         out: Dict[str, Tuple[int, int]] = {}
         for k in metric_keys():
             scenes = {e["scene"] for e in self.scored if e["metrics"].get(k) is not None}
