@@ -24,6 +24,11 @@ runs. Optional statistics (eval.stats), each switched on in the TableSpec:
   our interval includes 0), and agree / disagree / not significant (eval.stats.agreement).
 
 The best value stays bold, judged on the means.
+
+A column with `log2=True` shows a ratio metric in stops: every run's value becomes log2(value)
+before the mean, the interval and the paired difference, so the mean is the log of the geometric
+mean and a difference is the log of a ratio (an arithmetic mean of ratios lets one runaway run set
+it: 0.5 and 2 average to 1.25, in stops to 0).
 """
 
 from __future__ import annotations
@@ -54,6 +59,9 @@ class Column:
     target: float | None = None
     # a property of the clip, not a score (e.g. the camera's motion): no arrow, never bold
     context: bool = False
+    # a positive ratio shown in stops: each run's value becomes log2(value) before any statistic
+    # (the module docstring); `target` is then in stops too (0: right)
+    log2: bool = False
 
     @property
     def label(self) -> str:
@@ -113,10 +121,25 @@ def _own_runs(mrows: list, method: str, spec: TableSpec) -> list:
     return list(first.values())
 
 
+def _log2(v):
+    """log2 of a positive value; None for a missing or non-positive one (no ratio to show)."""
+    if _missing(v) or v <= 0:
+        return None
+    return math.log2(v)
+
+
+def _shown(rows: list, spec: TableSpec) -> list:
+    """The rows with every `log2` column's values in stops (copies; the others as given)."""
+    logs = [c.key for c in spec.columns if c.log2]
+    if not logs:
+        return rows
+    return [{**r, **{k: _log2(r[k]) for k in logs if k in r}} for r in rows]
+
+
 def aggregate(rows: list, spec: TableSpec) -> list:
     """Per-method mean over scenes -> list of {"method", "n_scenes", <key>: float | None} in the
-    table's row order."""
-    rows = [r for r in rows if spec.scenes is None or r.get("scene") in spec.scenes]
+    table's row order (a `log2` column's mean in stops)."""
+    rows = _shown([r for r in rows if spec.scenes is None or r.get("scene") in spec.scenes], spec)
     order = list(spec.methods) if spec.methods is not None else []
     for r in rows:
         if r["method"] not in order and spec.methods is None:
@@ -160,7 +183,7 @@ def _has_reference(agg: list, spec: TableSpec) -> bool:
 def cell_stats(rows: list, spec: TableSpec, agg: list | None = None) -> list:
     """[row][col] CellStats in the order of aggregate(rows, spec)."""
     agg = aggregate(rows, spec) if agg is None else agg
-    rows = [r for r in rows if spec.scenes is None or r.get("scene") in spec.scenes]
+    rows = _shown([r for r in rows if spec.scenes is None or r.get("scene") in spec.scenes], spec)
     has_ref = _has_reference(agg, spec)
     ref_rows = [r for r in rows if r["method"] == spec.reference] if has_ref else []
     ref_agg = next((a for a in agg if a["method"] == spec.reference), None) if has_ref else None

@@ -37,6 +37,9 @@ CONVENTIONS = {
     "highlight_stops": "mean |log2(pred) - log2(gt)| over pixels saturated at the longest "
     "observed exposure and measured at the shortest (gt through the clip's response)",
     "highlight_peak_ratio": "max(pred) / max(gt) over those pixels, geometric mean over frames",
+    "highlight_peak_stops": "peak (stops): log2 of max(pred) / max(gt) over those pixels "
+    "(geometric mean over frames), averaged over runs in stops: 0 is right, -1 and +1 bound the "
+    "0.5-2 band",
 }
 
 

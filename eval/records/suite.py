@@ -221,8 +221,16 @@ def metric_columns() -> Dict[str, Column]:
         # the test frames' HDR over the whole scene and its highlights (eval.metrics.scene_hdr)
         Column("hdr_psnr_p99", "PSNR p99", True, ".2f", "HDR", "hdr_psnr_p99"),
         Column("highlight_stops", "highlight err (stops)", False, ".3f", "HDR", "highlight_stops"),
+        # the peak ratio in stops (log2): means, intervals and differences of log ratios
         Column(
-            "highlight_peak_ratio", "peak ratio", False, ".3f", "HDR", "highlight_peak_ratio", 1.0
+            "highlight_peak_ratio",
+            "peak (stops)",
+            False,
+            ".2f",
+            "HDR",
+            "highlight_peak_stops",
+            0.0,
+            log2=True,
         ),
         # held-out views (eval.experiments.view_scores): means over the views
         Column("nv_ldr_oe_psnr", "PSNR", True, ".2f", "Views LDR-OE", "nv_views"),

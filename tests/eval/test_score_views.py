@@ -4,7 +4,7 @@ the held-out views and no highlight error; HDR halved is off by exactly one stop
 of 0.5, and its view scores match numpy by hand; an all-black frame scores low under the p99
 convention; a views-only folder has no test-frame metric; add_missing_metrics adds the new keys to
 an older metrics.json without touching the rest. Then the tables: the `views` and `hdr-scene`
-layouts, and the peak ratio's best being the value closest to 1."""
+layouts, and the peak ratio shown in stops, its best the value closest to 0."""
 
 from __future__ import annotations
 
@@ -187,6 +187,40 @@ def test_the_views_and_hdr_scene_layouts():
         for m, r, e in (("dark", 0.5, 1.0), ("near", 1.2, 0.3), ("hot", 3.0, 1.6))
     ]
     md = render_markdown(rows, table_spec(TableDef("Scene HDR", "hdr-scene")))
-    assert "HDR peak ratio→1" in md and "HDR highlight err (stops)↓" in md
-    # the ratio's best is the one closest to 1, not the smallest
-    assert "**1.200**" in md and "**0.500**" not in md and "**0.300**" in md
+    assert "HDR peak (stops)→0" in md and "HDR highlight err (stops)↓" in md
+    # the ratio in stops (log2 0.5 = -1, log2 1.2 = 0.26, log2 3 = 1.58); the best is the one
+    # closest to 0, not the smallest
+    assert "| 1.000 | -1.00 |" in md and "**0.26**" in md and "| 1.600 | 1.58 |" in md
+    assert "**-1.00**" not in md and "**0.300**" in md
+
+
+def test_peak_ratio_aggregates_in_stops():
+    """Two seeds at half and twice the truth's peak: in stops their mean is 0 (geometric mean 1),
+    where an arithmetic mean of the ratios would read 1.25; the paired difference to a reference
+    run that is right is the log ratio, and a runaway run does not set the mean alone."""
+    from eval.records.suite import TableDef, table_spec
+    from eval.tables import aggregate, cell_stats
+
+    spec = table_spec(TableDef("Scene HDR", "hdr-scene"))
+    spec.reference, spec.intervals = "ref", True
+    rows = [
+        {"method": "a", "scene": "s", "seed": 0, "highlight_peak_ratio": 0.5},
+        {"method": "a", "scene": "s", "seed": 1, "highlight_peak_ratio": 2.0},
+        {"method": "b", "scene": "s", "seed": 0, "highlight_peak_ratio": 1.0},
+        {"method": "b", "scene": "s", "seed": 1, "highlight_peak_ratio": 64.0},
+        {"method": "ref", "scene": "s", "seed": 0, "highlight_peak_ratio": 1.0},
+        {"method": "ref", "scene": "s", "seed": 1, "highlight_peak_ratio": 1.0},
+        {"method": "gone", "scene": "s", "seed": 0, "highlight_peak_ratio": 0.0},
+    ]
+    agg = {a["method"]: a for a in aggregate(rows, spec)}
+    assert agg["a"]["highlight_peak_ratio"] == pytest.approx(0.0)
+    assert agg["b"]["highlight_peak_ratio"] == pytest.approx(3.0)  # log2(sqrt(64)), not 32.5
+    assert agg["gone"]["highlight_peak_ratio"] is None  # a zero peak has no log: n/a
+    col = [c.key for c in spec.columns].index("highlight_peak_ratio")
+    order = [a["method"] for a in aggregate(rows, spec)]
+    stats = cell_stats(rows, spec)
+    d = stats[order.index("b")][col].diff
+    assert d.mean == pytest.approx(3.0) and d.n == 2
+    assert stats[order.index("a")][col].ci.mean == pytest.approx(0.0)
+    # the input rows are not changed
+    assert rows[1]["highlight_peak_ratio"] == 2.0
