@@ -28,12 +28,12 @@ from m4dgs.core.executor_options import make_executor_from
 
 @click.group(
     "suite",
-    short_help="Experiment suites: list, run, job, campaign, export.",
+    short_help="Experiment suites: list, run, job, campaign, export, merge.",
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 def group():
     """Experiment suites: list them, run them (or one job of one, or a campaign of
-    several), export their runs into the runs CSV."""
+    several), export their runs into the runs CSV, merge another runs CSV into it."""
 
 
 # --------------------------------------------------------------------------------------------------
@@ -315,4 +315,28 @@ def export(suites, out, csv_path, scenes, seeds, add_missing):
         click.echo(
             f"{name}: {c['scored']} scored{failed}, {c['missing']} without metrics.json", err=True
         )
+    click.echo(f"wrote {csv_path}", err=True)
+
+
+@group.command()
+@click.argument("src", type=click.Path(dir_okay=False), metavar="SRC_CSV")
+@runs_csv_opt
+@click.option(
+    "--suites",
+    default=None,
+    metavar="a,b",
+    help="Comma-separated suites whose rows to take from SRC_CSV (default: all of them).",
+)
+def merge(src, csv_path, suites):
+    """Merge the rows of another runs CSV (SRC_CSV: another machine's `export`, or a campaign's
+    rows kept in their own CSV until it ends) into --csv, with the learned CRF curves and clip
+    floors beside it, by export's rules: a scored row replaces the row of the same (suite, scene,
+    row, seed), a missing or failed one never replaces a scored one, other rows stay. A clip floor
+    is added only where --csv has none for that scene and generator version."""
+    from eval.experiments.export import merge_csv
+
+    summary = merge_csv(src, csv_path, parse_names(suites), log=lambda s: click.echo(s, err=True))
+    for name, c in summary.items():
+        failed = f", {c['failed']} failed" if c.get("failed") else ""
+        click.echo(f"{name}: {c['scored']} scored{failed}, {c['missing']} missing rows", err=True)
     click.echo(f"wrote {csv_path}", err=True)

@@ -224,8 +224,19 @@ def export(
             "missing": len(rows) - len(scored) - failed,
         }
     merged = merge_rows(old, new_rows)
-    for name in summary:
-        # runs whose row does not say (older code) are not another version or host
+    _warn_mixed(merged, summary, csv_path, say)
+    Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
+    write_runs_csv(csv_path, merged, extra)
+    write_crf_csv(crf_csv_path(csv_path), curves)
+    if floors:
+        write_floors_csv(floors_csv_path(csv_path), floors)
+    return summary
+
+
+def _warn_mixed(merged: List[dict], suites, csv_path, say) -> None:
+    """Say where a suite's scored rows in `merged` come from more than one code version, clip
+    generator version or host (runs whose row does not say, from older code, count as none)."""
+    for name in suites:
         for column, what in (
             ("code", "m4dgs code versions"),
             ("generator", "clip generator versions"),
@@ -243,6 +254,55 @@ def export(
                     "differences across them compare other code, clips or machines, not only "
                     "the rows (docs/reliability.md)"
                 )
+
+
+def merge_csv(src, csv_path, suites: Optional[Sequence[str]] = None, log=None) -> dict:
+    """Merge the rows of another runs CSV `src` (another machine's export, or a campaign's rows
+    kept apart until it ends) into csv_path, with their CRF curves and clip floors, by the rules
+    of `export`: a scored row replaces the row of the same (suite, scene, row, seed), a missing or
+    failed one never replaces a scored one, other rows stay. A scored row's curve replaces the
+    destination's (or removes it when src has none); a clip floor is added only where
+    csv_path has none for that (scene, generator), so the floors of the clips already behind its
+    rows stay. suites: only the rows of these suites (default: every suite in src).
+
+    Returns {suite: {"scored", "failed", "missing"}} of the rows taken from src; raises
+    InputError when src does not exist or has no row to take."""
+    from m4dgs.core.errors import InputError
+
+    say = log or (lambda s: None)
+    if not Path(src).is_file():
+        raise InputError(f"{src}: no such runs CSV")
+    if Path(src).resolve() == Path(csv_path).resolve():
+        raise InputError(f"{src}: the CSV to merge is the destination itself")
+    new_rows = read_runs_csv(src)
+    if suites:
+        new_rows = [r for r in new_rows if r["suite"] in set(suites)]
+    if not new_rows:
+        want = f" of suite(s) {', '.join(suites)}" if suites else ""
+        raise InputError(f"{src}: no rows{want} to merge")
+    old = read_runs_csv(csv_path)
+    extra = []
+    for path in (csv_path, src):
+        if Path(path).exists():
+            with open(path, newline="", encoding="utf-8") as f:
+                head = next(csv.reader(f), [])
+            extra += [c for c in head if c not in META and c not in metric_keys() + extra]
+    curves = read_crf_csv(crf_csv_path(csv_path))
+    src_curves = read_crf_csv(crf_csv_path(src))
+    summary: dict = {}
+    for r in new_rows:
+        c = summary.setdefault(r["suite"], {"scored": 0, "failed": 0, "missing": 0})
+        status = r["status"] if r["status"] in (SCORED, FAILED) else MISSING
+        c[{SCORED: "scored", FAILED: "failed", MISSING: "missing"}[status]] += 1
+        if r["status"] == SCORED:
+            curves.pop(row_key(r), None)
+            if row_key(r) in src_curves:
+                curves[row_key(r)] = src_curves[row_key(r)]
+    floors = read_floors_csv(floors_csv_path(csv_path))
+    for k, v in read_floors_csv(floors_csv_path(src)).items():
+        floors.setdefault(k, v)
+    merged = merge_rows(old, new_rows)
+    _warn_mixed(merged, summary, csv_path, say)
     Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
     write_runs_csv(csv_path, merged, extra)
     write_crf_csv(crf_csv_path(csv_path), curves)
