@@ -304,7 +304,7 @@ def test_views_are_in_clip_json_and_validated(tiny_clip_oracle, tmp_path):
         Clip.open(copy).validate()
 
 
-SHIPPED_BENCHMARK_SUITES = ("syn-exp-3", "hard")
+SHIPPED_BENCHMARK_SUITES = ("syn-exp-3", "hard", "hard-lit")
 
 
 @pytest.mark.slow  # ~1 min a suite on 2 idle cores: Mitsuba scenes built at the small preset
