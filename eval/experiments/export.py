@@ -188,11 +188,7 @@ def export(
 
     say = log or (lambda s: None)
     old = read_runs_csv(csv_path)
-    extra = []
-    if Path(csv_path).exists():
-        with open(csv_path, newline="", encoding="utf-8") as f:
-            head = next(csv.reader(f), [])
-        extra = [c for c in head if c not in META and c not in metric_keys()]
+    extra = _extra_columns([csv_path])
     curves = read_crf_csv(crf_csv_path(csv_path))
     floors = read_floors_csv(floors_csv_path(csv_path))
     new_rows, summary = [], {}
@@ -223,14 +219,31 @@ def export(
             "failed": failed,
             "missing": len(rows) - len(scored) - failed,
         }
-    merged = merge_rows(old, new_rows)
+    _write_merged(csv_path, merge_rows(old, new_rows), extra, curves, floors, summary, say)
+    return summary
+
+
+def _extra_columns(paths) -> List[str]:
+    """The columns of existing runs CSVs that are neither META nor a metric of this version (an
+    older file's), in order, once each: kept when the CSV is written again."""
+    extra: List[str] = []
+    for path in paths:
+        if Path(path).exists():
+            with open(path, newline="", encoding="utf-8") as f:
+                head = next(csv.reader(f), [])
+            extra += [c for c in head if c not in META and c not in metric_keys() + extra]
+    return extra
+
+
+def _write_merged(csv_path, merged, extra, curves, floors, summary, say) -> None:
+    """Warn where a suite of `summary` mixes code, generator or host, then write the runs CSV,
+    its CRF CSV and (when there are any) its clip floors."""
     _warn_mixed(merged, summary, csv_path, say)
     Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
     write_runs_csv(csv_path, merged, extra)
     write_crf_csv(crf_csv_path(csv_path), curves)
     if floors:
         write_floors_csv(floors_csv_path(csv_path), floors)
-    return summary
 
 
 def _warn_mixed(merged: List[dict], suites, csv_path, say) -> None:
@@ -281,12 +294,7 @@ def merge_csv(src, csv_path, suites: Optional[Sequence[str]] = None, log=None) -
         want = f" of suite(s) {', '.join(suites)}" if suites else ""
         raise InputError(f"{src}: no rows{want} to merge")
     old = read_runs_csv(csv_path)
-    extra = []
-    for path in (csv_path, src):
-        if Path(path).exists():
-            with open(path, newline="", encoding="utf-8") as f:
-                head = next(csv.reader(f), [])
-            extra += [c for c in head if c not in META and c not in metric_keys() + extra]
+    extra = _extra_columns([csv_path, src])
     curves = read_crf_csv(crf_csv_path(csv_path))
     src_curves = read_crf_csv(crf_csv_path(src))
     summary: dict = {}
@@ -301,11 +309,5 @@ def merge_csv(src, csv_path, suites: Optional[Sequence[str]] = None, log=None) -
     floors = read_floors_csv(floors_csv_path(csv_path))
     for k, v in read_floors_csv(floors_csv_path(src)).items():
         floors.setdefault(k, v)
-    merged = merge_rows(old, new_rows)
-    _warn_mixed(merged, summary, csv_path, say)
-    Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
-    write_runs_csv(csv_path, merged, extra)
-    write_crf_csv(crf_csv_path(csv_path), curves)
-    if floors:
-        write_floors_csv(floors_csv_path(csv_path), floors)
+    _write_merged(csv_path, merge_rows(old, new_rows), extra, curves, floors, summary, say)
     return summary
