@@ -127,6 +127,12 @@ class LRConfig:
     dynamic_position_init: float = 1.6e-4
     dynamic_position_final: float = 1.6e-6
     dynamic_rotation: float = 1e-3
+    # beyond the paper: the knot values of the per-Gaussian log2 gain over time
+    # (model.appearance_knots > 0; unused otherwise). This project's choice: 1e-2 stops a step,
+    # so Adam can move a knot by a few stops (the relit scenes change 3-3.5 stops, 7-11x) within
+    # the few hundred steps whose frames sit near it, while one step changes the brightness by
+    # under 1 %, below what one 8-bit frame can tell
+    gain: float = 1e-2
 
     def position_lr(self, step: int, max_steps: int, dynamic: bool = False) -> float:
         """3DGS exponential decay: log-linear from position_init (step 0) to position_final (step
@@ -194,6 +200,13 @@ class LossConfig:
     # 8-bit frames barely constrain, take most of the gradient in linear HDR; a floor of ~1 % of
     # the median weights them down (docs/method.md, "Options beyond the paper")
     tlr_den_floor: float = 0.0
+    # beyond the paper, only with a gain over time (model.appearance_knots > 0; no term without
+    # one): the mean over Gaussians of the squared second differences of each Gaussian's log2-gain
+    # knot values, in stops. It leaves a constant or a linear ramp free and charges curvature, so
+    # that a Gaussian does not flicker its brightness to fake what motion or another Gaussian
+    # should explain. This project's choice: 0.1 lets the RGB loss bend a curve by about a stop per
+    # knot before this term outweighs it (docs/method.md, "Options beyond the paper")
+    lambda_gain_smooth: float = 0.1
 
 
 def _stage1_loss() -> LossConfig:
@@ -837,6 +850,8 @@ def _check_range(section: Any, name: str, v: Any, key: str) -> None:
         raise _range_error(key, v, "a probability in [0, 1]")
     if name == "tlr_den_floor" and v < 0:
         raise _range_error(key, v, ">= 0 (a fraction of the render's median HDR value)")
+    if name == "appearance_knots" and v < 0:
+        raise _range_error(key, v, ">= 0 (0 = no gain over time, the paper's colour)")
 
 
 def _check_budget(cfg: "TrainConfig") -> None:
