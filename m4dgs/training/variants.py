@@ -43,10 +43,12 @@ VARIANTS: Dict[str, Dict[str, Any]] = {
     # initialisation (m4dgs.priors.highlight_tracks), for small bright movers
     "full-highlights": {"stage1.init.highlight_tracks": True},
     # beyond the paper: the full method plus a grey brightness gain over time on every Gaussian
-    # (model.appearance_knots), for scenes whose light moves. 8 knots over the training frames: the
-    # relit scenes' clips have 100 frames (50 training frames), so a knot every 7 training frames,
-    # 14 clip frames, about a quarter of the swinging bulb's 55-frame period, the fastest relighting
-    # among them (lab/notes/relighting.md)
+    # (model.appearance_knots), for scenes whose light moves (lab/notes/relighting.md). 8 knots
+    # over the training frames: the relit scenes' clips have 100 frames (50 training frames), so a
+    # knot every 7 training frames, 14 clip frames. The fastest relighting among them is the bulb
+    # swinging at 0.55 Hz (scenes/bare-bulb-swing-handheld.yaml: a 55-frame period at 30 fps, a
+    # point under its arc lit twice per period), about two knots per rise or fall; denser knots
+    # would come closer to the 3-frame exposure cycle, which a gain must not follow
     "full-relight": {"model.appearance_knots": 8},
     # adapted baselines (paper sec. 4.2)
     "static-hdr": {
