@@ -51,6 +51,25 @@ def make_knots(num_frames: int, every: int = 4, *, dtype=torch.float32, device=N
     return torch.tensor(knots, dtype=dtype, device=device)
 
 
+def uniform_knots(num_frames: int, count: int, *, dtype=torch.float32, device=None) -> Tensor:
+    """`count` knot times spread evenly over frames 0..num_frames-1 (fractional in general), for
+    curves whose resolution is a number of knots rather than a spacing in frames (the per-Gaussian
+    brightness gain of `ModelConfig.appearance_knots`). A single frame spans [0, 1] instead, so
+    that the knots stay distinct.
+
+    Args:
+        num_frames: number of training frames T (>= 1).
+        count: number of knots K (>= 1).
+    Returns:
+        [K] increasing knot times from 0 to T - 1 ([0] when K == 1).
+    """
+    if num_frames < 1:
+        raise ValueError(f"num_frames must be >= 1, got {num_frames}")
+    if count < 1:
+        raise ValueError(f"the number of knots must be >= 1, got {count}")
+    return torch.linspace(0.0, float(max(num_frames - 1, 1)), count, dtype=dtype, device=device)
+
+
 def hermite_basis(s: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Hermite basis functions (h00, h10, h01, h11) at local parameter s in [0, 1] (same shape as
     s)."""

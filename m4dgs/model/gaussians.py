@@ -17,7 +17,13 @@ training-frame index (0..T-1, fractional for in-between test frames); the rotati
 evaluated at the normalised time t / (T - 1).
 
 Scale activations: "exp" (3DGS log-scales) or "sigmoid" (scale = scale_max * sigmoid(raw), the
-authors' video-space choice with scale_max = 0.05)."""
+authors' video-space choice with scale_max = 0.05).
+
+Beyond the paper (`ModelConfig.appearance_knots` = K > 0; off by default): every Gaussian of either
+stage also holds "log2_gain" [N, K], a grey brightness gain over time in stops. Its HDR colour at
+time t is the colour MLP's output times 2 ** g(t), g the cubic Hermite curve of `m4dgs.core.spline`
+through its K values at K knots spread evenly over the training frames (`log2_gain(t)`). Without it
+the containers hold exactly the paper's parameters."""
 
 from __future__ import annotations
 
@@ -62,6 +68,13 @@ class ModelConfig:
     video_scale_max: float = 0.05  # authors: maximum video-space scale
     world_scale_activation: Literal["exp", "sigmoid"] = "exp"  # 3DGS log-scales in world space
     world_scale_max: float = 1.0  # only used with a "sigmoid" world activation
+    # Beyond the paper. 0 = the paper's time-invariant colour (sec. 3.1). K > 0: every Gaussian
+    # (stage-1 video Gaussians, stage-2 static and dynamic world Gaussians) carries a grey gain
+    # "log2_gain" [N, K] (zero at the start), and its HDR colour at time t is colour(features,
+    # direction) * 2 ** g(t), g the cubic Hermite curve through its K values at K knots spread
+    # evenly over the training frames: a light that moves changes how brightly a surface is lit,
+    # which a time-invariant colour cannot follow (docs/method.md, "Options beyond the paper")
+    appearance_knots: int = 0
 
 
 @dataclass
@@ -108,6 +121,47 @@ def scale_inverse(scale: Tensor, kind: str = "exp", scale_max: float = 0.05) -> 
     raise ValueError(f"unknown scale activation {kind!r}; expected one of {SCALE_ACTIVATIONS}")
 
 
+# --------------------------------------------------------------------------------------------------
+# brightness gain over time (beyond the paper: ModelConfig.appearance_knots)
+# --------------------------------------------------------------------------------------------------
+GAIN_KEY = "log2_gain"  # per-Gaussian knot values [N, K] of the log2 brightness gain
+
+
+def gain_knots(num_frames: int, count: int, *, dtype=torch.float32, device=None) -> Tensor:
+    """[K] knot times of the gain curve: K knots spread evenly over the training frames 0..T-1
+    (`m4dgs.core.spline.uniform_knots`)."""
+    return spline.uniform_knots(num_frames, count, dtype=dtype, device=device)
+
+
+def evaluate_log2_gain(
+    values: Tensor, knots: Tensor, t: TimeLike, memo: Optional[spline.BasisMemo] = None
+) -> Tensor:
+    """The log2 gain of each Gaussian at time t: the cubic Hermite spline (Catmull-Rom tangents,
+    times clamped to the knots) of its knot values, as `m4dgs.core.spline.evaluate` computes the
+    positions, with one channel.
+
+    Args:
+        values: [N, K] knot values (stops). knots: [K] knot times. t: a scalar time or [T] times.
+        memo: the model's basis memo (the same values bit for bit).
+    Returns:
+        [N, 1] for a scalar t, else [N, T, 1].
+    """
+    return spline.evaluate(values[..., None], knots, t, memo)
+
+
+def gain_second_differences(values: Tensor) -> Tensor:
+    """[N, K - 2] second differences g_{k+1} - 2 g_k + g_{k-1} of the knot values [N, K] (zero
+    along a straight line in time; the knots are evenly spaced)."""
+    return values[:, 2:] - 2.0 * values[:, 1:-1] + values[:, :-2]
+
+
+def _check_gain(gain: Tensor, n: int, label: str) -> None:
+    if gain.dim() != 2 or gain.shape[0] != n or gain.shape[1] < 1:
+        raise ValueError(
+            f"{label}: '{GAIN_KEY}' must be [N, K] with N = {n} and K >= 1, got {tuple(gain.shape)}"
+        )
+
+
 def _logit(p: float) -> float:
     return math.log(p / (1.0 - p))
 
@@ -135,8 +189,9 @@ class VideoGaussians(nn.Module):
 
     Parameters (`self.params`): "ctrl" [N, K, 3] spline control points in video space, "rot" [N, J,
     4] quaternion polynomial coefficients, "scales" [N, 3] raw scales, "opacities" [N] logits,
-    "features" [N, C]. Buffer "knots" [K] (frame times of the control points); `num_frames` T sets
-    the normalised rotation time."""
+    "features" [N, C], and with a gain over time (beyond the paper) "log2_gain" [N, K_g]. Buffer
+    "knots" [K] (frame times of the control points); `num_frames` T sets the normalised rotation
+    time."""
 
     def __init__(
         self,
@@ -149,6 +204,7 @@ class VideoGaussians(nn.Module):
         num_frames: int,
         scale_kind: str = "sigmoid",
         scale_max: float = 0.05,
+        log2_gain: Optional[Tensor] = None,
     ):
         super().__init__()
         n = ctrl.shape[0]
@@ -180,6 +236,15 @@ class VideoGaussians(nn.Module):
         self.num_frames = int(num_frames)
         self.scale_kind = scale_kind
         self.scale_max = float(scale_max)
+        if log2_gain is not None:
+            _check_gain(log2_gain, n, "VideoGaussians")
+            self.params[GAIN_KEY] = nn.Parameter(log2_gain)
+            self._register_gain_knots(log2_gain.shape[1], ctrl)
+
+    def _register_gain_knots(self, count: int, like: Tensor) -> None:
+        # not saved with the state (it follows from num_frames and K); moves with .to()
+        knots = gain_knots(self.num_frames, count, dtype=like.dtype, device=like.device)
+        self.register_buffer("gain_knots", knots, persistent=False)
 
     @property
     def num_gaussians(self) -> int:
@@ -212,6 +277,22 @@ class VideoGaussians(nn.Module):
         """[N, C] colour features."""
         return self.params["features"]
 
+    @property
+    def appearance_knots(self) -> int:
+        """K of the gain over time (0: none, the paper's time-invariant colour)."""
+        return self.params[GAIN_KEY].shape[1] if GAIN_KEY in self.params else 0
+
+    def gain_values(self) -> Optional[Tensor]:
+        """[N, K] knot values of the log2 gain, or None without a gain."""
+        return self.params[GAIN_KEY] if GAIN_KEY in self.params else None
+
+    def log2_gain(self, t: TimeLike) -> Optional[Tensor]:
+        """log2 brightness gain at frame time t: [N, 1] (scalar t) or [N, T, 1]; None without a
+        gain (the paper's model)."""
+        if GAIN_KEY not in self.params:
+            return None
+        return evaluate_log2_gain(self.params[GAIN_KEY], self.gain_knots, t, self.spline_memo)
+
     def layout(self) -> GaussianLayout:
         """Densification layout: control points move together; splits are oriented by the
         mid-sequence rotation."""
@@ -242,6 +323,7 @@ class VideoGaussians(nn.Module):
             state["num_frames"],
             state["scale_kind"],
             state["scale_max"],
+            log2_gain=p.get(GAIN_KEY),
         )
 
 
@@ -250,7 +332,8 @@ class WorldGaussians(nn.Module):
 
     `static` params: "means" [Ns, 3], "quats" [Ns, 4], "scales" [Ns, 3], "opacities" [Ns],
     "features" [Ns, C]. `dynamic` params: "ctrl" [Nd, K, 3], "rot" [Nd, J, 4], "scales",
-    "opacities", "features"."""
+    "opacities", "features". With a gain over time (beyond the paper) both sets also hold
+    "log2_gain" [Ns / Nd, K_g] (both or neither, one K_g)."""
 
     def __init__(
         self,
@@ -285,6 +368,26 @@ class WorldGaussians(nn.Module):
         self.num_frames = int(num_frames)
         self.scale_kind = scale_kind
         self.scale_max = float(scale_max)
+        has_gain = (GAIN_KEY in static, GAIN_KEY in dynamic)
+        if any(has_gain):
+            if not all(has_gain):
+                raise ValueError(
+                    f"WorldGaussians: '{GAIN_KEY}' in the {'static' if has_gain[0] else 'dynamic'}"
+                    " set only (both sets or neither)"
+                )
+            gs, gd = static[GAIN_KEY], dynamic[GAIN_KEY]
+            _check_gain(gs, self.static["means"].shape[0], "WorldGaussians static set")
+            _check_gain(gd, ref.shape[0], "WorldGaussians dynamic set")
+            if gs.shape[1] != gd.shape[1]:
+                raise ValueError(
+                    f"WorldGaussians: the static gain has {gs.shape[1]} knots, the dynamic one "
+                    f"{gd.shape[1]}"
+                )
+            self.static[GAIN_KEY] = nn.Parameter(gs)
+            self.dynamic[GAIN_KEY] = nn.Parameter(gd)
+            knots_g = gain_knots(self.num_frames, gs.shape[1], dtype=ref.dtype, device=ref.device)
+            # not saved with the state (it follows from num_frames and K); moves with .to()
+            self.register_buffer("gain_knots", knots_g, persistent=False)
 
     @property
     def num_static(self) -> int:
@@ -342,6 +445,25 @@ class WorldGaussians(nn.Module):
 
     def features(self) -> Tensor:
         return torch.cat([self.static["features"], self.dynamic["features"]])
+
+    @property
+    def appearance_knots(self) -> int:
+        """K of the gain over time (0: none, the paper's time-invariant colour)."""
+        return self.static[GAIN_KEY].shape[1] if GAIN_KEY in self.static else 0
+
+    def gain_values(self) -> Optional[Tensor]:
+        """[N, K] knot values of the log2 gain of the union (static first), or None."""
+        if GAIN_KEY not in self.static:
+            return None
+        return torch.cat([self.static[GAIN_KEY], self.dynamic[GAIN_KEY]])
+
+    def log2_gain(self, t: TimeLike) -> Optional[Tensor]:
+        """log2 brightness gain of the union at time t: [N, 1] (scalar t) or [N, T, 1]; None
+        without a gain (the paper's model)."""
+        values = self.gain_values()
+        if values is None:
+            return None
+        return evaluate_log2_gain(values, self.gain_knots, t, self.spline_memo)
 
     def static_layout(self) -> GaussianLayout:
         kind, smax = self.scale_kind, self.scale_max
@@ -465,7 +587,8 @@ def init_video_gaussians(
     control points (every N_s frames over the T training frames) are fitted to it by least squares,
     the spline itself filling the invisible spans. Opacity 0.5, scale sqrt(mean squared distance to
     the k = 3 nearest neighbours) at the frame where most tracks are visible, features ~ N(0,
-    std^2), identity rotation polynomial.
+    std^2), identity rotation polynomial; with `model.appearance_knots` > 0 (beyond the paper) a
+    zero log2 gain.
 
     Args:
         tracks: [N, T, 2] continuous pixel coordinates over the training frames. visible: [N, T]
@@ -534,6 +657,12 @@ def init_video_gaussians(
         torch.randn(n, model.feature_dim, generator=gen, dtype=dtype, device=device)
         * cfg.feature_std
     )
+    # beyond the paper: a gain over time starts at 1 (2 ** 0) at every knot
+    gain = (
+        torch.zeros(n, model.appearance_knots, dtype=dtype, device=device)
+        if model.appearance_knots > 0
+        else None
+    )
     return VideoGaussians(
         ctrl,
         rot_coeffs,
@@ -544,4 +673,5 @@ def init_video_gaussians(
         t_count,
         model.video_scale_activation,
         model.video_scale_max,
+        log2_gain=gain,
     )

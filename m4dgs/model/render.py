@@ -4,12 +4,14 @@ the Gaussians' positions at destination times (from which the rendered flow / tr
 `render_gaussians` works for any Gaussian set with positions(t), quats(t), scales(), opacities() and
 features(): stage 1 draws its video Gaussians with it through the orthographic video camera J_ortho
 (identity view, camera_model "ortho", paper sec. 3.3.1); `render_world` draws world Gaussians (stage
-2 and the trained model) from a pinhole camera."""
+2 and the trained model) from a pinhole camera. The HDR colour of each Gaussian is the colour MLP's,
+times its brightness gain at the render time when the Gaussians carry one (beyond the paper;
+`gaussian_colors`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, List, Sequence
+from typing import Any, List, Optional, Sequence
 
 import torch
 
@@ -17,6 +19,18 @@ from m4dgs.core import camera as cam
 from m4dgs.model.background import Background
 from m4dgs.model.color import ColorMLP, view_directions
 from m4dgs.raster import render
+
+
+def gaussian_colors(
+    gauss, color: ColorMLP, t: float, dirs: Optional[torch.Tensor] = None
+) -> torch.Tensor:
+    """HDR colour [N, 3] of each Gaussian at time t: color(features, dirs), times 2 ** g(t) when
+    the Gaussians carry a log2 gain over time (`log2_gain(t)`, beyond the paper:
+    ModelConfig.appearance_knots); without one exactly the colour MLP's output."""
+    hdr = color(gauss.features(), dirs)
+    gain_at = getattr(gauss, "log2_gain", None)
+    gain = gain_at(t) if gain_at is not None else None
+    return hdr if gain is None else hdr * torch.exp2(gain.to(hdr.dtype))
 
 
 @dataclass
@@ -46,8 +60,9 @@ def render_gaussians(
     world-to-camera matrix [4, 4]) or "pinhole" (`view` is the camera-to-world pose c2w [4, 4]).
 
     Features: HDR colour (3, background 2^b; with a view-dependent colour MLP and a pinhole camera,
-    of the feature and the direction from the camera centre c2w[:3, 3] to each Gaussian) + the
-    Gaussians' positions at each destination time (3 each, background 0), alpha-blended."""
+    of the feature and the direction from the camera centre c2w[:3, 3] to each Gaussian; times the
+    Gaussian's gain at t when it has one, `gaussian_colors`) + the Gaussians' positions at each
+    destination time (3 each, background 0), alpha-blended."""
     if dest_times:
         # one spline evaluation for the render time and every destination time: [N, 1 + D, 3]
         times = torch.tensor([float(t)] + [float(d) for d in dest_times], device=K.device)
@@ -62,7 +77,7 @@ def render_gaussians(
         if color.view_dependent and camera_model == "pinhole"
         else None
     )
-    hdr = color(gauss.features(), dirs)
+    hdr = gaussian_colors(gauss, color, t, dirs)
     feats = hdr if dest_pos is None else torch.cat([hdr, dest_pos], -1)
     background = torch.cat([bg(), means.new_zeros(feats.shape[1] - 3)])
     out = render(

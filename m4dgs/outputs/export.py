@@ -32,6 +32,7 @@ import torch
 
 from m4dgs.core.errors import InputError
 from m4dgs.core.io import atomic_target
+from m4dgs.model.render import gaussian_colors
 from m4dgs.model.trained import load_model
 
 #: Y_0^0 = 1 / (2 sqrt(pi)); 3DGS colour = 0.5 + SH_C0 * f_dc (+ higher bands)
@@ -301,13 +302,14 @@ def model_gaussians_at(
     """Activated Gaussians of a TrainedModel at time t with tone-mapped colours.
 
     Returns dict: means [N,3], quats [N,4] (wxyz, unit), scales [N,3], opacities [N], hdr [N,3] (the
-    colour MLP's HDR irradiance; view-independent), rgb [N,3] = tm(hdr, log2 dt) in [0, 1] (dt =
+    colour MLP's HDR irradiance, view-independent, times the Gaussian's gain at t when the model has
+    a gain over time), rgb [N,3] = tm(hdr, log2 dt) in [0, 1] (dt =
     exposure, default 1), is_dynamic [N]."""
     dt = 1.0 if exposure is None else float(exposure)
     if not dt > 0:
         raise ValueError(f"exposure must be > 0, got {exposure!r}")
     g = model.gauss
-    hdr = model.color(g.features())
+    hdr = gaussian_colors(g, model.color, float(t))
     rgb = model.tm(hdr, torch.tensor(float(np.log2(dt)), dtype=hdr.dtype, device=hdr.device)).clamp(
         0, 1
     )

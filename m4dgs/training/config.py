@@ -127,6 +127,15 @@ class LRConfig:
     dynamic_position_init: float = 1.6e-4
     dynamic_position_final: float = 1.6e-6
     dynamic_rotation: float = 1e-3
+    # beyond the paper: the knot values of the per-Gaussian log2 gain over time
+    # (model.appearance_knots > 0; unused otherwise). This project's choice: 1e-2 stops a step, a
+    # 0.7 % change of brightness, so that one step stays below what an 8-bit frame tells apart,
+    # while a knot, which the steps on frames within a knot interval or two of it move (at 8
+    # knots over 50 training frames over a quarter of the small preset's 3,000 stage-1 steps),
+    # can still travel the 3-3.5 stops of the relit scenes. The 300 + 300 steps of the tiny preset
+    # follow a 2-stop ramp to within 0.3 stops with it (tests/training/test_relit_plane.py; 3e-2:
+    # 0.1 stops)
+    gain: float = 1e-2
 
     def position_lr(self, step: int, max_steps: int, dynamic: bool = False) -> float:
         """3DGS exponential decay: log-linear from position_init (step 0) to position_final (step
@@ -194,6 +203,16 @@ class LossConfig:
     # 8-bit frames barely constrain, take most of the gradient in linear HDR; a floor of ~1 % of
     # the median weights them down (docs/method.md, "Options beyond the paper")
     tlr_den_floor: float = 0.0
+    # beyond the paper, only with a gain over time (model.appearance_knots > 0; no term without
+    # one): the mean over Gaussians of the squared second differences of each Gaussian's log2-gain
+    # knot values, in stops^2. It leaves a constant and a straight ramp in stops free and charges
+    # curvature, so that a Gaussian does not flicker its brightness to fake what motion, another
+    # Gaussian or a frame's exposure should explain. This project's choice: at 0.1 a curvature of
+    # one stop at every knot costs about what the RGB loss of a fitted frame does (0.05-0.1). On
+    # the tiny ramp clip (tests/training/test_relit_plane.py) without it the rendered brightness
+    # flickered by up to a third with the alternating exposures and missed the ramp by 0.46 stops;
+    # with it, it rises smoothly, 0.27 stops short (docs/method.md, "Options beyond the paper")
+    lambda_gain_smooth: float = 0.1
 
 
 def _stage1_loss() -> LossConfig:
@@ -837,6 +856,8 @@ def _check_range(section: Any, name: str, v: Any, key: str) -> None:
         raise _range_error(key, v, "a probability in [0, 1]")
     if name == "tlr_den_floor" and v < 0:
         raise _range_error(key, v, ">= 0 (a fraction of the render's median HDR value)")
+    if name == "appearance_knots" and v < 0:
+        raise _range_error(key, v, ">= 0 (0 = no gain over time, the paper's colour)")
 
 
 def _check_budget(cfg: "TrainConfig") -> None:

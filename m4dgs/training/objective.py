@@ -3,6 +3,9 @@
     L = l_rgb L_rgb + l_ue L_ue + l_dep L_dep + l_track L_track + l_arap L_arap + l_vel L_vel
         + l_acc L_acc + l_tlr L_tlr (+ l_pr L_pr, stage 2)
 
+(and, beyond the paper, with a brightness gain over time on the Gaussians, the smoothness of its
+curves: `gain_smooth_term`, weight loss.lambda_gain_smooth)
+
 with the weights of a stage's `LossConfig` (m4dgs.training.config; appendix "Implementation
 Details"). Each term is a small pure function of tensors returning ``(name, value)``; `assemble`
 samples one iteration's frames (`sample_frames`), renders them through the stage and adds the terms
@@ -34,6 +37,7 @@ from m4dgs.losses.geometry import depth_loss, flow_from_destination_map, flow_lo
 from m4dgs.losses.motion import smoothness_terms as motion_smoothness
 from m4dgs.losses.photometric import rgb_loss, unit_exposure_loss
 from m4dgs.losses.temporal import tlr_den_floor, tlr_loss, tlr_valid_mask
+from m4dgs.model.gaussians import gain_second_differences
 from m4dgs.model.tonemap import monotonicity_penalty
 from m4dgs.training.config import AblationConfig, LossConfig, ToneMapConfig
 from m4dgs.training.data import TrainingData
@@ -294,6 +298,16 @@ def scale_std_term(gauss) -> Term:
     return "scale_std", gauss.scales().std(dim=-1).mean()
 
 
+def gain_smooth_term(values: Tensor) -> Term:
+    """Beyond the paper (loss.lambda_gain_smooth): the mean over Gaussians and inner knots of the
+    squared second differences of the log2-gain knot values [N, K] (stops^2; zero for K < 3,
+    where every curve is a constant or a straight line)."""
+    d2 = gain_second_differences(values)
+    if d2.numel() == 0:
+        return "gain_smooth", values.sum() * 0.0
+    return "gain_smooth", (d2**2).mean()
+
+
 # --------------------------------------------------------------------------------------------------
 # weights and assembly
 # --------------------------------------------------------------------------------------------------
@@ -315,6 +329,7 @@ def loss_weights(
         "mono": tonemap.lambda_monotonic,
         "opacity": loss.lambda_opacity,
         "scale_std": loss.lambda_scale_std,
+        "gain_smooth": loss.lambda_gain_smooth,
     }
 
 
@@ -326,8 +341,9 @@ def total_loss(terms: Dict[str, Tensor], weights: Dict[str, float]) -> Tensor:
 def assemble(stage, it: int) -> LossOutput:
     """One iteration's loss terms for `stage` (m4dgs.training.stage.Stage): sample the frames,
     render the query frame with the destination maps the terms need, then add in this order rgb,
-    ue, dep, track, arap, vel, acc, tlr, the stage's own terms, mono, opacity, scale_std (each only
-    when its weight is > 0 and its ablation switch is on; rgb and ue always).
+    ue, dep, track, arap, vel, acc, tlr, the stage's own terms, mono, opacity, scale_std and, when
+    the Gaussians carry a gain over time (beyond the paper), gain_smooth (each only when its weight
+    is > 0 and its ablation switch is on; rgb and ue always).
 
     The stage's generator draws, in this order: i, the flow-vs-track coin (when frame i has prior
     flows), j, and, when the moving set holds more than arap_k Gaussians, the motion subset and
@@ -405,4 +421,7 @@ def assemble(stage, it: int) -> LossOutput:
         add(opacity_term(stage.gauss))
     if lc.lambda_scale_std > 0:
         add(scale_std_term(stage.gauss))
+    gains = stage.gauss.gain_values()
+    if gains is not None and lc.lambda_gain_smooth > 0:
+        add(gain_smooth_term(gains))
     return LossOutput(L, r.meta)

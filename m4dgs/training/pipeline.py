@@ -620,7 +620,7 @@ def _num_gaussians(run: RunDir) -> Optional[int]:
 
 def _transform_with_scale(transform, video, ci, masks, depth, cfg, d):
     """V2W with the bundle-adjustment depth scales: video z (prior units) becomes world depth z *
-    s_t per frame."""
+    s_t per frame (the other attributes, the gain over time included, are the video Gaussians')."""
 
     s = ci["depth_scale"].to(video.knots)
     times = torch.arange(d.num_frames, dtype=video.knots.dtype, device=video.knots.device)
@@ -639,6 +639,7 @@ def _transform_with_scale(transform, video, ci, masks, depth, cfg, d):
         video.num_frames,
         video.scale_kind,
         video.scale_max,
+        log2_gain=None if video.gain_values() is None else video.gain_values().detach(),
     )
     return transform(
         scaled,

@@ -20,6 +20,7 @@ import torch
 
 from m4dgs.core.errors import NonFiniteError
 from m4dgs.core.progress import progress_bar
+from m4dgs.model.gaussians import GAIN_KEY
 from m4dgs.model.render import RenderResult
 from m4dgs.training.config import LossConfig, LRConfig, TrainConfig
 from m4dgs.training.data import TrainingData
@@ -44,6 +45,23 @@ SPLINE_KEYS = ("ctrl", "rot", "scales", "opacities", "features")
 STATIC_KEYS = ("means", "quats", "scales", "opacities", "features")
 
 
+def gaussian_keys(params: Mapping[str, torch.nn.Parameter], base: Sequence[str]) -> tuple:
+    """The optimised attributes of a Gaussian set: `base` (SPLINE_KEYS / STATIC_KEYS), then the
+    log2 gain over time when the set has one (beyond the paper: model.appearance_knots)."""
+    return tuple(base) + ((GAIN_KEY,) if GAIN_KEY in params else ())
+
+
+def check_gain(gauss, cfg: TrainConfig, where: str) -> None:
+    """Refuse Gaussians whose gain over time disagrees with model.appearance_knots (a stage-1 or
+    V2W result of another configuration)."""
+    have, want = gauss.appearance_knots, cfg.model.appearance_knots
+    if have != want:
+        raise ValueError(
+            f"{where}: the Gaussians carry a gain with {have} knots, the configuration asks for "
+            f"model.appearance_knots = {want}"
+        )
+
+
 def adam(params, lr: float, eps: float) -> torch.optim.Adam:
     """Adam with torch's fused kernel (one kernel per parameter group instead of a dozen tensor
     operations per step; CPU and CUDA): the same update up to float rounding, 4x faster on the
@@ -61,7 +79,8 @@ def gaussian_optimizers(
     """One Adam per Gaussian attribute (so densification can edit rows): positions ("ctrl" /
     "means") at lr.position_init x position_scale (the scene extent in world space, 3DGS), the
     others at their LRConfig rates (appendix "Implementation Details"); `dynamic` (the stage-2
-    dynamic set): positions and rotations at lr.dynamic_position_init / lr.dynamic_rotation."""
+    dynamic set): positions and rotations at lr.dynamic_position_init / lr.dynamic_rotation; the
+    log2 gain over time (beyond the paper) at lr.gain."""
     pos = (lr.dynamic_position_init if dynamic else lr.position_init) * position_scale
     lrs = {
         "ctrl": pos,
@@ -71,6 +90,7 @@ def gaussian_optimizers(
         "scales": lr.scale,
         "opacities": lr.opacity,
         "features": lr.features,
+        GAIN_KEY: lr.gain,
     }
     return {k: adam([params[k]], lrs[k], lr.adam_eps) for k in keys}
 

@@ -32,11 +32,15 @@ from m4dgs.training.stage import (
     SPLINE_KEYS,
     GaussianSet,
     Stage,
+    check_gain,
+    gaussian_keys,
     gaussian_optimizers,
     module_optimizers,
     train_loop,
 )
 
+# the optimised attributes of the video Gaussians (and "log2_gain" with a gain over time, beyond
+# the paper: `gaussian_keys`)
 GAUSSIAN_KEYS = SPLINE_KEYS
 
 
@@ -117,10 +121,12 @@ class VideoStage(Stage):
             self._setup(g, *build_appearance(cfg, self.c0, self.device))
 
     def _setup(self, gauss: VideoGaussians, color: ColorMLP, tm: ToneMapper, bg: Background):
+        check_gain(gauss, self.cfg, "stage 1")
         self.gauss, self.color, self.tm, self.bg = gauss, color, tm, bg
         lr = self.cfg.stage1.lr
+        self.gauss_keys = gaussian_keys(gauss.params, GAUSSIAN_KEYS)
         self.optimizers = {
-            **gaussian_optimizers(gauss.params, GAUSSIAN_KEYS, lr),
+            **gaussian_optimizers(gauss.params, self.gauss_keys, lr),
             **module_optimizers({"color": color, "tonemap": tm, "background": bg}, lr),
         }
         self.strategy = Strategy(self.cfg.stage1.densify, self.gauss.layout(), seed=self.cfg.seed)
@@ -175,7 +181,7 @@ class VideoStage(Stage):
         return [self.optimizers["ctrl"]]
 
     def _gauss_optimizers(self):
-        return {k: self.optimizers[k] for k in GAUSSIAN_KEYS}
+        return {k: self.optimizers[k] for k in self.gauss_keys}
 
     # -- checkpoints
     # ----------------------------------------------------------------------------------------------

@@ -40,6 +40,8 @@ from m4dgs.training.stage import (
     GaussianSet,
     Stage,
     adam,
+    check_gain,
+    gaussian_keys,
     gaussian_optimizers,
     module_optimizers,
     train_loop,
@@ -142,11 +144,14 @@ class WorldStage(Stage):
 
     def _setup(self, gauss: WorldGaussians, color, tm, bg):
         s2 = self.cfg.stage2
+        check_gain(gauss, self.cfg, "stage 2")
         self.gauss, self.color, self.tm, self.bg = gauss, color, tm, bg
         lr = s2.lr
-        self.opt_static = gaussian_optimizers(gauss.static, STATIC_KEYS, lr, self.extent)
+        self.opt_static = gaussian_optimizers(
+            gauss.static, gaussian_keys(gauss.static, STATIC_KEYS), lr, self.extent
+        )
         self.opt_dynamic = gaussian_optimizers(
-            gauss.dynamic, DYNAMIC_KEYS, lr, self.extent, dynamic=True
+            gauss.dynamic, gaussian_keys(gauss.dynamic, DYNAMIC_KEYS), lr, self.extent, dynamic=True
         )
         self.opt_other = {
             **module_optimizers({"color": color, "tonemap": tm, "background": bg}, lr),

@@ -17,7 +17,8 @@ cameras K, c2w_t:
    video knots (`m4dgs.core.spline.resample_control_points`) and a least-squares re-fit of the
    quaternion polynomial
    (`m4dgs.core.rotation.fit_rotation_poly`), optionally refined on 1 - |<q, q*>| (authors' code).
-4. Opacity logits and colour features are copied.
+4. Opacity logits and colour features are copied (and, beyond the paper, the log2 gain over time
+   of `ModelConfig.appearance_knots`: the world Gaussians share the video knots' frames).
 5. Scales (`refit_scales`): min_{S^w} sum_t || Sigma'^v_t - Sigma'^w_t ||_1 with the video 2D
 covariance from the
    orthographic camera (W^v = identity) and the world one from the pinhole EWA Jacobian in camera t
@@ -48,7 +49,13 @@ import torch
 from m4dgs.core import rotation as rot
 from m4dgs.core import spline
 from m4dgs.core.camera import quat_multiply, rotmat_to_quat, video_to_camera
-from m4dgs.model.gaussians import VideoGaussians, WorldGaussians, scale_activation, scale_inverse
+from m4dgs.model.gaussians import (
+    GAIN_KEY,
+    VideoGaussians,
+    WorldGaussians,
+    scale_activation,
+    scale_inverse,
+)
 from m4dgs.raster.projection import NEAR_PLANE
 from m4dgs.training.config import AblationConfig, V2WConfig
 from m4dgs.training.v2w_scales import (
@@ -632,11 +639,13 @@ def _assemble_world(
     world_scale_kind: str,
     world_scale_max: float,
 ) -> WorldGaussians:
-    """Step 4 and the result: opacity logits and colour features copied from the video Gaussians,
-    the static set (mean + quaternion) and the dynamic set (spline + rotation polynomial)."""
+    """Step 4 and the result: opacity logits and colour features copied from the video Gaussians
+    (with their log2 gain over time when they carry one, beyond the paper), the static set (mean +
+    quaternion) and the dynamic set (spline + rotation polynomial)."""
     ns = s_idx.numel()
     opac = video.params["opacities"].detach()
     feats = video.params["features"].detach()
+    gain = video.gain_values()
     static = {
         "means": means_s.clone(),
         "quats": quats_s.clone(),
@@ -651,6 +660,10 @@ def _assemble_world(
         "opacities": opac[d_idx].clone(),
         "features": feats[d_idx].clone(),
     }
+    if gain is not None:
+        gain = gain.detach()
+        static[GAIN_KEY] = gain[s_idx].clone()
+        dynamic[GAIN_KEY] = gain[d_idx].clone()
     return WorldGaussians(
         static, dynamic, v.knots.clone(), v.num_frames, world_scale_kind, world_scale_max
     )

@@ -41,6 +41,16 @@ def test_make_knots_grid_and_last_frame():
     assert spline.make_knots(1, 4).tolist() == [0]
 
 
+def test_uniform_knots_spread_a_number_of_knots_over_the_frames():
+    assert spline.uniform_knots(9, 3).tolist() == [0.0, 4.0, 8.0]
+    assert spline.uniform_knots(8, 3).tolist() == [0.0, 3.5, 7.0]
+    assert spline.uniform_knots(5, 1).tolist() == [0.0]
+    assert spline.uniform_knots(1, 2).tolist() == [0.0, 1.0]  # distinct knots for one frame
+    for bad in ((0, 3), (5, 0)):
+        with pytest.raises(ValueError):
+            spline.uniform_knots(*bad)
+
+
 def test_four_point_example_matches_hand_formula():
     # worked example: p = (0, 1, 4, 2) at t = (0, 4, 8, 10) (non-uniform last knot)
     p = [0.0, 1.0, 4.0, 2.0]

@@ -84,7 +84,12 @@ def _gaussians():
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    root = tmp_path_factory.mktemp("m4dgs_export")
+    return _write_run(tmp_path_factory.mktemp("m4dgs_export"))
+
+
+def _write_run(root, gain=None):
+    """The hand-built run in root/run (its clip in root/clip); `gain` [5, K]: log2 gains over
+    time of its Gaussians (beyond the paper), static first. Returns (run folder, loaded model)."""
     clip_dir, run_dir = root / "clip", root / "run"
     test = [g for g in range(G) if g not in TRAIN]
     dts = [0.25 if i % 2 == 0 else 2.0 for i in range(T)]
@@ -104,6 +109,10 @@ def run(tmp_path_factory):
     cw.finalize()
     torch.manual_seed(0)
     gauss = _gaussians()
+    if gain is not None:
+        state = gauss.to_state()
+        state["static"]["log2_gain"], state["dynamic"]["log2_gain"] = gain[:3], gain[3:]
+        gauss = WorldGaussians.from_state(state)
     color = ColorMLP(FEAT, 36, view_dependent=False)
     tm = ToneMapper(hidden=128, generator=torch.Generator().manual_seed(1))
     bg = Background()
@@ -306,6 +315,63 @@ def test_export_run_ply(run, tmp_path, g, exposure):
     # header says what the coordinates are
     comments = read_ply_header(out)["comments"]
     assert any(c.startswith("m4dgs") and "OpenCV" in c for c in comments)
+
+
+def _np_gain(values: np.ndarray, t: float) -> np.ndarray:
+    """log2 gains [N] at time t of knot values [N, K] spread evenly over the T training frames:
+    the Catmull-Rom Hermite curve written out in numpy."""
+    k = values.shape[1]
+    h = (T - 1) / (k - 1)
+    slope = np.diff(values, axis=1) / h
+    m = np.concatenate([slope[:, :1], 0.5 * (slope[:, 1:] + slope[:, :-1]), slope[:, -1:]], 1)
+    i = min(int(t // h), k - 2)
+    s = (t - i * h) / h
+    h00, h10, h01, h11 = (
+        2 * s**3 - 3 * s**2 + 1,
+        s**3 - 2 * s**2 + s,
+        -2 * s**3 + 3 * s**2,
+        s**3 - s**2,
+    )
+    return h00 * values[:, i] + h10 * h * m[:, i] + h01 * values[:, i + 1] + h11 * h * m[:, i + 1]
+
+
+@pytest.fixture(scope="module")
+def relit_run(tmp_path_factory):
+    """The hand-built run with a gain over time (beyond the paper): 3 knots per Gaussian."""
+    gain = torch.randn(5, 3, generator=torch.Generator().manual_seed(5))
+    return (*_write_run(tmp_path_factory.mktemp("m4dgs_relit"), gain), gain)
+
+
+def test_a_model_with_a_gain_over_time_loads_renders_and_exports_it(relit_run, tmp_path):
+    """Saved and loaded, the gain renders as in memory at a fractional time, and the .ply export
+    bakes colour(features) * 2 ** g(t) through the tone mapper (numpy references)."""
+    from m4dgs.model.render import render_world
+
+    run_dir, model, gain = relit_run
+    assert torch.equal(model.gauss.gain_values(), gain)
+    g, t = 3, model.time_of(3)  # a test frame: t = 1.5
+    assert t == pytest.approx(1.5)
+    K, c2w = model.camera(g)
+    kept = _gaussians()
+    state = kept.to_state()
+    state["static"]["log2_gain"], state["dynamic"]["log2_gain"] = gain[:3], gain[3:]
+    with torch.no_grad():
+        want = render_world(
+            WorldGaussians.from_state(state), model.color, model.bg, t,
+            torch.tensor(c2w, dtype=torch.float32), torch.tensor(K, dtype=torch.float32),
+            W, H, "torch",
+        ).hdr  # fmt: skip
+    torch.testing.assert_close(model.render(t, c2w, K)["hdr"], want, rtol=0, atol=0)
+    out = export_run_ply(run_dir, g, tmp_path / "relit.ply", model=model)
+    arr = read_ply(out)
+    feats = model.gauss.features().detach().double().numpy()
+    hdr = _np_color(model, feats) * 2.0 ** _np_gain(gain.double().numpy(), t)[:, None]
+    ref = np.clip(_np_tonemap(model, hdr, 0.0), 0, 1)
+    rgb = 0.5 + SH_C0 * np.stack([arr[f"f_dc_{i}"] for i in range(3)], 1).astype(np.float64)
+    np.testing.assert_allclose(rgb, ref, atol=2e-6)
+    # and not what the model without the gain exports
+    plain = np.clip(_np_tonemap(model, _np_color(model, feats), 0.0), 0, 1)
+    assert np.abs(rgb - plain).max() > 1e-2
 
 
 def test_export_cli(run, tmp_path):

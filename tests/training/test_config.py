@@ -6,7 +6,7 @@ import dataclasses
 import pytest
 import yaml
 
-from m4dgs.training import config
+from m4dgs.training import config, phases
 from m4dgs.training.config import TrainConfig, apply_overrides, from_dict, preset, to_dict
 
 
@@ -222,6 +222,34 @@ def test_an_old_config_dict_upgrades_to_the_same_config():
     assert config.upgrade_dict(current) == current
 
 
+GAIN_FIELDS = {  # the fields of the gain over time (beyond the paper) and their defaults
+    "model.appearance_knots": 0,
+    "stage1.lr.gain": 1e-2,
+    "stage2.lr.gain": 1e-2,
+    "stage1.loss.lambda_gain_smooth": 0.1,
+    "stage2.loss.lambda_gain_smooth": 0.1,
+}
+
+
+@pytest.mark.parametrize("name", ["tiny", "small", "paper"])
+def test_a_config_from_before_the_gain_option_is_the_same_config(name):
+    """A config written before the gain over time existed (its five fields absent) loads to the
+    configuration with the option off, equal to the preset's; the option is off in every preset."""
+    cfg = preset(name)
+    flat = dict(phases.leaves(to_dict(cfg)))
+    assert {k: flat[k] for k in GAIN_FIELDS} == GAIN_FIELDS
+    old = to_dict(cfg)
+    del old["model"]["appearance_knots"]
+    for stage in ("stage1", "stage2"):
+        del old[stage]["lr"]["gain"]
+        del old[stage]["loss"]["lambda_gain_smooth"]
+    assert from_dict(TrainConfig, old) == cfg
+    old.pop("preset")
+    assert from_dict(TrainConfig, old).model == cfg.model
+    # the fields belong to stage 1 onwards: what shares camera initialisation still does
+    assert {phases.phase_of(k) for k in GAIN_FIELDS} == {"stage1", "stage2"}
+
+
 @pytest.mark.parametrize(
     "key, value",
     [
@@ -287,6 +315,9 @@ def test_validate_catches_values_set_directly():
             -0.01,
             r">= 0 \(a fraction of the render's median HDR value\)",
         ),
+        ("model.appearance_knots", -1, r">= 0 \(0 = no gain over time, the paper's colour\)"),
+        ("stage1.lr.gain", 0.0, r"> 0 \(a learning rate\)"),
+        ("stage2.loss.lambda_gain_smooth", -1.0, r">= 0 \(a loss weight; 0 turns the term off\)"),
     ],
 )
 def test_numbers_out_of_range_are_rejected_naming_the_key(key, value, message):

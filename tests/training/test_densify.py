@@ -293,3 +293,53 @@ def test_an_empty_set_is_left_alone():
         out = strat.step_post_backward(params, opt, state, it, info)
         assert out == {"clone": 0, "split": 0, "prune": 0, "reset": 0}
     assert all(p.shape[0] == 0 for p in params.values())
+
+
+def test_clone_split_and_prune_keep_the_gain_rows_with_their_gaussians():
+    """Video Gaussians with a gain over time (beyond the paper): after a clone, a split and a
+    prune, and after a removal, every row of log2_gain (tagged with its Gaussian's features) and
+    of its Adam moments sits with the rest of its Gaussian."""
+    g = torch.Generator().manual_seed(0)
+    n, t_count = 4, 9
+    knots = spline.make_knots(t_count, 4)
+    feats = torch.arange(n * 6, dtype=torch.float32).reshape(n, 6)
+    vg = gaussians.VideoGaussians(
+        torch.randn(n, knots.numel(), 3, generator=g),
+        rotation.init_rotation_coeffs(n),
+        gaussians.scale_inverse(
+            torch.tensor([[0.03] * 3, [0.002] * 3, [0.002] * 3, [0.002] * 3]), "sigmoid", 0.05
+        ),
+        torch.tensor([0.0, 0.0, _logit(0.001), 0.0]),
+        feats,
+        knots,
+        t_count,
+        log2_gain=feats[:, :5].clone(),  # K = 5 knot values = the first 5 features
+    )
+    opt = _adam(vg.params)
+    strat = Strategy(
+        DensifyConfig(start_iter=0, every=1, stop_iter=10, reset_every=1000), vg.layout(), seed=1
+    )
+    state = strat.initialize_state()
+    # 0: large, high gradient -> split; 1: small, high gradient -> clone; 2: transparent -> pruned
+    grad = torch.tensor([[1e-3, 0.0], [1e-3, 0.0], [0.0, 0.0], [0.0, 0.0]])
+    info = {"means2d_grad": grad, "radii": torch.ones(4), "width": W, "height": H}
+    out = strat.step_post_backward(vg.params, opt, state, 1, info)
+    assert (out["clone"], out["split"], out["prune"]) == (1, 1, 1)
+    assert len(vg) == 5 and vg.params[gaussians.GAIN_KEY].shape == (5, 5)
+    gain, f = vg.params[gaussians.GAIN_KEY].detach(), vg.params["features"].detach()
+    torch.testing.assert_close(gain, f[:, :5])  # each gain row still with its Gaussian
+    # rows [1, 3, 1', 0a, 0b] (split samples last; one Adam step moved every value by 1e-3)
+    assert f[:, 0].round().tolist() == [6.0, 18.0, 6.0, 0.0, 0.0]
+    ga = opt.state[vg.params[gaussians.GAIN_KEY]]
+    for key in ("exp_avg", "exp_avg_sq"):
+        assert ga[key].shape == (5, 5)
+        assert (ga[key][2:] == 0).all() and (ga[key][:2] != 0).all()
+    # the split samples evaluate the gain curve of their parent at any time
+    curve = vg.log2_gain(3.3).detach()
+    torch.testing.assert_close(curve[3], curve[4])
+    # removal (the stage-2 pass over misplaced dynamic Gaussians) keeps the rows together too
+    strat.remove(vg.params, opt, state, torch.tensor([True, False, False, True, False]))
+    torch.testing.assert_close(
+        vg.params[gaussians.GAIN_KEY].detach(), vg.params["features"].detach()[:, :5]
+    )
+    assert opt.state[vg.params[gaussians.GAIN_KEY]]["exp_avg"].shape == (3, 5)

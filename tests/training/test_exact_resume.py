@@ -43,11 +43,18 @@ OVERRIDES = {
 }
 
 
+# beyond the paper: with a gain over time (model.appearance_knots) the checkpoints hold it, its
+# Adam state and its densified rows as well
+GAIN = {"model.appearance_knots": 4}
+
+
+@pytest.mark.parametrize("extra", [pytest.param({}, id="paper"), pytest.param(GAIN, id="gain")])
 def test_killed_and_resumed_run_equals_the_uninterrupted_one(
-    tiny_clip_realistic, tmp_path, monkeypatch, one_thread, checkpoint_tensors
+    tiny_clip_realistic, tmp_path, monkeypatch, one_thread, checkpoint_tensors, extra
 ):
+    over = {**OVERRIDES, **extra}
     ref = train(
-        tiny_clip_realistic, tmp_path / "ref", preset="tiny", overrides=OVERRIDES, progress=False
+        tiny_clip_realistic, tmp_path / "ref", preset="tiny", overrides=over, progress=False
     )
 
     killed = {"stage1": False, "stage2": False}
@@ -67,10 +74,10 @@ def test_killed_and_resumed_run_equals_the_uninterrupted_one(
     run = tmp_path / "run"
     for stage in ("stage1", "stage2"):
         with pytest.raises(RuntimeError, match=f"simulated kill in {stage}"):
-            train(tiny_clip_realistic, run, preset="tiny", overrides=OVERRIDES, progress=False)
+            train(tiny_clip_realistic, run, preset="tiny", overrides=over, progress=False)
         ck = load_torch(run / "model" / "ckpt.pt")
         assert ck["stage"] == stage and ck["step"] == (20 if stage == "stage1" else 30)
-    train(tiny_clip_realistic, run, preset="tiny", overrides=OVERRIDES, progress=False)
+    train(tiny_clip_realistic, run, preset="tiny", overrides=over, progress=False)
     assert all(killed.values())
 
     # densification did run after each checkpoint (otherwise the test proves little)
@@ -88,6 +95,7 @@ def test_killed_and_resumed_run_equals_the_uninterrupted_one(
     a = checkpoint_tensors(ref / "model" / "final.pt")
     b = checkpoint_tensors(run / "model" / "final.pt")
     assert a.keys() == b.keys() and len(a) > 10
+    assert any("log2_gain" in k for k in a) == bool(extra)
     different = [k for k in a if not torch.equal(a[k], b[k])]
     assert not different, different
 

@@ -29,7 +29,7 @@ from m4dgs.losses.temporal import (
     tlr_loss,
     tlr_valid_mask,
 )
-from m4dgs.model.gaussians import WorldGaussians
+from m4dgs.model.gaussians import GAIN_KEY, WorldGaussians
 from m4dgs.training import objective
 from m4dgs.training.config import apply_overrides, preset
 from m4dgs.training.data import TrainingData
@@ -353,6 +353,11 @@ def world_stage(data, n_static: int = 24, n_dynamic: int = 12, **overrides) -> W
         "opacities": torch.full((n_dynamic,), 2.0),
         "features": torch.randn(n_dynamic, F),
     }
+    k = cfg.model.appearance_knots
+    if k:  # a gain over time (beyond the paper): random curves, from their own generator
+        gen = torch.Generator().manual_seed(7)
+        static[GAIN_KEY] = 0.5 * torch.randn(n_static, k, generator=gen)
+        dynamic[GAIN_KEY] = 0.5 * torch.randn(n_dynamic, k, generator=gen)
     g = WorldGaussians(static, dynamic, knots, T, "exp", 1.0)
     color, tm, bg = build_appearance(cfg, 0.73, "cpu", pretrain=False)
     stage1_hdr = torch.rand(T, H, W, 3) + 0.1
@@ -683,3 +688,88 @@ def test_the_tone_mapper_table_refuses_non_finite_input(bad):
     z[17, 1] = bad
     with pytest.raises(NonFiniteError, match="tone mapper's input"):
         tm.curve_lut(z)
+
+
+# --------------------------------------------------------------------------------------------------
+# the brightness gain over time (beyond the paper: model.appearance_knots)
+# --------------------------------------------------------------------------------------------------
+PAPER_SPLINE = {"ctrl", "rot", "scales", "opacities", "features"}
+PAPER_STATIC = {"means", "quats", "scales", "opacities", "features"}
+
+
+def test_without_the_gain_the_stages_optimise_and_save_the_paper_parameters(data):
+    st = video_stage(data)
+    assert st.cfg.model.appearance_knots == 0
+    sd = st.state_dict()
+    assert set(sd["optimizers"]) == PAPER_SPLINE | {"color", "tonemap", "background"}
+    assert set(sd["gaussians"]["params"]) == PAPER_SPLINE
+    assert "gain_smooth" not in st.losses(10_000).terms
+    ws = world_stage(data)
+    sd = ws.state_dict()
+    assert set(sd["opt_static"]) == PAPER_STATIC and set(sd["opt_dynamic"]) == PAPER_SPLINE
+    assert set(sd["gaussians"]["static"]) == PAPER_STATIC
+    assert set(sd["gaussians"]["dynamic"]) == PAPER_SPLINE
+    assert list(ws.losses(10_000).terms) == FULL2
+
+
+def test_the_gain_is_optimised_regularised_and_saved_in_both_stages(data):
+    k = 4
+    st = video_stage(data, **{"model.appearance_knots": k})
+    gain = st.gauss.params[GAIN_KEY]
+    assert gain.shape == (st.gauss.num_gaussians, k) and not gain.any()  # zeros at the start
+    with torch.no_grad():
+        gain.normal_(0.0, 0.5, generator=torch.Generator().manual_seed(3))
+    L = st.losses(10_000).terms
+    assert list(L) == ["rgb", "ue", "dep", "track", "arap", "vel", "acc", "tlr", "gain_smooth"]
+    v = gain.detach().double()
+    d2 = v[:, 2:] - 2 * v[:, 1:-1] + v[:, :-2]
+    assert float(L["gain_smooth"].detach()) == pytest.approx(float((d2**2).mean()), rel=1e-6)
+    assert st.weights()["gain_smooth"] == 0.1
+    # the photometric terms reach the gain, the geometry terms do not
+    assert float(torch.autograd.grad(L["rgb"], gain, retain_graph=True)[0].abs().sum()) > 0
+    assert float(torch.autograd.grad(L["tlr"], gain, retain_graph=True)[0].abs().sum()) > 0
+    g_dep = torch.autograd.grad(L["dep"], gain, retain_graph=True, allow_unused=True)[0]
+    assert g_dep is None or not g_dep.any()
+    # its own Adam at lr.gain; a step moves it; weight 0 drops the term
+    assert st.optimizers[GAIN_KEY].param_groups[0]["lr"] == 1e-2
+    before = gain.detach().clone()
+    st.step(10_000)
+    assert not torch.equal(st.gauss.params[GAIN_KEY].detach(), before)
+    off = video_stage(data, **{"model.appearance_knots": k, "stage1.loss.lambda_gain_smooth": 0})
+    assert "gain_smooth" not in off.losses(10_000).terms
+    # a checkpoint holds the gain and its optimiser state, and loads back
+    sd = st.state_dict()
+    assert GAIN_KEY in sd["gaussians"]["params"] and GAIN_KEY in sd["optimizers"]
+    st2 = video_stage(data, **{"model.appearance_knots": k})
+    st2.load_state_dict(sd)
+    assert torch.equal(st2.gauss.params[GAIN_KEY], st.gauss.params[GAIN_KEY])
+    s_a, s_b = st.optimizers[GAIN_KEY].state_dict(), st2.optimizers[GAIN_KEY].state_dict()
+    assert torch.equal(s_a["state"][0]["exp_avg"], s_b["state"][0]["exp_avg"])
+    # stage 2: both sets, one term over the union, the static and dynamic optimisers
+    ws = world_stage(data, **{"model.appearance_knots": k})
+    L = ws.losses(10_000).terms
+    assert list(L) == FULL2 + ["gain_smooth"]
+    v = ws.gauss.gain_values().detach().double()
+    d2 = v[:, 2:] - 2 * v[:, 1:-1] + v[:, :-2]
+    assert float(L["gain_smooth"].detach()) == pytest.approx(float((d2**2).mean()), rel=1e-6)
+    gs, gd = ws.gauss.static[GAIN_KEY], ws.gauss.dynamic[GAIN_KEY]
+    g_s, g_d = torch.autograd.grad(L["rgb"], [gs, gd], retain_graph=True)
+    assert float(g_s.abs().sum()) > 0 and float(g_d.abs().sum()) > 0
+    assert GAIN_KEY in ws.opt_static and GAIN_KEY in ws.opt_dynamic
+    ws.step(0)
+    sd = ws.state_dict()
+    assert GAIN_KEY in sd["opt_static"] and GAIN_KEY in sd["opt_dynamic"]
+    assert GAIN_KEY in sd["gaussians"]["static"] and GAIN_KEY in sd["gaussians"]["dynamic"]
+    ws2 = world_stage(data, **{"model.appearance_knots": k})
+    ws2.load_state_dict(sd)
+    assert torch.equal(ws2.gauss.gain_values(), ws.gauss.gain_values())
+
+
+def test_gaussians_of_another_gain_setting_are_refused(data):
+    ws = world_stage(data, **{"model.appearance_knots": 4})
+    with pytest.raises(ValueError, match=r"stage 2: .* 4 knots, .*model\.appearance_knots = 0"):
+        world_stage(data)._setup(ws.gauss, ws.color, ws.tm, ws.bg)
+    st = video_stage(data)  # no gain
+    cfg = tiny_config(**{"model.appearance_knots": 3})
+    with pytest.raises(ValueError, match="stage 1: the Gaussians carry a gain with 0 knots"):
+        VideoStage(data, cfg, "cpu", BACKEND, init=False)._setup(st.gauss, st.color, st.tm, st.bg)

@@ -146,6 +146,55 @@ def test_kill_in_stage1_resumes_from_checkpoint(tiny_clip_realistic, tmp_path, m
     )
 
 
+def test_a_gain_over_time_is_handed_over_saved_and_rendered_by_the_loaded_model(
+    tiny_clip_realistic, tmp_path, monkeypatch, short_training
+):
+    """Beyond the paper (model.appearance_knots): stage 1 trains a gain, V2W hands each video
+    Gaussian's gain to its world Gaussian, and the trained model loaded from final.pt renders
+    exactly what stage 2 rendered before saving it, at training and fractional times."""
+    from m4dgs.model.trained import load_model
+    from m4dgs.run import load_torch
+    from m4dgs.training import pipeline
+
+    seen = {}
+    real = pipeline.train_stage2
+
+    def recording(stage, *args, **kw):
+        real(stage, *args, **kw)
+        c2w = stage.cameras().detach()[1]
+        with torch.no_grad():
+            seen.update({t: stage.render_at(t, c2w).hdr.clone() for t in (0.0, 1.5, 2.75)})
+        seen["c2w"] = c2w.clone()
+
+    monkeypatch.setattr(pipeline, "train_stage2", recording)
+    k = 4
+    over = {**short_training, "model.appearance_knots": k}
+    run = train(
+        tiny_clip_realistic, tmp_path / "run", preset="tiny", overrides=over, progress=False
+    )
+    video = load_torch(run / "model" / "stage1.pt")["gaussians"]["params"]["log2_gain"]
+    assert video.shape[1] == k and video.abs().max() > 0  # trained away from zero
+    v2w = load_torch(run / "model" / "v2w.pt")
+    dyn = torch.tensor(v2w["report"]["is_dynamic"])
+    assert torch.equal(v2w["gaussians"]["static"]["log2_gain"], video[~dyn])
+    assert torch.equal(v2w["gaussians"]["dynamic"]["log2_gain"], video[dyn])
+    final = load_torch(run / "model" / "final.pt")["gaussians"]
+    assert final["static"]["log2_gain"].shape[1] == final["dynamic"]["log2_gain"].shape[1] == k
+    model = load_model(run)
+    assert model.gauss.appearance_knots == k
+    for t in (0.0, 1.5, 2.75):
+        got = model.render(t, seen["c2w"].numpy())["hdr"]
+        assert torch.equal(got, seen[t]), t
+    # the gain changes the render: the same model without it renders something else
+    from m4dgs.model.gaussians import WorldGaussians
+
+    plain = {
+        p: {n: v for n, v in final[p].items() if n != "log2_gain"} for p in ("static", "dynamic")
+    }
+    model.gauss = WorldGaussians.from_state({**final, **plain})
+    assert not torch.equal(model.render(1.5, seen["c2w"].numpy())["hdr"], seen[1.5])
+
+
 def test_a_run_of_the_older_config_layout_is_accepted(tiny_clip_realistic, tmp_path):
     """An older run's config.yaml (loss weights directly under stage1 / stage2, since-removed
     never-read keys) with the same settings is taken as this run's and rewritten in the current

@@ -13,7 +13,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from m4dgs.model.gaussians import VideoGaussians, scale_inverse
+from m4dgs.model.gaussians import GAIN_KEY, VideoGaussians, scale_inverse
 from m4dgs.training import v2w
 from m4dgs.training.config import AblationConfig, V2WConfig
 
@@ -399,3 +399,29 @@ def test_outside_points_do_not_count():
         ]
     )[:, None].expand(-1, n_frames, -1)
     assert v2w.dynamic_counts(pts, masks, None, size, size).tolist() == [0, n_frames, n_frames, 0]
+
+
+def test_the_hand_over_carries_the_gain_over_time():
+    """Beyond the paper: video Gaussians with a log2 gain over time hand it to their world
+    Gaussians (static first, then dynamic, each in video order); without one the world Gaussians
+    have none either."""
+    gs, video, c2w, masks = _build_scene(moving=True)
+    plain, _ = _run(video, c2w, masks, steps=5)
+    assert GAIN_KEY not in plain.static and GAIN_KEY not in plain.dynamic
+    state = video.to_state()
+    gain = torch.randn(len(video), 6, generator=torch.Generator().manual_seed(0))
+    state["params"][GAIN_KEY] = gain
+    gained = VideoGaussians.from_state(state)
+    world, rep = _run(gained, c2w, masks, steps=5)
+    dyn = rep["is_dynamic"]
+    assert 0 < int(dyn.sum()) < len(video)
+    torch.testing.assert_close(world.static[GAIN_KEY].detach(), gain[~dyn], rtol=0, atol=0)
+    torch.testing.assert_close(world.dynamic[GAIN_KEY].detach(), gain[dyn], rtol=0, atol=0)
+    # the curves over time are the video Gaussians' (same frames, same knots)
+    order = torch.cat([torch.where(~dyn)[0], torch.where(dyn)[0]])
+    times = torch.tensor([0.0, 2.5, 7.0])
+    torch.testing.assert_close(world.log2_gain(times), gained.log2_gain(times)[order])
+    # and everything else is what the transform gives without the gain
+    for part in ("static", "dynamic"):
+        for k, v in getattr(plain, part).items():
+            assert torch.equal(getattr(world, part)[k], v), (part, k)

@@ -179,3 +179,26 @@ def test_older_override_keys_warn_once_each():
     assert cfg.stage1.loss.lambda_dep == 0.5
     msgs = sorted(str(w.message) for w in caught if w.category is FutureWarning)
     assert len(msgs) == 2 and "stage1.loss.lambda_dep" in msgs[0] and "removed" in msgs[1]
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_full_relight_is_full_with_a_gain_over_time_and_the_others_have_none(name):
+    """Beyond the paper: full-relight differs from full in model.appearance_knots alone (its
+    regulariser and learning rate are defaults that nothing reads without the gain); every other
+    variant keeps the paper's time-invariant colour. The two share camera initialisation only."""
+    from m4dgs.training.config import to_dict
+    from m4dgs.training.phases import leaves, phase_keys
+    from m4dgs.training.variants import run_plan
+
+    full = dict(leaves(to_dict(variant_config(name, "full"))))
+    relit = dict(leaves(to_dict(variant_config(name, "full-relight"))))
+    assert {k for k in full if full[k] != relit[k]} == {"model.appearance_knots"}
+    assert relit["model.appearance_knots"] == 8 and full["model.appearance_knots"] == 0
+    for v in VARIANTS:
+        if v != "full-relight":
+            assert variant_config(name, v).model.appearance_knots == 0, v
+    assert describe("full-relight").startswith("BEYOND THE PAPER:")
+    a = phase_keys(to_dict(variant_config(name, "full")), {"clip": "c"}, "full")
+    b = phase_keys(to_dict(variant_config(name, "full-relight")), {"clip": "c"}, "full-relight")
+    assert a["camera_init"] == b["camera_init"] and a["stage1"] != b["stage1"]
+    assert run_plan(name, "full")[1:3] == run_plan(name, "full-relight")[1:3]

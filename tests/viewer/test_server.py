@@ -79,3 +79,39 @@ def test_centres_follow_the_time(viewer, viewer_model):
         assert not np.allclose(p0, p1)
     viewer.gui_centres.value = False
     assert viewer._centres is None
+
+
+def test_centres_take_the_colour_at_the_time(viewer_model, free_port):
+    """Beyond the paper: with a gain over time the centres' colours follow the time too (a gain
+    from -3 to +3 stops over the frames, the model's own colours at each time)."""
+    import copy
+
+    import torch
+
+    from m4dgs.model.gaussians import WorldGaussians
+    from m4dgs.model.render import gaussian_colors
+    from m4dgs.viewer.server import Viewer
+
+    state = viewer_model.gauss.to_state()
+    for part, key in (("static", "means"), ("dynamic", "ctrl")):
+        n = state[part][key].shape[0]
+        state[part]["log2_gain"] = torch.tensor([-3.0, 3.0]).expand(n, 2).clone()
+    relit = copy.copy(viewer_model)
+    relit.gauss = WorldGaussians.from_state(state)
+    v = Viewer(relit, port=free_port)
+    try:
+        v.gui_centres.value = True
+        cols = {}
+        for g in (0.0, float(v.clip.meta.num_frames - 1)):
+            v.gui_time.value = g
+            cols[g] = np.array(v._centres.colors).astype(int)
+            with torch.no_grad():
+                t = relit.time_of(g)
+                hdr = gaussian_colors(relit.gauss, relit.color, t)
+                ev = torch.tensor(float(v.gui_ev.value))
+                want = np.round(relit.tm(hdr, ev).clamp(0, 1).numpy() * 255).astype(int)
+            assert np.abs(cols[g] - want).max() <= 1, g
+        first, last = cols.values()
+        assert last.mean() > first.mean() + 20
+    finally:
+        v.stop()
