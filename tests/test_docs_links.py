@@ -16,17 +16,22 @@ PAGES = [
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
+def _strip_fences(text: str) -> str:
+    """The text without fenced blocks (a '#' line there is not a heading)."""
+    return re.sub(r"```.*?```", "", text, flags=re.S)
+
+
 def _strip_code(text: str) -> str:
     """The text without fenced blocks and inline code spans (links there are not links)."""
-    text = re.sub(r"```.*?```", "", text, flags=re.S)
-    return re.sub(r"`[^`\n]*`", "", text)
+    return re.sub(r"`[^`\n]*`", "", _strip_fences(text))
 
 
 def anchors(page: Path) -> set:
     """GitHub's heading anchors of a markdown page: lower case, characters other than letters,
     digits, '-', '_' and spaces dropped, spaces to '-', a repeated anchor suffixed -1, -2, ..."""
     out, seen = set(), {}
-    for line in _strip_code(page.read_text(encoding="utf-8")).splitlines():
+    # a heading's inline code keeps its text in the anchor (only the backticks go)
+    for line in _strip_fences(page.read_text(encoding="utf-8")).splitlines():
         m = re.match(r"^#{1,6} (.*)", line)
         if not m:
             continue
@@ -49,9 +54,9 @@ def test_anchor_rule():
 
 def test_anchor_rule_on_a_made_page(tmp_path):
     p = tmp_path / "p.md"
-    text = "# A (b), c: d.md\n## Same\n## Same\n```\n# not a heading\n```\n"
+    text = "# A (b), c: d.md\n## Same\n## Same\n```\n# not a heading\n```\n## Run `x-y` now\n"
     p.write_text(text, encoding="utf-8")
-    assert anchors(p) == {"a-b-c-dmd", "same", "same-1"}
+    assert anchors(p) == {"a-b-c-dmd", "same", "same-1", "run-x-y-now"}
 
 
 def broken_links(page: Path) -> list:
