@@ -39,6 +39,9 @@ SCORE_CONVENTIONS = {
     "nv_masked": "Held-out views, mPSNR / mSSIM: MSE and the SSIM map averaged over the co-visible "
     "pixels only (surface seen by at least two training frames, gt/views/<view>/covis); "
     "covisible: their mean fraction of the view's surface pixels",
+    "nv_dynamic": "Held-out views, dyn mPSNR: LDR-OE and mu-law HDR PSNR over the co-visible "
+    "pixels of moving objects (covis and gt/views/<view>/masks/dynamic); frames without such "
+    "pixels left out",
     "camera_motion": "Camera motion (clip.json gt.camera_motion): camera_deg_s, the camera's "
     "angular speed about its look-at point; scene_deg_s, the moving points' speed seen from the "
     "median look-at distance; emf, their ratio",

@@ -30,13 +30,18 @@ import numpy as np
 
 from eval.conventions import PSNR_CAP_DB
 from eval.experiments.run_files import read_render_exr
-from eval.experiments.view_scores import METRICS, SPLITS, score_views
+from eval.experiments.view_scores import DYN_KEYS, METRICS, SPLITS, score_views
 from eval.metrics.scene_hdr import hdr_psnr_p99, highlight_scores
 from m4dgs.core.crf import get_crf
 
 SCENE_HDR_KEYS = ["hdr_psnr_p99", "highlight_stops", "highlight_peak_ratio"]
 #: the per-view keys of eval.experiments.view_scores.score_view (nv_<view>_<key>, nv_<key>)
-VIEW_KEYS = [f"{s}_{m}" for s in SPLITS for m in METRICS] + ["hdr_psnr_p99", "covisible"]
+VIEW_KEYS = (
+    [f"{s}_{m}" for s in SPLITS for m in METRICS]
+    + ["hdr_psnr_p99"]
+    + list(DYN_KEYS)
+    + ["covisible"]
+)
 NV_MEAN_KEYS = [f"nv_{k}" for k in VIEW_KEYS]
 #: clip.json gt.camera_motion keys copied into metrics.json
 CAMERA_MOTION_KEYS = ["camera_deg_s", "scene_deg_s", "emf"]
@@ -109,7 +114,7 @@ def score_held_out_views(job, m: dict) -> Optional[List[str]]:
         return None
     for k, v in score_views(clip, root).items():
         m[k] = _finite(v)
-    return ["psnr_cap", "nv_views", "nv_masked", "hdr_psnr_p99"]
+    return ["psnr_cap", "nv_views", "nv_masked", "nv_dynamic", "hdr_psnr_p99"]
 
 
 def camera_motion(job, m: dict) -> List[str]:

@@ -10,7 +10,11 @@ its test frames, at the observed levels (LDR-OE) and the novel ones (LDR-NE) and
   two training frames saw, gt/views/<view>/covis; the DyCheck-style masked scores, MSE over the
   mask's pixels, the SSIM map averaged over them);
 - HDR with the paper's convention (mu-law on H / max(H_gt)) and the whole-scene one
-  (eval.metrics.scene_hdr.hdr_psnr_p99).
+  (eval.metrics.scene_hdr.hdr_psnr_p99);
+- LDR-OE and mu-law HDR PSNR over the co-visible pixels of moving objects (`ldr_oe_dyn_mpsnr`,
+  `hdr_dyn_mpsnr`: covis and gt/views/<view>/masks/dynamic; the views' counterpart of the test
+  frames' dyn_ldr_psnr / dyn_hdr_psnr). A frame without such a pixel is left out; a view without
+  any scores None.
 
 Keys are nv_<view>_<split>_<metric> (split ldr_oe, ldr_ne, hdr; e.g. nv_large_ldr_oe_mpsnr), the
 mean over views nv_<split>_<metric>, and nv_<view>_covisible (the mean co-visible fraction of the
@@ -36,6 +40,8 @@ from m4dgs.core import io as mio
 
 SPLITS = ("ldr_oe", "ldr_ne", "hdr")
 METRICS = ("psnr", "mpsnr", "ssim", "mssim")
+#: the keys over the co-visible moving pixels (module docstring)
+DYN_KEYS = ("ldr_oe_dyn_mpsnr", "hdr_dyn_mpsnr")
 
 
 def _need(p: Path) -> Path:
@@ -61,6 +67,7 @@ def score_view(clip, pred_root, view: str) -> Dict[str, Optional[float]]:
     ex = clip.meta.exposures
     out: Dict[str, List[Optional[float]]] = {f"{s}_{m}": [] for s in SPLITS for m in METRICS}
     out["hdr_psnr_p99"] = []
+    out.update({k: [] for k in DYN_KEYS})
     covis_frac = []
     # another method may predict some levels only (a Nerfies-style method: one) and no HDR: a
     # level, or HDR, without a folder is not scored; within a folder every frame is required
@@ -75,6 +82,9 @@ def score_view(clip, pred_root, view: str) -> Dict[str, Optional[float]]:
         covis = clip.load_view_covis(view, g)
         hit = clip.load_view_depth(view, g) > 0
         covis_frac.append(float(covis.sum() / max(hit.sum(), 1)))
+        # the co-visible moving pixels; none (a frame where nothing moves in view): not scored
+        dyn = covis & clip.load_view_dynamic_mask(view, g)
+        dyn = dyn if dyn.any() else None
         for split, levels in (("ldr_oe", ex.observed), ("ldr_ne", ex.novel)):
             for lv in [lv for lv in levels if lv in given]:
                 gt = clip.load_view_ldr(view, lv, g)
@@ -83,6 +93,8 @@ def score_view(clip, pred_root, view: str) -> Dict[str, Optional[float]]:
                 out[f"{split}_ssim"].append(ssim(pr, gt))
                 out[f"{split}_mpsnr"].append(_cap(masked_psnr(pr, gt, covis)))
                 out[f"{split}_mssim"].append(masked_ssim(pr, gt, covis))
+                if split == "ldr_oe" and dyn is not None:
+                    out["ldr_oe_dyn_mpsnr"].append(_cap(masked_psnr(pr, gt, dyn)))
         if not (root / "hdr").is_dir():
             continue
         gt = clip.load_view_hdr(view, g)
@@ -92,6 +104,8 @@ def score_view(clip, pred_root, view: str) -> Dict[str, Optional[float]]:
         tp, tg = hdr_tonemap_pair(pr, gt)
         out["hdr_mpsnr"].append(_cap(masked_psnr(tp[0], tg[0], covis)))
         out["hdr_mssim"].append(masked_ssim(tp[0], tg[0], covis))
+        if dyn is not None:
+            out["hdr_dyn_mpsnr"].append(_cap(masked_psnr(tp[0], tg[0], dyn)))
         out["hdr_psnr_p99"].append(_cap(hdr_psnr_p99(pr, gt)))
     res = {k: _mean(v) for k, v in out.items()}
     res["covisible"] = _mean(covis_frac)

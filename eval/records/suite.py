@@ -242,6 +242,8 @@ def metric_columns() -> Dict[str, Column]:
         Column("nv_hdr_psnr", "PSNR", True, ".2f", "Views HDR", "hdr_mu_law"),
         Column("nv_hdr_mpsnr", "mPSNR", True, ".2f", "Views HDR", "nv_masked"),
         Column("nv_hdr_psnr_p99", "PSNR p99", True, ".2f", "Views HDR", "hdr_psnr_p99"),
+        Column("nv_ldr_oe_dyn_mpsnr", "dyn mPSNR", True, ".2f", "Views LDR-OE", "nv_dynamic"),
+        Column("nv_hdr_dyn_mpsnr", "dyn mPSNR", True, ".2f", "Views HDR", "nv_dynamic"),
         *[
             Column(f"nv_{v}_ldr_oe_mpsnr", f"{v} mPSNR", True, ".2f", "Views LDR-OE", "nv_masked")
             for v in DEFAULT_VIEWS
@@ -340,6 +342,8 @@ LAYOUTS: Dict[str, List[str]] = {
         "nv_hdr_psnr",
         "nv_hdr_mpsnr",
         "nv_hdr_psnr_p99",
+        "nv_ldr_oe_dyn_mpsnr",
+        "nv_hdr_dyn_mpsnr",
         *[f"nv_{v}_ldr_oe_mpsnr" for v in DEFAULT_VIEWS],
         "nv_covisible",
         "emf",
