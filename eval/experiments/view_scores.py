@@ -82,9 +82,8 @@ def score_view(clip, pred_root, view: str) -> Dict[str, Optional[float]]:
         covis = clip.load_view_covis(view, g)
         hit = clip.load_view_depth(view, g) > 0
         covis_frac.append(float(covis.sum() / max(hit.sum(), 1)))
-        # the co-visible moving pixels; none (a frame where nothing moves in view): not scored
+        # the co-visible moving pixels (masked_psnr gives None where there are none: not scored)
         dyn = covis & clip.load_view_dynamic_mask(view, g)
-        dyn = dyn if dyn.any() else None
         for split, levels in (("ldr_oe", ex.observed), ("ldr_ne", ex.novel)):
             for lv in [lv for lv in levels if lv in given]:
                 gt = clip.load_view_ldr(view, lv, g)
@@ -93,7 +92,7 @@ def score_view(clip, pred_root, view: str) -> Dict[str, Optional[float]]:
                 out[f"{split}_ssim"].append(ssim(pr, gt))
                 out[f"{split}_mpsnr"].append(_cap(masked_psnr(pr, gt, covis)))
                 out[f"{split}_mssim"].append(masked_ssim(pr, gt, covis))
-                if split == "ldr_oe" and dyn is not None:
+                if split == "ldr_oe":
                     out["ldr_oe_dyn_mpsnr"].append(_cap(masked_psnr(pr, gt, dyn)))
         if not (root / "hdr").is_dir():
             continue
@@ -104,8 +103,7 @@ def score_view(clip, pred_root, view: str) -> Dict[str, Optional[float]]:
         tp, tg = hdr_tonemap_pair(pr, gt)
         out["hdr_mpsnr"].append(_cap(masked_psnr(tp[0], tg[0], covis)))
         out["hdr_mssim"].append(masked_ssim(tp[0], tg[0], covis))
-        if dyn is not None:
-            out["hdr_dyn_mpsnr"].append(_cap(masked_psnr(tp[0], tg[0], dyn)))
+        out["hdr_dyn_mpsnr"].append(_cap(masked_psnr(tp[0], tg[0], dyn)))
         out["hdr_psnr_p99"].append(_cap(hdr_psnr_p99(pr, gt)))
     res = {k: _mean(v) for k, v in out.items()}
     res["covisible"] = _mean(covis_frac)
