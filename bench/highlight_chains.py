@@ -7,7 +7,8 @@ this runs the tracker of `full-highlights` (m4dgs.priors.highlight_tracks.highli
 arguments) on the training frames, as training does, and measures, for every chain, the distance in
 pixels from each of its blob centroids to the nearest true dynamic pixel of that frame. A chain is
 "on the movers" when the median of those distances is under 1 px, and "still" when every centroid
-lies within 2 px of the chain's mean (highlight_masks' `still_px`: a lamp seen by a still camera).
+lies within highlight_masks' default `still_px` of the chain's mean (a lamp seen by a still camera:
+the chains `masks.highlight_blobs` leaves out).
 
 Printed per clip: the number of chains, and for those on the movers their lengths in training
 frames, out of the clip's training frames. This is the "chains on the movers" figure of the
@@ -17,6 +18,7 @@ hard-scene readings in the research notes; it reads only the clip, not a run.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import sys
 from pathlib import Path
@@ -26,7 +28,10 @@ import numpy as np
 from scipy import ndimage
 
 from m4dgs.clip import Clip
-from m4dgs.priors.highlight_tracks import highlight_chains
+from m4dgs.priors.highlight_tracks import highlight_chains, highlight_masks
+
+# the same rule as the masks, read from them so that the two cannot drift apart
+STILL_PX = float(inspect.signature(highlight_masks).parameters["still_px"].default)
 
 
 def chain_report(clip_dir: Path) -> Dict:
@@ -47,7 +52,7 @@ def chain_report(clip_dir: Path) -> Dict:
             for t, b in ch
         ]
         med = float(np.median(d))  # inf: the chain's frames have no moving pixel
-        still = bool(np.all(np.linalg.norm(xy - xy.mean(0), axis=1) <= 2.0))
+        still = bool(np.all(np.linalg.norm(xy - xy.mean(0), axis=1) <= STILL_PX))
         out.append(
             {
                 "frames": len(ch),
