@@ -6,9 +6,9 @@ For each evaluation clip (the layout of docs/clip-format.md: input/ldr, clip.jso
 this runs the tracker of `full-highlights` (m4dgs.priors.highlight_tracks.highlight_chains, default
 arguments) on the training frames, as training does, and measures, for every chain, the distance in
 pixels from each of its blob centroids to the nearest true dynamic pixel of that frame. A chain is
-"on the movers" when the median of those distances is under 1 px, and "still" when every centroid
-lies within highlight_masks' default `still_px` of the chain's mean (a lamp seen by a still camera:
-the chains `masks.highlight_blobs` leaves out).
+"on the movers" when the median of those distances is under 1 px, and "still" by the rule of
+highlight_masks (m4dgs.priors.highlight_tracks.chain_is_still: a lamp seen by a still camera, the
+chains `masks.highlight_blobs` leaves out).
 
 Printed per clip: the number of chains, and for those on the movers their lengths in training
 frames, out of the clip's training frames. This is the "chains on the movers" figure of the
@@ -18,7 +18,6 @@ hard-scene readings in the research notes; it reads only the clip, not a run.
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import sys
 from pathlib import Path
@@ -28,10 +27,7 @@ import numpy as np
 from scipy import ndimage
 
 from m4dgs.clip import Clip
-from m4dgs.priors.highlight_tracks import highlight_chains, highlight_masks
-
-# the same rule as the masks, read from them so that the two cannot drift apart
-STILL_PX = float(inspect.signature(highlight_masks).parameters["still_px"].default)
+from m4dgs.priors.highlight_tracks import chain_is_still, highlight_chains
 
 
 def chain_report(clip_dir: Path) -> Dict:
@@ -46,19 +42,17 @@ def chain_report(clip_dir: Path) -> Dict:
         dist.append(ndimage.distance_transform_edt(~m) if m.any() else np.full(m.shape, np.inf))
     out = []
     for ch in highlight_chains(frames, clip.train_dt):
-        xy = np.array([[b.x, b.y] for _, b in ch])
         d = [
             float(dist[t][min(int(b.y), frames.shape[1] - 1), min(int(b.x), frames.shape[2] - 1)])
             for t, b in ch
         ]
         med = float(np.median(d))  # inf: the chain's frames have no moving pixel
-        still = bool(np.all(np.linalg.norm(xy - xy.mean(0), axis=1) <= STILL_PX))
         out.append(
             {
                 "frames": len(ch),
                 "first": int(train[ch[0][0]]),
                 "median_px": med,
-                "still": still,
+                "still": chain_is_still(ch),
                 "on_movers": med < 1.0,
             }
         )

@@ -172,11 +172,21 @@ def highlight_chains(
     ]
 
 
+STILL_PX = 1.0  # step 4: a chain whose centroids all lie within this of their mean stands still
+
+
+def chain_is_still(chain, still_px: float = STILL_PX) -> bool:
+    """Whether a chain [(t, Blob), ...] stands still: every blob centroid within still_px of the
+    centroids' mean (a lamp seen by a still camera)."""
+    c = np.array([[b.x, b.y] for _, b in chain])
+    return bool(np.hypot(*(c - c.mean(0)).T).max() <= still_px)
+
+
 def highlight_masks(
     ldr_frames: np.ndarray,
     dts: Sequence[float],
     dilate_px: float = 1.0,
-    still_px: float = 1.0,
+    still_px: float = STILL_PX,
     **chain_kw,
 ) -> np.ndarray:
     """[T, H, W] bool: the pixels of moving highlight chains (module docstring, step 4).
@@ -193,8 +203,7 @@ def highlight_masks(
     out = np.zeros((T, H, W), bool)
     ys, xs = np.mgrid[0:H, 0:W] + 0.5
     for ch in highlight_chains(frames, dts, **chain_kw):
-        c = np.array([[b.x, b.y] for _, b in ch])
-        if np.hypot(*(c - c.mean(0)).T).max() <= still_px:
+        if chain_is_still(ch, still_px):
             continue
         for (t0, b0), (t1, b1) in zip(ch[:-1], ch[1:]):
             for t in range(t0, t1 + (1 if (t1, b1) == ch[-1] else 0)):
