@@ -6,7 +6,8 @@
 #                         and Dr.Jit
 #   .gpu/rb/site.tar.xz   Ray, Mitsuba and OpenImageIO, trimmed (below);
 #   .gpu/rb/whl/          small wheels that bench/gpu_render.sh installs only where the machine's Python lacks the
-#                         module (Ray's dependencies, click, tqdm, PyYAML, cffi)
+#                         module (those of Ray's dependencies that the device image lacks: jsonschema and its
+#                         dependencies, cffi)
 # The versions are this environment's (what the tests run with), for the device's Python (default 3.12). Needs
 # network to PyPI here; ~5 min of one CPU core for the xz packing.
 #
@@ -37,8 +38,10 @@ get() {  # get DEST PACKAGE==VERSION ...
 get "$work/a" "pyoidn==$(ver pyoidn)" "drjit==$(ver drjit)"
 get "$work/b" "ray==$(ver ray)" "mitsuba==$(ver mitsuba)" "OpenImageIO==$(ver OpenImageIO)"
 rm -rf .gpu/ra .gpu/rb && mkdir -p .gpu/ra .gpu/rb/whl
-extras=(msgpack click tqdm pyyaml cffi pycparser jsonschema jsonschema-specifications referencing rpds-py attrs
-        filelock packaging protobuf requests urllib3 idna certifi charset-normalizer)
+# Ray's and benchgen's small dependencies that the device image lacks; msgpack, click, tqdm, PyYAML, protobuf,
+# requests (with urllib3, idna, certifi, charset-normalizer), attrs, filelock and packaging are in it, and part b
+# with every one of them packed came to more than a call carries
+extras=(cffi pycparser jsonschema jsonschema-specifications referencing rpds-py)
 get .gpu/rb/whl $(for p in "${extras[@]}"; do echo "$p==$(ver "$p")"; done)
 for part in a b; do
   mkdir -p "$work/site-$part"
