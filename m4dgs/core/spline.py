@@ -18,7 +18,7 @@ clamped to the ends.
 
 The spline is linear in its control points, mu(t) = sum_k B[t, k] p_k, so fitting control points to
 a trajectory is a (regularised, masked) linear least-squares problem per Gaussian
-(`fit_control_points`)."""
+(`fit_control_points`; `fit_control_points_weighted` with a weight matrix per sample)."""
 
 from __future__ import annotations
 
@@ -424,6 +424,86 @@ def fit_control_points(
     return out.to(dtype)
 
 
+def fit_control_points_weighted(
+    traj: Tensor,
+    weights: Tensor,
+    times: Tensor,
+    knots: Tensor,
+    *,
+    smooth: float = 1e-3,
+    damping: float = 1e-6,
+    reg_scale: Optional[Tensor] = None,
+    chunk: int = 1024,
+) -> Tensor:
+    """`fit_control_points` with a D x D weight matrix per sample instead of a valid mask.
+
+    Solves per Gaussian n:  min_c  sum_t (B_t c - y_nt)^T W_nt (B_t c - y_nt)
+    + r_n (smooth * |D2 c|^2 + damping * |D1 c|^2), the D coordinates now coupled through W (an
+    anisotropic error: e.g. errors across a camera ray weighted like the pixels they move, errors
+    along it by a depth tolerance; m4dgs.training.v2w). W = I on valid frames and 0 elsewhere is
+    `fit_control_points`' problem.
+
+    Args:
+        traj: [N, T, D] trajectories (values where W is zero are ignored; they may be NaN).
+        weights: [N, T, D, D] symmetric positive semi-definite weights.
+        times: [T] frame times. knots: [K] knot times.
+        smooth, damping: weights of the second- and first-difference terms (as in
+            fit_control_points).
+        reg_scale: optional [N] factor r_n on both terms (default 1), to keep their strength
+            relative to a data term whose units W changes.
+        chunk: Gaussians solved per batch (memory: chunk x (K D)^2 doubles).
+    Returns:
+        [N, K, D] control points (dtype of traj). Exact when the trajectory is itself a spline on
+        these knots and W constrains it on enough frames, up to the small regularisation bias.
+    """
+    n, t_count, d = traj.shape
+    if weights.shape != (n, t_count, d, d):
+        raise ValueError(f"weights must be [{n}, {t_count}, {d}, {d}], got {list(weights.shape)}")
+    dtype = traj.dtype
+    work = torch.float64
+    dev = traj.device
+    knots = knots.to(device=dev, dtype=work)
+    times = times.to(device=dev, dtype=work)
+    k = knots.numel()
+    basis = basis_matrix(knots, times)  # [T, K]
+    spacing = float(knots[-1] - knots[0]) / (k - 1) if k > 1 else 1.0
+    reg = torch.zeros(k, k, dtype=work, device=dev)
+    if k >= 3 and smooth > 0:
+        d2 = second_difference_matrix(knots) * spacing**2
+        reg = reg + smooth * d2.T @ d2
+    if k >= 2 and damping > 0:
+        d1 = first_difference_matrix(knots) * spacing
+        reg = reg + damping * d1.T @ d1
+    eye_d = torch.eye(d, dtype=work, device=dev)
+    reg = torch.kron(reg, eye_d)  # [K D, K D]: the same term on every coordinate
+    tiny = 1e-12 * torch.eye(k * d, dtype=work, device=dev)
+    scale = (
+        torch.ones(n, dtype=work, device=dev)
+        if reg_scale is None
+        else reg_scale.to(device=dev, dtype=work)
+    )
+    out = torch.zeros(n, k, d, dtype=work, device=dev)
+    for start in range(0, n, chunk):
+        sl = slice(start, min(start + chunk, n))
+        w = weights[sl].to(work)  # [n, T, D, D]
+        has = w.abs().sum(dim=(1, 2, 3)) > 0
+        y = torch.where(w.abs().sum(-1) > 0, traj[sl].to(work), torch.zeros((), dtype=work))
+        # sum_t (B_t kron I)^T W_t (B_t kron I): entry (k i, l j) = sum_t B_tk B_tl W_t,ij
+        lhs = torch.einsum("tk,tl,ntij->nkilj", basis, basis, w).reshape(-1, k * d, k * d)
+        rhs = torch.einsum("tk,ntij,ntj->nki", basis, w, y).reshape(-1, k * d)
+        lhs = lhs + scale[sl, None, None] * reg + tiny
+        eye = torch.eye(k * d, dtype=work, device=dev)
+        lhs = torch.where(
+            has[:, None, None], lhs, eye
+        )  # no weight at all: zeros, as in the mask fit
+        out[sl] = torch.linalg.solve(lhs, rhs).reshape(-1, k, d)
+    return out.to(dtype)
+
+
+# the smoothness weight of the video-to-world control-point fit (both of its error measures)
+RESAMPLE_SMOOTH = 1e-4
+
+
 def resample_control_points(
     traj: Tensor,
     times: Tensor,
@@ -431,7 +511,7 @@ def resample_control_points(
     *,
     valid: Optional[Tensor] = None,
     method: str = "lstsq",
-    smooth: float = 1e-4,
+    smooth: float = RESAMPLE_SMOOTH,
 ) -> Tensor:
     """Control points for a dense trajectory (video-to-world transform, paper sec. 3.3.2).
 

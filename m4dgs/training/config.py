@@ -94,6 +94,7 @@ LdrReprojPairs = Literal["same-exposure", "consecutive"]
 DynamicRemovalScope = Literal["new", "densified", "all"]
 CloneSplitExtent = Literal["cameras", "absolute"]
 V2WResample = Literal["lstsq", "sample"]
+V2WWorldFit = Literal["world", "pixel"]
 
 PRESETS: Tuple[str, ...] = typing.get_args(PresetName)
 LDR_REPROJ_PAIRS: Tuple[str, ...] = typing.get_args(LdrReprojPairs)
@@ -266,9 +267,26 @@ class V2WConfig:
     rotation_refit_lr: float = 1e-3  # authors' code
     # (the EWA tan-fov clamp of the refit, authors' 1.3, is the rasterizer's own: not an option)
     resample: V2WResample = "lstsq"  # control points from the world trajectory
+    # What the least-squares fit of the dynamic control points minimises (beyond the paper; resample
+    # "lstsq" only): "world" = the distance to the lifted world path, equal in every direction (the
+    # paper's and the authors'); "pixel" = errors across each camera ray in pixels
+    # (f / pixel_sigma / z per unit) and along it as a relative depth error (1 / depth_sigma / z per
+    # unit), so that a jittery lifted depth cannot pull the fit off the stage-1 pixel path
+    # (docs/v2w.md, "Fitting the world spline in pixels"). The two tolerances are set by argument
+    # (half a pixel; a tenth of the depth), not tuned on any clip.
+    world_fit: V2WWorldFit = "world"
+    pixel_sigma: float = 0.5  # px: the world_fit "pixel" tolerance across the ray
+    depth_sigma: float = 0.1  # relative: its tolerance along the ray
     # 1 - |<q, q*>| refinement after the least-squares polynomial refit
     rotation_refine_steps: int = 200
     seed: int = 0
+
+    def validate(self) -> None:
+        if self.world_fit == "pixel" and self.resample != "lstsq":
+            raise ValueError(
+                "config key 'v2w.world_fit' 'pixel' needs v2w.resample 'lstsq' (a least-squares "
+                f"fit); got resample {self.resample!r}"
+            )
 
 
 def _stage2_static_densify() -> DensifyConfig:
@@ -858,6 +876,8 @@ def _check_range(section: Any, name: str, v: Any, key: str) -> None:
         raise _range_error(key, v, ">= 0 (a fraction of the render's median HDR value)")
     if name == "appearance_knots" and v < 0:
         raise _range_error(key, v, ">= 0 (0 = no gain over time, the paper's colour)")
+    if name.endswith("_sigma") and isinstance(section, V2WConfig) and not v > 0:
+        raise _range_error(key, v, "> 0 (a tolerance)")
 
 
 def _check_budget(cfg: "TrainConfig") -> None:

@@ -249,6 +249,54 @@ def world_to_cameras(
     return means_cam, quats_cam
 
 
+def pixel_weights(
+    positions_world: Tensor,
+    valid: Tensor,
+    K: Tensor,
+    c2w: Tensor,
+    pixel_sigma: float,
+    depth_sigma: float,
+) -> Tuple[Tensor, Tensor]:
+    """Weights that make a world-space least-squares error read like pixels (V2WConfig.world_fit
+    "pixel", beyond the paper).
+
+    A small displacement e of a point at depth z in camera t moves its pixel by about f / z times
+    the part of e across the viewing ray d, and its depth by the part along d. So
+    W_t = (f / (pixel_sigma z))^2 (I - d d^T) + (1 / (depth_sigma z))^2 d d^T
+    counts e in tolerances: pixel_sigma pixels across the ray, depth_sigma of the depth along it.
+
+    Args:
+        positions_world: [N, T, 3] lifted world trajectories. valid: [N, T] bool (frames to fit).
+        K: [3, 3] intrinsics (f = (fx + fy) / 2). c2w: [T, 4, 4] camera-to-world.
+        pixel_sigma: px; depth_sigma: relative.
+    Returns:
+        (weights [N, T, 3, 3], zero where not valid or behind the camera; reg_scale [N]: the mean
+        across-ray weight over the valid frames, which keeps a smoothness term as strong, relative
+        to the data, as in the unweighted world fit).
+    """
+    dtype = positions_world.dtype
+    K = _as_tensor(K, positions_world)
+    c2w = _as_tensor(c2w, positions_world)
+    f = 0.5 * (K[0, 0] + K[1, 1])
+    centre = c2w[:, :3, 3]  # [T, 3]
+    offset = positions_world - centre[None]  # [N, T, 3]
+    dist = offset.norm(dim=-1).clamp_min(1e-12)
+    d = offset / dist[..., None]
+    z = torch.einsum("ti,nti->nt", c2w[:, :3, 2], offset)  # depth along the optical axis
+    ok = valid & (z > NEAR_PLANE)
+    zs = torch.where(ok, z, torch.ones((), dtype=dtype, device=z.device))
+    across = (f / (pixel_sigma * zs)) ** 2
+    along = (1.0 / (depth_sigma * zs)) ** 2
+    dd = d[..., :, None] * d[..., None, :]
+    eye = torch.eye(3, dtype=dtype, device=positions_world.device)
+    w = across[..., None, None] * (eye - dd) + along[..., None, None] * dd
+    w = w * ok[..., None, None].to(dtype)
+    n_ok = ok.sum(1).clamp_min(1)
+    reg_scale = torch.where(ok, across, torch.zeros((), dtype=dtype)).sum(1) / n_ok
+    reg_scale = torch.where(ok.any(1), reg_scale, torch.ones((), dtype=dtype))
+    return w, reg_scale
+
+
 # --------------------------------------------------------------------------------------------------
 # the whole transform
 # --------------------------------------------------------------------------------------------------
@@ -506,7 +554,19 @@ def _dynamic_set(v: _Sampled, d_idx: Tensor, cfg: V2WConfig, degree: int) -> Tup
     video knots, rotation-polynomial coefficients fitted by least squares, optionally refined)."""
     obs_d = v.obs[d_idx]
     with torch.no_grad():
-        if cfg.resample == "lstsq":
+        if cfg.world_fit == "pixel":
+            weights, reg_scale = pixel_weights(
+                v.pos_w[d_idx], obs_d, v.K, v.c2w, cfg.pixel_sigma, cfg.depth_sigma
+            )
+            ctrl_d = spline.fit_control_points_weighted(
+                v.pos_w[d_idx],
+                weights,
+                v.times,
+                v.knots,
+                smooth=spline.RESAMPLE_SMOOTH,
+                reg_scale=reg_scale,
+            )
+        elif cfg.resample == "lstsq":
             ctrl_d = spline.resample_control_points(
                 v.pos_w[d_idx], v.times, v.knots, valid=obs_d, method="lstsq"
             )

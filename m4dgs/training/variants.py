@@ -50,6 +50,11 @@ VARIANTS: Dict[str, Dict[str, Any]] = {
     # point under its arc lit twice per period), about two knots per rise or fall; denser knots
     # would come closer to the 3-frame exposure cycle, which a gain must not follow
     "full-relight": {"model.appearance_knots": 8},
+    # beyond the paper: the full method with V2W fitting each dynamic Gaussian's world spline to its
+    # stage-1 pixel path (errors across the camera ray in pixels, along it as a depth tolerance)
+    # instead of to its lifted world path (m4dgs.training.v2w.pixel_weights), for small fast movers
+    # whose jittery lifted depth throws the world fit off them (lab/notes/hard-lit.md)
+    "full-pixel-fit": {"v2w.world_fit": "pixel"},
     # adapted baselines (paper sec. 4.2)
     "static-hdr": {
         "method": "static-hdr",
@@ -107,6 +112,9 @@ DESCRIPTIONS: Dict[str, str] = {
     "full-relight": "BEYOND THE PAPER: full plus a grey brightness gain over time on every "
     "Gaussian (a smooth curve through 8 knots, its curvature penalised), for scenes whose moving "
     "light relights static surfaces (docs/method.md)",
+    "full-pixel-fit": "BEYOND THE PAPER: full with V2W fitting each moving Gaussian's world "
+    "spline to the pixels stage 1 left it at rather than to its lifted world path, so that small "
+    "fast movers keep their place at the hand-over (docs/v2w.md)",
     "static-hdr": "baseline (GaussHDR-style): static HDR Gaussians with the bundle-adjustment "
     "cameras (fixed)",
     "world-only": "ablation (a) without TLR: world Gaussians from lifted tracks/depth (no stage "

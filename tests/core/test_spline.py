@@ -292,3 +292,82 @@ def test_a_copied_model_starts_with_an_empty_memo():
     for c in (copy.deepcopy(g), pickle.loads(pickle.dumps(g))):
         assert c.spline_memo is not g.spline_memo and not c.spline_memo.plans
         assert torch.equal(c.positions([1.0, 2.0]), want)
+
+
+def _dense_weighted_reference(traj, weights, times, knots, smooth, damping, reg_scale):
+    """The weighted fit as one stacked least-squares system per Gaussian, solved by numpy."""
+    import numpy as np
+
+    B = spline.basis_matrix(knots, times).numpy()
+    k = knots.numel()
+    d = traj.shape[-1]
+    spacing = float(knots[-1] - knots[0]) / (k - 1)
+    d2 = spline.second_difference_matrix(knots).numpy() * spacing**2
+    d1 = spline.first_difference_matrix(knots).numpy() * spacing
+    out = []
+    for n in range(traj.shape[0]):
+        rows, rhs = [], []
+        for t in range(len(times)):
+            w = weights[n, t].numpy()
+            vals, vecs = np.linalg.eigh(w)
+            half = (vecs * np.sqrt(np.clip(vals, 0, None))) @ vecs.T  # W^(1/2)
+            rows.append(half @ np.kron(B[t][None], np.eye(d)))
+            rhs.append(half @ traj[n, t].numpy())
+        r = float(reg_scale[n])
+        rows += [
+            np.sqrt(smooth * r) * np.kron(d2, np.eye(d)),
+            np.sqrt(damping * r) * np.kron(d1, np.eye(d)),
+        ]
+        rhs += [np.zeros(d2.shape[0] * d), np.zeros(d1.shape[0] * d)]
+        sol, *_ = np.linalg.lstsq(np.concatenate(rows), np.concatenate(rhs), rcond=None)
+        out.append(sol.reshape(k, d))
+    return torch.from_numpy(np.stack(out))
+
+
+def test_weighted_fit_matches_a_dense_least_squares_reference():
+    g = torch.Generator().manual_seed(5)
+    t_count, n = 13, 4
+    knots = spline.make_knots(t_count, 4, dtype=torch.float64)
+    times = torch.arange(t_count, dtype=torch.float64)
+    traj = torch.randn(n, t_count, 3, generator=g, dtype=torch.float64)
+    a = torch.randn(n, t_count, 3, 3, generator=g, dtype=torch.float64)
+    weights = a @ a.transpose(-1, -2)  # symmetric positive semi-definite
+    scale = torch.rand(n, generator=g, dtype=torch.float64) + 0.5
+    fit = spline.fit_control_points_weighted(
+        traj, weights, times, knots, smooth=0.3, damping=0.01, reg_scale=scale
+    )
+    ref = _dense_weighted_reference(traj, weights, times, knots, 0.3, 0.01, scale)
+    torch.testing.assert_close(fit, ref, atol=1e-9, rtol=1e-9)
+
+
+def test_weighted_fit_with_identity_weights_is_the_masked_fit():
+    g = torch.Generator().manual_seed(6)
+    t_count = 21
+    knots = spline.make_knots(t_count, 4, dtype=torch.float64)
+    times = torch.arange(t_count, dtype=torch.float64)
+    traj = torch.randn(30, t_count, 3, generator=g, dtype=torch.float64)
+    valid = torch.rand(30, t_count, generator=g) > 0.4
+    valid[-1] = False  # a Gaussian never seen: zeros in both
+    weights = valid[..., None, None].double() * torch.eye(3, dtype=torch.float64)
+    fit_w = spline.fit_control_points_weighted(traj, weights, times, knots, smooth=1e-2)
+    fit_m = spline.fit_control_points(traj, valid, times, knots, smooth=1e-2)
+    torch.testing.assert_close(fit_w, fit_m, atol=1e-9, rtol=0)
+    assert (fit_w[-1] == 0).all()
+
+
+def test_weighted_fit_recovers_a_spline_from_errors_across_rays_only():
+    # each sample constrains only the two directions across a ray that turns with time (rank-2
+    # weights, as V2W's pixel weighting with no depth term): a spline path is still recovered
+    g = torch.Generator().manual_seed(7)
+    t_count = 17
+    knots = spline.make_knots(t_count, 4, dtype=torch.float64)
+    times = torch.arange(t_count, dtype=torch.float64)
+    ctrl = torch.randn(5, knots.numel(), 3, generator=g, dtype=torch.float64)
+    traj = spline.evaluate(ctrl, knots, times)
+    ang = times / 3.0
+    ray = torch.stack([torch.sin(ang), 0.3 * torch.cos(ang), torch.ones_like(ang)], -1)
+    ray = ray / ray.norm(dim=-1, keepdim=True)
+    across = torch.eye(3, dtype=torch.float64) - ray[:, :, None] * ray[:, None, :]  # [T, 3, 3]
+    weights = across[None].expand(5, -1, -1, -1)
+    fit = spline.fit_control_points_weighted(traj, weights, times, knots, smooth=0.0, damping=0.0)
+    torch.testing.assert_close(fit, ctrl, atol=1e-7, rtol=0)

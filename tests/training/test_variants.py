@@ -202,3 +202,25 @@ def test_full_relight_is_full_with_a_gain_over_time_and_the_others_have_none(nam
     b = phase_keys(to_dict(variant_config(name, "full-relight")), {"clip": "c"}, "full-relight")
     assert a["camera_init"] == b["camera_init"] and a["stage1"] != b["stage1"]
     assert run_plan(name, "full")[1:3] == run_plan(name, "full-relight")[1:3]
+
+
+@pytest.mark.parametrize("name", PRESETS)
+def test_full_pixel_fit_is_full_with_the_pixel_world_fit(name):
+    """Beyond the paper: full-pixel-fit differs from full in v2w.world_fit alone, so the two share
+    camera initialisation and stage 1 and part at the V2W transform; every other variant keeps the
+    paper's world fit."""
+    from m4dgs.training.config import to_dict
+    from m4dgs.training.phases import leaves, phase_keys
+
+    full = dict(leaves(to_dict(variant_config(name, "full"))))
+    pix = dict(leaves(to_dict(variant_config(name, "full-pixel-fit"))))
+    assert {k for k in full if full[k] != pix[k]} == {"v2w.world_fit"}
+    assert pix["v2w.world_fit"] == "pixel"
+    for v in VARIANTS:
+        if v != "full-pixel-fit":
+            assert variant_config(name, v).v2w.world_fit == "world", v
+    assert describe("full-pixel-fit").startswith("BEYOND THE PAPER:")
+    a = phase_keys(to_dict(variant_config(name, "full")), {"clip": "c"}, "full")
+    b = phase_keys(to_dict(variant_config(name, "full-pixel-fit")), {"clip": "c"}, "full-pixel-fit")
+    assert a["camera_init"] == b["camera_init"] and a["stage1"] == b["stage1"]
+    assert a["v2w"] != b["v2w"]
