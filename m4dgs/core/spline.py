@@ -482,6 +482,8 @@ def fit_control_points_weighted(
         if reg_scale is None
         else reg_scale.to(device=dev, dtype=work)
     )
+    outer = basis[:, :, None] * basis[:, None, :]  # [T, K, K]
+    eye = torch.eye(k * d, dtype=work, device=dev)
     out = torch.zeros(n, k, d, dtype=work, device=dev)
     for start in range(0, n, chunk):
         sl = slice(start, min(start + chunk, n))
@@ -489,13 +491,12 @@ def fit_control_points_weighted(
         has = w.abs().sum(dim=(1, 2, 3)) > 0
         y = torch.where(w.abs().sum(-1) > 0, traj[sl].to(work), torch.zeros((), dtype=work))
         # sum_t (B_t kron I)^T W_t (B_t kron I): entry (k i, l j) = sum_t B_tk B_tl W_t,ij
-        lhs = torch.einsum("tk,tl,ntij->nkilj", basis, basis, w).reshape(-1, k * d, k * d)
-        rhs = torch.einsum("tk,ntij,ntj->nki", basis, w, y).reshape(-1, k * d)
+        lhs = torch.einsum("tkl,ntij->nkilj", outer, w).reshape(-1, k * d, k * d)
+        wy = torch.einsum("ntij,ntj->nti", w, y)  # [n, T, D]
+        rhs = torch.einsum("tk,nti->nki", basis, wy).reshape(-1, k * d)
         lhs = lhs + scale[sl, None, None] * reg + tiny
-        eye = torch.eye(k * d, dtype=work, device=dev)
-        lhs = torch.where(
-            has[:, None, None], lhs, eye
-        )  # no weight at all: zeros, as in the mask fit
+        # a Gaussian with no weight at all gets zeros, as in the mask fit
+        lhs = torch.where(has[:, None, None], lhs, eye)
         out[sl] = torch.linalg.solve(lhs, rhs).reshape(-1, k, d)
     return out.to(dtype)
 
