@@ -15,6 +15,19 @@ of densification, where TLR applies). --base-overrides KEY=VALUE,... apply to ev
 suite row's schedule: pass the run's overrides so that the step's schedule matches the run's).
 Each arm seeds torch with --seed before its first step, so the arms draw the same frames as long
 as their configurations draw alike.
+
+--from-v2w starts each arm from the run's V2W output (model/v2w.pt: stage 2's own start, its
+optimisers fresh as in training) instead of its final model, e.g. to see which loss moves the
+Gaussians of a small mover early in stage 2:
+
+    python bench/stage_probe.py CLIP RUN --from-v2w --start 0 --steps 500 --window 100 --emitter \
+        --arm "base:" --arm "no-vel:stage2.loss.lambda_vel=0"
+
+--emitter adds, at the end of each window, the distance in pixels from the emitter (the brightest
+true-HDR pixel of each training frame, gt/hdr) to the nearest opaque (opacity > 0.3) dynamic
+Gaussian, seen by the stage's current cameras (median over the training frames), and how many such
+Gaussians lie within 2 px of it (median over the frames): whether the Gaussians that follow a small
+bright mover stay on it.
 """
 
 from __future__ import annotations
@@ -25,17 +38,25 @@ import shutil
 import sys
 import tempfile
 from pathlib import Path
+from typing import Optional
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+import numpy as np  # noqa: E402
 import torch  # noqa: E402
 import yaml  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from step_bench import copy_run_models, make_stage  # noqa: E402
+from v2w_lift import pinhole_pixels  # noqa: E402
 
+from m4dgs.clip import Clip  # noqa: E402
 from m4dgs.core.threads import use_threads  # noqa: E402
+from m4dgs.model.gaussians import WorldGaussians  # noqa: E402
 from m4dgs.training.pipeline import Trainer  # noqa: E402
+from m4dgs.training.stage2 import CameraRig  # noqa: E402
+
+OPAQUE = 0.3  # "opaque" in the --emitter figures
 
 
 def parse_overrides(text: str) -> dict:
@@ -49,6 +70,38 @@ def parse_overrides(text: str) -> dict:
     return out
 
 
+def emitters(clip: Clip) -> np.ndarray:
+    """[T, 2] pixel centre of the brightest true-HDR pixel (mean of R, G, B) per training frame."""
+    out = []
+    for g in clip.train_frames:
+        hdr = clip.load_gt_hdr(g)[..., :3].mean(-1)
+        i = int(np.argmax(hdr))
+        out.append((i % hdr.shape[1] + 0.5, i // hdr.shape[1] + 0.5))
+    return np.asarray(out, np.float64)
+
+
+def emitter_figures(gaussians: dict, rig: dict, emit: np.ndarray) -> tuple:
+    """(median over frames of the distance from the emitter to the nearest opaque dynamic Gaussian,
+    median over frames of the number of them within 2 px) for a stage-2 state's "gaussians" and
+    "rig" entries (WorldStage.state_dict()) and emitters [T, 2]; (inf, 0) without any."""
+    g = WorldGaussians.from_state(gaussians)
+    n_static = int(gaussians["static"]["means"].shape[0])
+    cam = CameraRig(rig["K"], rig["c2w_init"])
+    cam.load_state_dict(rig)
+    T = emit.shape[0]
+    with torch.no_grad():
+        pos = g.positions(torch.arange(T, dtype=torch.float32)).double().numpy()
+        opacity = g.opacities().reshape(-1).numpy()
+        c2w = cam.c2w().double().numpy()
+    pick = (np.arange(opacity.size) >= n_static) & (opacity > OPAQUE)
+    if not pick.any():
+        return float("inf"), 0.0
+    uv = pinhole_pixels(pos[pick], cam.K.double().numpy(), c2w)  # [n, T, 2]
+    d = np.linalg.norm(uv - emit[None], axis=-1)
+    d = np.where(np.isfinite(d), d, np.inf)
+    return float(np.median(d.min(0))), float(np.median((d < 2.0).sum(0)))
+
+
 def run_arm(
     clip: str,
     src: Path,
@@ -58,16 +111,30 @@ def run_arm(
     seed: int,
     preset: str = "small",
     variant: str = "full",
+    from_v2w: bool = False,
+    window: int = 0,
+    emit: Optional[np.ndarray] = None,
 ) -> list:
-    """The per-step records of `steps` stage-2 steps from RUN's final model under the preset, the
-    variant and `overrides`."""
+    """The per-step records of `steps` stage-2 steps from RUN's final model (from_v2w: its V2W
+    output) under the preset, the variant and `overrides`. With emitters `emit` [T, 2], the record
+    ending each `window` steps also holds "emitter_px" and "emitter_near" (emitter_figures)."""
     tmp = Path(tempfile.mkdtemp(prefix="stage_probe_"))
     try:
         copy_run_models(src, tmp)
         tr = Trainer(clip, tmp, preset, variant, overrides, "cpu", progress=False)
-        st, first = make_stage(tr, src, "stage2", start, final=True)
+        st, first = make_stage(tr, src, "stage2", start, final=not from_v2w)
         torch.manual_seed(seed)
-        return [st.step(it) for it in range(first, first + steps)]
+        recs = []
+        for k, it in enumerate(range(first, first + steps)):
+            rec = st.step(it)
+            if emit is not None and window > 0 and (k + 1) % window == 0:
+                sd = st.state_dict()
+                rec = dict(rec)
+                rec["emitter_px"], rec["emitter_near"] = emitter_figures(
+                    sd["gaussians"], sd["rig"], emit
+                )
+            recs.append(rec)
+        return recs
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
@@ -91,6 +158,17 @@ def main() -> None:
         help="NAME:KEY=VALUE,... one arm (repeat the option for more arms)",
     )
     ap.add_argument("--terms", default="rgb,tlr,total", help="loss terms to print")
+    ap.add_argument(
+        "--from-v2w",
+        action="store_true",
+        help="start each arm from the run's V2W output (model/v2w.pt) instead of its final model",
+    )
+    ap.add_argument(
+        "--emitter",
+        action="store_true",
+        help="also print, per window, the distance from the brightest true pixel to the nearest "
+        "opaque dynamic Gaussian and how many lie within 2 px (needs the clip's gt/hdr)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     a = ap.parse_args()
@@ -98,6 +176,7 @@ def main() -> None:
     src = Path(a.run)
     if not (src / "model" / "final.pt").exists():
         ap.error(f"{src} has no model/final.pt: RUN must be a finished run")
+    emit = emitters(Clip.open(a.clip)) if a.emitter else None
     base = parse_overrides(a.base_overrides)
     terms = a.terms.split(",")
     print(
@@ -106,7 +185,25 @@ def main() -> None:
     for spec in a.arm:
         name, _, ov = spec.partition(":")
         ovr = {**base, **parse_overrides(ov)}
-        recs = run_arm(a.clip, src, ovr, a.start, a.steps, a.seed, a.preset, a.variant)
+        recs = run_arm(
+            a.clip,
+            src,
+            ovr,
+            a.start,
+            a.steps,
+            a.seed,
+            a.preset,
+            a.variant,
+            from_v2w=a.from_v2w,
+            window=a.window,
+            emit=emit,
+        )
+        if emit is not None:
+            ends = [r for r in recs if "emitter_px" in r]
+            px = " ".join(f"{r['emitter_px']:.2f}" for r in ends)
+            near = " ".join(f"{r['emitter_near']:g}" for r in ends)
+            print(f"{name:>16s} emitter px: {px}")
+            print(f"{name:>16s} within 2 px: {near}")
         for t in terms:
             vals = []
             for w0 in range(0, len(recs), a.window):
