@@ -349,6 +349,23 @@ def first_difference_matrix(knots: Tensor) -> Tensor:
     return d1
 
 
+def _difference_regulariser(knots: Tensor, smooth: float, damping: float) -> Tensor:
+    """[K, K] smooth * D2^T D2 + damping * D1^T D1 of the control-point fits (dtype / device of
+    knots), D2 / D1 the divided second / first differences rescaled by the mean knot spacing: on
+    uniform knots the plain differences p_{k+1} - 2 p_k + p_{k-1} and p_{k+1} - p_k (units of the
+    trajectory)."""
+    k = knots.numel()
+    spacing = float(knots[-1] - knots[0]) / (k - 1) if k > 1 else 1.0
+    reg = torch.zeros(k, k, dtype=knots.dtype, device=knots.device)
+    if k >= 3 and smooth > 0:
+        d2 = second_difference_matrix(knots) * spacing**2
+        reg = reg + smooth * d2.T @ d2
+    if k >= 2 and damping > 0:
+        d1 = first_difference_matrix(knots) * spacing
+        reg = reg + damping * d1.T @ d1
+    return reg
+
+
 def fit_control_points(
     traj: Tensor,
     valid: Optional[Tensor],
@@ -393,16 +410,7 @@ def fit_control_points(
     if valid is None:
         valid = torch.ones(n, t_count, dtype=torch.bool, device=traj.device)
     basis = basis_matrix(knots, times)  # [T, K]
-    # divided differences rescaled by the mean knot spacing: on uniform knots these are the plain
-    # differences p_{k+1} - 2 p_k + p_{k-1} and p_{k+1} - p_k (units of the trajectory)
-    spacing = float(knots[-1] - knots[0]) / (k - 1) if k > 1 else 1.0
-    reg = torch.zeros(k, k, dtype=work, device=traj.device)
-    if k >= 3 and smooth > 0:
-        d2 = second_difference_matrix(knots) * spacing**2
-        reg = reg + smooth * d2.T @ d2
-    if k >= 2 and damping > 0:
-        d1 = first_difference_matrix(knots) * spacing
-        reg = reg + damping * d1.T @ d1
+    reg = _difference_regulariser(knots, smooth, damping)
     if k == 1 or (smooth <= 0 and damping <= 0):
         reg = reg + 1e-12 * torch.eye(k, dtype=work, device=traj.device)
     out = torch.zeros(n, k, d, dtype=work, device=traj.device)
@@ -466,14 +474,7 @@ def fit_control_points_weighted(
     times = times.to(device=dev, dtype=work)
     k = knots.numel()
     basis = basis_matrix(knots, times)  # [T, K]
-    spacing = float(knots[-1] - knots[0]) / (k - 1) if k > 1 else 1.0
-    reg = torch.zeros(k, k, dtype=work, device=dev)
-    if k >= 3 and smooth > 0:
-        d2 = second_difference_matrix(knots) * spacing**2
-        reg = reg + smooth * d2.T @ d2
-    if k >= 2 and damping > 0:
-        d1 = first_difference_matrix(knots) * spacing
-        reg = reg + damping * d1.T @ d1
+    reg = _difference_regulariser(knots, smooth, damping)
     eye_d = torch.eye(d, dtype=work, device=dev)
     reg = torch.kron(reg, eye_d)  # [K D, K D]: the same term on every coordinate
     tiny = 1e-12 * torch.eye(k * d, dtype=work, device=dev)
