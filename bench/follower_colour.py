@@ -25,39 +25,28 @@ import numpy as np
 import torch
 
 from m4dgs.clip import Clip
-from m4dgs.core.camera import ortho_to_pixel
 from m4dgs.core.io import read_exr
 from m4dgs.model.color import ColorMLP
 from m4dgs.model.gaussians import VideoGaussians
-from m4dgs.run import load_torch
 
-FOLLOW_OPACITY = 0.3
-FOLLOW_FRACTION = 1 / 3
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from v2w_lift import FOLLOW_OPACITY, stage1_followers  # noqa: E402
 
 
 def colour_report(run: Path, clip_dir: Path) -> Dict:
     """The followers' HDR colour in units of the still background (module docstring)."""
     run = Path(run)
     clip = Clip.open(clip_dir)
-    w, h = clip.width, clip.height
-    s1 = load_torch(run / "model" / "stage1.pt", map_location="cpu")
+    s1, frames, _, followers = stage1_followers(run, clip)
     video = VideoGaussians.from_state(s1["gaussians"])
-    frames = [int(f) for f in s1["frames"]]
-    T = len(frames)
     mlp = ColorMLP()
     mlp.load_state_dict(s1["color"])
     with torch.no_grad():
-        uv = ortho_to_pixel(video.positions(torch.arange(T, dtype=torch.float32))[..., :2], w, h)
-        uv = uv.numpy()
         opacity = video.opacities().reshape(-1).numpy()
         colour = mlp(video.params["features"]).mean(-1).numpy()  # [N]
-    on = np.zeros((opacity.size, T), bool)
     peak, still_truth, still_ratio = [], [], []
-    for i, g in enumerate(frames):
+    for g in frames:
         m = clip.load_gt_dynamic_mask(g)
-        x, y = uv[:, i, 0], uv[:, i, 1]
-        ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
-        on[:, i] = ok & m[np.clip(y.astype(int), 0, h - 1), np.clip(x.astype(int), 0, w - 1)]
         truth = clip.load_gt_hdr(g)[..., :3].mean(-1)
         if m.any() and not m.all():
             render = read_exr(run / "renders" / "stage1" / "hdr" / f"{g:05d}.exr")[..., :3].mean(-1)
@@ -68,7 +57,6 @@ def colour_report(run: Path, clip_dir: Path) -> Dict:
     if not peak:
         return rep
     unit = float(np.median(still_ratio) * np.median(still_truth))  # the background in run units
-    followers = (on.sum(1) >= T * FOLLOW_FRACTION) & (opacity > FOLLOW_OPACITY)
     rep.update(
         followers=int(followers.sum()),
         hdr_scale=float(np.median(still_ratio)),

@@ -21,7 +21,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 import torch
@@ -55,14 +55,34 @@ def pinhole_pixels(points_world: np.ndarray, K: np.ndarray, c2w: np.ndarray) -> 
     return uv
 
 
+def stage1_followers(run: Path, clip: Clip) -> Tuple[dict, List[int], np.ndarray, np.ndarray]:
+    """A run's stage-1 state (model/stage1.pt), its training frames, the video Gaussians' pixels at
+    them [N, T, 2] and the followers of the clip's true movers [N] bool: opacity over
+    FOLLOW_OPACITY and on gt/masks/dynamic at FOLLOW_FRACTION of the training frames or more."""
+    s1 = load_torch(Path(run) / "model" / "stage1.pt", map_location="cpu")
+    video = VideoGaussians.from_state(s1["gaussians"])
+    frames = [int(f) for f in s1["frames"]]
+    T = len(frames)
+    w, h = clip.width, clip.height
+    with torch.no_grad():
+        uv = ortho_to_pixel(video.positions(torch.arange(T, dtype=torch.float32))[..., :2], w, h)
+        uv = uv.numpy().astype(np.float64)
+        opacity = video.opacities().numpy().reshape(-1)
+    on = np.zeros((opacity.size, T), bool)
+    for i, g in enumerate(frames):
+        m = clip.load_gt_dynamic_mask(g)
+        x, y = uv[:, i, 0], uv[:, i, 1]
+        ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+        on[:, i] = ok & m[np.clip(y.astype(int), 0, h - 1), np.clip(x.astype(int), 0, w - 1)]
+    followers = (on.sum(1) >= T * FOLLOW_FRACTION) & (opacity > FOLLOW_OPACITY)
+    return s1, frames, uv, followers
+
+
 def lift_report(run: Path, clip_dir: Path) -> Dict:
     """The stage-1-to-V2W pixel distances of the followers and of every dynamic Gaussian."""
     run = Path(run)
     clip = Clip.open(clip_dir)
-    w, h = clip.width, clip.height
-    s1 = load_torch(run / "model" / "stage1.pt", map_location="cpu")
-    video = VideoGaussians.from_state(s1["gaussians"])
-    frames = [int(f) for f in s1["frames"]]
+    _, frames, uv1, followers = stage1_followers(run, clip)
     T = len(frames)
     v2w = load_torch(run / "model" / "v2w.pt", map_location="cpu")
     world = WorldGaussians.from_state(v2w["gaussians"])
@@ -74,22 +94,13 @@ def lift_report(run: Path, clip_dir: Path) -> Dict:
     sel = [where[g] for g in frames]
     K = np.asarray(cams.K, np.float64)[sel]
     c2w = np.asarray(cams.c2w, np.float64)[sel]
-    times = torch.arange(T, dtype=torch.float32)
     with torch.no_grad():
-        uv1 = ortho_to_pixel(video.positions(times)[..., :2], w, h).numpy().astype(np.float64)
-        opacity = video.opacities().numpy().reshape(-1)
-        pw = world.positions(times).numpy().astype(np.float64)  # [N_world, T, 3]
-    if is_dyn.size != opacity.size:
+        pw = world.positions(torch.arange(T, dtype=torch.float32)).numpy().astype(np.float64)
+    if is_dyn.size != followers.size:
         raise SystemExit(
-            f"{run}: v2w.pt's is_dynamic has {is_dyn.size} entries, stage1.pt {opacity.size}"
+            f"{run}: v2w.pt's is_dynamic has {is_dyn.size} entries, stage1.pt {followers.size}"
         )
-    on = np.zeros((opacity.size, T), bool)
-    for i, g in enumerate(frames):
-        m = clip.load_gt_dynamic_mask(g)
-        x, y = uv1[:, i, 0], uv1[:, i, 1]
-        ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
-        on[:, i] = ok & m[np.clip(y.astype(int), 0, h - 1), np.clip(x.astype(int), 0, w - 1)]
-    followers = (on.sum(1) >= T * FOLLOW_FRACTION) & (opacity > FOLLOW_OPACITY) & is_dyn
+    followers = followers & is_dyn
     row = n_static + np.cumsum(is_dyn) - 1  # the world row of each dynamic stage-1 Gaussian
     uv2 = pinhole_pixels(pw[row[is_dyn]], K, c2w)  # [N_dynamic, T, 2]
     dist = np.linalg.norm(uv2 - uv1[is_dyn], axis=-1)  # [N_dynamic, T]

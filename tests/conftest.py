@@ -75,18 +75,31 @@ def checkpoint_tensors():
     return lambda path: checkpoint_tensors(load_torch(path))
 
 
+# overrides that cut a tiny-preset training to seconds (12 + 12 iterations, short bundle adjustment,
+# tone-mapper pretraining and V2W refit): for tests that need a finished run, not a good one
+SHORT_TRAINING = {
+    "stage1.iterations": 12,
+    "stage2.iterations": 12,
+    "camera_init.ba_steps": 20,
+    "tonemap.pretrain_steps": 10,
+    "v2w.scale_refit_steps": 5,
+}
+
+
 @pytest.fixture
 def short_training():
-    """Overrides that cut a tiny-preset training to seconds (12 + 12 iterations, short bundle
-    adjustment, tone-mapper pretraining and V2W refit): for tests that need a finished run, not a
-    good one."""
-    return {
-        "stage1.iterations": 12,
-        "stage2.iterations": 12,
-        "camera_init.ba_steps": 20,
-        "tonemap.pretrain_steps": 10,
-        "v2w.scale_refit_steps": 5,
-    }
+    """SHORT_TRAINING, a fresh copy per test."""
+    return dict(SHORT_TRAINING)
+
+
+@pytest.fixture(scope="session")
+def short_run_realistic(tiny_clip_realistic, tmp_path_factory):
+    """A finished run folder of the realistic-prior tiny clip trained with SHORT_TRAINING, shared by
+    the tests that read a run and do not change it (the bench scripts' tests)."""
+    from m4dgs.training.pipeline import train
+
+    out = tmp_path_factory.mktemp("short-run") / "run"
+    return train(tiny_clip_realistic, out, preset="tiny", overrides=SHORT_TRAINING, progress=False)
 
 
 @pytest.fixture(scope="module")

@@ -12,17 +12,9 @@ from m4dgs.core.io import read_exr
 from m4dgs.run import load_torch
 
 
-def test_report_on_a_short_run(tiny_clip_realistic, tmp_path, short_training, load_bench, capsys):
-    from m4dgs.training.pipeline import train
-
+def test_report_on_a_short_run(tiny_clip_realistic, short_run_realistic, load_bench, capsys):
     fc = load_bench("follower_colour")
-    run = train(
-        tiny_clip_realistic,
-        tmp_path / "run",
-        preset="tiny",
-        overrides=short_training,
-        progress=False,
-    )
+    run = short_run_realistic
     rep = fc.colour_report(run, tiny_clip_realistic)
     assert rep["hdr_scale"] > 0 and rep["truth_peak"] > 0
     if "followers_q" in rep:

@@ -62,18 +62,13 @@ def test_emitter_figures_on_known_pixels(load_bench):
     assert sp.emitter_figures(st, rig, emit) == (float("inf"), 0.0)
 
 
-def test_probe_from_v2w_on_a_short_run(tiny_clip_realistic, tmp_path, short_training, load_bench):
+def test_probe_from_v2w_on_a_short_run(
+    tiny_clip_realistic, short_run_realistic, short_training, load_bench
+):
     from m4dgs.clip import Clip
-    from m4dgs.training.pipeline import train
 
     sp = load_bench("stage_probe")
-    run = train(
-        tiny_clip_realistic,
-        tmp_path / "run",
-        preset="tiny",
-        overrides=short_training,
-        progress=False,
-    )
+    run = short_run_realistic
     emit = sp.emitters(Clip.open(tiny_clip_realistic))
     recs = sp.run_arm(
         str(tiny_clip_realistic),

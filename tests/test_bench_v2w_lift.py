@@ -44,17 +44,11 @@ def test_pinhole_pixels_match_m4dgs_cameras(load_bench):
     np.testing.assert_allclose(vl.pinhole_pixels(p, K, c2w), ref, rtol=1e-9, atol=1e-9)
 
 
-def test_report_on_a_short_run(tiny_clip_realistic, tmp_path, short_training, load_bench, capsys):
-    from m4dgs.training.pipeline import train
-
+def test_report_on_a_short_run(
+    tiny_clip_realistic, short_run_realistic, tmp_path, load_bench, capsys
+):
     vl = load_bench("v2w_lift")
-    run = train(
-        tiny_clip_realistic,
-        tmp_path / "run",
-        preset="tiny",
-        overrides=short_training,
-        progress=False,
-    )
+    run = short_run_realistic
     rep = vl.lift_report(run, tiny_clip_realistic)
     assert 0 <= rep["followers"] <= rep["dynamic"]
     assert rep["dynamic"] > 0 and rep["dynamic_px"]["median"] >= 0
