@@ -204,6 +204,13 @@ class LossConfig:
     # 8-bit frames barely constrain, take most of the gradient in linear HDR; a floor of ~1 % of
     # the median weights them down (docs/method.md, "Options beyond the paper")
     tlr_den_floor: float = 0.0
+    # beyond the paper: TLR leaves out the pixels whose tone-mapped render at the query frame's
+    # own exposure is at or above this LDR value in any channel (detached); None = every pixel (the
+    # paper's). Past the tone curve's shoulder the photometric term's gradient vanishes while TLR's,
+    # normalised in log HDR, does not, so TLR alone moves those values, and on a bright mover it
+    # can drive them up without bound (lab/notes/hard-lit.md). 250 / 255 leaves TLR on every pixel
+    # that the frame can still check (docs/method.md, "Options beyond the paper")
+    tlr_shoulder: Optional[float] = None
     # beyond the paper, only with a gain over time (model.appearance_knots > 0; no term without
     # one): the mean over Gaussians of the squared second differences of each Gaussian's log2-gain
     # knot values, in stops^2. It leaves a constant and a straight ramp in stops free and charges
@@ -872,6 +879,8 @@ def _check_range(section: Any, name: str, v: Any, key: str) -> None:
         raise _range_error(key, v, ">= 0 (a number of iterations)")
     if name.endswith("_prob") and not 0 <= v <= 1:
         raise _range_error(key, v, "a probability in [0, 1]")
+    if name == "tlr_shoulder" and not 0 < v <= 1:
+        raise _range_error(key, v, "an LDR value in (0, 1] (None = TLR on every pixel)")
     if name == "tlr_den_floor" and v < 0:
         raise _range_error(key, v, ">= 0 (a fraction of the render's median HDR value)")
     if name == "appearance_knots" and v < 0:

@@ -266,21 +266,34 @@ def tlr_term(
     occlusion_ratio: float,
     neighbour_grad: bool = False,
     den_floor: float = 0.0,
+    keep: Optional[Tensor] = None,
 ) -> Term:
     """Temporal luminance regularisation of the HDR render at t, averaged over its neighbours, each
     (hdr_nb [H, W, 3], depth_nb [H, W], flow [H, W, 2], flow_valid [H, W], depth_ref [H, W]): the
     neighbour's render and depth, the rendered flow to it and the depth of each pixel's point at the
     neighbour's time (depth-order occlusion test at occlusion_ratio). neighbour_grad: the gradient
     also reaches the neighbour's render (`loss.tlr_neighbour_grad`); den_floor: the fraction of
-    hdr's median added to the denominator (`loss.tlr_den_floor`, 0 = the paper's)."""
+    hdr's median added to the denominator (`loss.tlr_den_floor`, 0 = the paper's); keep: optional
+    [H, W] bool, the pixels of t that TLR may move (`shoulder_keep`; None = every pixel)."""
     terms = []
     floor = tlr_den_floor(hdr, den_floor)
     for hdr_nb, depth_nb, flow, fvalid, zref in neighbours:
         valid = fvalid & tlr_valid_mask(flow, depth_nb, zref, ratio=occlusion_ratio)
+        if keep is not None:
+            valid = valid & keep
         terms.append(
             tlr_loss(hdr, hdr_nb, flow, valid, detach_neighbour=not neighbour_grad, den_floor=floor)
         )
     return "tlr", torch.stack(terms).mean()
+
+
+def shoulder_keep(ldr: Tensor, shoulder: Optional[float]) -> Optional[Tensor]:
+    """The pixels below the tone curve's shoulder: [H, W, 3] tone-mapped render (at the frame's own
+    exposure) -> [H, W] bool, true where every channel is under `shoulder` (`loss.tlr_shoulder`;
+    no gradient), or None when `shoulder` is None (TLR on every pixel, the paper's)."""
+    if shoulder is None:
+        return None
+    return (ldr.detach() < shoulder).all(dim=-1)
 
 
 def monotonic_term(tm) -> Term:
@@ -362,7 +375,8 @@ def assemble(stage, it: int) -> LossOutput:
     def add(term: Term) -> None:
         L[term[0]] = term[1]
 
-    add(rgb_term(stage.tm(r.hdr, stage.log2_dt[i]), d.ldr[i], lc.lambda_dssim))
+    ldr = stage.tm(r.hdr, stage.log2_dt[i])
+    add(rgb_term(ldr, d.ldr[i], lc.lambda_dssim))
     add(unit_exposure_term(stage.tm, stage.c0))
     if ab.depth_loss and lc.lambda_dep > 0:
         add(depth_term(r.depth, camera.depth_prior(d.depth[i], i), r.alpha, camera.extent))
@@ -412,7 +426,12 @@ def assemble(stage, it: int) -> LossOutput:
             flow, fvalid = camera.flow(dm, alpha, k, detach=True)
             zref = camera.depth_at(dm / alpha.clamp_min(1e-6)[..., None], k)
             nbrs.append((rn.hdr, rn.depth, flow, fvalid, zref))
-        add(tlr_term(r.hdr, nbrs, lc.tlr_occlusion_ratio, lc.tlr_neighbour_grad, lc.tlr_den_floor))
+        keep = shoulder_keep(ldr, lc.tlr_shoulder)
+        add(
+            tlr_term(
+                r.hdr, nbrs, lc.tlr_occlusion_ratio, lc.tlr_neighbour_grad, lc.tlr_den_floor, keep
+            )
+        )
     for term in stage.stage_terms(it, s, r, camera):
         add(term)
     if cfg.tonemap.lambda_monotonic > 0:

@@ -55,6 +55,13 @@ VARIANTS: Dict[str, Dict[str, Any]] = {
     # instead of to its lifted world path (m4dgs.training.v2w.pixel_weights), for small fast movers
     # whose jittery lifted depth throws the world fit off them (lab/notes/hard-lit.md)
     "full-pixel-fit": {"v2w.world_fit": "pixel"},
+    # beyond the paper: the full method with TLR left off the pixels whose render is past the tone
+    # curve's shoulder at their frame's exposure (loss.tlr_shoulder, 250 / 255), in both stages,
+    # so that TLR cannot drive a bright highlight that no frame can check (lab/notes/hard-lit.md)
+    "full-tlr-shoulder": {
+        "stage1.loss.tlr_shoulder": 250 / 255,
+        "stage2.loss.tlr_shoulder": 250 / 255,
+    },
     # adapted baselines (paper sec. 4.2)
     "static-hdr": {
         "method": "static-hdr",
@@ -115,6 +122,10 @@ DESCRIPTIONS: Dict[str, str] = {
     "full-pixel-fit": "BEYOND THE PAPER: full with V2W fitting each moving Gaussian's world "
     "spline to the pixels stage 1 left it at rather than to its lifted world path, so that small "
     "fast movers keep their place at the hand-over (docs/v2w.md)",
+    "full-tlr-shoulder": "BEYOND THE PAPER: full with the temporal luminance regularisation left "
+    "off the pixels whose render is past the tone curve's shoulder (LDR >= 250/255 at the frame's "
+    "exposure), where it alone would set their brightness, for bright highlights that run away "
+    "(docs/method.md)",
     "static-hdr": "baseline (GaussHDR-style): static HDR Gaussians with the bundle-adjustment "
     "cameras (fixed)",
     "world-only": "ablation (a) without TLR: world Gaussians from lifted tracks/depth (no stage "

@@ -315,6 +315,16 @@ def test_validate_catches_values_set_directly():
             -0.01,
             r">= 0 \(a fraction of the render's median HDR value\)",
         ),
+        (
+            "stage1.loss.tlr_shoulder",
+            1.5,
+            r"an LDR value in \(0, 1\] \(None = TLR on every pixel\)",
+        ),
+        (
+            "stage2.loss.tlr_shoulder",
+            0.0,
+            r"an LDR value in \(0, 1\] \(None = TLR on every pixel\)",
+        ),
         ("model.appearance_knots", -1, r">= 0 \(0 = no gain over time, the paper's colour\)"),
         ("stage1.lr.gain", 0.0, r"> 0 \(a learning rate\)"),
         ("stage2.loss.lambda_gain_smooth", -1.0, r">= 0 \(a loss weight; 0 turns the term off\)"),

@@ -313,6 +313,58 @@ def test_tlr_denominator_floor_option(data):
         )
 
 
+def test_tlr_shoulder_option(data):
+    """loss.tlr_shoulder: the stage's TLR term is the term rebuilt by hand over the pixels whose
+    tone-mapped render at the query frame's exposure lies under the shoulder in every channel; the
+    shoulder is put at the render's median so that about half the pixels leave the term, and None
+    (the paper's) keeps them all."""
+    it = 10_000
+    st = video_stage(data, **{"stage1.loss.flow_prob": 0.0})
+    i = replay_sample(st, it)["i"]
+    with torch.no_grad():
+        ldr = st.tm(st.render(float(i)).hdr, st.log2_dt[i])
+    shoulder = float(ldr.amax(-1).median())
+    kept = []
+    for value in (None, shoulder):
+        st = video_stage(data, **{"stage1.loss.flow_prob": 0.0, "stage1.loss.tlr_shoulder": value})
+        draw = replay_sample(st, it)
+        i, j = draw["i"], draw["j"]
+        got = st.losses(it).terms["tlr"]
+        nbrs = [k for k in (i - 1, i + 1) if 0 <= k < T]
+        with torch.no_grad():
+            r = st.render(float(i), [float(j)] + [float(k) for k in nbrs])
+            keep = torch.ones(r.hdr.shape[:2], dtype=torch.bool)
+            if value is not None:
+                keep = (st.tm(r.hdr, st.log2_dt[i]) < value).all(-1)
+            kept.append(float(keep.float().mean()))
+            terms = []
+            for n_idx, k in enumerate(nbrs):
+                rn = st.render(float(k))
+                dm, alpha = r.dest[1 + n_idx], r.alpha
+                flow, fv = flow_from_destination_map(dm, alpha=alpha)
+                z = (dm / alpha.clamp_min(1e-6)[..., None])[..., 2]
+                valid = fv & tlr_valid_mask(flow, rn.depth, z, ratio=1.1) & keep
+                warped = backward_warp(rn.hdr, flow)
+                err = (warped - r.hdr).abs() / (warped + r.hdr + 1e-10)
+                m = (valid & flow_in_bounds(flow))[..., None].float()
+                terms.append((err * m).sum() / (m.sum() * 3))
+        assert float(got.detach()) == pytest.approx(
+            float(torch.stack(terms).mean().detach()), rel=1e-5
+        )
+    assert kept[0] == 1.0 and 0.2 < kept[1] < 0.8
+
+
+def test_shoulder_keep():
+    """Under the shoulder in every channel, without gradient; None keeps no mask."""
+    ldr = torch.tensor(
+        [[[0.1, 0.2, 0.3], [0.1, 0.99, 0.3]], [[0.98, 0.5, 0.5], [0.97, 0.97, 0.97]]]
+    )
+    ldr.requires_grad_(True)
+    keep = objective.shoulder_keep(ldr, 0.98)
+    assert keep.tolist() == [[True, False], [False, True]] and not keep.requires_grad
+    assert objective.shoulder_keep(ldr, None) is None
+
+
 def test_stage1_step_densifies_through_the_strategy_and_records(data):
     st = video_stage(data)
     rec = st.step(0)

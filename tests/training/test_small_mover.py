@@ -10,15 +10,15 @@ from __future__ import annotations
 import pytest
 
 
-def _train_disc(tmp_path, load_bench, radius, overrides=None):
-    """Make the disc clip (radius px, 4 px a frame, 50x the plane) and train `full-highlights` on
-    it at the tiny preset; returns (run folder, bench module)."""
+def _train_disc(tmp_path, load_bench, radius, overrides=None, contrast=50.0):
+    """Make the disc clip (radius px, 4 px a frame, `contrast` times the plane) and train
+    `full-highlights` on it at the tiny preset; returns (run folder, bench module)."""
     from m4dgs.core.threads import threads_for
     from m4dgs.training.pipeline import train
 
     smb = load_bench("small_mover_bench")
     smb.make_disc_clip(
-        tmp_path, frames=24, width=160, height=96, radius=radius, speed=4.0, contrast=50.0
+        tmp_path, frames=24, width=160, height=96, radius=radius, speed=4.0, contrast=contrast
     )
     run = tmp_path / "run"
     with threads_for(device="cpu"):
@@ -55,3 +55,28 @@ def test_highlight_masks_keep_a_small_disc_dynamic(tmp_path, load_bench):
     s = smb.score_run(run)
     assert s["test_disc_ratio"] >= 0.1, s  # ~10x the variant without the masks
     assert 0.5 <= s["test_bg_ratio"] <= 2.0, s
+
+
+# about 2 minutes on 2 cores
+@pytest.mark.slow
+def test_tlr_shoulder_keeps_a_bright_disc_from_running_away(tmp_path, load_bench):
+    """A disc 350 times the plane reads code ~240 at the shortest exposure and clips at the two
+    longer ones. With four times the tiny preset's stage-1 steps, `full-highlights` renders it
+    4.5e17 times too bright after stage 1 (seed 0; seeds 1 and 2 overflow float32 and stop): past
+    the tone curve's shoulder only TLR moves it, and TLR off in stage 1 keeps it at 0.98-1.04 (three
+    seeds, lab/notes/hard-lit.md). With TLR left off the pixels past the shoulder
+    (`loss.tlr_shoulder`, the variant `full-tlr-shoulder`) it stays within a factor 2."""
+    shoulder = 250 / 255
+    run, smb = _train_disc(
+        tmp_path, load_bench, 9.0,
+        {
+            "stage1.iterations": 1200,
+            "stage1.loss.tlr_shoulder": shoulder,
+            "stage2.loss.tlr_shoulder": shoulder,
+        },
+        contrast=350.0,
+    )  # fmt: skip
+    s = smb.score_run(run)
+    for split in ("stage1", "test"):
+        assert 0.5 <= s[f"{split}_disc_ratio"] <= 2.0, s
+        assert 0.5 <= s[f"{split}_bg_ratio"] <= 2.0, s
