@@ -284,33 +284,43 @@ def test_tlr_neighbour_gradient_option(data):
     assert float((got[True] - got[False]).abs().max()) > 1e-3 * float(got[False].abs().max())
 
 
+def _tlr_by_hand(st, it, floor_frac=0.0, shoulder=None):
+    """The stage's TLR term at step `it` rebuilt from its renders: the neighbours i +- 1, the
+    rendered flow and the depth-order test, |H_w - H| / (H_w + H + floor) with floor = floor_frac x
+    the query render's median, over the pixels whose tone-mapped render lies under `shoulder` in
+    every channel (None: all). Returns (the term, the fraction of pixels kept)."""
+    draw = replay_sample(st, it)
+    i, j = draw["i"], draw["j"]
+    nbrs = [k for k in (i - 1, i + 1) if 0 <= k < T]
+    with torch.no_grad():
+        r = st.render(float(i), [float(j)] + [float(k) for k in nbrs])
+        floor = floor_frac * float(r.hdr.median())
+        keep = torch.ones(r.hdr.shape[:2], dtype=torch.bool)
+        if shoulder is not None:
+            keep = (st.tm(r.hdr, st.log2_dt[i]) < shoulder).all(-1)
+        terms = []
+        for n_idx, k in enumerate(nbrs):
+            rn = st.render(float(k))
+            dm, alpha = r.dest[1 + n_idx], r.alpha
+            flow, fv = flow_from_destination_map(dm, alpha=alpha)
+            z = (dm / alpha.clamp_min(1e-6)[..., None])[..., 2]
+            valid = fv & tlr_valid_mask(flow, rn.depth, z, ratio=1.1) & keep
+            warped = backward_warp(rn.hdr, flow)
+            err = (warped - r.hdr).abs() / (warped + r.hdr + 1e-10 + floor)
+            m = (valid & flow_in_bounds(flow))[..., None].float()
+            terms.append((err * m).sum() / (m.sum() * 3))
+    return float(torch.stack(terms).mean()), float(keep.float().mean())
+
+
 def test_tlr_denominator_floor_option(data):
     """loss.tlr_den_floor: the stage's TLR term is the term rebuilt by hand with the floor
     fraction x the query render's median in every neighbour's denominator; 0 is the paper's."""
     it = 10_000
     for frac in (0.0, 0.05):
         st = video_stage(data, **{"stage1.loss.flow_prob": 0.0, "stage1.loss.tlr_den_floor": frac})
-        draw = replay_sample(st, it)
-        i, j = draw["i"], draw["j"]
+        want, _ = _tlr_by_hand(st, it, floor_frac=frac)
         got = st.losses(it).terms["tlr"]
-        nbrs = [k for k in (i - 1, i + 1) if 0 <= k < T]
-        with torch.no_grad():
-            r = st.render(float(i), [float(j)] + [float(k) for k in nbrs])
-            floor = frac * float(r.hdr.median())
-            terms = []
-            for n_idx, k in enumerate(nbrs):
-                rn = st.render(float(k))
-                dm, alpha = r.dest[1 + n_idx], r.alpha
-                flow, fv = flow_from_destination_map(dm, alpha=alpha)
-                z = (dm / alpha.clamp_min(1e-6)[..., None])[..., 2]
-                valid = fv & tlr_valid_mask(flow, rn.depth, z, ratio=1.1)
-                warped = backward_warp(rn.hdr, flow)
-                err = (warped - r.hdr).abs() / (warped + r.hdr + 1e-10 + floor)
-                m = (valid & flow_in_bounds(flow))[..., None].float()
-                terms.append((err * m).sum() / (m.sum() * 3))
-        assert float(got.detach()) == pytest.approx(
-            float(torch.stack(terms).mean().detach()), rel=1e-5
-        )
+        assert float(got.detach()) == pytest.approx(want, rel=1e-5)
 
 
 def test_tlr_shoulder_option(data):
@@ -327,30 +337,10 @@ def test_tlr_shoulder_option(data):
     kept = []
     for value in (None, shoulder):
         st = video_stage(data, **{"stage1.loss.flow_prob": 0.0, "stage1.loss.tlr_shoulder": value})
-        draw = replay_sample(st, it)
-        i, j = draw["i"], draw["j"]
+        want, frac = _tlr_by_hand(st, it, shoulder=value)
+        kept.append(frac)
         got = st.losses(it).terms["tlr"]
-        nbrs = [k for k in (i - 1, i + 1) if 0 <= k < T]
-        with torch.no_grad():
-            r = st.render(float(i), [float(j)] + [float(k) for k in nbrs])
-            keep = torch.ones(r.hdr.shape[:2], dtype=torch.bool)
-            if value is not None:
-                keep = (st.tm(r.hdr, st.log2_dt[i]) < value).all(-1)
-            kept.append(float(keep.float().mean()))
-            terms = []
-            for n_idx, k in enumerate(nbrs):
-                rn = st.render(float(k))
-                dm, alpha = r.dest[1 + n_idx], r.alpha
-                flow, fv = flow_from_destination_map(dm, alpha=alpha)
-                z = (dm / alpha.clamp_min(1e-6)[..., None])[..., 2]
-                valid = fv & tlr_valid_mask(flow, rn.depth, z, ratio=1.1) & keep
-                warped = backward_warp(rn.hdr, flow)
-                err = (warped - r.hdr).abs() / (warped + r.hdr + 1e-10)
-                m = (valid & flow_in_bounds(flow))[..., None].float()
-                terms.append((err * m).sum() / (m.sum() * 3))
-        assert float(got.detach()) == pytest.approx(
-            float(torch.stack(terms).mean().detach()), rel=1e-5
-        )
+        assert float(got.detach()) == pytest.approx(want, rel=1e-5)
     assert kept[0] == 1.0 and 0.2 < kept[1] < 0.8
 
 
