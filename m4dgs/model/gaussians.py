@@ -96,6 +96,11 @@ class VideoInitConfig:
     # (m4dgs.priors.highlight_tracks; docs/method.md, "Small bright movers")
     highlight_tracks: bool = False
     highlight_points: int = 16  # tracks per linked blob chain
+    # beyond the paper (off = the paper): the chains carry the motion where they are: their tracks
+    # replace the prior tracks that follow them, and the flow prior is off around them, in stage 1's
+    # initialisation and its track and flow losses (m4dgs.priors.highlight_tracks, step 5). Implies
+    # the chains' tracks at the initialisation, whatever highlight_tracks says
+    highlight_motion: bool = False
 
 
 # --------------------------------------------------------------------------------------------------

@@ -33,6 +33,15 @@ The tracker (beyond the paper; `stage1.init.highlight_tracks`):
    stage-1 to stage-2 hand-over the Gaussians that follow it are classified static
    (m4dgs.training.v2w); OR-ing these masks in marks them dynamic.
 
+5. Motion (`chain_motion`, beyond the variant: `stage1.init.highlight_motion`): the chains carry
+   the motion where they are. On the spark of the hard-lit suite the prior tracks miss the mover's
+   centroid by 0.7-2.3 px and the prior flow smears its motion into the background's, while a
+   chain's centre lies within 0.25 px of it (lab/notes/hard-lit.md, "Stage 1 and the spark"). So
+   the prior tracks that follow a chain's centre (within `near_px` of it on `near_frames` frames
+   or more) are dropped for the chain's tracks, and the flow prior is invalid within `flow_px` of
+   a chain's centre at the pair's source frame: stage 1 then learns the mover's motion from the
+   chain alone, in its initialisation and in its track and flow losses.
+
 Pixel coordinates: continuous, pixel centres at +0.5 (m4dgs.clip.TrackSet). Pure numpy + scipy.
 """
 
@@ -246,3 +255,64 @@ def highlight_tracks(
             tracks[rows, t, 1] = np.clip(b.y + off[:, 1], 0.0, H)
             vis[rows, t] = True
     return tracks, vis
+
+
+NEAR_PX, NEAR_FRAMES, FLOW_PX = 2.0, 3, 3.0  # step 5's defaults (lab/notes/hard-lit.md)
+
+
+def chain_centres(chain_tracks: np.ndarray, chain_visible: np.ndarray, points: int) -> np.ndarray:
+    """[C, T, 2] the centre of each chain of `highlight_tracks`' output (the mean of its `points`
+    tracks where visible), NaN on the frames the chain misses. chain_tracks [C * points, T, 2],
+    chain_visible [C * points, T]."""
+    n, T = chain_visible.shape
+    c = n // points
+    tr = np.asarray(chain_tracks, np.float64).reshape(c, points, T, 2)
+    vis = np.asarray(chain_visible, bool).reshape(c, points, T)
+    num = np.where(vis[..., None], tr, 0.0).sum(1)
+    cnt = vis.sum(1)[..., None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(cnt > 0, num / np.maximum(cnt, 1), np.nan)
+
+
+def chain_motion(
+    tracks: np.ndarray,
+    visible: np.ndarray,
+    centres: np.ndarray,
+    flow_pairs: Sequence[Tuple[int, int]],
+    flow_valid: np.ndarray | None,
+    near_px: float = NEAR_PX,
+    near_frames: int = NEAR_FRAMES,
+    flow_px: float = FLOW_PX,
+) -> Tuple[np.ndarray, np.ndarray | None]:
+    """Where the highlight chains take over the motion priors (module docstring, step 5).
+
+    Args:
+        tracks: [N, T, 2] prior tracks in pixels (centres at +0.5); visible: [N, T] bool.
+        centres: [C, T, 2] chain centres (chain_centres), NaN where a chain has no blob.
+        flow_pairs: [P] (i, j) training-frame indices of the prior flows F_{i->j}.
+        flow_valid: [P, H, W] bool, or None (no flow prior).
+        near_px, near_frames: a prior track within near_px of a chain's centre on near_frames of
+            its visible frames or more follows the chain and is dropped.
+        flow_px: the flow prior is invalid at the pixels whose centre lies within flow_px of a
+            chain's centre at the pair's source frame i.
+    Returns:
+        (keep [N] bool: the prior tracks left, flow_valid [P, H, W] bool with the chains' discs
+        cleared, a copy, or None).
+    """
+    tr = np.asarray(tracks, np.float64)
+    vis = np.asarray(visible, bool)
+    keep = np.ones(tr.shape[0], bool)
+    for cc in np.asarray(centres, np.float64):
+        with np.errstate(invalid="ignore"):
+            near = (np.linalg.norm(tr - cc[None], axis=-1) < near_px) & vis
+        keep &= near.sum(1) < near_frames
+    if flow_valid is None:
+        return keep, None
+    fv = np.array(flow_valid, bool, copy=True)
+    H, W = fv.shape[1:]
+    ys, xs = np.mgrid[0:H, 0:W] + 0.5
+    for cc in np.asarray(centres, np.float64):
+        for p, (i, _) in enumerate(flow_pairs):
+            if np.isfinite(cc[i]).all():
+                fv[p] &= (xs - cc[i, 0]) ** 2 + (ys - cc[i, 1]) ** 2 >= flow_px**2
+    return keep, fv

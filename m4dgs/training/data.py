@@ -8,7 +8,7 @@ between training frames i and i + 1 sits at t = i + 0.5."""
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
@@ -179,16 +179,52 @@ def frames_and_exposures(data: TrainingData) -> Tuple[np.ndarray, np.ndarray]:
     return ldr, np.exp2(data.log2_dt.detach().cpu().numpy().astype(np.float64))
 
 
+def stage1_data(data: TrainingData, init: VideoInitConfig) -> Tuple[TrainingData, torch.Tensor]:
+    """The priors stage 1 trains on: the clip's, or with `init.highlight_motion` (beyond the paper)
+    the highlight chains' in their place (m4dgs.priors.highlight_tracks, step 5): the prior tracks
+    that follow a chain are dropped, the chains' tracks come after the others, and the flow prior is
+    invalid around each chain. Returns (data, chain [N'] bool: the tracks that come from a
+    chain)."""
+    none = torch.zeros(data.tracks.shape[0], dtype=torch.bool, device=data.tracks.device)
+    if not init.highlight_motion:
+        return data, none
+    from m4dgs.priors.highlight_tracks import chain_centres, chain_motion, highlight_tracks
+
+    points = int(init.highlight_points)
+    ht, hv = highlight_tracks(*frames_and_exposures(data), points=points)
+    if ht.shape[0] == 0:
+        return data, none
+    fv = None if data.flow_valid is None else data.flow_valid.cpu().numpy()
+    keep, fv = chain_motion(
+        data.tracks.cpu().numpy(),
+        data.track_vis.cpu().numpy(),
+        chain_centres(ht, hv, points),
+        data.flow_pairs,
+        fv,
+    )
+    dev = data.tracks.device
+    k = torch.from_numpy(keep).to(dev)
+    tracks = torch.cat([data.tracks[k], torch.from_numpy(ht).to(data.tracks)])
+    vis = torch.cat([data.track_vis[k], torch.from_numpy(hv).to(dev)])
+    chain = torch.cat([none[k], torch.ones(ht.shape[0], dtype=torch.bool, device=dev)])
+    valid = None if fv is None else torch.from_numpy(fv).to(data.flow_valid.device)
+    return replace(data, tracks=tracks, track_vis=vis, flow_valid=valid), chain
+
+
 def init_tracks(
-    data: TrainingData, init: VideoInitConfig
+    data: TrainingData, init: VideoInitConfig, chain: Optional[torch.Tensor] = None
 ) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The tracks the video Gaussians are lifted from: the prior tracks, and with
+    """The tracks the video Gaussians are lifted from: data's tracks, and with
     `init.highlight_tracks` (beyond the paper) the tracks of the video's bright blobs
-    (m4dgs.priors.highlight_tracks) after them. Returns (tracks [N, T, 2], visible [N, T], always
-    [N] bool: the highlight tracks, which the initialisation's cap keeps), on data's device."""
+    (m4dgs.priors.highlight_tracks) after them. chain: [N] bool, data's tracks that already come
+    from the blobs (stage1_data; then none is added). Returns (tracks [N', T, 2], visible [N', T],
+    always [N'] bool: the highlight tracks, which the initialisation's cap keeps), on data's
+    device."""
     tracks, vis = data.tracks, data.track_vis
     always = torch.zeros(tracks.shape[0], dtype=torch.bool, device=tracks.device)
-    if not init.highlight_tracks:
+    if chain is not None and bool(chain.any()):
+        return tracks, vis, chain.to(tracks.device)
+    if not init.highlight_tracks or init.highlight_motion:
         return tracks, vis, always
     from m4dgs.priors.highlight_tracks import highlight_tracks
 

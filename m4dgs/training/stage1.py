@@ -25,7 +25,7 @@ from m4dgs.model.gaussians import VideoGaussians, init_video_gaussians
 from m4dgs.model.render import RenderResult, render_gaussians
 from m4dgs.model.tonemap import ToneMapper, pretrain_tonemapper
 from m4dgs.training.config import TrainConfig
-from m4dgs.training.data import TrainingData, init_tracks
+from m4dgs.training.data import TrainingData, init_tracks, stage1_data
 from m4dgs.training.densify import Strategy
 from m4dgs.training.objective import CameraModel, Trajectories
 from m4dgs.training.stage import (
@@ -101,13 +101,14 @@ class VideoStage(Stage):
         backend: str = "auto",
         init: bool = True,
     ):
+        data, chain = stage1_data(data, cfg.stage1.init)
         super().__init__(data, cfg, device, backend, seed=cfg.seed)
         self.K = torch.tensor(cam.K_ortho(self.W, self.H), dtype=torch.float32, device=self.device)
         self.viewmat = torch.eye(4, dtype=torch.float32, device=self.device)
         self.camera = CameraModel()  # the orthographic video camera: no poses, prior-depth units
         self.gauss: Optional[VideoGaussians] = None
         if init:
-            tracks, vis, always = init_tracks(data, cfg.stage1.init)
+            tracks, vis, always = init_tracks(data, cfg.stage1.init, chain)
             g = init_video_gaussians(
                 tracks.to(self.device),
                 vis.to(self.device),

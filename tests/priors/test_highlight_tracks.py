@@ -1,5 +1,6 @@
 """Tracks of bright blobs (m4dgs.priors.highlight_tracks) on videos drawn here, against the
-movers' known positions; the initialisation keeps them under its cap; off, nothing changes."""
+movers' known positions; the initialisation keeps them under its cap; where the chains take over the
+motion priors (step 5), against counts worked out by hand; off, nothing changes."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ from m4dgs.model.gaussians import VideoInitConfig, init_video_gaussians
 from m4dgs.priors.highlight_tracks import (
     Blob,
     brightest_blobs,
+    chain_centres,
+    chain_motion,
     highlight_masks,
     highlight_tracks,
     link_blobs,
@@ -186,3 +189,132 @@ def test_the_disc_clip_of_the_regression_test_is_tracked(load_bench):
     assert len(seen) >= 9, seen
     err = np.abs(tracks[0, seen] - centres[train][seen]).max()
     assert err < 1.0, err
+
+
+def _training_data(video, tracks, flow_pairs=(), flow_valid=None):
+    from m4dgs.training.data import TrainingData
+
+    n = tracks.shape[0]
+    return TrainingData(
+        clip_name="x",
+        frames=list(range(0, 2 * T, 2)),
+        width=W,
+        height=H,
+        ldr=torch.from_numpy(video.astype(np.float32) / 255),
+        log2_dt=torch.log2(torch.tensor(DTS)),
+        depth=torch.ones(T, H, W),
+        tracks=tracks,
+        track_vis=torch.ones(n, T, dtype=torch.bool),
+        flow_pairs=list(flow_pairs),
+        flow=None if flow_valid is None else torch.zeros(*flow_valid.shape, 2),
+        flow_valid=flow_valid,
+        unit_exposure_value=1.0,
+        num_levels=3,
+    )
+
+
+def test_chain_centres_sit_on_the_disc_and_are_nan_where_the_chain_misses():
+    video = _video([(20.0, 30.0, 5.0, 1.0, 5.0, 3.0)])
+    tracks, vis = highlight_tracks(video, DTS, points=8)
+    vis[:, 3] = False  # as if the chain had a gap at frame 3
+    c = chain_centres(tracks, vis, 8)
+    assert c.shape == (1, T, 2)
+    assert np.isnan(c[0, 3]).all()
+    seen = np.nonzero(vis[0])[0]
+    centre = np.array([[20.0 + 5.0 * t, 30.0 + 1.0 * t] for t in range(T)])
+    # the mean of a sunflower pattern of 8 points within 0.6 r of the centroid: well inside 0.5 px
+    assert np.abs(c[0, seen] - centre[seen]).max() < 0.5
+
+
+def test_chain_motion_drops_the_followers_and_clears_the_flow_around_the_chain():
+    T2, Hs, Ws = 4, 40, 40
+    centres = np.full((1, T2, 2), np.nan)
+    centres[0, :3] = [[10.5, 20.5], [12.5, 20.5], [14.5, 20.5]]  # no blob at frame 3
+    base = np.repeat(centres[0, :3].mean(0, keepdims=True), T2, 0)[None]
+    tracks = np.concatenate(
+        [
+            np.nan_to_num(centres, nan=30.0) + [1.0, 0.0],  # follows at 1 px: dropped
+            np.nan_to_num(centres, nan=30.0) + [0.0, 2.5],  # 2.5 px off: kept
+            base + [20.0, 0.0],  # far: kept
+            np.nan_to_num(centres, nan=30.0) + [0.0, 1.0],  # near on 3 frames, seen on 2: kept
+        ]
+    )
+    vis = np.ones((4, T2), bool)
+    vis[3, 0] = False
+    pairs = [(0, 1), (1, 0), (3, 2)]
+    fv = np.ones((3, Hs, Ws), bool)
+    keep, out = chain_motion(tracks, vis, centres, pairs, fv)
+    assert keep.tolist() == [False, True, True, True]
+    assert fv.all()  # the input is left alone
+    # pixel centres strictly within 3 px of a pixel centre: 5 columns of 5 (dx, dy in -2..2)
+    assert (~out).sum(axis=(1, 2)).tolist() == [25, 25, 0]
+    assert not out[0, 20, 10] and out[0, 20, 13] and not out[0, 20, 12]
+    assert not out[1, 20, 12] and out[1, 20, 15]
+    assert chain_motion(tracks, vis, centres, pairs, None)[1] is None
+
+
+def test_stage1_data_lets_the_chain_carry_the_disc_and_changes_nothing_when_off():
+    from m4dgs.training.data import init_tracks, stage1_data
+
+    video = _video([(20.0, 30.0, 5.0, 1.0, 5.0, 3.0)])
+    rng = np.random.default_rng(1)
+    truth = np.array([[20.0 + 5.0 * t, 30.0 + 1.0 * t] for t in range(T)])
+    on_disc = truth[None] + rng.normal(0, 0.4, (3, T, 2))  # three prior tracks on the disc
+    # elsewhere (the disc runs along y = 30-41, x = 20-75)
+    off_disc = rng.uniform([5, 50], [90, 60], (5, 1, 2)).repeat(T, 1)
+    prior = torch.from_numpy(np.concatenate([off_disc, on_disc]).astype(np.float32))
+    pairs = [(t, t + 1) for t in range(T - 1)]
+    d = _training_data(video, prior, pairs, torch.ones(len(pairs), H, W, dtype=torch.bool))
+
+    same, chain = stage1_data(d, VideoInitConfig(highlight_tracks=True, highlight_points=4))
+    assert same is d and not chain.any()
+
+    cfg = VideoInitConfig(highlight_motion=True, highlight_points=4)
+    s1, chain = stage1_data(d, cfg)
+    assert s1.tracks.shape[0] == 5 + 4 and chain.tolist() == [False] * 5 + [True] * 4
+    assert torch.equal(s1.tracks[:5], prior[:5])  # the followers are gone, the rest kept in order
+    seen = s1.track_vis[5].numpy()
+    assert np.abs(s1.tracks[5].numpy()[seen] - truth[seen]).max() < 0.25  # the chain's centroid
+    ys, xs = np.mgrid[0:H, 0:W] + 0.5
+    for p, (i, _) in enumerate(pairs):
+        cleared = ~s1.flow_valid[p].numpy()
+        if seen[i]:
+            # a disc of 3 px about the chain's centre, within half a pixel of the disc's
+            r = np.hypot(xs - truth[i, 0], ys - truth[i, 1])
+            assert cleared[r < 2.5].all() and not cleared[r > 3.5].any()
+        else:
+            assert not cleared.any()
+    assert d.flow_valid.all()  # the clip's priors are left alone
+    # the initialisation lifts the chain's tracks once, and keeps them under its cap
+    tr, _, always = init_tracks(
+        s1, VideoInitConfig(highlight_tracks=True, highlight_motion=True, highlight_points=4), chain
+    )
+    assert tr.shape[0] == 9 and torch.equal(always, chain)
+
+
+def test_the_video_stage_trains_on_the_chains_priors():
+    """Stage 1 (m4dgs.training.stage1.VideoStage) with `stage1.init.highlight_motion`: its track and
+    flow losses read the chains' priors, and it lifts one Gaussian per track of them."""
+    from m4dgs.training.config import apply_overrides, preset
+    from m4dgs.training.stage1 import VideoStage
+
+    video = _video([(20.0, 30.0, 5.0, 1.0, 5.0, 3.0)])
+    truth = np.array([[20.0 + 5.0 * t, 30.0 + 1.0 * t] for t in range(T)])
+    prior = np.concatenate(
+        [truth[None] + 0.3, np.full((4, T, 2), 10.0) + np.arange(4)[:, None, None]]
+    )
+    pairs = [(t, t + 1) for t in range(T - 1)]
+    d = _training_data(
+        video,
+        torch.from_numpy(prior.astype(np.float32)),
+        pairs,
+        torch.ones(len(pairs), H, W, dtype=torch.bool),
+    )
+    cfg = preset("tiny")
+    cfg.width, cfg.height = W, H
+    cfg.tonemap.pretrain_steps = 0
+    on = VideoStage(d, apply_overrides(cfg, {"stage1.init.highlight_motion": True}))
+    off = VideoStage(d, cfg)
+    assert off.data is d and off.gauss.num_gaussians == 5
+    assert on.data.tracks.shape[0] == 4 + 16 and on.gauss.num_gaussians == 4 + 16
+    assert int((~on.data.flow_valid).sum()) > 0 and d.flow_valid.all()
