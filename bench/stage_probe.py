@@ -28,6 +28,15 @@ true-HDR pixel of each training frame, gt/hdr) to the nearest opaque (opacity > 
 Gaussian, seen by the stage's current cameras (median over the training frames), and how many such
 Gaussians lie within 2 px of it (median over the frames): whether the Gaussians that follow a small
 bright mover stay on it.
+
+--movers adds, at the end of each window, how much of the true movers' radiance the stage renders:
+the median over every fifth training frame with moving pixels (gt/masks/dynamic) of the movers /
+still quotient of bench/mover_hdr.py (mean render HDR over the moving pixels / the truth's,
+divided by the same over the still pixels; 1 when the movers are as bright, relative to the rest,
+as they are), e.g. to see when in stage 2 a small mover's radiance goes:
+
+    python bench/stage_probe.py CLIP RUN --from-v2w --start 0 --steps 2500 --window 250 --movers \
+        --arm "base:" --arm "no-reproj:ablation.reproj_loss=false"
 """
 
 from __future__ import annotations
@@ -47,6 +56,7 @@ import torch  # noqa: E402
 import yaml  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from mover_hdr import frame_ratios  # noqa: E402
 from step_bench import copy_run_models, make_stage  # noqa: E402
 from v2w_lift import pinhole_pixels  # noqa: E402
 
@@ -78,6 +88,34 @@ def emitters(clip: Clip) -> np.ndarray:
         i = int(np.argmax(hdr))
         out.append((i % hdr.shape[1] + 0.5, i // hdr.shape[1] + 0.5))
     return np.asarray(out, np.float64)
+
+
+MOVER_STRIDE = 5  # --movers reads every fifth training frame
+
+
+def mover_truth(clip: Clip, stride: int = MOVER_STRIDE) -> list:
+    """[(training index i, true HDR [H, W, 3], moving pixels [H, W] bool)] for every stride-th
+    training frame with moving and still pixels (gt/hdr, gt/masks/dynamic): what --movers reads."""
+    out = []
+    for i, g in list(enumerate(clip.train_frames))[::stride]:
+        m = clip.load_gt_dynamic_mask(g)
+        if m.any() and not m.all():
+            out.append((i, clip.load_gt_hdr(g), m))
+    return out
+
+
+def movers_quotient(stage, truth: list) -> float:
+    """The median over `truth` (mover_truth) of bench/mover_hdr.py's movers / still quotient of a
+    stage-2 stage's render (WorldStage.render_at at time i from its current camera i); NaN without
+    any frame."""
+    q = []
+    with torch.no_grad():
+        cams = stage.cameras()
+        for i, hdr, moving in truth:
+            r = stage.render_at(float(i), cams[i]).hdr.detach().cpu().numpy()
+            a, b = frame_ratios(r, hdr, moving)
+            q.append(a / b)
+    return float(np.median(q)) if q else float("nan")
 
 
 def emitter_figures(gaussians: dict, rig: dict, emit: np.ndarray) -> tuple:
@@ -114,10 +152,13 @@ def run_arm(
     from_v2w: bool = False,
     window: int = 0,
     emit: Optional[np.ndarray] = None,
+    movers: Optional[list] = None,
 ) -> list:
     """The per-step records of `steps` stage-2 steps from RUN's final model (from_v2w: its V2W
     output) under the preset, the variant and `overrides`. With emitters `emit` [T, 2], the record
-    ending each `window` steps also holds "emitter_px" and "emitter_near" (emitter_figures)."""
+    ending each `window` steps also holds "emitter_px" and "emitter_near" (emitter_figures); with
+    `movers` (mover_truth), "movers" (movers_quotient) there, and the first record "movers_start",
+    the quotient before the first step."""
     tmp = Path(tempfile.mkdtemp(prefix="stage_probe_"))
     try:
         copy_run_models(src, tmp)
@@ -125,14 +166,20 @@ def run_arm(
         st, first = make_stage(tr, src, "stage2", start, final=not from_v2w)
         torch.manual_seed(seed)
         recs = []
+        start_q = movers_quotient(st, movers) if movers is not None else None
         for k, it in enumerate(range(first, first + steps)):
             rec = st.step(it)
-            if emit is not None and window > 0 and (k + 1) % window == 0:
-                sd = st.state_dict()
-                rec = dict(rec)
-                rec["emitter_px"], rec["emitter_near"] = emitter_figures(
-                    sd["gaussians"], sd["rig"], emit
-                )
+            if k == 0 and start_q is not None:
+                rec = {**rec, "movers_start": start_q}
+            if window > 0 and (k + 1) % window == 0:
+                if emit is not None:
+                    sd = st.state_dict()
+                    rec = dict(rec)
+                    rec["emitter_px"], rec["emitter_near"] = emitter_figures(
+                        sd["gaussians"], sd["rig"], emit
+                    )
+                if movers is not None:
+                    rec = {**rec, "movers": movers_quotient(st, movers)}
             recs.append(rec)
         return recs
     finally:
@@ -169,6 +216,12 @@ def main() -> None:
         help="also print, per window, the distance from the brightest true pixel to the nearest "
         "opaque dynamic Gaussian and how many lie within 2 px (needs the clip's gt/hdr)",
     )
+    ap.add_argument(
+        "--movers",
+        action="store_true",
+        help="also print, per window, the movers / still quotient of bench/mover_hdr.py over every "
+        "fifth training frame (needs the clip's gt/hdr and gt/masks/dynamic)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1, help="torch threads")
     a = ap.parse_args()
@@ -177,6 +230,7 @@ def main() -> None:
     if not (src / "model" / "final.pt").exists():
         ap.error(f"{src} has no model/final.pt: RUN must be a finished run")
     emit = emitters(Clip.open(a.clip)) if a.emitter else None
+    truth = mover_truth(Clip.open(a.clip)) if a.movers else None
     base = parse_overrides(a.base_overrides)
     terms = a.terms.split(",")
     print(
@@ -197,7 +251,14 @@ def main() -> None:
             from_v2w=a.from_v2w,
             window=a.window,
             emit=emit,
+            movers=truth,
         )
+        if truth is not None:
+            q = [recs[0]["movers_start"]] + [r["movers"] for r in recs if "movers" in r]
+            print(
+                f"{name:>16s} movers / still (start, then per window): "
+                + " ".join(f"{v:.3f}" for v in q)
+            )
         if emit is not None:
             ends = [r for r in recs if "emitter_px" in r]
             px = " ".join(f"{r['emitter_px']:.2f}" for r in ends)

@@ -1,5 +1,6 @@
-"""bench/stage_probe.py's --emitter figures against Gaussians placed here on known pixels, and the
-probe from a run's V2W output on a short tiny-preset run."""
+"""bench/stage_probe.py's --emitter figures against Gaussians placed here on known pixels, its
+--movers quotient against renders scaled here by known factors, and the probe from a run's V2W
+output on a short tiny-preset run."""
 
 from __future__ import annotations
 
@@ -62,6 +63,35 @@ def test_emitter_figures_on_known_pixels(load_bench):
     assert sp.emitter_figures(st, rig, emit) == (float("inf"), 0.0)
 
 
+class _ScaledStage:
+    """A stand-in for a stage-2 stage whose render at time i is the truth of frame i with the moving
+    pixels times a and the still ones times b."""
+
+    def __init__(self, truth, a, b):
+        self.renders = {i: np.where(m[..., None], a * h, b * h) for i, h, m in truth}
+
+    def cameras(self):
+        return [None] * (max(self.renders) + 1)
+
+    def render_at(self, t, c2w):
+        from types import SimpleNamespace
+
+        return SimpleNamespace(hdr=torch.from_numpy(self.renders[int(t)]))
+
+
+def test_movers_quotient_against_known_scales(load_bench):
+    sp = load_bench("stage_probe")
+    rng = np.random.default_rng(0)
+    truth = []
+    for i in (0, 5, 10):
+        m = np.zeros((8, 12), bool)
+        m[2:4, 3 + i // 5 : 6 + i // 5] = True
+        truth.append((i, rng.uniform(0.1, 20.0, (8, 12, 3)), m))
+    assert math.isclose(sp.movers_quotient(_ScaledStage(truth, 0.25, 0.5), truth), 0.5)
+    assert math.isclose(sp.movers_quotient(_ScaledStage(truth, 3.0, 3.0), truth), 1.0)
+    assert math.isnan(sp.movers_quotient(_ScaledStage(truth, 1.0, 1.0), []))
+
+
 def test_probe_from_v2w_on_a_short_run(
     tiny_clip_realistic, short_run_realistic, short_training, load_bench
 ):
@@ -81,7 +111,10 @@ def test_probe_from_v2w_on_a_short_run(
         from_v2w=True,
         window=2,
         emit=emit,
+        movers=sp.mover_truth(Clip.open(tiny_clip_realistic), stride=1),
     )
     assert len(recs) == 4 and all("rgb" in r for r in recs)
+    q = [recs[0]["movers_start"]] + [r["movers"] for r in recs if "movers" in r]
+    assert len(q) == 3 and all(v > 0 and math.isfinite(v) for v in q), q
     marked = [r for r in recs if "emitter_px" in r]
     assert len(marked) == 2 and all(r["emitter_px"] >= 0 and r["emitter_near"] >= 0 for r in marked)
