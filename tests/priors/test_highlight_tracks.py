@@ -146,26 +146,10 @@ def test_the_cap_keeps_the_highlight_tracks():
 
 @pytest.mark.parametrize("on", [False, True])
 def test_init_tracks_adds_nothing_unless_asked(on):
-    from m4dgs.training.data import TrainingData, init_tracks
+    from m4dgs.training.data import init_tracks
 
-    video = _video([(20.0, 30.0, 5.0, 1.0, 5.0, 3.0)])
     prior = torch.rand(7, T, 2) * 50
-    d = TrainingData(
-        clip_name="x",
-        frames=list(range(0, 2 * T, 2)),
-        width=W,
-        height=H,
-        ldr=torch.from_numpy(video.astype(np.float32) / 255),
-        log2_dt=torch.log2(torch.tensor(DTS)),
-        depth=torch.ones(T, H, W),
-        tracks=prior,
-        track_vis=torch.ones(7, T, dtype=torch.bool),
-        flow_pairs=[],
-        flow=None,
-        flow_valid=None,
-        unit_exposure_value=1.0,
-        num_levels=3,
-    )
+    d = _training_data(_video([(20.0, 30.0, 5.0, 1.0, 5.0, 3.0)]), prior)
     tr, vi, always = init_tracks(d, VideoInitConfig(highlight_tracks=on, highlight_points=4))
     assert torch.equal(tr[:7], prior) and int((~always).sum()) == 7
     assert tr.shape[0] == (7 + 4 if on else 7) and int(always.sum()) == (4 if on else 0)
