@@ -216,14 +216,15 @@ def init_tracks(
 ) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The tracks the video Gaussians are lifted from: data's tracks, and with
     `init.highlight_tracks` (beyond the paper) the tracks of the video's bright blobs
-    (m4dgs.priors.highlight_tracks) after them. chain: [N] bool, data's tracks that already come
-    from the blobs (stage1_data; then none is added). Returns (tracks [N', T, 2], visible [N', T],
-    always [N'] bool: the highlight tracks, which the initialisation's cap keeps), on data's
-    device."""
+    (m4dgs.priors.highlight_tracks) after them, unless `init.highlight_motion` put them in data
+    already. chain: [N] bool, data's tracks that come from the blobs (stage1_data). Returns
+    (tracks [N', T, 2], visible [N', T], always [N'] bool: the highlight tracks, which the
+    initialisation's cap keeps), on data's device."""
     tracks, vis = data.tracks, data.track_vis
-    always = torch.zeros(tracks.shape[0], dtype=torch.bool, device=tracks.device)
-    if chain is not None and bool(chain.any()):
-        return tracks, vis, chain.to(tracks.device)
+    if chain is not None:
+        always = chain.to(tracks.device)
+    else:
+        always = torch.zeros(tracks.shape[0], dtype=torch.bool, device=tracks.device)
     if not init.highlight_tracks or init.highlight_motion:
         return tracks, vis, always
     from m4dgs.priors.highlight_tracks import highlight_tracks
