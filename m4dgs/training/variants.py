@@ -62,6 +62,17 @@ VARIANTS: Dict[str, Dict[str, Any]] = {
         "stage1.loss.tlr_shoulder": 250 / 255,
         "stage2.loss.tlr_shoulder": 250 / 255,
     },
+    # beyond the paper: N_s = 2 with the highlight chains carrying the motion in stage 1
+    # (stage1.init.highlight_motion), for small fast bright movers, and the same without the
+    # velocity and acceleration terms in stage 2, which charge a mover's own speed and curvature
+    # (lab/notes/hard-lit.md, "Stage 2's smoothness terms and the fast movers")
+    "ns-2-chains": {"model.control_every": 2, "stage1.init.highlight_motion": True},
+    "ns-2-chains-free": {
+        "model.control_every": 2,
+        "stage1.init.highlight_motion": True,
+        "stage2.loss.lambda_vel": 0.0,
+        "stage2.loss.lambda_acc": 0.0,
+    },
     # adapted baselines (paper sec. 4.2)
     "static-hdr": {
         "method": "static-hdr",
@@ -126,6 +137,12 @@ DESCRIPTIONS: Dict[str, str] = {
     "off the pixels whose render is past the tone curve's shoulder (LDR >= 250/255 at the frame's "
     "exposure), where it alone would set their brightness, for bright highlights that run away "
     "(docs/method.md)",
+    "ns-2-chains": "BEYOND THE PAPER: N_s = 2, with the tracks of the video's bright blobs in "
+    "place of the point tracks and flow that follow them in stage 1, for small fast bright movers "
+    '(docs/method.md, "Small bright movers")',
+    "ns-2-chains-free": "BEYOND THE PAPER: ns-2-chains with stage 2's velocity and acceleration "
+    "terms off (lambda_vel = lambda_acc = 0), which charge a fast mover's own motion "
+    '(docs/method.md, "Small bright movers")',
     "static-hdr": "baseline (GaussHDR-style): static HDR Gaussians with the bundle-adjustment "
     "cameras (fixed)",
     "world-only": "ablation (a) without TLR: world Gaussians from lifted tracks/depth (no stage "
