@@ -100,6 +100,13 @@ def test_what_the_paper_ablation_rows_share_with_full():
     assert shared("no-tlr") == ["camera_init"]
     assert shared("no-video-init") == ["camera_init"]
     assert set(VARIANTS) >= {"no-reproj", "no-tlr"}
+    # campaign free-movers' rows: ns-2-chains-free parts from ns-2-chains in stage 2 only, and
+    # neither shares stage 1 with full (another spline, other stage-1 priors)
+    chains = _keys(variant_config("small", "ns-2-chains"))
+    free = _keys(variant_config("small", "ns-2-chains-free"))
+    same = [p for p in phases.SHARED_PHASES if free[p] == chains[p]]
+    assert same == ["camera_init", "stage1", "v2w"]
+    assert shared("ns-2-chains") == shared("ns-2-chains-free") == ["camera_init"]
     # trainer seeds never share
     s1 = _keys(variant_config("small", "full", {"seed": 1}))
     assert all(s1[p] != full[p] for p in phases.SHARED_PHASES)
