@@ -172,14 +172,14 @@ def run_arm(
             if k == 0 and start_q is not None:
                 rec = {**rec, "movers_start": start_q}
             if window > 0 and (k + 1) % window == 0:
+                rec = dict(rec)
                 if emit is not None:
                     sd = st.state_dict()
-                    rec = dict(rec)
                     rec["emitter_px"], rec["emitter_near"] = emitter_figures(
                         sd["gaussians"], sd["rig"], emit
                     )
                 if movers is not None:
-                    rec = {**rec, "movers": movers_quotient(st, movers)}
+                    rec["movers"] = movers_quotient(st, movers)
             recs.append(rec)
         return recs
     finally:

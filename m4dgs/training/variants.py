@@ -19,6 +19,11 @@ from __future__ import annotations
 import copy
 from typing import Any, Dict, Mapping, Optional, Tuple
 
+# beyond the paper: N_s = 2 with the highlight chains carrying the motion in stage 1
+# (stage1.init.highlight_motion), for small fast bright movers; the variants ns-2-chains and
+# ns-2-chains-free (lab/notes/hard-lit.md, "Stage 2's smoothness terms and the fast movers")
+_NS2_CHAINS: Dict[str, Any] = {"model.control_every": 2, "stage1.init.highlight_motion": True}
+
 VARIANTS: Dict[str, Dict[str, Any]] = {
     "full": {},
     # paper Table "ablation" rows (a)-(e); N_s in its own table
@@ -62,14 +67,11 @@ VARIANTS: Dict[str, Dict[str, Any]] = {
         "stage1.loss.tlr_shoulder": 250 / 255,
         "stage2.loss.tlr_shoulder": 250 / 255,
     },
-    # beyond the paper: N_s = 2 with the highlight chains carrying the motion in stage 1
-    # (stage1.init.highlight_motion), for small fast bright movers, and the same without the
-    # velocity and acceleration terms in stage 2, which charge a mover's own speed and curvature
-    # (lab/notes/hard-lit.md, "Stage 2's smoothness terms and the fast movers")
-    "ns-2-chains": {"model.control_every": 2, "stage1.init.highlight_motion": True},
+    # beyond the paper (_NS2_CHAINS above), and the same without the velocity and acceleration
+    # terms in stage 2, which charge a mover's own speed and curvature
+    "ns-2-chains": dict(_NS2_CHAINS),
     "ns-2-chains-free": {
-        "model.control_every": 2,
-        "stage1.init.highlight_motion": True,
+        **_NS2_CHAINS,
         "stage2.loss.lambda_vel": 0.0,
         "stage2.loss.lambda_acc": 0.0,
     },
