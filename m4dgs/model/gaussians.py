@@ -101,6 +101,10 @@ class VideoInitConfig:
     # initialisation and its track and flow losses (m4dgs.priors.highlight_tracks, step 5). Implies
     # the chains' tracks at the initialisation, whatever highlight_tracks says
     highlight_motion: bool = False
+    # beyond the paper (off = the paper): the depth prior held at each chain's median within 3 px of
+    # the chain's centre (m4dgs.priors.highlight_tracks, step 6), where a mover's prior depth jumps
+    # with what lies behind it; read by stage 1 (initialisation, depth loss) and stage 2 (depth)
+    highlight_depth: bool = False
 
 
 # --------------------------------------------------------------------------------------------------

@@ -42,6 +42,15 @@ The tracker (beyond the paper; `stage1.init.highlight_tracks`):
    a chain's centre at the pair's source frame: stage 1 then learns the mover's motion from the
    chain alone, in its initialisation and in its track and flow losses.
 
+6. Depth (`chain_depth`, beyond the variant: `stage1.init.highlight_depth`): the depth prior held at
+   each chain's median around the chain. A monocular depth model sees a mover a few pixels across
+   as part of what lies behind it: on the spark of the hard-lit suite its prior depth jumps from
+   about 2 to 5-6 (its own units) where the spark crosses pixels with nothing behind it, and the
+   method loses the spark on and around those stretches; with the prior held along the chain it
+   keeps it there (lab/notes/hard-lit.md, "Stage 2's smoothness terms and the fast movers"). So at
+   every frame the pixels within `hold_px` of a chain's centre take the chain's median over its
+   frames of the median prior depth in that disc.
+
 Pixel coordinates: continuous, pixel centres at +0.5 (m4dgs.clip.TrackSet). Pure numpy + scipy.
 """
 
@@ -316,3 +325,43 @@ def chain_motion(
             if np.isfinite(cc[i]).all():
                 fv[p] &= (xs - cc[i, 0]) ** 2 + (ys - cc[i, 1]) ** 2 >= flow_px**2
     return keep, fv
+
+
+HOLD_PX = 3.0  # step 6's default: the disc the depth prior is held in (lab/notes/hard-lit.md)
+
+
+def chain_depth(depth: np.ndarray, centres: np.ndarray, hold_px: float = HOLD_PX) -> np.ndarray:
+    """The depth prior held at each chain's median around the chain (module docstring, step 6).
+
+    Args:
+        depth: [T, H, W] the depth prior of the training frames (arbitrary scale; > 0 where valid).
+        centres: [C, T, 2] chain centres in pixels (chain_centres), NaN where a chain has no blob.
+        hold_px: the pixels whose centre lies within hold_px of a chain's centre (boundary
+            included) are held.
+    Returns:
+        [T, H, W] a copy of depth. Chain by chain in order (a later chain's median reads the
+        earlier chains' holds where their discs overlap): at each frame of the chain, the median of
+        the valid prior depth in its disc; their median over the frames; that value written into
+        every valid pixel of every disc (invalid pixels stay invalid). A chain with no valid pixel
+        in any of its discs is left alone.
+    """
+    out = np.array(depth, copy=True)
+    T, H, W = out.shape
+    ys, xs = np.mgrid[0:H, 0:W] + 0.5
+    for cc in np.asarray(centres, np.float64):
+        discs, vals = [], []
+        for t in range(T):
+            if not np.isfinite(cc[t]).all():
+                continue
+            m = (xs - cc[t, 0]) ** 2 + (ys - cc[t, 1]) ** 2 <= hold_px**2
+            discs.append((t, m))
+            v = out[t][m]
+            v = v[v > 0]
+            if v.size:
+                vals.append(np.median(v))
+        if not vals:
+            continue
+        held = np.median(vals)
+        for t, m in discs:
+            out[t][m & (out[t] > 0)] = held
+    return out

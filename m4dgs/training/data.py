@@ -179,14 +179,40 @@ def frames_and_exposures(data: TrainingData) -> Tuple[np.ndarray, np.ndarray]:
     return ldr, np.exp2(data.log2_dt.detach().cpu().numpy().astype(np.float64))
 
 
+def _held_depth(data: TrainingData, centres: np.ndarray) -> TrainingData:
+    """data with its depth prior held along the chains whose centres [C, T, 2] are given
+    (m4dgs.priors.highlight_tracks.chain_depth)."""
+    from m4dgs.priors.highlight_tracks import chain_depth
+
+    held = chain_depth(data.depth.cpu().numpy(), centres)
+    return replace(data, depth=torch.from_numpy(held).to(data.depth))
+
+
+def depth_data(data: TrainingData, init: VideoInitConfig) -> TrainingData:
+    """The depth prior stage 2 trains on: the clip's, or with `init.highlight_depth` (beyond the
+    paper) held at each highlight chain's median around the chain (m4dgs.priors.highlight_tracks,
+    step 6), as stage1_data holds it for stage 1. Returns data itself when the option is off or the
+    video has no chain."""
+    if not init.highlight_depth:
+        return data
+    from m4dgs.priors.highlight_tracks import chain_centres, highlight_tracks
+
+    points = int(init.highlight_points)
+    ht, hv = highlight_tracks(*frames_and_exposures(data), points=points)
+    if ht.shape[0] == 0:
+        return data
+    return _held_depth(data, chain_centres(ht, hv, points))
+
+
 def stage1_data(data: TrainingData, init: VideoInitConfig) -> Tuple[TrainingData, torch.Tensor]:
-    """The priors stage 1 trains on: the clip's, or with `init.highlight_motion` (beyond the paper)
-    the highlight chains' in their place (m4dgs.priors.highlight_tracks, step 5): the prior tracks
-    that follow a chain are dropped, the chains' tracks come after the others, and the flow prior is
-    invalid around each chain. Returns (data, chain [N'] bool: the tracks that come from a
-    chain)."""
+    """The priors stage 1 trains on: the clip's, or, beyond the paper, the highlight chains'
+    (m4dgs.priors.highlight_tracks). With `init.highlight_motion` (step 5) the prior tracks that
+    follow a chain are dropped, the chains' tracks come after the others, and the flow prior is
+    invalid around each chain; with `init.highlight_depth` (step 6) the depth prior is held at
+    each chain's median around the chain. Returns (data, chain [N'] bool: the tracks that come from
+    a chain)."""
     none = torch.zeros(data.tracks.shape[0], dtype=torch.bool, device=data.tracks.device)
-    if not init.highlight_motion:
+    if not (init.highlight_motion or init.highlight_depth):
         return data, none
     from m4dgs.priors.highlight_tracks import chain_centres, chain_motion, highlight_tracks
 
@@ -194,11 +220,16 @@ def stage1_data(data: TrainingData, init: VideoInitConfig) -> Tuple[TrainingData
     ht, hv = highlight_tracks(*frames_and_exposures(data), points=points)
     if ht.shape[0] == 0:
         return data, none
+    centres = chain_centres(ht, hv, points)
+    if init.highlight_depth:
+        data = _held_depth(data, centres)
+    if not init.highlight_motion:
+        return data, none
     fv = None if data.flow_valid is None else data.flow_valid.cpu().numpy()
     keep, fv = chain_motion(
         data.tracks.cpu().numpy(),
         data.track_vis.cpu().numpy(),
-        chain_centres(ht, hv, points),
+        centres,
         data.flow_pairs,
         fv,
     )

@@ -31,7 +31,7 @@ from m4dgs.model.gaussians import WorldGaussians
 from m4dgs.model.render import RenderResult, render_world
 from m4dgs.model.tonemap import ToneMapper
 from m4dgs.training.config import TrainConfig, validate
-from m4dgs.training.data import TrainingData
+from m4dgs.training.data import TrainingData, depth_data
 from m4dgs.training.densify import Strategy
 from m4dgs.training.objective import CameraModel, FrameSample, Term, Trajectories
 from m4dgs.training.stage import (
@@ -122,6 +122,7 @@ class WorldStage(Stage):
         backend: str = "auto",
     ):
         validate(cfg)
+        data = depth_data(data, cfg.stage1.init)  # the clip's depth prior, or held along chains
         super().__init__(data, cfg, device, backend, seed=cfg.seed + 1)
         self.depth_scale = init.depth_scale.float().to(self.device)
         masks = init.dynamic_masks

@@ -1,6 +1,7 @@
 """Tracks of bright blobs (m4dgs.priors.highlight_tracks) on videos drawn here, against the
 movers' known positions; the initialisation keeps them under its cap; where the chains take over the
-motion priors (step 5), against counts worked out by hand; off, nothing changes."""
+motion priors (step 5) and where they hold the depth prior (step 6), against counts and medians
+worked out by hand; off, nothing changes."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from m4dgs.priors.highlight_tracks import (
     Blob,
     brightest_blobs,
     chain_centres,
+    chain_depth,
     chain_motion,
     highlight_masks,
     highlight_tracks,
@@ -302,3 +304,121 @@ def test_the_video_stage_trains_on_the_chains_priors():
     assert off.data is d and off.gauss.num_gaussians == 5
     assert on.data.tracks.shape[0] == 4 + 16 and on.gauss.num_gaussians == 4 + 16
     assert int((~on.data.flow_valid).sum()) > 0 and d.flow_valid.all()
+
+
+def test_chain_depth_holds_the_prior_at_the_chains_median_in_a_3px_disc():
+    Tn, Hs, Ws = 6, 24, 32
+    depth = np.full((Tn, Hs, Ws), 4.0)
+    centres = np.full((2, Tn, 2), np.nan)  # the second chain has no blob at all
+    centres[0, :5] = [[10.5 + 2 * t, 12.5] for t in range(5)]  # no blob at frame 5
+    # the 29 pixels whose centre is within 3 px of a pixel centre (boundary included), by hand:
+    # dx = 0: dy -3..3 (7); |dx| = 1, 2: dy -2..2 (4 x 5); |dx| = 3: dy = 0 (2)
+    offsets = [(dx, dy) for dx in range(-3, 4) for dy in range(-3, 4) if dx * dx + dy * dy <= 9]
+    assert len(offsets) == 29
+    mover = [2.0, 2.2, 6.0, 1.8, 2.3]  # the prior jumps at frame 2 (what lies behind the mover)
+    for t, v in enumerate(mover):
+        for dx, dy in offsets:
+            depth[t, 12 + dy, 10 + 2 * t + dx] = v
+    depth[0, 12, 10] = 100.0  # one outlier: frame 0's median is still 2.0
+    depth[3, 12, 16] = 0.0  # an invalid pixel: left out of the median, and left invalid
+    before = depth.copy()
+    out = chain_depth(depth, centres)
+    assert np.array_equal(depth, before)  # the input is left alone
+    held = 2.2  # the median of the per-frame medians 2.0, 2.2, 6.0, 1.8, 2.3
+    for t in range(5):
+        ring = [(12 + dy, 10 + 2 * t + dx) for dx, dy in offsets]
+        vals = np.array([out[t, y, x] for y, x in ring])
+        if t == 3:
+            assert out[3, 12, 16] == 0.0
+            vals = vals[vals > 0]
+            assert vals.size == 28
+        assert np.allclose(vals, held)
+        changed = out[t] != before[t]
+        # frame 1 is at the median already; frame 3 has one invalid pixel
+        assert changed.sum() == {1: 0, 3: 28}.get(t, 29) and not changed[12, 10 + 2 * t + 4]
+        assert not changed[12 + 3, 10 + 2 * t + 2]  # dx = 2, dy = 3: 13 > 9, outside
+    assert np.array_equal(out[5], before[5])  # the frame the chain misses
+    assert np.array_equal(chain_depth(depth, centres[1:]), before)
+
+
+def _jumping_depth():
+    """The disc clip's training data, its depth prior 4.0 on the plane and 2.0 on the disc but 6.0
+    at frames 2, 3 and 7 (a prior that jumps with what lies behind the mover), and the disc's
+    centres [T, 2]."""
+    video = _video([(20.0, 30.0, 5.0, 1.0, 5.0, 3.0)])
+    truth = np.array([[20.0 + 5.0 * t, 30.0 + 1.0 * t] for t in range(T)])
+    prior = torch.from_numpy(np.concatenate([truth[None], truth[None] + 20.0]).astype(np.float32))
+    d = _training_data(video, prior)
+    d.depth[:] = 4.0
+    for t in range(T):
+        d.depth[t][torch.from_numpy(_disc(*truth[t], 5.0))] = 6.0 if t in (2, 3, 7) else 2.0
+    return d, truth
+
+
+def test_the_depth_option_holds_stage_1s_and_stage_2s_prior_and_nothing_else():
+    from m4dgs.training.data import depth_data, stage1_data
+
+    d, truth = _jumping_depth()
+    clip_depth = d.depth.clone()
+
+    assert depth_data(d, VideoInitConfig(highlight_motion=True)) is d  # off: the clip's prior
+    assert stage1_data(d, VideoInitConfig(highlight_tracks=True))[0] is d
+
+    s1, chain = stage1_data(d, VideoInitConfig(highlight_depth=True, highlight_points=4))
+    s2 = depth_data(d, VideoInitConfig(highlight_depth=True, highlight_points=4))
+    assert torch.equal(d.depth, clip_depth)  # the clip's prior is left alone
+    assert s1.tracks is d.tracks and not chain.any()  # the motion priors are the clip's
+    assert torch.equal(s1.depth, s2.depth)
+    for t in range(T):
+        near = torch.from_numpy(_disc(*truth[t], 2.5))  # within the hold, whatever the centroid
+        assert torch.all(s1.depth[t][near] == 2.0)
+        far = torch.from_numpy(~_disc(*truth[t], 3.5))
+        assert torch.equal(s1.depth[t][far], clip_depth[t][far])
+    # with the motion option too: the same held prior, and the chain's tracks as before
+    both, chain = stage1_data(
+        d, VideoInitConfig(highlight_motion=True, highlight_depth=True, highlight_points=4)
+    )
+    assert torch.equal(both.depth, s1.depth) and chain.sum() == 4
+
+
+def test_stage_2_trains_on_the_held_depth():
+    """WorldStage (m4dgs.training.stage2) with `stage1.init.highlight_depth` reads the held prior
+    (its depth term and scene extent), the clip's without it."""
+    from m4dgs.core.camera import K_from_fov
+    from m4dgs.model.gaussians import WorldGaussians
+    from m4dgs.training.config import apply_overrides, preset
+    from m4dgs.training.data import depth_data
+    from m4dgs.training.stage1 import build_appearance
+    from m4dgs.training.stage2 import WorldInit, WorldStage
+
+    d, _ = _jumping_depth()
+    cfg = preset("tiny")
+    cfg.width, cfg.height = W, H
+    F = cfg.model.feature_dim
+    one = {"quats": torch.tensor([[1.0, 0, 0, 0]]), "scales": torch.full((1, 3), -3.0)}
+    static = {**one, "means": torch.tensor([[0.0, 0, 3]]), "opacities": torch.zeros(1)}
+    knots = torch.tensor([0.0, 4.0, 8.0, T - 1.0])
+    dynamic = {
+        "ctrl": torch.tensor([0.0, 0, 3]).expand(1, 4, 3).clone(),
+        "rot": torch.tensor([[1.0, 0, 0, 0]] + [[0.0, 0, 0, 0]] * 3)[None],
+        "scales": one["scales"],
+        "opacities": torch.zeros(1),
+    }
+    static["features"] = dynamic["features"] = torch.zeros(1, F)
+
+    def stage(c):
+        g = WorldGaussians(static, dynamic, knots, T, c.model.world_scale_activation, 0.05)
+        init = WorldInit(
+            g,
+            *build_appearance(c, 1.0, "cpu", pretrain=False),
+            torch.as_tensor(K_from_fov(W, H, 60.0)).float(),
+            torch.eye(4).expand(T, 4, 4).clone(),
+            torch.ones(T),
+        )
+        return WorldStage(d, c, init)
+
+    on = apply_overrides(cfg, {"stage1.init.highlight_depth": True})
+    assert stage(cfg).data.depth is d.depth
+    held = stage(on).data.depth
+    assert torch.equal(held, depth_data(d, on.stage1.init).depth)
+    assert not torch.equal(held, d.depth)
