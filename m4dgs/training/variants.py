@@ -20,9 +20,15 @@ import copy
 from typing import Any, Dict, Mapping, Optional, Tuple
 
 # beyond the paper: N_s = 2 with the highlight chains carrying the motion in stage 1
-# (stage1.init.highlight_motion), for small fast bright movers; the variants ns-2-chains and
-# ns-2-chains-free (lab/notes/hard-lit.md, "Stage 2's smoothness terms and the fast movers")
+# (stage1.init.highlight_motion), for small fast bright movers; the variants ns-2-chains,
+# ns-2-chains-free and ns-2-chains-held (lab/notes/hard-lit.md, "Stage 2's smoothness terms and the
+# fast movers")
 _NS2_CHAINS: Dict[str, Any] = {"model.control_every": 2, "stage1.init.highlight_motion": True}
+_NS2_CHAINS_FREE: Dict[str, Any] = {
+    **_NS2_CHAINS,
+    "stage2.loss.lambda_vel": 0.0,
+    "stage2.loss.lambda_acc": 0.0,
+}
 
 VARIANTS: Dict[str, Dict[str, Any]] = {
     "full": {},
@@ -67,14 +73,12 @@ VARIANTS: Dict[str, Dict[str, Any]] = {
         "stage1.loss.tlr_shoulder": 250 / 255,
         "stage2.loss.tlr_shoulder": 250 / 255,
     },
-    # beyond the paper (_NS2_CHAINS above), and the same without the velocity and acceleration
-    # terms in stage 2, which charge a mover's own speed and curvature
+    # beyond the paper (_NS2_CHAINS above); the same without the velocity and acceleration terms in
+    # stage 2, which charge a mover's own speed and curvature; and that with the depth prior held at
+    # each chain's median around the chain, where a mover's prior depth jumps with its background
     "ns-2-chains": dict(_NS2_CHAINS),
-    "ns-2-chains-free": {
-        **_NS2_CHAINS,
-        "stage2.loss.lambda_vel": 0.0,
-        "stage2.loss.lambda_acc": 0.0,
-    },
+    "ns-2-chains-free": dict(_NS2_CHAINS_FREE),
+    "ns-2-chains-held": {**_NS2_CHAINS_FREE, "stage1.init.highlight_depth": True},
     # adapted baselines (paper sec. 4.2)
     "static-hdr": {
         "method": "static-hdr",
@@ -145,6 +149,9 @@ DESCRIPTIONS: Dict[str, str] = {
     "ns-2-chains-free": "BEYOND THE PAPER: ns-2-chains with stage 2's velocity and acceleration "
     "terms off (lambda_vel = lambda_acc = 0), which charge a fast mover's own motion "
     '(docs/method.md, "Small bright movers")',
+    "ns-2-chains-held": "BEYOND THE PAPER: ns-2-chains-free with the depth prior held at each "
+    "bright blob's median around it, in stage 1 and stage 2's depth term, where a small mover's "
+    'prior depth jumps with what lies behind it (docs/method.md, "Small bright movers")',
     "static-hdr": "baseline (GaussHDR-style): static HDR Gaussians with the bundle-adjustment "
     "cameras (fixed)",
     "world-only": "ablation (a) without TLR: world Gaussians from lifted tracks/depth (no stage "

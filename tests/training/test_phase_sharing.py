@@ -107,6 +107,9 @@ def test_what_the_paper_ablation_rows_share_with_full():
     same = [p for p in phases.SHARED_PHASES if free[p] == chains[p]]
     assert same == ["camera_init", "stage1", "v2w"]
     assert shared("ns-2-chains") == shared("ns-2-chains-free") == ["camera_init"]
+    # campaign held-movers' row: the held depth is stage 1's (and stage 2's) own, not the cameras'
+    held = _keys(variant_config("small", "ns-2-chains-held"))
+    assert [p for p in phases.SHARED_PHASES if held[p] == free[p]] == ["camera_init"]
     # trainer seeds never share
     s1 = _keys(variant_config("small", "full", {"seed": 1}))
     assert all(s1[p] != full[p] for p in phases.SHARED_PHASES)
