@@ -4,6 +4,7 @@ the "Controls" section of the results page."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
@@ -81,12 +82,26 @@ class ControlResult:
     reading_holm: str = NO_DATA
 
 
+def _stops(v) -> Optional[float]:
+    """log2 of a positive ratio; None for a missing or non-positive one."""
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return None
+    return math.log2(v) if v > 0 and math.isfinite(v) else None
+
+
 def pair_differences(
     rows: List[dict], suite: str, row: str, ref: str, metric: str
 ) -> Dict[tuple, float]:
     """{(scene, seed): row - ref} of one metric over the scored CSV rows of `suite`, in key
-    order (the Controls' effects and `m4dgs-eval pairs`)."""
+    order (the Controls' effects and `m4dgs-eval pairs`). A ratio metric that the tables show in
+    stops (a `log2` column, e.g. highlight_peak_ratio) differs in stops, log2(row / ref), as the
+    tables' paired differences do; a pair with a non-positive ratio is left out."""
     mine = [r for r in rows if r["suite"] == suite and r.get("status") == SCORED]
+    col = metric_columns().get(metric)
+    if col is not None and col.log2:
+        mine = [{**r, metric: _stops(r.get(metric))} for r in mine]
     a = by_key([r for r in mine if r["row"] == row], metric)
     b = by_key([r for r in mine if r["row"] == ref], metric)
     return {k: a[k] - b[k] for k in sorted(a) if k in b}

@@ -102,6 +102,25 @@ def test_pairs_are_the_paired_differences(tmp_path):
         pairs_markdown([], "paper-ablation")
 
 
+def test_a_ratio_shown_in_stops_differs_in_stops():
+    """highlight_peak_ratio (a `log2` column: "peak (stops)") differs as log2(row / ref), not as
+    row - ref: a runaway of 128x against 1x is 7 stops, not 127; a non-positive ratio has no
+    stops and its pair is left out."""
+    from eval.inspect.pairs import pair_differences, pairs_markdown
+
+    rows = []
+    for scene, (a, b) in {"a": (128.0, 1.0), "b": (0.5, 2.0), "c": (0.0, 1.0)}.items():
+        for row, v in (("full", b), ("no-reproj", a)):
+            rows.append(
+                dict(suite="paper-ablation", scene=scene, row=row, seed=0, status="scored")
+                | dict(highlight_peak_ratio=v)
+            )
+    d = pair_differences(rows, "paper-ablation", "no-reproj", "full", "highlight_peak_ratio")
+    assert d == {("a", 0): 7.0, ("b", 0): -2.0}
+    text = pairs_markdown(rows, "paper-ablation", metrics=["highlight_peak_ratio"])
+    assert "| +7.00 | -2.00 |" in text
+
+
 def test_scene_heterogeneity_is_the_one_way_anova_across_scenes():
     from eval.stats import scene_heterogeneity
 
