@@ -15,6 +15,9 @@
   itself would be sqrt(2) * theta. Sums run over the frames of the (sampled) time window; the mean
   is taken over Gaussians. ``stride`` > 1 compares frames that far apart; the authors' variant
   evaluates a window of +-2 frames around the query time (`window_times`).
+- Beyond the paper (`loss.smooth_relative`): the same two terms on each Gaussian's position
+  relative to the mean of its k nearest neighbours (`relative_to_neighbours`), so that they charge
+  the Gaussians' motion against their neighbours' and leave a group's common motion free.
 """
 
 from __future__ import annotations
@@ -102,6 +105,21 @@ def smoothness_terms(
         if T > 2 * s:
             out["rot_acc"] = _reduce_time((ang[: T - 2 * s] - ang[s:]).abs(), time_reduction)
     return out
+
+
+def relative_to_neighbours(positions: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
+    """Each Gaussian's position less the mean of its neighbours' at the same time (beyond the
+    paper: `loss.smooth_relative`).
+
+    Args:
+        positions: [T, N, 3] positions of N Gaussians at T times; neighbours: [T, N, k, 3] the
+            positions of each one's k neighbours at the same times.
+    Returns:
+        [T, N, 3]. Velocity and acceleration are linear in the positions, so those of the result
+        are each Gaussian's own less its neighbours' mean: zero for a group that moves as one,
+        however fast or curved its path, and the members' jitter against one another in full.
+    """
+    return positions - neighbours.mean(dim=2)
 
 
 def velocity_loss(

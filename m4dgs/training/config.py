@@ -186,6 +186,11 @@ class LossConfig:
     # of the clip (the paper's sum over t). Default +-2 (5 frames), the authors' code; a window
     # costs 5 spline evaluations of the subset per iteration instead of T
     smooth_half_width: int = 2
+    # beyond the paper (off = the paper): the velocity and acceleration terms charge each Gaussian's
+    # motion relative to the mean of its arap_k nearest neighbours' (the ARAP sets at the query
+    # frame) instead of its own, so that a group that moves as one (a small fast mover's Gaussians)
+    # is free and its members' jitter against one another is not (m4dgs.losses.motion)
+    smooth_relative: bool = False
     # the motion regularisers (ARAP, velocity, acceleration) look at a random subset of this many
     # moving Gaussians per iteration (0 = all; not in the paper, which averages over every
     # Gaussian; the subset is an unbiased estimate of that mean at a fixed cost per iteration)

@@ -34,6 +34,7 @@ from m4dgs.core import spline
 from m4dgs.core.knn import knn
 from m4dgs.core.tensors import gather_rows
 from m4dgs.losses.geometry import depth_loss, flow_from_destination_map, flow_loss, track_loss
+from m4dgs.losses.motion import relative_to_neighbours
 from m4dgs.losses.motion import smoothness_terms as motion_smoothness
 from m4dgs.losses.photometric import rgb_loss, unit_exposure_loss
 from m4dgs.losses.temporal import tlr_den_floor, tlr_loss, tlr_valid_mask
@@ -394,12 +395,16 @@ def assemble(stage, it: int) -> LossOutput:
     if motion and n > lc.arap_k:
         size = n if lc.motion_subset <= 0 else min(n, lc.motion_subset)
         sub = torch.from_numpy(stage.rng.choice(n, size=size, replace=False)).to(stage.device)
+        smooth = (lc.lambda_vel > 0 or lc.lambda_acc > 0) and T > 2
+        nbr = None
         if lc.lambda_arap > 0:
             pos_t = traj.positions(float(i))
             pos_t2 = traj.positions(float(stage.rng.integers(T)))
             nbr = stage.knn.neighbours(pos_t, lc.arap_k, it)
             add(arap_term(pos_t, pos_t2, nbr, sub, camera.extent))
-        if (lc.lambda_vel > 0 or lc.lambda_acc > 0) and T > 2:
+        elif smooth and lc.smooth_relative:
+            nbr = stage.knn.neighbours(traj.positions(float(i)), lc.arap_k, it)
+        if smooth:
             lo, hi = smooth_window(i, T, lc.smooth_half_width)
             times = torch.arange(lo, hi, dtype=torch.float32, device=stage.device)
             if times.numel() >= 3:
@@ -408,6 +413,13 @@ def assemble(stage, it: int) -> LossOutput:
                 host_times = [float(v) for v in range(lo, hi)]
                 pos = spline.evaluate(traj.ctrl[sub], traj.knots, host_times, traj.memo)
                 pos = pos.transpose(0, 1)
+                if lc.smooth_relative:  # beyond the paper: motion relative to the neighbours'
+                    k = nbr.shape[1]
+                    around = spline.evaluate(
+                        traj.ctrl[nbr[sub].reshape(-1)], traj.knots, host_times, traj.memo
+                    )  # [n k, W, 3]
+                    around = around.reshape(sub.numel(), k, len(host_times), 3).permute(2, 0, 1, 3)
+                    pos = relative_to_neighbours(pos, around)
                 q = rot.poly_evaluate(
                     traj.rot[sub], rot.normalize_time(times, traj.num_frames), normalize=True
                 ).transpose(0, 1)

@@ -20,6 +20,7 @@ from m4dgs.losses.motion import (
     acceleration_loss,
     arap_loss,
     quat_relative_angle,
+    relative_to_neighbours,
     smoothness_terms,
     velocity_loss,
     window_times,
@@ -539,3 +540,31 @@ def test_ldr_reprojection_same_exposure():
     wrong[:3, 3] += [0.08, -0.05, 0.0]
     perturbed = float(ldr_reprojection_loss(_t(ldr_t), _t(ldr_tp), *args, _t(wrong)))
     assert exact < 1e-3 and perturbed > 10 * exact
+
+
+def test_relative_smoothness_frees_a_group_that_moves_as_one():
+    """Velocity and acceleration of positions relative to the neighbours' mean
+    (loss.smooth_relative): zero for six points that share a fast curved path, and, with one point
+    jittering, that point's jitter less its neighbours' mean, recomputed here with loops."""
+    T, N = 7, 6
+    t = torch.arange(T, dtype=torch.float64)
+    path = torch.stack([3.0 * torch.sin(t), 0.5 * t**2, -2.0 * t], -1)  # [T, 3]: fast, curved
+    offsets = torch.randn(N, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    pos = path[:, None] + offsets[None]  # [T, N, 3]
+    nbr = torch.tensor([[j for j in range(N) if j != i][:5] for i in range(N)])  # [N, 5]
+    rel = relative_to_neighbours(pos, pos[:, nbr])
+    own = smoothness_terms(pos)
+    assert own["pos_vel"] > 1.0 and own["pos_acc"] > 0.5  # the paper's terms charge the path
+    free = smoothness_terms(rel)
+    assert float(free["pos_vel"]) < 1e-12 and float(free["pos_acc"]) < 1e-12
+    jit = torch.zeros(T, N, 3, dtype=torch.float64)
+    jit[:, 2, 0] = torch.tensor([0.0, 0.3, -0.1, 0.2, 0.0, -0.4, 0.1], dtype=torch.float64)
+    moved = pos + jit
+    got = smoothness_terms(relative_to_neighbours(moved, moved[:, nbr]))
+    vel, acc = 0.0, 0.0
+    for i in range(N):
+        r = [moved[k, i] - sum(moved[k, j] for j in nbr[i].tolist()) / 5 for k in range(T)]
+        vel += sum(float((r[k + 1] - r[k]).norm()) for k in range(T - 1))
+        acc += sum(float((r[k] - 2 * r[k + 1] + r[k + 2]).norm()) for k in range(T - 2))
+    assert math.isclose(float(got["pos_vel"]), vel / N, rel_tol=1e-9)
+    assert math.isclose(float(got["pos_acc"]), acc / N, rel_tol=1e-9)

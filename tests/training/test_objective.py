@@ -168,6 +168,31 @@ def test_stage1_terms_follow_weights_and_ablations(data):
     assert "pr" not in w and w["dep"] == 0.25 and w["ue"] == 10.0
 
 
+@pytest.mark.parametrize("arap", [0.01, 0.0])  # the neighbours from ARAP's sets, or alone
+def test_relative_smoothness_recomputed(data, arap):
+    """`loss.smooth_relative` (beyond the paper): the velocity and acceleration terms on each
+    sampled Gaussian's window positions less the mean of its arap_k nearest neighbours' (found at
+    the query frame), recomputed here by indexing; with ARAP off the generator draws as before."""
+    over = {"stage1.loss.smooth_relative": True, "stage1.loss.lambda_arap": arap}
+    st = video_stage(data, **over)
+    it = 10_000
+    draw = replay_sample(st, it)
+    i, sub = draw["i"], draw["sub"]
+    L = st.losses(it).terms
+    assert ("arap" in L) == (arap > 0)
+    with torch.no_grad():
+        ctrl, coeff, knots = st.gauss.params["ctrl"], st.gauss.params["rot"], st.gauss.knots
+        nb = knn(spline.evaluate(ctrl, knots, float(i)), st.loss_cfg.arap_k)[0][sub]  # [n, k]
+        times = torch.arange(max(0, i - 2), min(T, i + 3), dtype=torch.float32)
+        pos = spline.evaluate(ctrl, knots, times).transpose(0, 1)  # [W, N, 3]
+        rel = pos[:, sub] - pos[:, nb].mean(dim=2)
+        q = rot.poly_evaluate(coeff[sub], rot.normalize_time(times, T), normalize=True)
+        for name, f in (("vel", velocity_loss), ("acc", acceleration_loss)):
+            want = f(rel, q.transpose(0, 1))
+            torch.testing.assert_close(L[name], want, rtol=1e-5, atol=1e-6)
+            assert not torch.allclose(want, f(pos[:, sub], q.transpose(0, 1)))
+
+
 @pytest.mark.parametrize("flow_prob", [1.0, 0.0])  # flow supervision / track supervision
 def test_stage1_term_values_recomputed(data, flow_prob):
     st = video_stage(data, **{"stage1.loss.flow_prob": flow_prob})
