@@ -121,8 +121,9 @@ def _own_runs(mrows: list, method: str, spec: TableSpec) -> list:
     return list(first.values())
 
 
-def _log2(v):
-    """log2 of a positive value; None for a missing or non-positive one (no ratio to show)."""
+def in_stops(v):
+    """log2 of a positive value (a ratio in stops); None for a missing or non-positive one (no
+    ratio to show). What a `log2` column shows and differences (also `m4dgs-eval pairs`)."""
     if _missing(v) or v <= 0:
         return None
     return math.log2(v)
@@ -133,7 +134,7 @@ def _shown(rows: list, spec: TableSpec) -> list:
     logs = [c.key for c in spec.columns if c.log2]
     if not logs:
         return rows
-    return [{**r, **{k: _log2(r[k]) for k in logs if k in r}} for r in rows]
+    return [{**r, **{k: in_stops(r[k]) for k in logs if k in r}} for r in rows]
 
 
 def aggregate(rows: list, spec: TableSpec) -> list:

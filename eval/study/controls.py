@@ -4,7 +4,6 @@ the "Controls" section of the results page."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
@@ -13,6 +12,7 @@ from eval.records.runs_csv import SCORED
 from eval.records.suite import metric_columns
 from eval.stats import LEVEL, by_key, holm, interval_text, mean_ci, paired_diff
 from eval.study.findings import NO_DATA
+from eval.tables import in_stops
 from m4dgs.core import io as mio
 
 CONTROLS_FIGURE = "controls.png"  # the overview figure of the controls
@@ -82,15 +82,6 @@ class ControlResult:
     reading_holm: str = NO_DATA
 
 
-def _stops(v) -> Optional[float]:
-    """log2 of a positive ratio; None for a missing or non-positive one."""
-    try:
-        v = float(v)
-    except (TypeError, ValueError):
-        return None
-    return math.log2(v) if v > 0 and math.isfinite(v) else None
-
-
 def pair_differences(
     rows: List[dict], suite: str, row: str, ref: str, metric: str
 ) -> Dict[tuple, float]:
@@ -101,7 +92,7 @@ def pair_differences(
     mine = [r for r in rows if r["suite"] == suite and r.get("status") == SCORED]
     col = metric_columns().get(metric)
     if col is not None and col.log2:
-        mine = [{**r, metric: _stops(r.get(metric))} for r in mine]
+        mine = [{**r, metric: in_stops(r.get(metric))} for r in mine]
     a = by_key([r for r in mine if r["row"] == row], metric)
     b = by_key([r for r in mine if r["row"] == ref], metric)
     return {k: a[k] - b[k] for k in sorted(a) if k in b}

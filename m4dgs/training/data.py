@@ -179,6 +179,19 @@ def frames_and_exposures(data: TrainingData) -> Tuple[np.ndarray, np.ndarray]:
     return ldr, np.exp2(data.log2_dt.detach().cpu().numpy().astype(np.float64))
 
 
+def _chains(data: TrainingData, init: VideoInitConfig):
+    """The video's highlight chains (m4dgs.priors.highlight_tracks): (tracks [M, T, 2], visible
+    [M, T], centres [C, T, 2]) as numpy, init.highlight_points tracks per chain; None when there is
+    no chain."""
+    from m4dgs.priors.highlight_tracks import chain_centres, highlight_tracks
+
+    points = int(init.highlight_points)
+    ht, hv = highlight_tracks(*frames_and_exposures(data), points=points)
+    if ht.shape[0] == 0:
+        return None
+    return ht, hv, chain_centres(ht, hv, points)
+
+
 def _held_depth(data: TrainingData, centres: np.ndarray) -> TrainingData:
     """data with its depth prior held along the chains whose centres [C, T, 2] are given
     (m4dgs.priors.highlight_tracks.chain_depth)."""
@@ -193,15 +206,8 @@ def depth_data(data: TrainingData, init: VideoInitConfig) -> TrainingData:
     paper) held at each highlight chain's median around the chain (m4dgs.priors.highlight_tracks,
     step 6), as stage1_data holds it for stage 1. Returns data itself when the option is off or the
     video has no chain."""
-    if not init.highlight_depth:
-        return data
-    from m4dgs.priors.highlight_tracks import chain_centres, highlight_tracks
-
-    points = int(init.highlight_points)
-    ht, hv = highlight_tracks(*frames_and_exposures(data), points=points)
-    if ht.shape[0] == 0:
-        return data
-    return _held_depth(data, chain_centres(ht, hv, points))
+    chains = _chains(data, init) if init.highlight_depth else None
+    return data if chains is None else _held_depth(data, chains[2])
 
 
 def stage1_data(data: TrainingData, init: VideoInitConfig) -> Tuple[TrainingData, torch.Tensor]:
@@ -212,15 +218,12 @@ def stage1_data(data: TrainingData, init: VideoInitConfig) -> Tuple[TrainingData
     each chain's median around the chain. Returns (data, chain [N'] bool: the tracks that come from
     a chain)."""
     none = torch.zeros(data.tracks.shape[0], dtype=torch.bool, device=data.tracks.device)
-    if not (init.highlight_motion or init.highlight_depth):
+    chains = _chains(data, init) if init.highlight_motion or init.highlight_depth else None
+    if chains is None:
         return data, none
-    from m4dgs.priors.highlight_tracks import chain_centres, chain_motion, highlight_tracks
+    from m4dgs.priors.highlight_tracks import chain_motion
 
-    points = int(init.highlight_points)
-    ht, hv = highlight_tracks(*frames_and_exposures(data), points=points)
-    if ht.shape[0] == 0:
-        return data, none
-    centres = chain_centres(ht, hv, points)
+    ht, hv, centres = chains
     if init.highlight_depth:
         data = _held_depth(data, centres)
     if not init.highlight_motion:
