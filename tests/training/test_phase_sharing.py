@@ -110,6 +110,9 @@ def test_what_the_paper_ablation_rows_share_with_full():
     # campaign held-movers' row: the held depth is stage 1's (and stage 2's) own, not the cameras'
     held = _keys(variant_config("small", "ns-2-chains-held"))
     assert [p for p in phases.SHARED_PHASES if held[p] == free[p]] == ["camera_init"]
+    # campaign relative-movers' row parts from ns-2-chains-held in stage 2 only
+    rel = _keys(variant_config("small", "ns-2-chains-held-rel"))
+    assert [p for p in phases.SHARED_PHASES if rel[p] == held[p]] == same
     # trainer seeds never share
     s1 = _keys(variant_config("small", "full", {"seed": 1}))
     assert all(s1[p] != full[p] for p in phases.SHARED_PHASES)
