@@ -1,0 +1,78 @@
+"""bench/movers_requirement.py on a campaign root made here: the disc clip of
+bench/small_mover_bench.py as the movers' scene, with test renders made from the truth (the disc's
+pixels scaled to set the movers / still quotient) and metrics.json files that set the peak ratio."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from m4dgs.core.io import write_exr, write_png
+
+
+def _clip(tmp_path, smb):
+    """The disc clip with its true dynamic masks (the disc), and the masks by frame."""
+    clip = smb.make_disc_clip(tmp_path / "disc")
+    disc = json.loads((tmp_path / "disc" / "disc.json").read_text())
+    y, x = np.mgrid[0 : disc["height"], 0 : disc["width"]] + 0.5
+    (clip / "gt" / "masks" / "dynamic").mkdir(parents=True, exist_ok=True)
+    masks = {}
+    for g, c in enumerate(disc["centres"]):
+        m = (x - c[0]) ** 2 + (y - c[1]) ** 2 <= disc["radius"] ** 2
+        write_png(clip / "gt" / "masks" / "dynamic" / f"{g:05d}.png", m.astype(np.uint8) * 255)
+        masks[g] = m
+    return clip, masks
+
+
+def _run(run, clip, masks, movers_scale, peak):
+    """A scored run: test renders = truth with the movers' pixels times movers_scale."""
+    from m4dgs.clip import Clip
+
+    c = Clip.open(clip)
+    (run / "renders" / "test" / "hdr").mkdir(parents=True)
+    for g in c.test_frames:
+        img = c.load_gt_hdr(g) * np.where(masks[g], movers_scale, 1.0)[..., None]
+        write_exr(run / "renders" / "test" / "hdr" / f"{g:05d}.exr", img.astype(np.float32))
+    (run / "run.json").write_text(json.dumps({"clip_abs": str(clip)}))
+    (run / "metrics.json").write_text(json.dumps({"highlight_peak_ratio": peak}))
+
+
+def test_requirement_met_not_met_and_undecided(tmp_path, load_bench, capsys):
+    smb = load_bench("small_mover_bench")
+    mr = load_bench("movers_requirement")
+    clip, masks = _clip(tmp_path, smb)
+    root = tmp_path / "root"
+    suite = root / "runs" / "s"
+    # the movers' scene: both seeds keep the disc (quotient 1 and 0.6), peaks in the band
+    _run(suite / "disc" / "v", clip, masks, 1.0, 1.1)
+    _run(suite / "disc" / "v-seed-1", clip, masks, 0.6, 0.6)
+    # another scene: no highlight pixels at seed 0 (NaN), in the band at seed 1
+    _run(suite / "other" / "v", clip, masks, 1.0, float("nan"))
+    _run(suite / "other" / "v-seed-1", clip, masks, 1.0, 1.9)
+    rep = mr.check(root, ["s"], "v", seeds=2, movers=("disc",))
+    assert rep["verdict"] == "met", rep
+    disc = [r for r in rep["runs"] if r["scene"] == "disc"]
+    np.testing.assert_allclose([r["quotient_median"] for r in disc], [1.0, 0.6], rtol=1e-3)
+    assert [r["peak_in_band"] for r in rep["runs"] if r["scene"] == "other"] == [None, True]
+    assert mr.main([str(root), "s", "--row", "v", "--movers", "disc"]) == 0
+    assert "requirement for v: met" in capsys.readouterr().out
+
+    # a seed that keeps 0.4 of the disc's radiance loses the mover; a peak at 2.5 is out of band
+    (suite / "disc" / "v-seed-1" / "renders").rename(suite / "disc" / "v-seed-1" / "old")
+    _run_dir = suite / "disc" / "v-seed-1"
+    (_run_dir / "metrics.json").unlink()
+    (_run_dir / "run.json").unlink()
+    _run(_run_dir, clip, masks, 0.4, 1.0)
+    (suite / "other" / "v-seed-1" / "metrics.json").write_text(
+        json.dumps({"highlight_peak_ratio": 2.5})
+    )
+    rep = mr.check(root, ["s"], "v", seeds=2, movers=("disc",))
+    assert rep["verdict"] == "not met" and rep["movers_kept"] == {"disc": False}
+    assert rep["out_of_band"] == ["s/other seed 1"]
+    assert mr.main([str(root), "s", "--row", "v", "--movers", "disc"]) == 1
+
+    # an unscored run leaves it undecided, as does a movers' scene with no run
+    (suite / "other" / "v-seed-1" / "metrics.json").unlink()
+    assert mr.check(root, ["s"], "v", seeds=2, movers=("disc",))["verdict"] == "undecided"
+    assert mr.main([str(root), "s", "--row", "v", "--movers", "disc,bulb"]) == 2
