@@ -30,6 +30,8 @@ from typing import Dict, List, Optional
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mover_hdr import mover_report  # noqa: E402
 
+from eval.experiments.run_files import resolve_clip_dir  # noqa: E402
+
 MOVERS = ("spark-crossing-lit-static", "bare-bulb-swing-lit-handheld")
 BAND = (0.5, 2.0)
 KEPT = 0.5
@@ -38,13 +40,6 @@ KEPT = 0.5
 def run_folder(suite_dir: Path, scene: str, row: str, seed: int) -> Path:
     """The run folder of (scene, row, seed) under a suite's folder (the suites' naming)."""
     return suite_dir / scene / (row if seed == 0 else f"{row}-seed-{seed}")
-
-
-def run_clip(run: Path) -> Path:
-    """The clip a run was trained on: run.json's `clip` (relative to the run) or `clip_abs`."""
-    meta = json.loads((run / "run.json").read_text())
-    rel = run / meta.get("clip", "")
-    return rel if meta.get("clip") and rel.is_dir() else Path(meta["clip_abs"])
 
 
 def check_run(run: Path, mover: bool) -> Dict:
@@ -59,7 +54,7 @@ def check_run(run: Path, mover: bool) -> Dict:
     out["peak_ratio"] = peak
     out["peak_in_band"] = None if peak is None else BAND[0] <= peak <= BAND[1]
     if mover:
-        rep = mover_report(run, run_clip(run))
+        rep = mover_report(run, resolve_clip_dir(run))
         test = rep["renders"].get("test/hdr")
         out["quotient_median"] = None if test is None else test["quotient_q"][1]
         out["kept"] = test is not None and test["quotient_q"][1] >= KEPT

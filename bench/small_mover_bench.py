@@ -125,6 +125,22 @@ def make_disc_clip(out, seed: int = 0, **kw) -> Path:
     return clip
 
 
+def write_dynamic_masks(out) -> Dict[int, np.ndarray]:
+    """Write the disc's pixels (centre within the radius) of every frame as OUT/clip's true dynamic
+    masks (gt/masks/dynamic, which `benchgen from-hdr` does not make) and return them by frame."""
+    from m4dgs.core.io import write_png
+
+    disc = json.loads((Path(out) / "disc.json").read_text())
+    folder = Path(out) / "clip" / "gt" / "masks" / "dynamic"
+    folder.mkdir(parents=True, exist_ok=True)
+    y, x = np.mgrid[0 : disc["height"], 0 : disc["width"]] + 0.5
+    masks = {}
+    for g, (cx, cy) in enumerate(disc["centres"]):
+        masks[g] = (x - cx) ** 2 + (y - cy) ** 2 <= disc["radius"] ** 2
+        write_png(folder / f"{g:05d}.png", masks[g].astype(np.uint8) * 255)
+    return masks
+
+
 def _resize_to(img: np.ndarray, h: int, w: int) -> np.ndarray:
     if img.shape[:2] == (h, w):
         return img

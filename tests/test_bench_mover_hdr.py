@@ -4,25 +4,14 @@ in every frame; renders equal to the truth give 1."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
-from m4dgs.core.io import write_exr, write_png
+from m4dgs.core.io import write_exr
 
 
 def _setup(tmp_path, smb):
     clip = smb.make_disc_clip(tmp_path / "disc")  # 160x96, 24 frames, radius 9, 4 px a frame
-    disc = json.loads((tmp_path / "disc" / "disc.json").read_text())
-    H, W = disc["height"], disc["width"]
-    y, x = np.mgrid[0:H, 0:W] + 0.5
-    masks = {}
-    (clip / "gt" / "masks" / "dynamic").mkdir(parents=True, exist_ok=True)
-    for g, c in enumerate(disc["centres"]):
-        m = (x - c[0]) ** 2 + (y - c[1]) ** 2 <= disc["radius"] ** 2
-        write_png(clip / "gt" / "masks" / "dynamic" / f"{g:05d}.png", m.astype(np.uint8) * 255)
-        masks[g] = m
-    return clip, masks
+    return clip, smb.write_dynamic_masks(tmp_path / "disc")
 
 
 def test_quotient_of_a_dimmed_mover(tmp_path, load_bench, capsys):

@@ -5,24 +5,11 @@ pixels scaled to set the movers / still quotient) and metrics.json files that se
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 
-from m4dgs.core.io import write_exr, write_png
-
-
-def _clip(tmp_path, smb):
-    """The disc clip with its true dynamic masks (the disc), and the masks by frame."""
-    clip = smb.make_disc_clip(tmp_path / "disc")
-    disc = json.loads((tmp_path / "disc" / "disc.json").read_text())
-    y, x = np.mgrid[0 : disc["height"], 0 : disc["width"]] + 0.5
-    (clip / "gt" / "masks" / "dynamic").mkdir(parents=True, exist_ok=True)
-    masks = {}
-    for g, c in enumerate(disc["centres"]):
-        m = (x - c[0]) ** 2 + (y - c[1]) ** 2 <= disc["radius"] ** 2
-        write_png(clip / "gt" / "masks" / "dynamic" / f"{g:05d}.png", m.astype(np.uint8) * 255)
-        masks[g] = m
-    return clip, masks
+from m4dgs.core.io import write_exr
 
 
 def _run(run, clip, masks, movers_scale, peak):
@@ -34,14 +21,15 @@ def _run(run, clip, masks, movers_scale, peak):
     for g in c.test_frames:
         img = c.load_gt_hdr(g) * np.where(masks[g], movers_scale, 1.0)[..., None]
         write_exr(run / "renders" / "test" / "hdr" / f"{g:05d}.exr", img.astype(np.float32))
-    (run / "run.json").write_text(json.dumps({"clip_abs": str(clip)}))
+    (run / "run.json").write_text(json.dumps({"clip": str(clip)}))
     (run / "metrics.json").write_text(json.dumps({"highlight_peak_ratio": peak}))
 
 
 def test_requirement_met_not_met_and_undecided(tmp_path, load_bench, capsys):
     smb = load_bench("small_mover_bench")
     mr = load_bench("movers_requirement")
-    clip, masks = _clip(tmp_path, smb)
+    clip = smb.make_disc_clip(tmp_path / "disc")
+    masks = smb.write_dynamic_masks(tmp_path / "disc")
     root = tmp_path / "root"
     suite = root / "runs" / "s"
     # the movers' scene: both seeds keep the disc (quotient 1 and 0.6), peaks in the band
@@ -59,11 +47,8 @@ def test_requirement_met_not_met_and_undecided(tmp_path, load_bench, capsys):
     assert "requirement for v: met" in capsys.readouterr().out
 
     # a seed that keeps 0.4 of the disc's radiance loses the mover; a peak at 2.5 is out of band
-    (suite / "disc" / "v-seed-1" / "renders").rename(suite / "disc" / "v-seed-1" / "old")
-    _run_dir = suite / "disc" / "v-seed-1"
-    (_run_dir / "metrics.json").unlink()
-    (_run_dir / "run.json").unlink()
-    _run(_run_dir, clip, masks, 0.4, 1.0)
+    shutil.rmtree(suite / "disc" / "v-seed-1")
+    _run(suite / "disc" / "v-seed-1", clip, masks, 0.4, 1.0)
     (suite / "other" / "v-seed-1" / "metrics.json").write_text(
         json.dumps({"highlight_peak_ratio": 2.5})
     )
