@@ -61,6 +61,8 @@ def all_conventions() -> Dict[str, str]:
 MOVING_CONTENT_KEYS = (
     "dyn_ldr_psnr",
     "dyn_hdr_psnr",
+    "nv_ldr_oe_dyn_mpsnr",
+    "nv_hdr_dyn_mpsnr",
     "mask_precision",
     "mask_recall",
     "mask_iou",

@@ -865,6 +865,8 @@ def test_results_warns_of_runs_that_lack_a_metric_their_row_reports(tmp_path):
     for r in rows:
         r["hdr_tce"] = None if r["row"] == "static-hdr" else 0.01
         r["dyn_ldr_psnr"] = 20.0 if r["scene"] == MAIN_SCENES[0] else None
+        # the held-out views' dynamic-pixel scores too
+        r["nv_ldr_oe_dyn_mpsnr"] = 21.0 if r["scene"] == MAIN_SCENES[0] else None
     write_runs_csv(csvp, rows)
     r = CliRunner().invoke(main, args)
     assert r.exit_code == 0, r.output
