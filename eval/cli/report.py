@@ -17,12 +17,12 @@ from m4dgs.core import io as mio
 
 @click.group(
     "report",
-    short_help="Tables and the results page: table, results.",
+    short_help="Tables and the results page: table, results, findings.",
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 def group():
     """Tables and the results page: a suite's or a folder's tables, the results page
-    from the runs CSV."""
+    from the runs CSV, and the findings' verdicts from any runs CSV."""
 
 
 def _no_scored_runs(target: str, name: str, root, entries: list) -> str:
@@ -280,3 +280,58 @@ def results(
             "re-export them with `m4dgs-eval export` while their run folders exist)",
             err=True,
         )
+
+
+@group.command()
+@click.argument("keys", required=False, metavar="[KEY,KEY...]")
+@click.option(
+    "--csv",
+    "csv_paths",
+    multiple=True,
+    type=click.Path(dir_okay=False),
+    help="Runs CSV to read (repeat for several; rows of a later file replace those of the same "
+    "(suite, scene, row, seed) by `suite merge`'s rules, e.g. results/runs.csv then a "
+    "campaign's staged CSV).  [default: results/runs.csv]",
+)
+@click.option("--list", "list_only", is_flag=True, help="Only list the findings and their suites.")
+def findings(keys, csv_paths, list_only):
+    """Print the verdicts of findings KEY (eval/study/findings.yaml; default: every finding whose
+    suite has a scored run in the CSVs) as the results page's Findings section shows them: each
+    comparison's paired difference with its interval, the verdict before and after Holm's
+    correction within the finding, over scenes, and whether the scenes differ. Reads any runs
+    CSV, so a pre-registered finding can be read from a campaign's own CSV before its rows are
+    merged into the committed one."""
+    from eval.records.runs_csv import SCORED, merge_rows, read_runs_csv
+    from eval.study.findings import FINDINGS, evaluate_finding, finding_markdown
+
+    if list_only:
+        for f in FINDINGS:
+            click.echo(f"{f.key}\tsuite {f.suite}\t{f.title}")
+        return
+    paths = csv_paths or ("results/runs.csv",)
+    rows: list = []
+    for p in paths:
+        if not Path(p).is_file():
+            raise click.BadParameter(f"no such runs CSV: {p}", param_hint="--csv")
+        rows = merge_rows(rows, read_runs_csv(p))
+    present = {r["suite"] for r in rows if r.get("status") == SCORED}
+    by_key = {f.key: f for f in FINDINGS}
+    wanted = parse_names(keys)
+    if wanted is None:
+        chosen = [f for f in FINDINGS if f.suite in present]
+        if not chosen:
+            raise click.ClickException(
+                f"no finding's suite has a scored run in {', '.join(paths)} "
+                "(`m4dgs-eval report findings --list` lists the findings and their suites)"
+            )
+    else:
+        unknown = [k for k in wanted if k not in by_key]
+        if unknown:
+            raise click.BadParameter(
+                f"unknown finding(s) {', '.join(unknown)}; known: {', '.join(by_key)}",
+                param_hint="KEY",
+            )
+        chosen = [by_key[k] for k in wanted]
+    for f in chosen:
+        res = evaluate_finding(f, rows) if f.suite in present else None
+        click.echo("\n".join(finding_markdown(f, res)))

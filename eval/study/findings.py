@@ -209,7 +209,6 @@ def findings_markdown(
 ) -> str:
     """The Findings section; figures: {finding key: link of its forest plot} to show under its
     table; evaluated: evaluate_findings(rows) when the caller has it."""
-    cols = metric_columns()
     if evaluated is None:
         evaluated = evaluate_findings(rows)
     lines = [
@@ -246,96 +245,108 @@ def findings_markdown(
         findings_glance_markdown(rows, evaluated),
     ]
     for f in FINDINGS:
-        lines += [f"### {f.title}", ""]
-        if f.key not in evaluated:
-            lines += [f"**not enough data**: no scored run of suite `{f.suite}` in the CSV.", ""]
-            continue
-        res = evaluated[f.key]
-        src = load_paper_values()[f.paper].source if f.paper else None
-        lines += [
-            f"Suite `{f.suite}`" + (f"; paper values: {src}." if src else "."),
-            "",
-            "| row | ref | metric | paper Δ | claim | ours Δ | n | verdict | after Holm "
-            "| paper Δ in ours | over scenes | scenes | verdict over scenes | scenes differ |",
-            "|:---|:---|:---|---:|:---|---:|---:|:---|:---|:---|---:|---:|:---|---:|",
-        ]
-        for r in res:
-            col = cols[r.metric]
-            name = col.label
-            pd = "n/a" if r.paper_diff is None else _paper_diff_text(r.paper_diff, col.fmt)
-            if r.ours is None or r.ours.mean is None:
-                ours, n = "n/a", 0 if r.ours is None else r.ours.n
-            else:
-                half = "n/a" if r.ours.half is None else format(r.ours.half, col.fmt)
-                ours, n = f"{format(r.ours.mean, '+' + col.fmt)} ± {half}", r.ours.n
-            claim = _claim_text(r, col) + ("" if r.claim_from == "paper" else " (finding)")
-            inside = {True: "yes", False: "no", None: "n/a"}[paper_inside(r)]
-            sc = r.scenes
-            if sc is None or sc.mean is None:
-                over, k = "n/a", 0 if sc is None else sc.n
-            else:
-                half = "n/a" if sc.half is None else format(sc.half, col.fmt)
-                over, k = f"{format(sc.mean, '+' + col.fmt)} ± {half}", sc.n
-            lines.append(
-                f"| {r.comparison.row} | {r.comparison.ref} | {name} | {pd} | {claim} | {ours} "
-                f"| {n} | {r.verdict} | {r.verdict_holm} | {inside} | {over} | {k} "
-                f"| {r.verdict_scenes} | {heterogeneity_text(r.heterogeneity, test=False)} |"
-            )
-        counts = {
-            v: sum(r.verdict == v for r in res)
-            for v in (AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA)
-        }
-        over = {
-            v: sum(r.verdict_scenes == v for r in res)
-            for v in (AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA)
-        }
-        tested = sum(r.p_holm is not None for r in res)
-        kept = {v: sum(r.verdict_holm == v for r in res) for v in (AGREES, DISAGREES)}
-        pairs = max((r.ours.n for r in res if r.ours is not None), default=0)
-        inside = [paper_inside(r) for r in res]
-        known = [x for x in inside if x is not None]
-        lines += [
-            "",
-            f"Verdicts: {counts[AGREES]} agree, {counts[DISAGREES]} disagree, "
-            f"{counts[NOT_SIG]} not significant, {counts[PAPER_TIE]} paper tie, "
-            f"{counts[NO_DATA]} not enough data, of {len(res)} comparisons; "
-            f"at most {pairs} (scene, seed) pairs per comparison"
-            + (
-                f"; the paper's Δ lies inside our interval in {sum(known)} of the {len(known)} "
-                "comparisons with both."
-                if known
-                else "."
-            ),
-            "",
-            f"After Holm's correction over the {tested} comparisons with an interval: "
-            f"{kept[AGREES]} agree, {kept[DISAGREES]} disagree (with no effect anywhere, about "
-            f"{0.05 * tested:.1f} of them would exclude 0 by chance before the correction).",
-            "",
-            f"Over scenes: {over[AGREES]} agree, {over[DISAGREES]} disagree, "
-            f"{over[NOT_SIG]} not significant, {over[PAPER_TIE]} paper tie, "
-            f"{over[NO_DATA]} not enough data (fewer than 2 scenes).",
-            "",
-        ]
-        het = [r for r in res if r.heterogeneity is not None]
-        if het:
-            differ = [r for r in het if r.heterogeneity.p < HETEROGENEITY_ALPHA]
-            split = sum(
-                r.verdict in (AGREES, DISAGREES) and r.verdict_scenes == NOT_SIG for r in differ
-            )
-            lines += [
-                f"Scenes differ (p < {HETEROGENEITY_ALPHA}) in {len(differ)} of the {len(het)} "
-                "comparisons with two or more seeds on some scene"
-                + (
-                    f"; {split} of them resolved over the (scene, seed) pairs and not over scenes"
-                    if differ
-                    else ""
-                )
-                + ".",
-                "",
-            ]
-        if figures and f.key in figures:
-            lines += [f"![{FINDING_FIGURE_PREFIX}{f.key}]({figures[f.key]})", ""]
+        lines += finding_markdown(f, evaluated.get(f.key), figures)
     return "\n".join(lines)
+
+
+def finding_markdown(
+    f: Finding,
+    res: Optional[List[ComparisonResult]],
+    figures: Optional[Dict[str, str]] = None,
+) -> List[str]:
+    """The lines of one finding's section of the Findings section: its table of comparisons,
+    the verdict counts before and after Holm, over scenes and where the scenes differ; res:
+    evaluate_finding(f, rows), None when its suite has no scored run; figures as in
+    findings_markdown."""
+    cols = metric_columns()
+    lines = [f"### {f.title}", ""]
+    if res is None:
+        return lines + [f"**not enough data**: no scored run of suite `{f.suite}` in the CSV.", ""]
+    src = load_paper_values()[f.paper].source if f.paper else None
+    lines += [
+        f"Suite `{f.suite}`" + (f"; paper values: {src}." if src else "."),
+        "",
+        "| row | ref | metric | paper Δ | claim | ours Δ | n | verdict | after Holm "
+        "| paper Δ in ours | over scenes | scenes | verdict over scenes | scenes differ |",
+        "|:---|:---|:---|---:|:---|---:|---:|:---|:---|:---|---:|---:|:---|---:|",
+    ]
+    for r in res:
+        col = cols[r.metric]
+        name = col.label
+        pd = "n/a" if r.paper_diff is None else _paper_diff_text(r.paper_diff, col.fmt)
+        if r.ours is None or r.ours.mean is None:
+            ours, n = "n/a", 0 if r.ours is None else r.ours.n
+        else:
+            half = "n/a" if r.ours.half is None else format(r.ours.half, col.fmt)
+            ours, n = f"{format(r.ours.mean, '+' + col.fmt)} ± {half}", r.ours.n
+        claim = _claim_text(r, col) + ("" if r.claim_from == "paper" else " (finding)")
+        inside = {True: "yes", False: "no", None: "n/a"}[paper_inside(r)]
+        sc = r.scenes
+        if sc is None or sc.mean is None:
+            over, k = "n/a", 0 if sc is None else sc.n
+        else:
+            half = "n/a" if sc.half is None else format(sc.half, col.fmt)
+            over, k = f"{format(sc.mean, '+' + col.fmt)} ± {half}", sc.n
+        lines.append(
+            f"| {r.comparison.row} | {r.comparison.ref} | {name} | {pd} | {claim} | {ours} "
+            f"| {n} | {r.verdict} | {r.verdict_holm} | {inside} | {over} | {k} "
+            f"| {r.verdict_scenes} | {heterogeneity_text(r.heterogeneity, test=False)} |"
+        )
+    counts = {
+        v: sum(r.verdict == v for r in res)
+        for v in (AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA)
+    }
+    over = {
+        v: sum(r.verdict_scenes == v for r in res)
+        for v in (AGREES, DISAGREES, NOT_SIG, PAPER_TIE, NO_DATA)
+    }
+    tested = sum(r.p_holm is not None for r in res)
+    kept = {v: sum(r.verdict_holm == v for r in res) for v in (AGREES, DISAGREES)}
+    pairs = max((r.ours.n for r in res if r.ours is not None), default=0)
+    inside = [paper_inside(r) for r in res]
+    known = [x for x in inside if x is not None]
+    lines += [
+        "",
+        f"Verdicts: {counts[AGREES]} agree, {counts[DISAGREES]} disagree, "
+        f"{counts[NOT_SIG]} not significant, {counts[PAPER_TIE]} paper tie, "
+        f"{counts[NO_DATA]} not enough data, of {len(res)} comparisons; "
+        f"at most {pairs} (scene, seed) pairs per comparison"
+        + (
+            f"; the paper's Δ lies inside our interval in {sum(known)} of the {len(known)} "
+            "comparisons with both."
+            if known
+            else "."
+        ),
+        "",
+        f"After Holm's correction over the {tested} comparisons with an interval: "
+        f"{kept[AGREES]} agree, {kept[DISAGREES]} disagree (with no effect anywhere, about "
+        f"{0.05 * tested:.1f} of them would exclude 0 by chance before the correction).",
+        "",
+        f"Over scenes: {over[AGREES]} agree, {over[DISAGREES]} disagree, "
+        f"{over[NOT_SIG]} not significant, {over[PAPER_TIE]} paper tie, "
+        f"{over[NO_DATA]} not enough data (fewer than 2 scenes).",
+        "",
+    ]
+    het = [r for r in res if r.heterogeneity is not None]
+    if het:
+        differ = [r for r in het if r.heterogeneity.p < HETEROGENEITY_ALPHA]
+        split = sum(
+            r.verdict in (AGREES, DISAGREES) and r.verdict_scenes == NOT_SIG for r in differ
+        )
+        lines += [
+            f"Scenes differ (p < {HETEROGENEITY_ALPHA}) in {len(differ)} of the {len(het)} "
+            "comparisons with two or more seeds on some scene"
+            + (
+                f"; {split} of them resolved over the (scene, seed) pairs and not over scenes"
+                if differ
+                else ""
+            )
+            + ".",
+            "",
+        ]
+    if figures and f.key in figures:
+        lines += [f"![{FINDING_FIGURE_PREFIX}{f.key}]({figures[f.key]})", ""]
+    return lines
 
 
 def findings_glance_markdown(
