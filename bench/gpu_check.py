@@ -301,7 +301,7 @@ def _jobs(clip: str, out: Path, a, device: str, progress=None) -> dict:
     res = {"iters_per_stage": a.jobs_iters, "runs": {}}
     first = None  # runs per second of the first N (1 by default): the reference throughput
     for n in [int(x) for x in a.jobs.split(",") if x]:
-        threads = max(1, cpu_budget() // n)  # as eval.runner.run_suite splits the CPUs
+        threads = max(1, cpu_budget() // n)  # as eval.experiments.runner.run_suite splits the CPUs
         t0 = time.perf_counter()
         procs = []
         for k in range(n):

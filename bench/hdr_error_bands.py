@@ -107,7 +107,7 @@ def run_bands(run_dir) -> Dict:
 
 def run_key(run) -> Tuple[str, str, int]:
     """(scene, row, trainer seed) of a run folder SCENE/ROW (seed 0) or SCENE/ROW-seed-K, as
-    `m4dgs-eval run` names them (eval.runner.split_run_name)."""
+    `m4dgs-eval run` names them (eval.experiments.runner.split_run_name)."""
     from eval.experiments.runner import split_run_name
 
     p = Path(run)

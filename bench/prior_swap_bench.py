@@ -118,7 +118,7 @@ def score_camera_init(clip_root: Path, run_root: Path) -> Dict[str, float]:
     """Focal error (%), ATE, RPE and dynamic-mask IoU of a run's model/camera_init.pt against the
     clip's ground truth. ATE / RPE over the training frames (the ones the initialisation
     estimates; eval's ate_ba also counts the test frames interpolated between them); the mask IoU
-    is eval's (`eval.score.mask_metrics`)."""
+    is eval's (`eval.experiments.score.mask_metrics`)."""
     from eval.experiments.score import mask_metrics
     from eval.metrics.geometry import ate, rpe
     from m4dgs.clip import Clip

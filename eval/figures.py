@@ -2,8 +2,9 @@
 grids.
 
 - `crf_figure`: the learned tone curves (metrics.json "crf_curve", sampled from model.tonemap_curve
-  by eval.score) of every row against the clip's true CRF (m4dgs.core.crf.get_crf), LDR value vs
-  log2 exposure (as the paper's "Recovered CRFs" figure; RGB mean per row, the true curve dashed).
+  by eval.experiments.score) of every row against the clip's true CRF (m4dgs.core.crf.get_crf), LDR
+  value vs log2 exposure (as the paper's "Recovered CRFs" figure; RGB mean per row, the true curve
+  dashed).
 - `loss_figure`: every loss term of log.jsonl against the iteration (densification counters left
   out), log scale, running mean over 1/40 of the iterations, stage 1 then stage 2 on one axis (stage
   2 offset by the last stage-1 step; a dotted line marks the switch).

@@ -12,7 +12,8 @@ layout is below; docs/method.md lists the trainer phases that fill it, docs/outp
   cameras.json           estimated cameras (BA, then refined)
   renders/...            written by m4dgs.outputs.render
   failure.json           {"error", "time"}: written by `m4dgs-eval run` / `campaign` when the job's
-                         last attempt failed (eval.runner.record_failure), removed once it scores
+                         last attempt failed (eval.experiments.runner.record_failure), removed
+                         once it scores
 """
 
 from __future__ import annotations

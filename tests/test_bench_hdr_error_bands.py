@@ -92,7 +92,8 @@ def test_reference_ratios_pair_scene_and_seed(load_bench):
         b.reference_ratios(
             rows + [row("R/runs/s/scene-b/random-values-seed-1", 1, 1)], "alternating"
         )
-    # seed 0's folder is the row's name alone (eval.runner.seed_run_name), any other name too
+    # seed 0's folder is the row's name alone (eval.experiments.runner.seed_run_name), any other
+    # name too
     assert b.run_key("R/runs/s/scene-a/latest") == ("scene-a", "latest", 0)
     plain = [
         row("R/runs/s/scene-c/alternating", 2.0, 4.0),

@@ -1,8 +1,8 @@
 """A calibration row's prediction folder, in the layout `m4dgs-eval score-frames` reads
-(eval.frames: DIR/test/hdr/<g>.exr and DIR/test/ldr/<level>/<g>.png at every observed and novel
-level; for a clip with held-out views the same images again as DIR/views/<view>/hdr/<g>.exr and
-DIR/views/<view>/ldr/<level>/<g>.png, since a 2D row predicts the same image whatever the
-viewpoint), so that it is scored exactly like another method's frames:
+(eval.experiments.frames: DIR/test/hdr/<g>.exr and DIR/test/ldr/<level>/<g>.png at every observed
+and novel level; for a clip with held-out views the same images again as
+DIR/views/<view>/hdr/<g>.exr and DIR/views/<view>/ldr/<level>/<g>.png, since a 2D row predicts the
+same image whatever the viewpoint), so that it is scored exactly like another method's frames:
 
     m4dgs-eval calibration CLIP ROW --out OUT      # ROW: copy-nearest | flow-merge (| dibr)
     m4dgs-eval score-frames --clip CLIP --pred OUT --name ROW

@@ -23,10 +23,10 @@ Before a step trains anything, the m4dgs code of its finished runs (run.json `co
 `code` column) is compared with this checkout's: a step is never finished with other code than it
 was started with (its paired differences would compare code versions), unless allow_mixed_code.
 A job that fails (a diverged run, a bug) does not hold the campaign up: its step is exported (the
-run becomes a "failed" row with its error, eval.runner.record_failure), the later steps run, and
-the campaign ends with an error naming every failed job; running it again retries them, unless
-told not to (retry_failed False, `--no-retry-failed`: a failure that repeats is a result of its
-configuration, and its row stays "failed")."""
+run becomes a "failed" row with its error, eval.experiments.runner.record_failure), the later steps
+run, and the campaign ends with an error naming every failed job; running it again retries them,
+unless told not to (retry_failed False, `--no-retry-failed`: a failure that repeats is a result of
+its configuration, and its row stays "failed")."""
 
 from __future__ import annotations
 
@@ -250,15 +250,16 @@ def step_status(
     "job_costs"}: the step's jobs, how many are finished (metrics.json under ROOT, or, for a job
     without a run folder under ROOT, a scored row of `recorded`, the runs CSV: recorded_runs),
     how many of those only the CSV holds, how many unfinished ones failed at their last attempt
-    (<run>/failure.json: eval.runner.record_failure, or, for a job without a run folder, a failed
-    row of `recorded_failed`, the CSV's record of it), a Counter of the m4dgs code (run.json / CSV
-    `code`, 12 hex digits) of the finished ones, the iterations of the jobs still to train, and the
-    recorded training seconds per iteration of each finished run (run.json `train_seconds`, or
-    the CSV's `train_minutes`: the method's cost, shared phases counted at their producer's
-    time), and per job (finished, stage-1 share key, stage-1 iterations, stage-2 iterations) for
-    todo_iterations (todo_iterations here counts every job in full), with its whole-training
-    share key and whether it finished with a run folder under ROOT. retry_failed False: a job
-    whose last attempt failed will not run again, so it adds nothing to todo_iterations."""
+    (<run>/failure.json: eval.experiments.runner.record_failure, or, for a job without a run folder,
+    a failed row of `recorded_failed`, the CSV's record of it), a Counter of the m4dgs code
+    (run.json / CSV `code`, 12 hex digits) of the finished ones, the iterations of the jobs still to
+    train, and the recorded training seconds per iteration of each finished run (run.json
+    `train_seconds`, or the CSV's `train_minutes`: the method's cost, shared phases counted at their
+    producer's time), and per job (finished, stage-1 share key, stage-1 iterations, stage-2
+    iterations) for todo_iterations (todo_iterations here counts every job in full), with its
+    whole-training share key and whether it finished with a run folder under ROOT. retry_failed
+    False: a job whose last attempt failed will not run again, so it adds nothing to
+    todo_iterations."""
     jl = job_list(step.suite, root, preset, step.scenes, step.seeds)
     recorded = recorded or {}
     recorded_failed = recorded_failed or {}

@@ -106,14 +106,14 @@ def _provenance(run_dir, clip_meta: dict) -> Dict[str, str]:
 def export_suite(
     suite, root, scenes=None, seeds=None, add_missing: bool = False
 ) -> Tuple[List[dict], List[dict], dict]:
-    """(runs rows, CRF rows, clip floors) of one suite's jobs under ROOT (eval.cli.collect_suite):
-    every job, a scored one with its metrics, a job without metrics.json with status "failed"
-    (and its error) when its run folder records a failed attempt, else "missing";
-    the floors {(scene, generator): {...}} of the scored runs' clips (clip_floors). Without
-    `scenes`, only the scenes with at least one run folder of the suite (the subset that was run);
-    with `scenes`, every job of those scenes. add_missing: first compute, for every scored run, the
-    metrics its metrics.json lacks because an earlier version scored it
-    (eval.score.add_missing_metrics; written into the run's metrics.json)."""
+    """(runs rows, CRF rows, clip floors) of one suite's jobs under ROOT
+    (eval.experiments.collect.collect_suite): every job, a scored one with its metrics, a job
+    without metrics.json with status "failed" (and its error) when its run folder records a failed
+    attempt, else "missing"; the floors {(scene, generator): {...}} of the scored runs' clips
+    (clip_floors). Without `scenes`, only the scenes with at least one run folder of the suite (the
+    subset that was run); with `scenes`, every job of those scenes. add_missing: first compute, for
+    every scored run, the metrics its metrics.json lacks because an earlier version scored it
+    (eval.experiments.score.add_missing_metrics; written into the run's metrics.json)."""
     s = load_eval_suite(suite)
     entries = collect_suite(suite, root, scenes, seeds=seeds)
     if scenes is None:  # scenes without any run folder were not run: not part of the subset
@@ -148,7 +148,7 @@ def export_suite(
             "clip_setting": setting.setting_id(s.scenes),
             "crf": curve.get("crf") or setting.crf or "hdrnerf",
             # a failed run's preset from its run.json, so that its row is recognised at that
-            # preset when the run folder is gone (eval.campaign.recorded_runs)
+            # preset when the run folder is gone (eval.experiments.campaign.recorded_runs)
             "preset": (m.get("run") or {}).get("preset") or (run_preset if error else ""),
             "status": SCORED if e["metrics"] else (FAILED if error else MISSING),
             "ldr_convention": m.get("ldr_convention", "") if e["metrics"] else "",

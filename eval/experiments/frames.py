@@ -56,8 +56,8 @@ A layout that renders each test frame at some of its levels only is scored at th
 (scored_clip).
 
 The frames are copied into the m4dgs render layout of a score folder (default runs/<clip>/<NAME>)
-with a run.json naming NAME as the variant, and scored by eval.score.score_run without a model:
-model-only metrics (tracks, learned CRF, render FPS, #Gaussians) are None.
+with a run.json naming NAME as the variant, and scored by eval.experiments.score.score_run without a
+model: model-only metrics (tracks, learned CRF, render FPS, #Gaussians) are None.
 `m4dgs-eval table RUNS_DIR` then shows NAME as a row beside the m4dgs runs under RUNS_DIR."""
 
 from __future__ import annotations
@@ -502,8 +502,8 @@ def score_frames(
     layout: str = "m4dgs",
 ) -> Tuple[Path, dict]:
     """Import a prediction folder written in `layout` (import_frames) into `out` (default
-    runs/<clip name>/<name>) and score it (eval.score.score_run, no model); returns (score folder,
-    metrics)."""
+    runs/<clip name>/<name>) and score it (eval.experiments.score.score_run, no model); returns
+    (score folder, metrics)."""
     from eval.experiments.score import score_run  # deferred: loads torch and the metrics
 
     if not NAME_RE.match(name or ""):

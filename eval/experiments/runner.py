@@ -1,8 +1,8 @@
 """Run an experiment suite: make missing clips, train missing runs, score missing metrics
 (resumable).
 
-The job list of a suite is (clip setting, scene, row) (eval.suite), times the trainer seeds of
-`seeds` (0 .. N-1; the clip is the same for every seed). Seed 0 trains into
+The job list of a suite is (clip setting, scene, row) (eval.records.suite), times the trainer seeds
+of `seeds` (0 .. N-1; the clip is the same for every seed). Seed 0 trains into
 OUT/runs/<suite>/<scene>/<row> with the row's config as it is, seed n > 0 into
 OUT/runs/<suite>/<scene>/<row>-seed-<n> with the override `seed` = the row's seed + n. `run_suite`
 works through it on an executor (m4dgs.core.executors): locally, with a process pool for
@@ -471,12 +471,12 @@ def run_suite(
 ) -> List[dict]:
     """Make every missing clip, then train and score every (scene, row, seed) of a suite; resumable.
 
-    skip(job) true: the job is recorded elsewhere (eval.campaign: scored in the runs CSV), so it is
-    neither trained nor scored and its clip is made only if another job needs it; its result is
-    {"id", "run", "steps": [], "recorded": True}. on_result(job, result) is called in this process
-    after each job that finished (not after failed or skipped ones), e.g. to export it at once.
-    retry_failed False: a job whose last attempt failed (<run>/failure.json) is not run again (a
-    failure that repeats is a result of its configuration); its result is {"id", "run", "steps":
+    skip(job) true: the job is recorded elsewhere (eval.experiments.campaign: scored in the runs
+    CSV), so it is neither trained nor scored and its clip is made only if another job needs it; its
+    result is {"id", "run", "steps": [], "recorded": True}. on_result(job, result) is called in this
+    process after each job that finished (not after failed or skipped ones), e.g. to export it at
+    once. retry_failed False: a job whose last attempt failed (<run>/failure.json) is not run again
+    (a failure that repeats is a result of its configuration); its result is {"id", "run", "steps":
     [], "failed_before": the recorded error}, which failed_jobs does not count.
 
     jobs > 1: clips are made first (one process per distinct clip), then the runs in a process pool

@@ -408,11 +408,11 @@ def score_run(
         model: load the trained model at all (tracks, CRF curve, FPS); False skips those metrics.
         write: write metrics.json.
         render_missing: render what renders/ lacks from the run's model (m4dgs runs; the held-out
-            views too). False (frames of another method, eval.frames): score what is there; the
-            training-frame metrics (ldr_train_*, hdr_train_*, hdr_tae, hdr_t_std) are None without
-            training renders, the nv_* keys None without renders/views, and a folder with view
-            renders but no test-frame render at all (a views-only prediction) has every test-frame
-            metric None.
+            views too). False (frames of another method, eval.experiments.frames): score what is
+            there; the training-frame metrics (ldr_train_*, hdr_train_*, hdr_tae, hdr_t_std) are
+            None without training renders, the nv_* keys None without renders/views, and a folder
+            with view renders but no test-frame render at all (a views-only prediction) has every
+            test-frame metric None.
 
     The steps, in order (each adds metrics and the keys of the conventions it used): LDR test frames
     per level, LDR training frames, HDR, temporal, cameras and dynamic masks, depth and dynamic

@@ -11,10 +11,10 @@ statement from the committed runs CSV alone:
 
 For each (scene, seed) both sides have scored: how many of the quality columns both fill are
 equal (as the CSV stores them, six significant digits; the time, speed and memory columns,
-eval.suite LAYOUTS["cost"], differ between any two runs and are left out), the columns that differ
-with B - A, and each side's code fingerprint and host. Over the pairs that differ, the mean, 95 %
-interval and root mean square of B - A in a few headline metrics: "moved like a reseed" is then a
-comparison with the suite's seed noise (results.md)."""
+eval.records.suite LAYOUTS["cost"], differ between any two runs and are left out), the columns that
+differ with B - A, and each side's code fingerprint and host. Over the pairs that differ, the mean,
+95 % interval and root mean square of B - A in a few headline metrics: "moved like a reseed" is then
+a comparison with the suite's seed noise (results.md)."""
 
 from __future__ import annotations
 

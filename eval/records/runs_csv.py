@@ -51,7 +51,7 @@ MAIN_SUITE = "paper-main"
 
 
 def metric_keys() -> List[str]:
-    """The metric columns of the CSV: every key a suite table may show (eval.suite)."""
+    """The metric columns of the CSV: every key a suite table may show (eval.records.suite)."""
     return list(metric_columns())
 
 

@@ -558,7 +558,7 @@ def parse_suite(d: dict, path="<suite>") -> EvalSuite:
             raise SuiteError(path, f"rows[{i}].name", f"expected a folder-safe name, got {rname!r}")
         if rname in seen:
             raise SuiteError(path, f"rows[{i}].name", f"duplicate row name {rname!r}")
-        # reserved for the run folders of trainer seeds > 0 (eval.runner)
+        # reserved for the run folders of trainer seeds > 0 (eval.experiments.runner)
         if _SEED_SUFFIX_RE.search(rname):
             raise SuiteError(
                 path, f"rows[{i}].name", f"a row name may not end in '-seed-<n>', got {rname!r}"

@@ -26,14 +26,14 @@ class SuiteData:
     """The CSV rows of one suite, completed to the grid scenes x rows x seeds."""
 
     name: str
-    suite: object  # eval.suite.EvalSuite, or None when the definition is unknown
+    suite: object  # eval.records.suite.EvalSuite, or None when the definition is unknown
     rows: List[dict]  # the CSV rows of the suite
     scenes: List[str]  # scenes with a CSV row, in the scene suite's order
     all_scenes: List[str]  # every scene of the suite's scene suite
     seeds: List[int]
     row_names: List[str]  # in the suite's order
     labels: Dict[str, str]
-    entries: List[dict] = field(default_factory=list)  # eval.cli.build_tables entries
+    entries: List[dict] = field(default_factory=list)  # build_tables' entries (below)
 
     @property
     def scored(self) -> List[dict]:
@@ -232,7 +232,7 @@ def suites_in(rows: List[dict]) -> List[str]:
 
 
 def suite_tables(data: SuiteData, fmt: str = "markdown", first_only: bool = False) -> str:
-    """The suite's tables rendered by eval.cli.build_tables (the code of `eval table`)."""
+    """The suite's tables rendered by build_tables (below; the code of `m4dgs-eval table`)."""
     if data.suite is not None:
         defs, ref = data.suite.tables, data.suite.reference
     else:

@@ -5,27 +5,28 @@
 
 `export` collects the runs of suites (the records `m4dgs-eval table` aggregates: eval.cli
 collect_suite) into one tidy CSV, one row per (suite, scene, row, seed) with the scalar metrics of
-eval.suite.metric_columns() as columns (6 significant digits), and the learned CRF curves (mean of
-RGB on a fixed log2-exposure grid, 3 decimals) into a second CSV beside it (`<stem>-crf.csv`). It
-merges with an existing CSV: a scored run replaces the row of the same key, a run without
-metrics.json ("missing", or "failed" with its error when the job's last attempt failed:
-eval.runner.record_failure) never replaces a scored row, and rows of other suites, scenes or seeds
-stay, so suites run in different sessions accumulate.
+eval.records.suite.metric_columns() as columns (6 significant digits), and the learned CRF curves
+(mean of RGB on a fixed log2-exposure grid, 3 decimals) into a second CSV beside it
+(`<stem>-crf.csv`). It merges with an existing CSV: a scored run replaces the row of the same key, a
+run without metrics.json ("missing", or "failed" with its error when the job's last attempt failed:
+eval.experiments.runner.record_failure) never replaces a scored row, and rows of other suites,
+scenes or seeds stay, so suites run in different sessions accumulate.
 
 `results` renders, for every suite in the CSV, what stands behind it (scenes, seeds, presets,
-scored, failed and missing runs), every table of the suite through eval.cli.build_tables (the same
-code as `eval table`: mean +- Student-t 95 % interval, paired differences to the reference row, the
-paper's values and the direction-agreement column) over the (scene, seed) pairs on which every row
-with runs is scored (SuiteData.complete_pairs: a suite still running compares every row on the same
-runs), figures (per-scene bars of the main metric, learned CRF curves against the true ones, HDR-TAE
-vs LDR-OE PSNR per run and as paired differences to the reference row), and a "Findings" section
-with one table per finding of the paper (FINDINGS): the paper's difference, ours with its interval
-and number of (scene, seed) pairs, and the verdict; then a "Controls" section (CONTROLS): for each
-control run for a disagreement, the effect as found, the same effect under the control, and their
-difference in differences with its interval. It also replaces the block between README_START and
-README_END of the README with the main table. The output depends only on the CSV (no dates), so
-running it twice changes nothing. Prose that needs a human (what a verdict or a control's answer
-means) lives in a hand-written notes file that the page links."""
+scored, failed and missing runs), every table of the suite through
+eval.records.suite_data.build_tables (the same code as `eval table`: mean +- Student-t 95 %
+interval, paired differences to the reference row, the paper's values and the direction-agreement
+column) over the (scene, seed) pairs on which every row with runs is scored
+(SuiteData.complete_pairs: a suite still running compares every row on the same runs), figures
+(per-scene bars of the main metric, learned CRF curves against the true ones, HDR-TAE vs LDR-OE PSNR
+per run and as paired differences to the reference row), and a "Findings" section with one table per
+finding of the paper (FINDINGS): the paper's difference, ours with its interval and number of
+(scene, seed) pairs, and the verdict; then a "Controls" section (CONTROLS): for each control run for
+a disagreement, the effect as found, the same effect under the control, and their difference in
+differences with its interval. It also replaces the block between README_START and README_END of the
+README with the main table. The output depends only on the CSV (no dates), so running it twice
+changes nothing. Prose that needs a human (what a verdict or a control's answer means) lives in a
+hand-written notes file that the page links."""
 
 from __future__ import annotations
 

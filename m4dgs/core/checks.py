@@ -1,6 +1,6 @@
 """Value checks shared by the hand-written validators of YAML mappings: benchgen's scene and suite
-specs (benchgen.spec), eval's experiment suites (eval.suite). YAML reads `true` / `false` as Python
-booleans, which are ints too, so "a number" and "an integer" exclude bool here."""
+specs (benchgen.spec), eval's experiment suites (eval.records.suite). YAML reads `true` / `false` as
+Python booleans, which are ints too, so "a number" and "an integer" exclude bool here."""
 
 from __future__ import annotations
 

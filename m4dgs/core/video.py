@@ -1,7 +1,7 @@
 """Encoding frames as a video: H.264 / yuv420p mp4 through imageio-ffmpeg, written atomically.
 
 Shared by the renders' videos (m4dgs.outputs.videos) and the evaluation's error-map videos
-(eval.errormaps), so it sits with the other file formats in core."""
+(eval.inspect.errormaps), so it sits with the other file formats in core."""
 
 from __future__ import annotations
 

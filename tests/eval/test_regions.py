@@ -127,7 +127,7 @@ def test_split_of_a_known_error_matches_the_scorer_and_sits_in_the_dynamic_regio
     run_dir, m = score_frames(tiny_clip_realistic, pred, "dyn-err", tmp_path / "runs" / "dyn-err")
     res = split_run(run_dir, bright_top=0.01, dilate=1)
     d = res["domains"]
-    # the whole-frame PSNRs are the scorer's (its code path: eval.score)
+    # the whole-frame PSNRs are the scorer's (its code path: eval.experiments.score)
     assert d["LDR-OE"]["psnr"] == pytest.approx(m["ldr_oe_psnr"], abs=1e-9)
     assert d["LDR-NE"]["psnr"] == pytest.approx(m["ldr_ne_psnr"], abs=1e-9)
     assert d["hdr"]["psnr"] == pytest.approx(m["hdr_psnr"], abs=1e-9)
@@ -235,9 +235,9 @@ def test_region_pairs_difference_each_pair_as_the_scorer_does_with_a_t_interval(
     tiny_clip_realistic, tmp_path
 ):
     """`region-pairs` over a suite of existing clips: two seeds of rows a (2 codes of error in the
-    moving pixels) and b (8, then 4 codes); each pair's differences are the scorer's (eval.score:
-    ldr_oe_psnr, dyn_ldr_psnr), the mean's interval the Student-t one of two values, and a row
-    without renders is named, not counted, a scene never run passed over."""
+    moving pixels) and b (8, then 4 codes); each pair's differences are the scorer's
+    (eval.experiments.score: ldr_oe_psnr, dyn_ldr_psnr), the mean's interval the Student-t one of
+    two values, and a row without renders is named, not counted, a scene never run passed over."""
     import yaml
 
     from eval.experiments.runner import seed_run_name
