@@ -116,12 +116,24 @@ def row_key(r: dict) -> tuple:
 
 
 def read_runs_csv(path) -> List[dict]:
-    """Rows of a runs CSV: metric cells as floats (None when empty), seed as int, the rest text."""
+    """Rows of a runs CSV: metric cells as floats (None when empty), seed as int, the rest text;
+    none for a missing or empty file. A header that lacks a key column (suite, scene, row, seed)
+    or status is not a runs CSV's: InputError naming the file and the missing columns."""
+    from m4dgs.core.errors import InputError
+
     p = Path(path)
     if not p.exists():
         return []
     with open(p, newline="", encoding="utf-8") as f:
         rd = csv.DictReader(f)
+        if rd.fieldnames is None:
+            return []
+        lacking = [k for k in KEY + ("status",) if k not in rd.fieldnames]
+        if lacking:
+            raise InputError(
+                f"{p}: not a runs CSV (its header lacks the column(s) {', '.join(lacking)}; "
+                "a runs CSV is written by `m4dgs-eval suite export`)"
+            )
         out = []
         for r in rd:
             d = {}

@@ -128,3 +128,12 @@ def test_merge_refuses_what_it_cannot_merge(tmp_path):
     _write(src, [_row("nv", "a", "full", 0, "scored", 31.0)])
     res = _cli(src, "--csv", dest, "--suites", "paper-main")
     assert res.exit_code != 0 and "no rows of suite(s) paper-main" in res.output
+    # a CSV of another kind (here a learned-CRF CSV, whose header has no status) is named, and
+    # neither side is touched
+    crf = tmp_path / "runs-crf.csv"
+    crf.write_text("suite,scene,row,seed,crf,-10\nnv,a,full,0,hdrnerf,0.5\n")
+    before = dest.read_bytes()
+    res = _cli(crf, "--csv", dest)
+    assert res.exit_code != 0 and "Traceback" not in res.output
+    assert f"{crf}: not a runs CSV" in res.output and "lacks the column(s) status" in res.output
+    assert dest.read_bytes() == before

@@ -141,6 +141,11 @@ def test_bad_keys_and_files_are_usage_errors_naming_them(tmp_path):
     assert r.exit_code == 2 and "missing.csv" in r.output
     csv_path = tmp_path / "runs.csv"
     write_runs_csv(csv_path, _rows(np.random.default_rng(2), {}))
+    not_runs = tmp_path / "notes.csv"
+    not_runs.write_text("scene,value\na,1\n")
+    r = _cli("--csv", str(csv_path), "--csv", str(not_runs))
+    assert r.exit_code != 0 and "Traceback" not in r.output
+    assert "notes.csv: not a runs CSV" in r.output and "suite, row, seed, status" in r.output
     r = _cli("held-movers,nope", "--csv", str(csv_path))
     assert r.exit_code == 2 and "nope" in r.output and "held-movers-main" in r.output
     empty = tmp_path / "empty.csv"
