@@ -1,5 +1,5 @@
-"""`m4dgs-eval inspect pairs|repeats|regions|region-pairs|peaks|crf|error-maps`: look closer
-at runs (eval.inspect). The old flat names are hidden aliases (eval.cli)."""
+"""`m4dgs-eval inspect pairs|repeats|regions|region-pairs|peaks|highlights|crf|error-maps`: look
+closer at runs (eval.inspect). The old flat names are hidden aliases (eval.cli)."""
 
 from __future__ import annotations
 
@@ -254,45 +254,90 @@ def regions(runs, ref_run, clip_dir, bright_above, bright_top, dilate, edges, js
         mio.write_json(json_path, {"runs": out, "ref": ref})
 
 
-@group.command()
-@click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
-@runs_clip_opt
-@click.option(
+# --json of the commands that read run folders one by one (peaks, highlights)
+runs_json_opt = click.option(
     "--json",
     "json_path",
     default=None,
     type=click.Path(dir_okay=False),
     help="Also write each run's figures to this JSON file.",
 )
-def peaks(runs, clip_dir, json_path):
-    """The largest HDR value of each run's test renders against the ground truth's largest, and
-    the share of rendered values above it: highlights that ran away, which the headline HDR PSNR
-    (normalised by the ground truth's maximum and clipped) does not see. A run that cannot be
-    read (no renders: e.g. a failed run) is named after the table with the reason; the exit status
-    is 1 only when no run could be read."""
+
+
+def _json_clean(v):
+    """v with every infinite or NaN float as None and dict keys as strings (standard JSON)."""
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, dict):
+        return {str(k): _json_clean(x) for k, x in v.items()}
+    return v
+
+
+def _each_run(runs, clip_dir, read, fmt, json_path) -> None:
+    """read(run, clip) for every run folder (its clip: clip_dir or run.json's), fmt(results)
+    printed as one table; a run that cannot be read is named on stderr with the reason, --json gets
+    {"runs", "not_read"}, and the command fails only when no run could be read."""
     from eval.experiments.run_files import resolve_clip_dir
-    from eval.inspect.peaks import format_peaks, run_peaks
     from m4dgs.clip import Clip
     from m4dgs.core.errors import InputError
 
     out, unread = [], []
     for r in runs:
         try:
-            out.append(run_peaks(r, Clip.open(resolve_clip_dir(r, clip_dir))))
+            out.append(read(r, Clip.open(resolve_clip_dir(r, clip_dir))))
         except (InputError, FileNotFoundError) as e:
             unread.append(str(e))
     if out:
-        click.echo(format_peaks(out), nl=False)
+        click.echo(fmt(out), nl=False)
     for e in unread:
         click.echo(f"not read: {e}", err=True)
-    if json_path:  # standard JSON: an infinite or NaN figure is null
-        clean = [
-            {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in r.items()}
-            for r in out
-        ]
-        mio.write_json(json_path, {"runs": clean, "not_read": unread})
+    if json_path:
+        mio.write_json(json_path, {"runs": [_json_clean(r) for r in out], "not_read": unread})
     if not out:
         raise click.ClickException(f"none of the {len(runs)} run(s) could be read")
+
+
+@group.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
+@runs_clip_opt
+@runs_json_opt
+def peaks(runs, clip_dir, json_path):
+    """The largest HDR value of each run's test renders against the ground truth's largest, and
+    the share of rendered values above it: highlights that ran away, which the headline HDR PSNR
+    (normalised by the ground truth's maximum and clipped) does not see. A run that cannot be
+    read (no renders: e.g. a failed run) is named after the table with the reason; the exit status
+    is 1 only when no run could be read."""
+    from eval.inspect.peaks import format_peaks, run_peaks
+
+    _each_run(runs, clip_dir, run_peaks, format_peaks, json_path)
+
+
+@group.command()
+@click.argument("runs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
+@runs_clip_opt
+@click.option(
+    "--split",
+    type=click.Choice(["test", "train"]),
+    default="test",
+    show_default=True,
+    help="Score the test renders (as metrics.json does) or the training renders (also split by "
+    "each frame's exposure).",
+)
+@runs_json_opt
+def highlights(runs, clip_dir, split, json_path):
+    """The highlights only exposure fusion recovers (pixels the longest exposure saturates and
+    the shortest measures), scored on each run's test or training renders: the error in stops and
+    the peak ratio (render max / truth max over those pixels, geometric mean over frames). On the
+    training frames, whose own pixels measure the highlight, a low peak ratio is a fit the model
+    does not make rather than a highlight the test frame's neighbours do not show. A run that
+    cannot be read is named after the table with the reason; the exit status is 1 only when no
+    run could be read."""
+    from eval.inspect.highlights import format_highlights, run_highlights
+
+    def read(run, clip):
+        return run_highlights(run, clip, split)
+
+    _each_run(runs, clip_dir, read, format_highlights, json_path)
 
 
 @group.command("crf")
