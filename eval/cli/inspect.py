@@ -323,8 +323,18 @@ def peaks(runs, clip_dir, json_path):
     help="Score the test renders (as metrics.json does) or the training renders (also split by "
     "each frame's exposure).",
 )
+@click.option(
+    "--max-code",
+    type=click.IntRange(1, 254),
+    default=254,
+    show_default=True,
+    help="Count only pixels the shortest exposure shows at this code or below in every channel "
+    "(254: every unclipped one, as metrics.json). Near clipping one code spans a wide range of "
+    "HDR values (code 254 about 3x with the benchmark's response), so e.g. 250 keeps the pixels "
+    "it measures finely.",
+)
 @runs_json_opt
-def highlights(runs, clip_dir, split, json_path):
+def highlights(runs, clip_dir, split, max_code, json_path):
     """The highlights only exposure fusion recovers (pixels the longest exposure saturates and
     the shortest measures), scored on each run's test or training renders: the error in stops and
     the peak ratio (render max / truth max over those pixels, geometric mean over frames). On the
@@ -335,7 +345,7 @@ def highlights(runs, clip_dir, split, json_path):
     from eval.inspect.highlights import format_highlights, run_highlights
 
     def read(run, clip):
-        return run_highlights(run, clip, split)
+        return run_highlights(run, clip, split, max_code)
 
     _each_run(runs, clip_dir, read, format_highlights, json_path)
 

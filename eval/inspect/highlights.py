@@ -17,6 +17,10 @@ Per run and split:
   the frame's highlight pixels;
 - ``by_level`` (training frames only): {exposure time: {"frames", "stops", "peak_ratio"}}.
 
+``max_code`` (default 254, every unclipped code, as metrics.json) counts only the pixels the
+shortest exposure shows at that code or below: near clipping one code spans a wide range of HDR
+values, so the peak ratio over every unclipped pixel is decided where 8 bits resolve it least.
+
 `m4dgs-eval inspect highlights RUN [RUN ...] [--split train]` prints one row per run (docs/eval.md).
 """
 
@@ -42,13 +46,19 @@ def _geomean(x: List[float]) -> float:
     return float(np.exp(np.mean(np.log(np.maximum(x, 1e-12))))) if x else math.nan
 
 
-def run_highlights(run_dir, clip: Optional[Clip] = None, split: str = "test") -> Dict:
+def run_highlights(
+    run_dir, clip: Optional[Clip] = None, split: str = "test", max_code: int = 254
+) -> Dict:
     """The highlight scores (module docstring) of one run's HDR renders of `split` ("train" or
     "test": renders/<split>/hdr/<frame>.exr) against the clip's ground truth. clip: default the
-    run's (run.json "clip"). Raises InputError when the clip has no ground-truth HDR, no known true
-    response or fewer than two observed exposures, or a frame's render is missing."""
+    run's (run.json "clip"). max_code: count only pixels the shortest exposure shows at this code
+    or below (254: every unclipped one, as metrics.json; eval.metrics.scene_hdr.highlight_mask).
+    Raises InputError when the clip has no ground-truth HDR, no known true response or fewer than
+    two observed exposures, or a frame's render is missing."""
     if split not in SPLITS:
         raise InputError(f"split {split!r}: expected one of {', '.join(SPLITS)}")
+    if not 1 <= int(max_code) <= 254:
+        raise InputError(f"max_code {max_code}: expected a code from 1 to 254")
     run_dir = Path(run_dir)
     clip = clip if clip is not None else Clip.open(resolve_clip_dir(run_dir))
     frames = list(clip.train_frames if split == "train" else clip.test_frames)
@@ -73,7 +83,8 @@ def run_highlights(run_dir, clip: Optional[Clip] = None, split: str = "test") ->
     stops, ratios, pixels = [], [], 0
     levels: Dict[float, Dict[str, list]] = {}
     for g, path in zip(frames, paths):  # one frame in memory at a time
-        h = highlight_scores(read_render_exr(path), clip.load_gt_hdr(g), crf, max(obs), min(obs))
+        gt = clip.load_gt_hdr(g)
+        h = highlight_scores(read_render_exr(path), gt, crf, max(obs), min(obs), max_code)
         if not h["highlight_pixels"]:
             continue
         pixels += h["highlight_pixels"]
@@ -87,6 +98,7 @@ def run_highlights(run_dir, clip: Optional[Clip] = None, split: str = "test") ->
         "run": str(run_dir),
         "clip_name": clip.meta.name,
         "split": split,
+        "max_code": int(max_code),
         "frames": len(frames),
         "highlight_frames": len(stops),
         "highlight_pixels": pixels,
@@ -103,6 +115,11 @@ def run_highlights(run_dir, clip: Optional[Clip] = None, split: str = "test") ->
     }
 
 
+def _split_label(r: Dict) -> str:
+    code = r.get("max_code", 254)
+    return r["split"] if code == 254 else f"{r['split']}, codes <= {code}"
+
+
 def format_highlights(results: List[Dict]) -> str:
     """A Markdown table of run_highlights results, one row per run."""
     lines = [
@@ -115,7 +132,7 @@ def format_highlights(results: List[Dict]) -> str:
             f"{dt:g}: {v['peak_ratio']:.3g} ({v['frames']})" for dt, v in r["by_level"].items()
         )
         lines.append(
-            f"| {r['run']} | {r['clip_name']} | {r['split']} | {r['highlight_frames']} of "
+            f"| {r['run']} | {r['clip_name']} | {_split_label(r)} | {r['highlight_frames']} of "
             f"{r['frames']} | {r['highlight_pixels']} | {r['highlight_stops']:.3f} | "
             f"{r['highlight_peak_ratio']:.3g} | {by or 'n/a'} |"
         )

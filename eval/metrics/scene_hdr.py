@@ -70,22 +70,29 @@ def hdr_psnr_p99(pred, gt) -> float:
     return float(np.mean(out))
 
 
-def highlight_mask(gt: np.ndarray, crf, dt_long: float, dt_short: float) -> np.ndarray:
+def highlight_mask(
+    gt: np.ndarray, crf, dt_long: float, dt_short: float, max_short_code: int = 254
+) -> np.ndarray:
     """[H, W] bool: pixels of one ground-truth frame [H, W, 3] (linear, the clip's units) that
     the longest exposure saturates (255 in some channel) and the shortest measures (every channel
-    below 255), both through the clip's response `crf`."""
+    at max_short_code or below; 254, the default, is every unclipped code), both through the
+    clip's response `crf`. Near clipping one code spans a wide range of HDR values (with the
+    HDR-NeRF response at the shortest benchmark exposure, code 254 spans 3x and 253 1.7x), so a
+    lower max_short_code keeps only pixels the shortest exposure measures finely."""
     long_ = tonemap_ldr(gt, dt_long, crf)
     short = tonemap_ldr(gt, dt_short, crf)
-    return (long_ == 255).any(-1) & (short < 255).all(-1)
+    return (long_ == 255).any(-1) & (short <= max_short_code).all(-1)
 
 
-def highlight_scores(pred, gt, crf, dt_long: float, dt_short: float) -> dict:
+def highlight_scores(
+    pred, gt, crf, dt_long: float, dt_short: float, max_short_code: int = 254
+) -> dict:
     """{"highlight_stops", "highlight_peak_ratio", "highlight_pixels"} over the highlight pixels
-    (highlight_mask) of every frame; NaN scores when no frame has one."""
+    (highlight_mask, with max_short_code) of every frame; NaN scores when no frame has one."""
     p, g = _frames(pred), _frames(gt)
     stops, ratios, n = [], [], 0
     for pf, gf in zip(p, g):
-        m = highlight_mask(gf, crf, dt_long, dt_short)
+        m = highlight_mask(gf, crf, dt_long, dt_short, max_short_code)
         if not m.any():
             continue
         n += int(m.sum())

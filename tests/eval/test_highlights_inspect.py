@@ -125,3 +125,45 @@ def test_cli_prints_a_row_per_run_names_unread_ones_and_writes_json(tiny_clip_re
         main, ["inspect", "highlights", str(b), "--clip", str(tiny_clip_realistic)]
     )
     assert r.exit_code == 1
+
+
+def test_max_code_keeps_only_pixels_the_shortest_exposure_shows_at_or_below_it(
+    tiny_clip_realistic, tmp_path
+):
+    from m4dgs.core.crf import tonemap_ldr
+
+    clip = Clip.open(tiny_clip_realistic)
+    crf, obs = true_response(clip), list(clip.meta.exposures.observed)
+    run = _renders(clip, tmp_path / "run", "train", lambda g: 0.25)
+
+    def count(code):  # the mask written out: saturated at the longest, <= code at the shortest
+        n = 0
+        for g in clip.train_frames:
+            gt = clip.load_gt_hdr(g)
+            long_ = tonemap_ldr(gt, max(obs), crf)
+            short = tonemap_ldr(gt, min(obs), crf)
+            n += int((np.any(long_ == 255, -1) & np.all(short <= code, -1)).sum())
+        return n
+
+    every = run_highlights(run, clip, "train")
+    assert every["max_code"] == 254 and every["highlight_pixels"] == count(254) > 0
+    codes = []
+    for g in clip.train_frames:
+        gt = clip.load_gt_hdr(g)
+        m = highlight_mask(gt, crf, max(obs), min(obs))
+        codes += list(tonemap_ldr(gt, min(obs), crf)[m].max(-1))
+    cut = int(min(codes))  # keeps the pixels the shortest exposure shows lowest, drops the rest
+    assert cut < max(codes), "the tiny clip's highlights need more than one code for this test"
+    some = run_highlights(run, clip, "train", max_code=cut)
+    assert some["highlight_pixels"] == count(cut)
+    assert 0 < some["highlight_pixels"] < every["highlight_pixels"]
+    assert some["highlight_peak_ratio"] == pytest.approx(0.25, rel=1e-5)
+    with pytest.raises(InputError, match="max_code 255"):
+        run_highlights(run, clip, "train", max_code=255)
+    r = CliRunner().invoke(
+        main,
+        ["inspect", "highlights", str(run), "--split", "train", "--max-code", str(cut)]
+        + ["--clip", str(tiny_clip_realistic)],
+    )
+    assert r.exit_code == 0, r.output
+    assert f"| train, codes <= {cut} |" in r.output
