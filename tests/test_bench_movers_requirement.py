@@ -61,3 +61,32 @@ def test_requirement_met_not_met_and_undecided(tmp_path, load_bench, capsys):
     (suite / "other" / "v-seed-1" / "metrics.json").unlink()
     assert mr.check(root, ["s"], "v", seeds=2, movers=("disc",))["verdict"] == "undecided"
     assert mr.main([str(root), "s", "--row", "v", "--movers", "disc,bulb"]) == 2
+
+
+def test_later_seeds_and_the_resolved_peak(tmp_path, load_bench, capsys):
+    """--first-seed 2 reads the folders <row>-seed-2 and -3 only; --peak reads the named ratio."""
+    smb = load_bench("small_mover_bench")
+    mr = load_bench("movers_requirement")
+    clip = smb.make_disc_clip(tmp_path / "disc")
+    masks = smb.write_dynamic_masks(tmp_path / "disc")
+    root = tmp_path / "root"
+    suite = root / "runs" / "s"
+    _run(suite / "disc" / "v", clip, masks, 0.1, 1.0)  # seed 0 loses the disc: not counted
+    for seed in (2, 3):
+        run = suite / "disc" / f"v-seed-{seed}"
+        _run(run, clip, masks, 0.9, 1.0)
+        # the plain peak out of the band, the resolved one in it
+        m = {"highlight_peak_ratio": 4.0, "highlight_peak_ratio_resolved": 1.3}
+        (run / "metrics.json").write_text(json.dumps(m))
+    rep = mr.check(root, ["s"], "v", seeds=2, movers=("disc",), first_seed=2)
+    assert [r["seed"] for r in rep["runs"]] == [2, 3] and rep["verdict"] == "not met"
+    assert rep["out_of_band"] == ["s/disc seed 2", "s/disc seed 3"]
+    rep = mr.check(
+        root, ["s"], "v", 2, ("disc",), first_seed=2, peak_key="highlight_peak_ratio_resolved"
+    )
+    assert rep["verdict"] == "met" and rep["movers_kept"] == {"disc": True}
+    args = [str(root), "s", "--row", "v", "--movers", "disc", "--first-seed", "2"]
+    assert mr.main(args + ["--peak", "highlight_peak_ratio_resolved"]) == 0
+    assert "requirement for v: met" in capsys.readouterr().out
+    assert mr.main(args) == 1
+    assert mr.main(args[:-2]) == 2  # seeds 0-1: seed 1 has no run, nothing is decided

@@ -13,6 +13,7 @@ and the steps in order:
       - {suite: crf, scenes: TWO}
       - {suite: paper-main}               # every scene of the suite
       - {suite: priors, scenes: [a, b], seeds: 1}
+      - {suite: confirm, seeds: [2, 3]}    # trainer seeds 2 and 3 only: seeds no earlier run used
 
 Each step is `m4dgs-eval run SUITE --scenes ... --seeds ...` followed by `m4dgs-eval export`; a step
 whose runs are all scored is only exported again. Each job is exported into the runs CSV as soon
@@ -33,12 +34,12 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import yaml
 
 from eval.experiments.export import export
-from eval.experiments.runner import failed_jobs, job_list, read_failure, run_suite
+from eval.experiments.runner import failed_jobs, job_list, read_failure, run_suite, seed_list
 from eval.records.runs_csv import read_runs_csv
 from eval.records.suite import SuiteError, load_eval_suite, scene_suite_names
 from m4dgs.core import io as mio
@@ -57,7 +58,7 @@ class CampaignError(SuiteError):
 class Step:
     suite: str
     scenes: Optional[List[str]]  # None: every scene of the suite
-    seeds: int
+    seeds: Union[int, Tuple[int, ...]]  # N: seeds 0 .. N-1; a tuple: those seeds
 
 
 @dataclass(frozen=True)
@@ -137,10 +138,24 @@ def parse_campaign(d, path="<campaign>") -> Campaign:
     )
 
 
-def _seeds(v, path, key) -> int:
-    if not isinstance(v, int) or isinstance(v, bool) or v < 1:
-        raise CampaignError(path, key, f"seeds must be an integer >= 1, got {v!r}")
-    return v
+def _seeds(v, path, key) -> Union[int, Tuple[int, ...]]:
+    try:
+        seed_list(v)
+    except ValueError:
+        raise CampaignError(
+            path,
+            key,
+            f"seeds must be an integer >= 1 (seeds 0 .. N-1) or a list of distinct seeds >= 0, "
+            f"got {v!r}",
+        ) from None
+    return v if isinstance(v, int) else tuple(seed_list(v))
+
+
+def seeds_text(seeds) -> str:
+    """'2 seed(s)' for seeds 0 .. 1, 'seeds 2, 3' for a list."""
+    if isinstance(seeds, int):
+        return f"{seeds} seed(s)"
+    return "seeds " + ", ".join(str(v) for v in seeds)
 
 
 def job_iterations(job) -> int:
@@ -422,7 +437,8 @@ def run_campaign(
             summary["estimate_hours"] = hours
             eta = f", ~{hours:.1f} h left at --jobs {jobs}"
         say(
-            f"[campaign {campaign.name}] step {i}/{n}: {st.suite} ({where}, {st.seeds} seed(s)): "
+            f"[campaign {campaign.name}] step {i}/{n}: {st.suite} "
+            f"({where}, {seeds_text(st.seeds)}): "
             f"{s['scored']} of {s['total']} runs scored"
             + (f" ({s['recorded']} of them only in {csv_path})" if s["recorded"] else "")
             + (f"; {s['failed']} failed at their last attempt" if s.get("failed") else "")

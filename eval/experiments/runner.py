@@ -33,6 +33,7 @@ the file when it scores."""
 from __future__ import annotations
 
 import json
+import numbers
 import re
 import shlex
 import sys
@@ -40,7 +41,7 @@ import time
 import traceback
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 from benchgen.exposure import ExposureSettings
 from benchgen.suite import load_suite
@@ -184,16 +185,16 @@ def job_list(
     out,
     preset: str = "small",
     scenes: Optional[Sequence[str]] = None,
-    seeds: int = 1,
+    seeds: Union[int, Sequence[int]] = 1,
     rows: Optional[Sequence[str]] = None,
 ) -> List[Job]:
-    """Every job of a suite for trainer seeds 0 .. seeds-1: seed by seed, each ordered by clip
-    setting, scene, row (seeds=1 is the job list before seeds existed). scenes / rows: only these
-    scenes / rows of the suite (a name it lacks is a ValueError)."""
+    """Every job of a suite for the trainer seeds `seeds` (seed_list: N for 0 .. N-1, or a list
+    such as [2, 3] for seeds no earlier run used): seed by seed, each ordered by clip setting,
+    scene, row (seeds=1 is the job list before seeds existed). scenes / rows: only these scenes /
+    rows of the suite (a name it lacks is a ValueError)."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r} (known: {PRESETS})")
-    if int(seeds) < 1:
-        raise ValueError(f"seeds must be >= 1, got {seeds!r}")
+    seed_ids = seed_list(seeds)
     s, ref = _suite_ref(suite)
     out = Path(out).resolve()
     names = scene_suite_names(s)
@@ -209,7 +210,7 @@ def job_list(
                 f"suite {s.name!r} has no row(s) {unknown} (it has {[r.name for r in s.rows]})"
             )
     jobs = []
-    for seed in range(int(seeds)):
+    for seed in seed_ids:
         for key, setting in s.clips.items():
             sid = setting.setting_id(s.scenes)
             for scene in names:
@@ -243,6 +244,29 @@ def job_list(
                         )
                     )
     return jobs
+
+
+def seed_list(seeds: Union[int, Sequence[int]]) -> List[int]:
+    """The trainer seeds of `seeds`: an integer N >= 1 is 0 .. N-1; a non-empty sequence of distinct
+    integers >= 0 is those, in increasing order. Anything else is a ValueError."""
+    if isinstance(seeds, bool):
+        raise ValueError(f"seeds must be an integer >= 1 or a list of seeds, got {seeds!r}")
+    if isinstance(seeds, numbers.Integral):
+        if int(seeds) < 1:
+            raise ValueError(f"seeds must be >= 1, got {seeds!r}")
+        return list(range(int(seeds)))
+    out = list(seeds) if isinstance(seeds, (list, tuple, range)) else None
+    if (
+        not out
+        or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool) for v in out)
+        or min(out) < 0
+        or len(set(out)) != len(out)
+    ):
+        raise ValueError(
+            f"seeds must be an integer >= 1 or a non-empty list of distinct seeds >= 0, "
+            f"got {seeds!r}"
+        )
+    return sorted(int(v) for v in out)
 
 
 def folder_lock(folder: Path):

@@ -2,7 +2,8 @@
 
 - `score_scene_hdr`: the test frames' HDR over the whole scene and its highlights
   (eval.metrics.scene_hdr): hdr_psnr_p99 (capped at PSNR_CAP_DB per frame, mean over frames),
-  highlight_stops and highlight_peak_ratio, the highlights defined through the clip's TRUE
+  highlight_stops, highlight_peak_ratio and highlight_peak_ratio_resolved (the peak over the
+  highlight pixels the shortest exposure resolves), the highlights defined through the clip's TRUE
   response (clip.json `crf`) and its longest and shortest observed exposure (exposures.observed);
   None without ground-truth HDR, and the highlight scores None without a known response, with
   fewer than two observed exposures or without a highlight pixel in any test frame
@@ -31,10 +32,15 @@ import numpy as np
 from eval.conventions import PSNR_CAP_DB
 from eval.experiments.run_files import read_render_exr
 from eval.experiments.view_scores import DYN_KEYS, METRICS, SPLITS, score_views
-from eval.metrics.scene_hdr import hdr_psnr_p99, highlight_scores
+from eval.metrics.scene_hdr import hdr_psnr_p99, highlight_scores, resolved_short_code
 from m4dgs.core.crf import get_crf
 
-SCENE_HDR_KEYS = ["hdr_psnr_p99", "highlight_stops", "highlight_peak_ratio"]
+SCENE_HDR_KEYS = [
+    "hdr_psnr_p99",
+    "highlight_stops",
+    "highlight_peak_ratio",
+    "highlight_peak_ratio_resolved",
+]
 #: the per-view keys of eval.experiments.view_scores.score_view (nv_<view>_<key>, nv_<key>)
 VIEW_KEYS = (
     [f"{s}_{m}" for s in SPLITS for m in METRICS]
@@ -63,15 +69,17 @@ def true_response(clip):
 
 
 def score_scene_hdr(job, m: dict) -> List[str]:
-    """hdr_psnr_p99, highlight_stops, highlight_peak_ratio (and highlight_pixels) of the test HDR
-    renders renders/test/hdr/<g>.exr [H, W, 3] against gt/hdr (module docstring)."""
+    """hdr_psnr_p99, highlight_stops, highlight_peak_ratio, highlight_peak_ratio_resolved (and
+    highlight_pixels, highlight_pixels_resolved) of the test HDR renders
+    renders/test/hdr/<g>.exr [H, W, 3] against gt/hdr (module docstring)."""
     clip, test = job.clip, job.clip.test_frames
     if not (clip.has_gt and clip.has_gt_part("hdr") and test and job.test_hdr):
         return []
     crf = true_response(clip)
     obs = list(clip.meta.exposures.observed)
     highlights = crf is not None and len(obs) >= 2
-    p99, stops, ratios, n = [], [], [], 0
+    fine = resolved_short_code(crf) if highlights else None
+    p99, stops, ratios, fine_ratios, n, n_fine = [], [], [], [], 0, 0
     for g in test:  # one frame in memory at a time
         pred = read_render_exr(job.render("test/hdr", g, "exr"))
         gt = clip.load_gt_hdr(g)
@@ -82,16 +90,27 @@ def score_scene_hdr(job, m: dict) -> List[str]:
                 n += h["highlight_pixels"]
                 stops.append(h["highlight_stops"])
                 ratios.append(h["highlight_peak_ratio"])
+            h = highlight_scores(pred, gt, crf, max(obs), min(obs), max_short_code=fine)
+            if h["highlight_pixels"]:
+                n_fine += h["highlight_pixels"]
+                fine_ratios.append(h["highlight_peak_ratio"])
     m["hdr_psnr_p99"] = float(np.mean(p99))
     keys = ["hdr_psnr_p99"]
     if highlights:
         m["highlight_pixels"] = n
+        m["highlight_pixels_resolved"] = n_fine
+        # per frame, then the mean (stops) and the geometric mean (peak ratios) over frames
         if stops:
-            # per frame, then the mean (stops) and the geometric mean (peak ratio) over frames
             m["highlight_stops"] = float(np.mean(stops))
-            m["highlight_peak_ratio"] = float(np.exp(np.mean(np.log(np.maximum(ratios, 1e-12)))))
-        keys += ["highlight_stops", "highlight_peak_ratio"]
+            m["highlight_peak_ratio"] = _geomean(ratios)
+        if fine_ratios:
+            m["highlight_peak_ratio_resolved"] = _geomean(fine_ratios)
+        keys += ["highlight_stops", "highlight_peak_ratio", "highlight_peak_ratio_resolved"]
     return keys
+
+
+def _geomean(x) -> float:
+    return float(np.exp(np.mean(np.log(np.maximum(x, 1e-12)))))
 
 
 def view_keys(clip) -> List[str]:

@@ -15,6 +15,12 @@ bright is clipped away. Beside it (kept for comparability with the paper) the ta
   channel below 255); only fusing exposures recovers them.
 - `highlight_peak_ratio`: the render's largest value over those pixels divided by the truth's
   (1 = right; a runaway highlight shows as a large ratio, which the clipped metric barely sees).
+- `highlight_peak_ratio_resolved`: the same over the highlight pixels the shortest exposure
+  resolves, its code at most `resolved_short_code` (the largest code whose HDR bin spans at most
+  2x). Just under clipping one code covers a wide range of HDR values (with the HDR-NeRF response
+  code 254 spans 3.0x, 253 1.68x), so the plain peak ratio is often decided by pixels where a render
+  4x too bright reads one code off; over the resolved pixels a render that reproduces the frames'
+  codes is within the 0.5-2 band.
 
 All take linear HDR [H, W, 3] or [N, H, W, 3] (numpy or torch) and return the mean over frames
 (the peak ratio: the geometric mean); frames without a highlight pixel are left out (NaN when no
@@ -40,7 +46,43 @@ CONVENTIONS = {
     "highlight_peak_stops": "peak (stops): log2 of max(pred) / max(gt) over those pixels "
     "(geometric mean over frames), averaged over runs in stops: 0 is right, -1 and +1 bound the "
     "0.5-2 band",
+    "highlight_peak_ratio_resolved": "max(pred) / max(gt) over the highlight pixels whose "
+    "shortest-exposure code (every channel) is at most the largest code whose HDR bin through the "
+    "clip's response spans at most 2x (253 with hdrnerf), geometric mean over frames",
+    "highlight_peak_resolved_stops": "peak, resolved (stops): as peak, over the highlight pixels "
+    "whose shortest-exposure code (every channel) is at most the largest code whose HDR bin "
+    "through the clip's response spans at most 2x (253 with hdrnerf)",
 }
+
+#: the widest HDR bin, as a factor, of a code the resolved peak counts: the 0.5-2 band's own
+RESOLVED_BIN = 2.0
+
+
+def code_bin_span(crf, code: int) -> float:
+    """The factor one 8-bit code spans in HDR through `crf` (the widest over its channels):
+    f^-1((code + 1/2) / 255) / f^-1((code - 1/2) / 255), the exposure time cancelling; inf when the
+    bin's lower end is 0 (code 0) or the curve cannot be inverted there."""
+    if not 0 < code < 255:
+        return float("inf")
+    curves = [crf.channel(c) for c in range(len(crf.channels))] if crf.per_channel else [crf]
+    lo, hi = (code - 0.5) / 255.0, (code + 0.5) / 255.0
+    spans = []
+    for f in curves:
+        a, b = (
+            float(np.asarray(f.inverse(np.float64(lo)))),
+            float(np.asarray(f.inverse(np.float64(hi)))),
+        )
+        spans.append(b / a if a > 0 and np.isfinite(b) else float("inf"))
+    return max(spans)
+
+
+def resolved_short_code(crf, factor: float = RESOLVED_BIN) -> int:
+    """The largest code c <= 254 whose HDR bin through the CRF `crf` (code_bin_span) spans at most
+    `factor` (253 with hdrnerf, 254 with gamma or srgb); 0 when no code's does."""
+    for c in range(254, 0, -1):
+        if code_bin_span(crf, c) <= factor:
+            return c
+    return 0
 
 
 def _frames(x) -> np.ndarray:

@@ -232,6 +232,16 @@ def metric_columns() -> Dict[str, Column]:
             0.0,
             log2=True,
         ),
+        Column(
+            "highlight_peak_ratio_resolved",
+            "peak, resolved (stops)",
+            False,
+            ".2f",
+            "HDR",
+            "highlight_peak_resolved_stops",
+            0.0,
+            log2=True,
+        ),
         # held-out views (eval.experiments.view_scores): means over the views
         Column("nv_ldr_oe_psnr", "PSNR", True, ".2f", "Views LDR-OE", "nv_views"),
         Column("nv_ldr_oe_mpsnr", "mPSNR", True, ".2f", "Views LDR-OE", "nv_masked"),

@@ -1215,6 +1215,11 @@ def test_campaign_file_errors_name_the_field(tmp_path):
     )
     good = {"preset": "tiny", "steps": [{"suite": "tiny"}]}
     assert parse_campaign(good, "f.yaml").steps[0].seeds == 1
+    # a list: those trainer seeds only (a confirmatory test at seeds no earlier run used)
+    assert parse_campaign({**good, "seeds": [3, 2]}, "f.yaml").steps[0].seeds == (2, 3)
+    confirm = load_campaign("confirm-movers").steps
+    assert [(s.suite, s.seeds) for s in confirm] == [("confirm-movers", (2, 3))]
+    assert confirm[0].scenes == ["spark-crossing-lit-static", "bare-bulb-swing-lit-handheld"]
     for bad, field in [
         ({**good, "sedes": 2}, "'sedes'"),
         ({**good, "preset": "huge"}, "'preset'"),
@@ -1227,6 +1232,8 @@ def test_campaign_file_errors_name_the_field(tmp_path):
             "'steps[0].scenes'",
         ),
         ({**good, "steps": [{"suite": "tiny", "seeds": -1}]}, "'steps[0]'"),
+        ({**good, "seeds": [1, 1]}, "'seeds'"),
+        ({**good, "steps": [{"suite": "tiny", "seeds": []}]}, "'steps[0]'"),
         ({**good, "steps": [{"suite": "tiny", "rows": ["full"]}]}, "'steps[0].rows'"),
     ]:
         with pytest.raises(CampaignError, match=field.replace("[", r"\[").replace("]", r"\]")) as e:
@@ -1369,6 +1376,31 @@ def test_campaign_runs_exports_resumes_and_guards_the_code(tmp_path, fake_traine
         camp, out, csv_path, allow_mixed_code=True, **dict(kw, code="beef" + "0" * 60)
     )
     assert res[1]["ran"] and len(fake_trainer["train"]) == 8  # rescored, not retrained
+
+
+def test_a_campaign_of_listed_seeds_trains_and_exports_only_those(tmp_path, fake_trainer):
+    import csv
+
+    from eval.experiments.campaign import load_campaign, run_campaign
+    from eval.experiments.runner import job_list
+
+    suite = tmp_path / "t2.yaml"
+    suite.write_text(SUITE_YAML)
+    out, csv_path = tmp_path / "exp", tmp_path / "runs.csv"
+    for j in {j.clip_dir for j in job_list(suite, out, "tiny")}:
+        make_fake_clip(Path(j), seed=len(j))
+    camp = load_campaign(_campaign_file(tmp_path, suite, [{"scenes": "ONE", "seeds": [2]}]))
+    lines = []
+    kw = dict(code="c0ffee" + "0" * 58, log=lines.append)
+    run_kw = {"score_kw": {"fps": False}, "progress": False}
+    res = run_campaign(camp, out, csv_path, run_kw=run_kw, **kw)
+    assert [(r["scored"], r["total"]) for r in res] == [(2, 2)]
+    assert any("seeds 2)" in ln for ln in lines), lines
+    trained = sorted((Path(t[0]).name, (t[2] or {}).get("seed")) for t in fake_trainer["train"])
+    assert trained == [("base-seed-2", 2), ("full-seed-2", 2)]
+    with open(csv_path) as f:
+        rows = list(csv.DictReader(f))
+    assert sorted((r["row"], r["seed"]) for r in rows) == [("base", "2"), ("full", "2")]
 
 
 def test_campaign_code_guard_ignores_the_calibration_rows(tmp_path):

@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 from eval.metrics.hdr import hdr_psnr
-from eval.metrics.scene_hdr import hdr_psnr_p99, highlight_mask, highlight_scores
+from eval.metrics.scene_hdr import (
+    code_bin_span,
+    hdr_psnr_p99,
+    highlight_mask,
+    highlight_scores,
+    resolved_short_code,
+)
 from m4dgs.core.crf import clip_crf, tonemap_ldr
 
 CRF = clip_crf("hdrnerf")
@@ -65,3 +71,46 @@ def test_highlights_are_saturated_long_and_measured_short():
     assert s["highlight_pixels"] == 2
     none = highlight_scores(gt, np.full((4, 6, 3), dark), CRF, 32.0, 0.125)
     assert np.isnan(none["highlight_stops"]) and none["highlight_pixels"] == 0
+
+
+def _bins_by_sweep(crf):
+    """{code: (smallest, largest) HDR value reaching it} at exposure 1, from a dense sweep through
+    tonemap_ldr: an estimate that never inverts the curve."""
+    h = np.exp(np.linspace(np.log(1e-3), np.log(1e4), 2_000_000))
+    codes = tonemap_ldr(np.repeat(h[:, None], 3, 1), 1.0, crf)[:, 0]
+    return {c: (h[codes == c].min(), h[codes == c].max()) for c in range(240, 255)}
+
+
+@pytest.mark.parametrize(
+    "name, code", [("hdrnerf", 253), ("srgb-shoulder", 254), ("aces-filmic", 253)]
+)
+def test_code_bins_and_the_resolved_code_match_a_dense_sweep(name, code):
+    crf = clip_crf(name)
+    bins = _bins_by_sweep(crf)
+    for c in (245, 250, 253, 254):
+        lo, hi = bins[c]
+        assert code_bin_span(crf, c) == pytest.approx(hi / lo, rel=1e-3), c
+    # the largest code whose bin spans at most 2x, by the sweep
+    assert resolved_short_code(crf) == max(c for c, (lo, hi) in bins.items() if hi / lo <= 2)
+    assert resolved_short_code(crf) == code
+    assert code_bin_span(crf, 0) == float("inf") and code_bin_span(crf, 255) == float("inf")
+
+
+def test_the_resolved_peak_leaves_out_pixels_just_under_clipping():
+    # two highlights: one the shortest exposure shows at code 254 (its bin spans 3x), one at 240
+    bins = _bins_by_sweep(CRF)
+    dt = 0.125
+    at254 = np.sqrt(bins[254][0] * bins[254][1]) / dt
+    at240 = np.sqrt(bins[240][0] * bins[240][1]) / dt
+    gt = np.full((4, 6, 3), 0.001)
+    gt[1, 1], gt[2, 3] = at254, at240
+    assert tonemap_ldr(gt[1:2, 1:2], dt, CRF).max() == 254
+    assert tonemap_ldr(gt[2:3, 3:4], dt, CRF).max() == 240
+    pred = gt.copy()
+    pred[1, 1] *= 4.0  # 4x too bright where one code spans 3x: two codes off at most
+    pred[2, 3] *= 1.25
+    every = highlight_scores(pred, gt, CRF, 32.0, dt)
+    fine = highlight_scores(pred, gt, CRF, 32.0, dt, max_short_code=resolved_short_code(CRF))
+    assert every["highlight_pixels"] == 2 and fine["highlight_pixels"] == 1
+    assert every["highlight_peak_ratio"] == pytest.approx(4.0)
+    assert fine["highlight_peak_ratio"] == pytest.approx(1.25)

@@ -19,7 +19,14 @@ from m4dgs.clip import Clip, frame_name, level_name
 from m4dgs.core import io as mio
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
-NEW_KEYS = ["hdr_psnr_p99", "highlight_stops", "highlight_peak_ratio", "camera_deg_s", "emf"]
+NEW_KEYS = [
+    "hdr_psnr_p99",
+    "highlight_stops",
+    "highlight_peak_ratio",
+    "highlight_peak_ratio_resolved",
+    "camera_deg_s",
+    "emf",
+]
 
 
 def _fake_run(clip, run, *, test=True, views=True, hdr_scale=1.0, ldr_scale=1.0):
@@ -68,7 +75,9 @@ def test_a_perfect_prediction_reads_the_cap_everywhere(tiny_clip_oracle, tmp_pat
     m = _score(clip, _fake_run(clip, tmp_path / "run"))
     assert m["ldr_oe_psnr"] == 100.0 and m["hdr_psnr_p99"] == 100.0
     assert m["highlight_stops"] == 0.0 and m["highlight_peak_ratio"] == 1.0
+    assert m["highlight_peak_ratio_resolved"] == 1.0
     assert m["highlight_pixels"] > 0  # the tiny clip has a few (frames 1 and 5)
+    assert 0 < m["highlight_pixels_resolved"] <= m["highlight_pixels"]
     for k in ("nv_ldr_oe_mpsnr", "nv_ldr_ne_psnr", "nv_hdr_mpsnr", "nv_hdr_psnr_p99"):
         assert m[k] == 100.0, k
     assert m["nv_large_ldr_oe_mpsnr"] == 100.0 and m["nv_small_ldr_oe_mssim"] == pytest.approx(1)
@@ -88,6 +97,7 @@ def test_halved_hdr_and_darkened_views_match_by_hand(tiny_clip_oracle, tmp_path)
     # every highlight pixel is exactly one stop too dark, and so is the peak
     assert m["highlight_stops"] == pytest.approx(1.0, abs=1e-6)
     assert m["highlight_peak_ratio"] == pytest.approx(0.5, abs=1e-6)
+    assert m["highlight_peak_ratio_resolved"] == pytest.approx(0.5, abs=1e-6)
     assert 10 < m["hdr_psnr_p99"] < 100
     by_view = {}
     for v in clip.view_names():
@@ -155,6 +165,7 @@ def test_add_missing_metrics_adds_the_new_keys_to_an_older_file(tiny_clip_oracle
     assert set(NEW_KEYS + ["nv_ldr_oe_mpsnr", "nv_large_ldr_oe_mpsnr"]) <= set(added)
     assert got["hdr_psnr_p99"] == 100.0 and got["nv_ldr_oe_mpsnr"] == 100.0
     assert got["highlight_peak_ratio"] == 1.0 and got["emf"] == m["emf"]
+    assert got["highlight_peak_ratio_resolved"] == 1.0
     assert got["ldr_oe_psnr"] == 12.5 and "nv_masked" in got["conventions"]
     assert mio.read_json(run / "metrics.json")["nv_hdr_psnr_p99"] == 100.0
     assert add_missing_metrics(run, clip=clip)[1] == []

@@ -9,7 +9,7 @@ import json
 import pytest
 
 from eval.experiments.run_files import read_run_info, resolve_clip_dir
-from eval.experiments.runner import job_list, seed_run_name, split_run_name
+from eval.experiments.runner import job_list, seed_list, seed_run_name, split_run_name
 from eval.records.suite import (
     SuiteError,
     builtin_suites,
@@ -92,6 +92,24 @@ def test_job_list_covers_scenes_rows_and_seeds(tmp_path):
     assert all(j.run_dir.endswith(seed_run_name(j.row, 1)) for j in seed1)
     with pytest.raises(ValueError):
         job_list("tiny", tmp_path, "huge")
+
+
+def test_job_list_takes_a_list_of_seeds(tmp_path):
+    """seeds=[2, 3]: exactly the jobs of seeds 2 and 3 of seeds=4 (folders <row>-seed-2, trainer
+    seed the row's + 2), for a confirmatory run at seeds no earlier run used."""
+    four = job_list("tiny", tmp_path, "tiny", seeds=4)
+    late = job_list("tiny", tmp_path, "tiny", seeds=[3, 2])
+    assert [j.id for j in late] == [j.id for j in four if j.seed >= 2]
+    assert {j.seed for j in late} == {2, 3}
+    j = late[0]
+    assert j.run_dir.endswith(seed_run_name(j.row, 2)) and j.overrides["seed"] == 2
+    assert job_list("tiny", tmp_path, "tiny", seeds=[0, 1]) == job_list(
+        "tiny", tmp_path, "tiny", seeds=2
+    )
+    assert seed_list(3) == [0, 1, 2] and seed_list((5,)) == [5]
+    for bad in (0, -1, True, [], [1, 1], [-1], [1.5], "2", None):
+        with pytest.raises(ValueError, match="seeds"):
+            seed_list(bad)
 
 
 def test_job_list_rows_subset(tmp_path):
