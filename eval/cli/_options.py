@@ -65,14 +65,47 @@ scenes_opt = click.option(
 )
 
 
+class SeedsType(click.ParamType):
+    """--seeds: N (trainer seeds 0 .. N-1) or a comma-separated list of seeds, e.g. 2,3
+    (eval.experiments.runner.seed_list); an int or a list of ints."""
+
+    name = "N|S,S,..."
+
+    def convert(self, value, param, ctx):
+        from eval.experiments.runner import seed_list
+
+        if isinstance(value, (int, list)):
+            return value
+        text = str(value).strip()
+        try:
+            if "," in text:
+                seeds = [int(v) for v in text.split(",") if v.strip()]
+                seed_list(seeds)
+                return seeds
+            n = int(text)
+            seed_list(n)
+            return n
+        except ValueError:
+            self.fail(
+                f"{value!r}: expected a count N >= 1 (seeds 0..N-1) or a comma-separated list of "
+                "distinct seeds >= 0 (e.g. 2,3)",
+                param,
+                ctx,
+            )
+
+
+SEEDS = SeedsType()
+
+
 def found_seeds_opt(verb: str):
-    """--seeds of the commands that read run folders: seeds 0..N-1 to `verb`, by default up to the
-    largest seed with a run folder."""
+    """--seeds of the commands that read run folders: seeds 0..N-1 (or the listed seeds) to
+    `verb`, by default up to the largest seed with a run folder."""
     return click.option(
         "--seeds",
         default=None,
-        type=click.IntRange(min=1),
-        help=f"Trainer seeds 0..N-1 to {verb} (default: up to the largest seed with a run folder).",
+        type=SEEDS,
+        help=f"Trainer seeds to {verb}: N for 0..N-1, or a list such as 2,3 (default: 0 up to the "
+        "largest seed with a run folder).",
     )
 
 

@@ -9,6 +9,7 @@ import click
 
 from eval.cli._options import (
     DEFAULT_OUT,
+    SEEDS,
     device_opt,
     executor_opts,
     found_seeds_opt,
@@ -68,11 +69,11 @@ def suites():
 @rows_opt
 @click.option(
     "--seeds",
-    default=1,
+    default="1",
     show_default=True,
-    type=click.IntRange(min=1),
-    help="Trainer seeds 0..N-1 per (scene, row), same clip; seed 0 trains into <row>, seed n into "
-    "<row>-seed-n.",
+    type=SEEDS,
+    help="Trainer seeds per (scene, row), same clip: N for 0..N-1, or a list such as 2,3 (seeds no "
+    "earlier run used); seed 0 trains into <row>, seed n into <row>-seed-n.",
 )
 @click.option(
     "--force", is_flag=True, help="Recompute metrics.json of finished runs (never retrains)."

@@ -1401,6 +1401,26 @@ def test_a_campaign_of_listed_seeds_trains_and_exports_only_those(tmp_path, fake
     with open(csv_path) as f:
         rows = list(csv.DictReader(f))
     assert sorted((r["row"], r["seed"]) for r in rows) == [("base", "2"), ("full", "2")]
+    # the commands take the same lists: --seeds 2,3 lists and exports seeds 2 and 3 only
+    args = ["--root", str(out), "--scenes", "tiny-lamp-box"]
+    r = CliRunner().invoke(main, ["suite", "run", str(suite), *args, "--preset", "tiny"]
+                           + ["--seeds", "2,3", "--list-jobs"])  # fmt: skip
+    seeds = sorted(json.loads(ln)["seed"] for ln in r.output.splitlines())
+    assert r.exit_code == 0 and seeds == [2, 2, 3, 3], r.output
+    two = tmp_path / "two.csv"
+    r = CliRunner().invoke(main, ["suite", "export", str(suite), *args, "--csv", str(two)]
+                           + ["--seeds", "2,3"])  # fmt: skip
+    assert r.exit_code == 0, r.output
+    with open(two) as f:
+        got = sorted((r["row"], r["seed"], r["status"]) for r in csv.DictReader(f))
+    assert got == [
+        ("base", "2", "scored"),
+        ("base", "3", "missing"),
+        ("full", "2", "scored"),
+        ("full", "3", "missing"),
+    ]
+    r = CliRunner().invoke(main, ["suite", "export", str(suite), *args, "--seeds", "1,1"])
+    assert r.exit_code == 2 and "distinct seeds" in r.output
 
 
 def test_campaign_code_guard_ignores_the_calibration_rows(tmp_path):
