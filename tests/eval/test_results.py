@@ -703,7 +703,7 @@ def test_results_pending(tmp_path):
     from eval.study.controls import CONTROLS
     from eval.study.findings import FINDINGS
 
-    assert text.count("**not enough data**") == len(FINDINGS) + len(CONTROLS) == 54
+    assert text.count("**not enough data**") == len(FINDINGS) + len(CONTROLS) == 55
     assert "The result tables are pending" in readme.read_text()
     assert not (tmp_path / "docs" / "figures" / "results").exists() or not any(
         (tmp_path / "docs" / "figures" / "results").iterdir()
