@@ -30,7 +30,7 @@ class SuiteData:
     rows: List[dict]  # the CSV rows of the suite
     scenes: List[str]  # scenes with a CSV row, in the scene suite's order
     all_scenes: List[str]  # every scene of the suite's scene suite
-    seeds: List[int]
+    seeds: List[int]  # the trainer seeds some CSV row of the suite has
     row_names: List[str]  # in the suite's order
     labels: Dict[str, str]
     entries: List[dict] = field(default_factory=list)  # build_tables' entries (below)
@@ -171,7 +171,9 @@ def suite_data(
     scenes = [sc for sc in all_scenes if sc in present] + sorted(
         sc for sc in present if sc not in all_scenes
     )
-    seeds = list(range(1 + max((k[3] for k in by), default=0)))
+    # the trainer seeds the suite's rows have (a campaign may run seeds 2 and 3 only: seeds 0 and 1
+    # are then no runs missing but seeds it never meant to run)
+    seeds = sorted({k[3] for k in by}) or [0]
     # rows grouped by clip setting, in the suite's order (the job list's order, so the tables list
     # the rows as `eval table` does); rows the suite no longer defines come last
     groups, labels = [], {}

@@ -759,6 +759,37 @@ def test_results_of_a_suite_in_progress(tmp_path):
         assert unbold(body[labels[name]]["LDR-OE PSNR↑"]) == f"{m:.2f} ± {h:.2f}"
 
 
+def test_a_suite_run_at_later_seeds_only_misses_no_run(tmp_path):
+    """A campaign that runs seeds 2 and 3 only (a confirmatory test at seeds no earlier run used):
+    the page lists those seeds and counts no run of seeds 0 and 1 as missing."""
+    from eval.records.runs_csv import SCORED, write_runs_csv
+    from eval.records.suite_data import suite_data
+
+    rng = np.random.default_rng(4)
+
+    def row(scene, name, seed):
+        r = {"suite": "paper-main", "scene": scene, "row": name, "seed": seed, "label": name}
+        r.update(variant=name, preset="small", status=SCORED, ldr_convention="ldr_png")
+        r.update({k: float(rng.uniform(20, 30)) for k in METRICS})
+        return r
+
+    rows = [row(sc, n, k) for k in (2, 3) for sc in MAIN_SCENES for n in MAIN_ROWS + CAL_ROWS]
+    data = suite_data("paper-main", rows)
+    assert data.seeds == [2, 3] and all(e["metrics"] for e in data.entries)
+    assert {e["run_dir"].rsplit("/", 1)[1] for e in data.entries if e["row"] == "full"} == {
+        "full-seed-2",
+        "full-seed-3",
+    }
+    csvp, out = tmp_path / "runs.csv", tmp_path / "docs" / "results.md"
+    write_runs_csv(csvp, rows)
+    args = ["results", "--csv", str(csvp), "--out", str(out), "--no-readme", "--no-figures"]
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 0, r.output
+    n = len(rows)
+    assert "- Trainer seeds: 2 (2, 3)" in out.read_text()
+    assert f"- Runs: {n} scored of {n} (= {len(MAIN_SCENES)} scenes x" in out.read_text()
+
+
 def test_results_lists_failed_runs_and_leaves_their_pair_out(tmp_path):
     """A run whose job failed is a "failed" row with its error: the page counts and lists it, the
     tables leave its (scene, seed) pair out of every row, and a failed row never replaces a scored
