@@ -39,11 +39,10 @@ from m4dgs.core import io as mio
     "--add-missing",
     is_flag=True,
     help="Compute only the metrics an existing metrics.json lacks because it was written by an "
-    "earlier version (today: hdr_tce, hdr_psnr_p99, highlight_stops, highlight_peak_ratio and its "
-    "resolved form, the "
-    "held-out views' nv_* and the camera motion), leaving every other value as it is; the views of "
-    "an m4dgs run are rendered first when missing. Then re-export the suite to get them into a "
-    "runs CSV.",
+    "earlier version (today: hdr_tce, hdr_psnr_p99, highlight_stops, highlight_peak_ratio and "
+    "highlight_peak_ratio_resolved, the held-out views' nv_* and the camera motion), leaving every "
+    "other value as it is; the views of an m4dgs run are rendered first when missing. Then "
+    "re-export the suite to get them into a runs CSV.",
 )
 def score(
     run,

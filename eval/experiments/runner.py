@@ -2,8 +2,8 @@
 (resumable).
 
 The job list of a suite is (clip setting, scene, row) (eval.records.suite), times the trainer seeds
-of `seeds` (0 .. N-1; the clip is the same for every seed). Seed 0 trains into
-OUT/runs/<suite>/<scene>/<row> with the row's config as it is, seed n > 0 into
+of `seeds` (0 .. N-1, or a list such as [2, 3]; the clip is the same for every seed). Seed 0
+trains into OUT/runs/<suite>/<scene>/<row> with the row's config as it is, seed n > 0 into
 OUT/runs/<suite>/<scene>/<row>-seed-<n> with the override `seed` = the row's seed + n. `run_suite`
 works through it on an executor (m4dgs.core.executors): locally, with a process pool for
 `jobs > 1`, or on a Ray cluster or Slurm; `job_list` / `run_job` are the same work one job at a
