@@ -25,13 +25,17 @@ def _run(run, clip, masks, movers_scale, peak):
     (run / "metrics.json").write_text(json.dumps({"highlight_peak_ratio": peak}))
 
 
-def test_requirement_met_not_met_and_undecided(tmp_path, load_bench, capsys):
+def _campaign(tmp_path, load_bench):
+    """(the requirement module, the disc clip, its masks, the root, the suite's folder)."""
     smb = load_bench("small_mover_bench")
-    mr = load_bench("movers_requirement")
     clip = smb.make_disc_clip(tmp_path / "disc")
     masks = smb.write_dynamic_masks(tmp_path / "disc")
     root = tmp_path / "root"
-    suite = root / "runs" / "s"
+    return load_bench("movers_requirement"), clip, masks, root, root / "runs" / "s"
+
+
+def test_requirement_met_not_met_and_undecided(tmp_path, load_bench, capsys):
+    mr, clip, masks, root, suite = _campaign(tmp_path, load_bench)
     # the movers' scene: both seeds keep the disc (quotient 1 and 0.6), peaks in the band
     _run(suite / "disc" / "v", clip, masks, 1.0, 1.1)
     _run(suite / "disc" / "v-seed-1", clip, masks, 0.6, 0.6)
@@ -65,12 +69,7 @@ def test_requirement_met_not_met_and_undecided(tmp_path, load_bench, capsys):
 
 def test_later_seeds_and_the_resolved_peak(tmp_path, load_bench, capsys):
     """--first-seed 2 reads the folders <row>-seed-2 and -3 only; --peak reads the named ratio."""
-    smb = load_bench("small_mover_bench")
-    mr = load_bench("movers_requirement")
-    clip = smb.make_disc_clip(tmp_path / "disc")
-    masks = smb.write_dynamic_masks(tmp_path / "disc")
-    root = tmp_path / "root"
-    suite = root / "runs" / "s"
+    mr, clip, masks, root, suite = _campaign(tmp_path, load_bench)
     _run(suite / "disc" / "v", clip, masks, 0.1, 1.0)  # seed 0 loses the disc: not counted
     for seed in (2, 3):
         run = suite / "disc" / f"v-seed-{seed}"

@@ -710,11 +710,21 @@ def test_results_pending(tmp_path):
     )
 
 
+def _scored_main_row(rng, scene, name, seed):
+    """A scored paper-main CSV row of `name` with random metric values (20-30)."""
+    from eval.records.runs_csv import SCORED
+
+    r = {"suite": "paper-main", "scene": scene, "row": name, "seed": seed, "label": name}
+    r.update(variant=name, preset="small", status=SCORED, ldr_convention="ldr_png")
+    r.update({k: float(rng.uniform(20, 30)) for k in METRICS})
+    return r
+
+
 def test_results_of_a_suite_in_progress(tmp_path):
     """While paper-main runs, the tables compare the (scene, seed) pairs on which every row is
     scored (the runs of the other pairs wait), and the README's block stays pending until one pair
     is complete."""
-    from eval.records.runs_csv import SCORED, write_runs_csv
+    from eval.records.runs_csv import write_runs_csv
 
     rng = np.random.default_rng(3)
     csvp, readme = tmp_path / "runs.csv", tmp_path / "README.md"
@@ -723,10 +733,7 @@ def test_results_of_a_suite_in_progress(tmp_path):
     args.append("--no-figures")
 
     def row(scene, name, seed):
-        r = {"suite": "paper-main", "scene": scene, "row": name, "seed": seed, "label": name}
-        r.update(variant=name, preset="small", status=SCORED, ldr_convention="ldr_png")
-        r.update({k: float(rng.uniform(20, 30)) for k in METRICS})
-        return r
+        return _scored_main_row(rng, scene, name, seed)
 
     # seed 0 of the first scene: two rows only, so no pair is complete
     rows = [row(MAIN_SCENES[0], n, 0) for n in MAIN_ROWS[:2]]
@@ -762,16 +769,13 @@ def test_results_of_a_suite_in_progress(tmp_path):
 def test_a_suite_run_at_later_seeds_only_misses_no_run(tmp_path):
     """A campaign that runs seeds 2 and 3 only (a confirmatory test at seeds no earlier run used):
     the page lists those seeds and counts no run of seeds 0 and 1 as missing."""
-    from eval.records.runs_csv import SCORED, write_runs_csv
+    from eval.records.runs_csv import write_runs_csv
     from eval.records.suite_data import suite_data
 
     rng = np.random.default_rng(4)
 
     def row(scene, name, seed):
-        r = {"suite": "paper-main", "scene": scene, "row": name, "seed": seed, "label": name}
-        r.update(variant=name, preset="small", status=SCORED, ldr_convention="ldr_png")
-        r.update({k: float(rng.uniform(20, 30)) for k in METRICS})
-        return r
+        return _scored_main_row(rng, scene, name, seed)
 
     rows = [row(sc, n, k) for k in (2, 3) for sc in MAIN_SCENES for n in MAIN_ROWS + CAL_ROWS]
     data = suite_data("paper-main", rows)
@@ -914,17 +918,14 @@ def test_results_section_gives_the_seed_noise_of_its_runs(tmp_path):
     """The suite's section says how much a run moves with its trainer seed: the root mean square
     seed-1 minus seed-0 difference over the (scene, row) groups, computed here by hand, and the
     largest; no line for a suite with one seed."""
-    from eval.records.runs_csv import SCORED, write_runs_csv
+    from eval.records.runs_csv import write_runs_csv
 
     csvp, out = tmp_path / "runs.csv", tmp_path / "results.md"
     args = ["results", "--csv", str(csvp), "--out", str(out), "--no-readme", "--no-figures"]
     rng = np.random.default_rng(5)
 
     def row(scene, name, seed):
-        r = {"suite": "paper-main", "scene": scene, "row": name, "seed": seed, "label": name}
-        r.update(variant=name, preset="small", status=SCORED, ldr_convention="ldr_png")
-        r.update({k: float(rng.uniform(20, 30)) for k in METRICS})
-        return r
+        return _scored_main_row(rng, scene, name, seed)
 
     rows = [row(sc, n, 0) for sc in MAIN_SCENES for n in MAIN_ROWS]
     write_runs_csv(csvp, rows)
