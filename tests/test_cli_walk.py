@@ -61,7 +61,8 @@ BAD_ARGUMENTS = [
     ("benchgen", ["make", "--schedule", "sometimes"], "'sometimes' is not one of"),
     ("benchgen", ["make", "--spp", "0"], "0 is not in the range"),
     ("m4dgs-eval", ["table", "tiny", "--format", "pdf"], "'pdf' is not one of"),
-    ("m4dgs-eval", ["table", "tiny", "--seeds", "0"], "0 is not in the range"),
+    ("m4dgs-eval", ["table", "tiny", "--seeds", "0"], "'0': expected a count N >= 1"),
+    ("m4dgs-eval", ["table", "tiny", "--seeds", "2,2"], "list of distinct seeds >= 0"),
 ]
 
 
