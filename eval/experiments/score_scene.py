@@ -32,7 +32,12 @@ import numpy as np
 from eval.conventions import PSNR_CAP_DB
 from eval.experiments.run_files import read_render_exr
 from eval.experiments.view_scores import DYN_KEYS, METRICS, SPLITS, score_views
-from eval.metrics.scene_hdr import hdr_psnr_p99, highlight_scores, resolved_short_code
+from eval.metrics.scene_hdr import (
+    hdr_psnr_p99,
+    highlight_scores,
+    peak_geomean,
+    resolved_short_code,
+)
 from m4dgs.core.crf import get_crf
 
 SCENE_HDR_KEYS = [
@@ -90,10 +95,11 @@ def score_scene_hdr(job, m: dict) -> List[str]:
                 n += h["highlight_pixels"]
                 stops.append(h["highlight_stops"])
                 ratios.append(h["highlight_peak_ratio"])
-            h = highlight_scores(pred, gt, crf, max(obs), min(obs), max_short_code=fine)
-            if h["highlight_pixels"]:
-                n_fine += h["highlight_pixels"]
-                fine_ratios.append(h["highlight_peak_ratio"])
+                # the resolved pixels are a subset: only a frame with highlights can have them
+                h = highlight_scores(pred, gt, crf, max(obs), min(obs), max_short_code=fine)
+                if h["highlight_pixels"]:
+                    n_fine += h["highlight_pixels"]
+                    fine_ratios.append(h["highlight_peak_ratio"])
     m["hdr_psnr_p99"] = float(np.mean(p99))
     keys = ["hdr_psnr_p99"]
     if highlights:
@@ -102,15 +108,11 @@ def score_scene_hdr(job, m: dict) -> List[str]:
         # per frame, then the mean (stops) and the geometric mean (peak ratios) over frames
         if stops:
             m["highlight_stops"] = float(np.mean(stops))
-            m["highlight_peak_ratio"] = _geomean(ratios)
+            m["highlight_peak_ratio"] = peak_geomean(ratios)
         if fine_ratios:
-            m["highlight_peak_ratio_resolved"] = _geomean(fine_ratios)
+            m["highlight_peak_ratio_resolved"] = peak_geomean(fine_ratios)
         keys += ["highlight_stops", "highlight_peak_ratio", "highlight_peak_ratio_resolved"]
     return keys
-
-
-def _geomean(x) -> float:
-    return float(np.exp(np.mean(np.log(np.maximum(x, 1e-12)))))
 
 
 def view_keys(clip) -> List[str]:

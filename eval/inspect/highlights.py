@@ -35,15 +35,11 @@ import numpy as np
 from eval.experiments.run_files import read_render_exr, resolve_clip_dir
 from eval.experiments.runner import read_failure
 from eval.experiments.score_scene import true_response
-from eval.metrics.scene_hdr import highlight_scores
+from eval.metrics.scene_hdr import highlight_scores, peak_geomean
 from m4dgs.clip import Clip, frame_name
 from m4dgs.core.errors import InputError
 
 SPLITS = ("train", "test")
-
-
-def _geomean(x: List[float]) -> float:
-    return float(np.exp(np.mean(np.log(np.maximum(x, 1e-12))))) if x else math.nan
 
 
 def run_highlights(
@@ -103,12 +99,12 @@ def run_highlights(
         "highlight_frames": len(stops),
         "highlight_pixels": pixels,
         "highlight_stops": float(np.mean(stops)) if stops else math.nan,
-        "highlight_peak_ratio": _geomean(ratios),
+        "highlight_peak_ratio": peak_geomean(ratios),
         "by_level": {
             dt: {
                 "frames": len(v["stops"]),
                 "stops": float(np.mean(v["stops"])),
-                "peak_ratio": _geomean(v["ratios"]),
+                "peak_ratio": peak_geomean(v["ratios"]),
             }
             for dt, v in sorted(levels.items())
         },

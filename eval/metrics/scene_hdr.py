@@ -68,21 +68,25 @@ def code_bin_span(crf, code: int) -> float:
     lo, hi = (code - 0.5) / 255.0, (code + 0.5) / 255.0
     spans = []
     for f in curves:
-        a, b = (
-            float(np.asarray(f.inverse(np.float64(lo)))),
-            float(np.asarray(f.inverse(np.float64(hi)))),
-        )
+        a, b = (float(np.asarray(f.inverse(np.float64(y)))) for y in (lo, hi))
         spans.append(b / a if a > 0 and np.isfinite(b) else float("inf"))
     return max(spans)
 
 
 def resolved_short_code(crf, factor: float = RESOLVED_BIN) -> int:
     """The largest code c <= 254 whose HDR bin through the CRF `crf` (code_bin_span) spans at most
-    `factor` (253 with hdrnerf, 254 with gamma or srgb); 0 when no code's does."""
+    `factor` (253 with hdrnerf, 254 with srgb-shoulder); 0 when no code's does."""
     for c in range(254, 0, -1):
         if code_bin_span(crf, c) <= factor:
             return c
     return 0
+
+
+def peak_geomean(ratios) -> float:
+    """The geometric mean of per-frame peak ratios (each floored at 1e-12); NaN for none."""
+    if len(ratios) == 0:
+        return float("nan")
+    return float(np.exp(np.mean(np.log(np.maximum(ratios, 1e-12)))))
 
 
 def _frames(x) -> np.ndarray:
@@ -144,8 +148,6 @@ def highlight_scores(
         ratios.append(float(pf[m].max() / max(gf[m].max(), 1e-12)))
     return {
         "highlight_stops": float(np.mean(stops)) if stops else float("nan"),
-        "highlight_peak_ratio": float(np.exp(np.mean(np.log(np.maximum(ratios, 1e-12)))))
-        if ratios
-        else float("nan"),
+        "highlight_peak_ratio": peak_geomean(ratios),
         "highlight_pixels": n,
     }
