@@ -159,7 +159,8 @@ DESCRIPTIONS: Dict[str, str] = {
     '(docs/method.md, "Small bright movers")',
     "ns-2-chains-held": "BEYOND THE PAPER: ns-2-chains-free with the depth prior held at each "
     "bright blob's median around it, in stage 1 and stage 2's depth term, where a small mover's "
-    'prior depth jumps with what lies behind it (docs/method.md, "Small bright movers")',
+    "prior depth jumps with what lies behind it; the option for footage with small fast bright "
+    'movers, with a flicker cost (docs/method.md, "Small bright movers")',
     "ns-2-chains-held-rel": "BEYOND THE PAPER: ns-2-chains-held with stage 2's velocity and "
     "acceleration terms back at the paper's weights, on each Gaussian's motion relative to its 5 "
     "ARAP neighbours' (loss.smooth_relative), so that a mover's own speed is not charged "
