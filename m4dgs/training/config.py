@@ -137,6 +137,12 @@ class LRConfig:
     # follow a 2-stop ramp to within 0.3 stops with it (tests/training/test_relit_plane.py; 3e-2:
     # 0.1 stops)
     gain: float = 1e-2
+    # beyond the paper, stage 2 only (stage 1's video Gaussians are one set): the rate of the
+    # dynamic set's gain knots; None = `gain`. A glint on a moving object needs its gain to travel
+    # 4-8 stops on the one or two frames that show each flare, further than `gain` lets it in the
+    # small preset's steps, while raising every Gaussian's rate makes the static ones flicker
+    # (lab/notes/hard-lit.md, "What holds the glints' peak")
+    dynamic_gain: Optional[float] = None
 
     def position_lr(self, step: int, max_steps: int, dynamic: bool = False) -> float:
         """3DGS exponential decay: log-linear from position_init (step 0) to position_final (step

@@ -80,7 +80,8 @@ def gaussian_optimizers(
     "means") at lr.position_init x position_scale (the scene extent in world space, 3DGS), the
     others at their LRConfig rates (appendix "Implementation Details"); `dynamic` (the stage-2
     dynamic set): positions and rotations at lr.dynamic_position_init / lr.dynamic_rotation; the
-    log2 gain over time (beyond the paper) at lr.gain."""
+    log2 gain over time (beyond the paper) at lr.gain, or the dynamic set's at lr.dynamic_gain when
+    that is set."""
     pos = (lr.dynamic_position_init if dynamic else lr.position_init) * position_scale
     lrs = {
         "ctrl": pos,
@@ -90,7 +91,7 @@ def gaussian_optimizers(
         "scales": lr.scale,
         "opacities": lr.opacity,
         "features": lr.features,
-        GAIN_KEY: lr.gain,
+        GAIN_KEY: lr.dynamic_gain if dynamic and lr.dynamic_gain is not None else lr.gain,
     }
     return {k: adam([params[k]], lrs[k], lr.adam_eps) for k in keys}
 

@@ -832,6 +832,26 @@ def test_the_gain_is_optimised_regularised_and_saved_in_both_stages(data):
     assert torch.equal(ws2.gauss.gain_values(), ws.gauss.gain_values())
 
 
+def test_the_dynamic_sets_gain_can_have_its_own_rate(data):
+    """stage2.lr.dynamic_gain (beyond the paper) sets the rate of the dynamic set's gain knots only;
+    unset, both sets step at lr.gain. Adam's first step moves every parameter with a gradient by
+    its rate (m / sqrt(v) = sign(g) after the bias correction), so the knots' largest move is
+    each set's rate."""
+    ws = world_stage(data, **{"model.appearance_knots": 4})
+    assert ws.opt_static[GAIN_KEY].param_groups[0]["lr"] == 1e-2
+    assert ws.opt_dynamic[GAIN_KEY].param_groups[0]["lr"] == 1e-2
+    ws = world_stage(data, **{"model.appearance_knots": 4, "stage2.lr.dynamic_gain": 0.1})
+    assert ws.opt_static[GAIN_KEY].param_groups[0]["lr"] == 1e-2
+    assert ws.opt_dynamic[GAIN_KEY].param_groups[0]["lr"] == 0.1
+    s0 = ws.gauss.static[GAIN_KEY].detach().clone()
+    d0 = ws.gauss.dynamic[GAIN_KEY].detach().clone()
+    ws.step(0)
+    ds = (ws.gauss.static[GAIN_KEY].detach() - s0).abs()
+    dd = (ws.gauss.dynamic[GAIN_KEY].detach() - d0).abs()
+    assert float(ds.max()) == pytest.approx(1e-2, rel=1e-3)
+    assert float(dd.max()) == pytest.approx(0.1, rel=1e-3)
+
+
 def test_gaussians_of_another_gain_setting_are_refused(data):
     ws = world_stage(data, **{"model.appearance_knots": 4})
     with pytest.raises(ValueError, match=r"stage 2: .* 4 knots, .*model\.appearance_knots = 0"):
