@@ -96,6 +96,9 @@ class VideoInitConfig:
     # (m4dgs.priors.highlight_tracks; docs/method.md, "Small bright movers")
     highlight_tracks: bool = False
     highlight_points: int = 16  # tracks per linked blob chain
+    # smallest blob the tracker keeps, in pixels (m4dgs.priors.highlight_tracks, step 1; beyond the
+    # paper): 3 leaves out one-pixel sparkles; a glint on a moving object is 1-3 px
+    highlight_min_area: int = 3
     # beyond the paper (off = the paper): the chains carry the motion where they are: their tracks
     # replace the prior tracks that follow them, and the flow prior is off around them, in stage 1's
     # initialisation and its track and flow losses (m4dgs.priors.highlight_tracks, step 5). Implies

@@ -896,6 +896,8 @@ def _check_range(section: Any, name: str, v: Any, key: str) -> None:
         raise _range_error(key, v, ">= 0 (a fraction of the render's median HDR value)")
     if name == "appearance_knots" and v < 0:
         raise _range_error(key, v, ">= 0 (0 = no gain over time, the paper's colour)")
+    if name == "highlight_min_area" and v < 1:
+        raise _range_error(key, v, ">= 1 (pixels)")
     if name.endswith("_sigma") and isinstance(section, V2WConfig) and not v > 0:
         raise _range_error(key, v, "> 0 (a tolerance)")
 

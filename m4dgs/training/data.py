@@ -186,7 +186,9 @@ def _chains(data: TrainingData, init: VideoInitConfig):
     from m4dgs.priors.highlight_tracks import chain_centres, highlight_tracks
 
     points = int(init.highlight_points)
-    ht, hv = highlight_tracks(*frames_and_exposures(data), points=points)
+    ht, hv = highlight_tracks(
+        *frames_and_exposures(data), points=points, min_area=int(init.highlight_min_area)
+    )
     if ht.shape[0] == 0:
         return None
     return ht, hv, chain_centres(ht, hv, points)
@@ -263,7 +265,11 @@ def init_tracks(
         return tracks, vis, always
     from m4dgs.priors.highlight_tracks import highlight_tracks
 
-    ht, hv = highlight_tracks(*frames_and_exposures(data), points=int(init.highlight_points))
+    ht, hv = highlight_tracks(
+        *frames_and_exposures(data),
+        points=int(init.highlight_points),
+        min_area=int(init.highlight_min_area),
+    )
     if ht.shape[0] == 0:
         return tracks, vis, always
     ht_t = torch.from_numpy(ht).to(device=tracks.device, dtype=tracks.dtype)

@@ -157,6 +157,25 @@ def test_init_tracks_adds_nothing_unless_asked(on):
     assert tr.shape[0] == (7 + 4 if on else 7) and int(always.sum()) == (4 if on else 0)
 
 
+def test_a_one_pixel_glint_is_tracked_only_with_the_smaller_min_area():
+    """A glint (one pixel, radiance 3, 2 px a frame) is below the tracker's default 3-pixel blobs;
+    `init.highlight_min_area=1` links it, and its tracks sit on it."""
+    from m4dgs.training.data import init_tracks
+
+    prior = torch.rand(7, T, 2) * 50
+    d = _training_data(_video([(20.5, 30.5, 2.0, 0.0, 0.6, 3.0)]), prior)
+    _, _, always = init_tracks(d, VideoInitConfig(highlight_tracks=True, highlight_points=4))
+    assert int(always.sum()) == 0
+    cfg = VideoInitConfig(highlight_tracks=True, highlight_points=4, highlight_min_area=1)
+    tr, vi, always = init_tracks(d, cfg)
+    assert int(always.sum()) == 4
+    seen = np.nonzero(vi[-1].numpy())[0]
+    assert len(seen) >= T // 2, seen
+    centre = tr[-4:].mean(0).numpy()[seen]
+    want = np.array([[20.5 + 2.0 * t, 30.5] for t in seen])
+    assert np.abs(centre - want).max() < 0.5
+
+
 def test_the_disc_clip_of_the_regression_test_is_tracked(load_bench):
     """The frames tests/training/test_small_mover.py trains on (bench/small_mover_bench.py, through
     the clip's hdrnerf response at benchgen's alternating exposures): one chain, on the disc."""

@@ -328,6 +328,7 @@ def test_validate_catches_values_set_directly():
         ("model.appearance_knots", -1, r">= 0 \(0 = no gain over time, the paper's colour\)"),
         ("stage1.lr.gain", 0.0, r"> 0 \(a learning rate\)"),
         ("stage2.lr.dynamic_gain", 0.0, r"> 0 \(a learning rate\)"),
+        ("stage1.init.highlight_min_area", 0, r">= 1 \(pixels\)"),
         ("stage2.loss.lambda_gain_smooth", -1.0, r">= 0 \(a loss weight; 0 turns the term off\)"),
     ],
 )
