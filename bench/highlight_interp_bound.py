@@ -149,7 +149,13 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("clips", nargs="+", type=Path, help="evaluation clip folders (with gt/)")
     ap.add_argument("--json", type=Path, help="also write every frame's figures here")
     a = ap.parse_args(argv)
-    reports = [clip_bound(c) for c in a.clips]
+    from m4dgs.clip import ClipError
+
+    try:
+        reports = [clip_bound(c) for c in a.clips]
+    except ClipError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     for r in reports:
         n = len(r["frames"])
         parts = [

@@ -51,3 +51,9 @@ def test_a_point_far_from_every_track_is_not_carried(load_bench):
     r = hb.frame_bound(lum, lum > 0, [(lum, np.full((H * W, 2), np.nan))])
     assert r["max"] == 0.0 and r["same_pixel"] == 1.0
     assert np.isclose(hb.geomean([0.5, 2.0]), 1.0)
+
+
+def test_a_clip_without_ground_truth_is_named(load_bench, tmp_path, capsys):
+    hb = load_bench("highlight_interp_bound")
+    assert hb.main([str(tmp_path / "missing")]) == 2
+    assert "missing" in capsys.readouterr().err
