@@ -31,14 +31,16 @@ from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
+from eval.metrics.scene_hdr import LUMA, highlight_mask, peak_geomean
+
 BAND = (0.5, 2.0)
 KINDS = ("max", "mean", "same_pixel")
 
 
 def luminance(hdr: np.ndarray) -> np.ndarray:
-    """[H, W] Rec. 709 luminance of a linear [H, W, 3] image."""
+    """[H, W] Rec. 709 luminance of a linear [H, W, 3] image (the scorer's weights)."""
     return np.asarray(hdr, np.float64) @ LUMA
 
 
@@ -54,15 +56,15 @@ def carry_points(
     tracks_a / tracks_b [M, 2] the positions at a and b of the tracks visible at both. NaN where
     the nearest track is farther than near_px (or there is none)."""
     pts = np.asarray(pts, np.float64).reshape(-1, 2)
+    a = np.asarray(tracks_a, np.float64).reshape(-1, 2)
     out = np.full_like(pts, np.nan)
-    if len(tracks_a) == 0:
+    if len(a) == 0:
         return out
-    disp = np.asarray(tracks_b, np.float64) - np.asarray(tracks_a, np.float64)
-    for i, p in enumerate(pts):
-        d = np.hypot(*(np.asarray(tracks_a, np.float64) - p).T)
-        near = np.argsort(d)[:k]
-        if d[near[0]] <= near_px:
-            out[i] = p + np.median(disp[near], axis=0)
+    disp = np.asarray(tracks_b, np.float64).reshape(-1, 2) - a
+    d, near = cKDTree(a).query(pts, k=min(k, len(a)))
+    d, near = d.reshape(len(pts), -1), near.reshape(len(pts), -1)
+    ok = d[:, 0] <= near_px
+    out[ok] = pts[ok] + np.median(disp[near[ok]], axis=1)
     return out
 
 
@@ -100,15 +102,9 @@ def frame_bound(
     }
 
 
-def geomean(values: Sequence[float]) -> float:
-    v = np.maximum(np.asarray(values, np.float64), 1e-12)
-    return float(np.exp(np.log(v).mean())) if len(v) else float("nan")
-
-
 def clip_bound(clip_dir: Path, k: int = 3, near_px: float = 2.0) -> Dict:
     """Per test frame with highlight pixels, frame_bound's ratios, and their geometric means."""
     from eval.experiments.score_scene import true_response
-    from eval.metrics.scene_hdr import highlight_mask
     from m4dgs.clip import Clip
 
     clip = Clip.open(clip_dir)
@@ -138,7 +134,7 @@ def clip_bound(clip_dir: Path, k: int = 3, near_px: float = 2.0) -> Dict:
     for kind in KINDS:
         v = [f[kind] for f in frames]
         summary[kind] = {
-            "peak_ratio": geomean(v),
+            "peak_ratio": peak_geomean(v),
             "in_band": int(sum(BAND[0] <= x <= BAND[1] for x in v)),
         }
     return {"clip": Path(clip_dir).name, "frames": frames, "summary": summary}
