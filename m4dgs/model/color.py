@@ -4,9 +4,16 @@ Each Gaussian stores a 36-d feature; its HDR irradiance is ``e = 2 ** MLP([featu
 direction])`` with MLP = Linear(39, 36) - ReLU - Linear(36, 3) (authors' code: base-2 exponential,
 no clamp), so e > 0 always. Video-space Gaussians (stage 1) have no meaningful view direction: build
 the module with ``view_dependent=False`` (the direction input is then zeros, keeping the 39-d input
-so that stage-2 world Gaussians can inherit the same weights)."""
+so that stage-2 world Gaussians can inherit the same weights).
+
+Beyond the paper, the direction fed to the MLP can be the view direction mirrored about each
+Gaussian's normal (``direction="reflected"``, the reflected direction of Ref-NeRF): a mirror-like
+surface shows a fixed light where that direction meets it, so the MLP can tie a highlight to it
+(`color_directions`). A Gaussian's normal is the axis of its smallest scale."""
 
 from __future__ import annotations
+
+from typing import Optional
 
 import torch
 import torch.nn as nn
@@ -14,6 +21,7 @@ import torch.nn.functional as F
 
 FEATURE_DIM = 36  # paper appendix: 36-d colour features
 HIDDEN_DIM = 36  # paper appendix: colour MLP hidden width 36
+DIRECTIONS = ("view", "reflected")  # what `direction` may name (ToneMapConfig.color_direction)
 
 
 class ColorMLP(nn.Module):
@@ -25,16 +33,23 @@ class ColorMLP(nn.Module):
         hidden: int = HIDDEN_DIM,
         view_dependent: bool = True,
         max_log2: float | None = None,
+        direction: str = "view",
     ):
         """
         Args:
             feature_dim: F, the per-Gaussian feature size (36). hidden: hidden width (36).
             view_dependent: when False the view direction input is replaced by zeros. max_log2:
             optional clamp of the MLP output before 2 ** (None = authors' choice, no clamp).
+            direction: which direction the renders feed when view dependent (`color_directions`):
+            "view" (camera centre -> Gaussian, the authors') or "reflected" (that direction
+            mirrored about the Gaussian's normal; beyond the paper).
         """
         super().__init__()
+        if direction not in DIRECTIONS:
+            raise ValueError(f"colour direction must be one of {DIRECTIONS}; got {direction!r}")
         self.feature_dim = int(feature_dim)
         self.view_dependent = bool(view_dependent)
+        self.direction = direction
         self.max_log2 = max_log2
         self.fc1 = nn.Linear(self.feature_dim + 3, hidden)
         self.fc2 = nn.Linear(hidden, 3)
@@ -73,3 +88,54 @@ def view_directions(means: torch.Tensor, cam_center: torch.Tensor) -> torch.Tens
     """
     d = means - cam_center.to(means.dtype)
     return d / d.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
+def gaussian_normals(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
+    """Each Gaussian's normal: the unit axis of its smallest scale, in world space.
+
+    Args:
+        quats: [N, 4] rotations (w, x, y, z; need not be unit). scales: [N, 3] activated scales.
+    Returns:
+        [N, 3] unit normals; their sign is arbitrary (`reflect` does not depend on it).
+    """
+    from m4dgs.core.camera import quat_to_rotmat
+
+    R = quat_to_rotmat(quats)  # [N, 3, 3], columns = the local axes in world space
+    idx = scales.argmin(dim=-1)  # [N]
+    return R.gather(-1, idx[:, None, None].expand(-1, 3, 1))[..., 0]
+
+
+def reflect(dirs: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+    """Directions mirrored about planes with the given unit normals: d - 2 (d . n) n.
+
+    Args:
+        dirs: [N, 3]; normals: [N, 3] unit (either sign gives the same result).
+    Returns:
+        [N, 3], as long as `dirs`.
+    """
+    return dirs - 2.0 * (dirs * normals).sum(-1, keepdim=True) * normals
+
+
+def color_directions(
+    color: ColorMLP,
+    means: torch.Tensor,
+    quats: torch.Tensor,
+    scales: torch.Tensor,
+    cam_center: torch.Tensor,
+) -> Optional[torch.Tensor]:
+    """The direction input of a pinhole render's colour MLP, or None when it has none.
+
+    Args:
+        color: the colour MLP (its `view_dependent` and `direction`). means: [N, 3] world
+        positions at the render time; quats: [N, 4] and scales: [N, 3] (activated) at that time;
+        cam_center: [3] camera centre (c2w[:3, 3]).
+    Returns:
+        [N, 3] unit directions: camera centre -> Gaussian ("view"), or that mirrored about each
+        Gaussian's normal (`gaussian_normals`, "reflected"); None when not view dependent.
+    """
+    if not color.view_dependent:
+        return None
+    d = view_directions(means, cam_center)
+    if color.direction == "reflected":
+        d = reflect(d, gaussian_normals(quats, scales.to(d.dtype)))
+    return d

@@ -17,7 +17,7 @@ import torch
 
 from m4dgs.core import camera as cam
 from m4dgs.model.background import Background
-from m4dgs.model.color import ColorMLP, view_directions
+from m4dgs.model.color import ColorMLP, color_directions
 from m4dgs.raster import render
 
 
@@ -60,7 +60,8 @@ def render_gaussians(
     world-to-camera matrix [4, 4]) or "pinhole" (`view` is the camera-to-world pose c2w [4, 4]).
 
     Features: HDR colour (3, background 2^b; with a view-dependent colour MLP and a pinhole camera,
-    of the feature and the direction from the camera centre c2w[:3, 3] to each Gaussian; times the
+    of the feature and the direction from the camera centre c2w[:3, 3] to each Gaussian, or that
+    direction mirrored about the Gaussian's normal (`color_directions`); times the
     Gaussian's gain at t when it has one, `gaussian_colors`) + the Gaussians' positions at each
     destination time (3 each, background 0), alpha-blended."""
     if dest_times:
@@ -70,11 +71,12 @@ def render_gaussians(
         means, dest_pos = pos[:, 0], pos[:, 1:].reshape(pos.shape[0], -1)
     else:
         means, dest_pos = gauss.positions(t), None
-    # view directions for a view-dependent colour MLP: pinhole renders only (the orthographic
-    # video camera has none; the MLP then sees zeros)
+    quats, scales = gauss.quats(t), gauss.scales()
+    # directions for a view-dependent colour MLP (view or reflected, `color_directions`): pinhole
+    # renders only (the orthographic video camera has none; the MLP then sees zeros)
     dirs = (
-        view_directions(means, view[:3, 3])
-        if color.view_dependent and camera_model == "pinhole"
+        color_directions(color, means, quats, scales, view[:3, 3])
+        if camera_model == "pinhole"
         else None
     )
     hdr = gaussian_colors(gauss, color, t, dirs)
@@ -82,8 +84,8 @@ def render_gaussians(
     background = torch.cat([bg(), means.new_zeros(feats.shape[1] - 3)])
     out = render(
         means,
-        gauss.quats(t),
-        gauss.scales(),
+        quats,
+        scales,
         gauss.opacities(),
         feats,
         cam.invert_rigid(view) if camera_model == "pinhole" else view,

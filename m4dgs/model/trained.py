@@ -49,6 +49,7 @@ class TrainedModel:
             feature_dim=sd.get("feature_dim", 36),
             hidden=cfg["tonemap"]["color_hidden"],
             view_dependent=cfg["tonemap"].get("color_view_dependent", False),
+            direction=cfg["tonemap"].get("color_direction", "view"),
         ).to(self.device)
         self.color.load_state_dict(sd["color"])
         self.tm = ToneMapper(

@@ -95,6 +95,7 @@ DynamicRemovalScope = Literal["new", "densified", "all"]
 CloneSplitExtent = Literal["cameras", "absolute"]
 V2WResample = Literal["lstsq", "sample"]
 V2WWorldFit = Literal["world", "pixel"]
+ColorDirection = Literal["view", "reflected"]  # m4dgs.model.color.DIRECTIONS
 
 PRESETS: Tuple[str, ...] = typing.get_args(PresetName)
 LDR_REPROJ_PAIRS: Tuple[str, ...] = typing.get_args(LdrReprojPairs)
@@ -397,6 +398,11 @@ class ToneMapConfig:
     # measured result so far was without it. Stage 1's orthographic video camera has no direction
     # (zeros), so stage-2 Gaussians inherit the same weights either way
     color_view_dependent: bool = False
+    # which direction that input is (beyond the paper; read only with color_view_dependent): "view"
+    # (the authors') or "reflected", the view direction mirrored about each Gaussian's normal (the
+    # axis of its smallest scale, turning with it), so that a mirror-like surface can show a fixed
+    # light where that direction meets it (m4dgs.model.color.color_directions)
+    color_direction: ColorDirection = "view"
     pretrain_steps: int = 1_000
     pretrain_monotonic_weight: float = 10.0  # ReLU of the negative slope over ln x in [-10, 10]
     lambda_monotonic: float = (
@@ -943,6 +949,13 @@ def validate(cfg: Any, prefix: str = "") -> None:
             raise ConfigError(str(e)) from e
     if isinstance(cfg, ToneMapConfig):
         from m4dgs.core.crf import available_crfs
+
+        if cfg.color_direction != "view" and not cfg.color_view_dependent:
+            raise ConfigError(
+                f"config key '{prefix}color_direction' = {cfg.color_direction!r} needs "
+                f"'{prefix}color_view_dependent' = true (without it the colour MLP sees no "
+                "direction)"
+            )
 
         known = ("log-logistic", "reinhard-c0", "auto", *available_crfs())
         if cfg.pretrain_crf not in known:

@@ -46,12 +46,13 @@ GAUSSIAN_KEYS = SPLINE_KEYS
 
 def build_appearance(cfg: TrainConfig, c0: float, device, pretrain: bool = True) -> tuple:
     """Colour MLP (36 + 3 -> 36 -> 3, 2^x output; the view direction only when
-    tonemap.color_view_dependent) and the per-channel tone mapper, pre-trained on a generic
-    curve."""
+    tonemap.color_view_dependent, mirrored about the normals with tonemap.color_direction =
+    "reflected") and the per-channel tone mapper, pre-trained on a generic curve."""
     color = ColorMLP(
         feature_dim=cfg.model.feature_dim,
         hidden=cfg.tonemap.color_hidden,
         view_dependent=cfg.tonemap.color_view_dependent,
+        direction=cfg.tonemap.color_direction,
     ).to(device)
     tm = ToneMapper(hidden=cfg.tonemap.tonemap_hidden, lut_size=cfg.tonemap.lut_size).to(device)
     if pretrain and cfg.tonemap.pretrain_steps > 0:

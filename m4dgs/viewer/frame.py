@@ -148,12 +148,12 @@ def _split_image(model, camera: ViewCamera, time: float, ldr: np.ndarray) -> np.
 
 
 def _centres_image(model, camera: ViewCamera, time: float, ev: float) -> np.ndarray:
-    from m4dgs.model.color import view_directions
+    from m4dgs.model.color import color_directions
     from m4dgs.model.render import gaussian_colors
 
-    means, _, _, opac = _gauss_time_state(model, time)
+    means, quats, scales, opac = _gauss_time_state(model, time)
     c2w = torch.as_tensor(camera.c2w, dtype=torch.float32, device=means.device)
-    dirs = view_directions(means, c2w[:3, 3]) if model.color.view_dependent else None
+    dirs = color_directions(model.color, means, quats, scales, c2w[:3, 3])
     hdr = gaussian_colors(model.gauss, model.color, model.time_of(time), dirs)
     rgb = model.tm(hdr, _t(ev, hdr)).clamp(0, 1).cpu().numpy()
     w2c = cam.invert_rigid(c2w)

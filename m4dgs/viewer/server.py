@@ -264,17 +264,16 @@ class Viewer:
             return
         import torch
 
-        from m4dgs.model.color import view_directions
+        from m4dgs.model.color import color_directions
         from m4dgs.model.render import gaussian_colors
 
         m = self.model
         with torch.no_grad():
             t = m.time_of(float(self.gui_time.value))
             pos = m.gauss.positions(t)
-            dirs = None
-            if m.color.view_dependent:  # coloured as seen from the selected camera
-                c = torch.as_tensor(self.selected.camera.c2w[:3, 3], dtype=pos.dtype)
-                dirs = view_directions(pos, c.to(pos.device))
+            # a view-dependent colour is the one seen from the selected camera
+            c = torch.as_tensor(self.selected.camera.c2w[:3, 3], dtype=pos.dtype).to(pos.device)
+            dirs = color_directions(m.color, pos, m.gauss.quats(t), m.gauss.scales(), c)
             hdr = gaussian_colors(m.gauss, m.color, t, dirs)
             rgb = m.tm(hdr, torch.tensor(float(self.gui_ev.value), dtype=hdr.dtype))
         cols = np.clip(np.round(rgb.clamp(0, 1).cpu().numpy() * 255), 0, 255).astype(np.uint8)

@@ -115,3 +115,125 @@ def test_view_direction_reaches_the_colour_mlp_of_pinhole_renders_only():
         mlp.view_dependent = False
         b = render_gaussians(g, mlp, bg, 0.0, torch.eye(4), Ko, 48, 32, "ortho", "torch")
         torch.testing.assert_close(a.hdr, b.hdr)
+
+
+def _axis_angle_quat(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
+
+
+def test_normals_are_the_smallest_scale_axis():
+    """A rotation of 90 degrees about z takes local x to world y and local y to world -x: the
+    normal of a Gaussian flattest along local x is world +-y, along y +-x, along z +-z."""
+    from m4dgs.model.color import gaussian_normals
+
+    q = torch.tensor(np.stack([_axis_angle_quat([0, 0, 1], np.pi / 2)] * 3), dtype=torch.float64)
+    scales = torch.tensor([[0.01, 1.0, 2.0], [1.0, 0.02, 2.0], [1.0, 2.0, 0.03]], dtype=q.dtype)
+    n = gaussian_normals(q, scales)
+    expect = torch.tensor([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], dtype=q.dtype)
+    torch.testing.assert_close(n.abs(), expect.abs(), atol=1e-12, rtol=0)
+    torch.testing.assert_close(n, expect, atol=1e-12, rtol=0)
+    # a non-unit quaternion gives the same normal
+    torch.testing.assert_close(gaussian_normals(3.0 * q, scales), n)
+
+
+def test_reflect_is_a_mirror():
+    """Mirroring about the plane z = 0 flips z; either sign of the normal; twice is identity;
+    lengths are kept; a random case against the Householder matrix I - 2 n n^T."""
+    from m4dgs.model.color import reflect
+
+    d = torch.tensor([[0.6, 0.0, -0.8], [0.0, 1.0, 0.0]])
+    n = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+    torch.testing.assert_close(reflect(d, n), torch.tensor([[0.6, 0.0, 0.8], [0.0, 1.0, 0.0]]))
+    g = torch.Generator().manual_seed(3)
+    d = torch.randn(20, 3, generator=g, dtype=torch.float64)
+    n = torch.nn.functional.normalize(torch.randn(20, 3, generator=g, dtype=torch.float64), dim=-1)
+    r = reflect(d, n)
+    torch.testing.assert_close(reflect(d, -n), r)
+    torch.testing.assert_close(reflect(r, n), d)
+    torch.testing.assert_close(r.norm(dim=-1), d.norm(dim=-1))
+    H = torch.eye(3, dtype=d.dtype) - 2 * n[:, :, None] * n[:, None, :]
+    torch.testing.assert_close(r, (H @ d[:, :, None])[..., 0])
+
+
+def test_reflected_direction_reaches_the_colour_mlp():
+    """With direction "reflected" a pinhole render equals the rasterizer fed with colours of the
+    numpy reflection of (camera centre -> Gaussian) about each Gaussian's smallest-scale axis; the
+    colour then turns with the Gaussian (which "view" does not), and its gradient reaches the
+    rotation (checked against a central finite difference)."""
+    from m4dgs.core.camera import K_from_fov, quat_to_rotmat
+    from m4dgs.model.background import Background
+    from m4dgs.model.color import color_directions
+    from m4dgs.model.render import render_gaussians
+    from m4dgs.raster import render
+
+    class _Turned(_StaticGaussians):
+        def __init__(self, means, feats, q, s):
+            super().__init__(means, feats)
+            self.q, self.s = q, s
+
+        def quats(self, t):
+            return self.q
+
+        def scales(self):
+            return self.s
+
+    torch.manual_seed(0)
+    means = torch.tensor([[-0.5, 0.1, 3.0], [0.6, -0.2, 4.0], [0.0, 0.3, 5.0]])
+    feats = torch.randn(3, 36)
+    rng = np.random.default_rng(5)
+    q = torch.tensor(rng.normal(size=(3, 4)), dtype=torch.float32)
+    s = torch.tensor([[0.3, 0.05, 0.2], [0.02, 0.3, 0.25], [0.3, 0.2, 0.04]])
+    g = _Turned(means, feats, q, s)
+    mlp, bg = ColorMLP(view_dependent=True, direction="reflected"), Background(False)
+    K = torch.as_tensor(K_from_fov(48, 32, 60.0), dtype=torch.float32)
+    c2w = torch.eye(4)
+    c2w[:3, 3] = torch.tensor([0.2, -0.1, -1.0])
+    with torch.no_grad():
+        out = render_gaussians(g, mlp, bg, 0.0, c2w, K, 48, 32, "pinhole", "torch")
+        d = means.double().numpy() - c2w[:3, 3].double().numpy()
+        d = d / np.linalg.norm(d, axis=1, keepdims=True)
+        R = quat_to_rotmat(q.double()).numpy()
+        n = np.stack([R[i][:, int(np.argmin(s[i].numpy()))] for i in range(3)])
+        r = d - 2 * (d * n).sum(1, keepdims=True) * n
+        colors = torch.from_numpy(_numpy_reference(mlp, feats.double().numpy(), r)).float()
+        ref = render(
+            means, q, s, g.opacities(), colors, torch.linalg.inv(c2w), K, 48, 32,
+            backend="torch", background=bg(),
+        )  # fmt: skip
+        torch.testing.assert_close(out.hdr, ref.features, rtol=1e-5, atol=1e-6)
+        # "view" on the same Gaussians gives other colours
+        mlp.direction = "view"
+        view = render_gaussians(g, mlp, bg, 0.0, c2w, K, 48, 32, "pinhole", "torch")
+        assert (view.hdr - out.hdr).abs().max() > 1e-3
+        mlp.direction = "reflected"
+
+    # gradient of one Gaussian's colour with respect to its quaternion: autograd against a
+    # central finite difference in float64
+    mlp64 = ColorMLP(view_dependent=True, direction="reflected").double()
+    mlp64.load_state_dict({k: v.double() for k, v in mlp.state_dict().items()})
+    m64, s64, f64 = means.double(), s.double(), feats.double()
+    cam = c2w[:3, 3].double()
+
+    def colour_sum(qq):
+        return mlp64(f64, color_directions(mlp64, m64, qq, s64, cam)).sum()
+
+    q64 = q.double().clone().requires_grad_(True)
+    colour_sum(q64).backward()
+    num = torch.zeros_like(q64)
+    eps = 1e-6
+    with torch.no_grad():
+        for i in range(3):
+            for j in range(4):
+                e = torch.zeros_like(q64)
+                e[i, j] = eps
+                num[i, j] = (colour_sum(q64 + e) - colour_sum(q64 - e)) / (2 * eps)
+    assert num.abs().max() > 1e-3
+    torch.testing.assert_close(q64.grad, num, rtol=1e-5, atol=1e-7)
+
+
+def test_colour_direction_names_are_checked():
+    import pytest
+
+    with pytest.raises(ValueError, match="reflected"):
+        ColorMLP(direction="mirror")

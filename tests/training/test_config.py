@@ -369,3 +369,21 @@ def test_numbers_in_exponent_notation_are_numbers(key, text, expected):
 def test_a_word_for_a_number_still_names_the_key():
     with pytest.raises(ValueError, match="stage1.densify.grad_threshold"):
         apply_overrides(preset("tiny"), {"stage1.densify.grad_threshold": "small"})
+
+
+def test_colour_direction_needs_a_view_dependent_mlp():
+    """tonemap.color_direction: "reflected" is accepted with a view-dependent colour MLP, refused
+    without one (naming both keys), and a name outside the choices is refused."""
+    cfg = apply_overrides(
+        preset("tiny"),
+        {"tonemap.color_view_dependent": True, "tonemap.color_direction": "reflected"},
+    )
+    assert cfg.tonemap.color_direction == "reflected"
+    with pytest.raises(ValueError, match=r"'tonemap.color_direction' = 'reflected' needs "
+                       r"'tonemap.color_view_dependent' = true"):  # fmt: skip
+        apply_overrides(preset("tiny"), {"tonemap.color_direction": "reflected"})
+    with pytest.raises(ValueError, match=r"tonemap.color_direction"):
+        apply_overrides(
+            preset("tiny"),
+            {"tonemap.color_view_dependent": True, "tonemap.color_direction": "mirror"},
+        )

@@ -596,6 +596,12 @@ def test_view_dependent_colour_option_reaches_the_stages(data):
     assert ws.color.view_dependent
     g = torch.autograd.grad(ws.losses(10).terms["rgb"], ws.color.fc1.weight)[0]
     assert g[:, -3:].abs().max() > 0
+    # the reflected direction (beyond the paper) reaches both stages' MLPs, and stage 2's sees it
+    kw = {"tonemap.color_view_dependent": True, "tonemap.color_direction": "reflected"}
+    ws = world_stage(data, **kw)
+    assert ws.color.direction == video_stage(data, **kw).color.direction == "reflected"
+    g = torch.autograd.grad(ws.losses(10).terms["rgb"], ws.color.fc1.weight)[0]
+    assert g[:, -3:].abs().max() > 0
 
 
 def test_a_non_finite_loss_stops_training_naming_stage_step_and_term(data):

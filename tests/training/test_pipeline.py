@@ -195,6 +195,39 @@ def test_a_gain_over_time_is_handed_over_saved_and_rendered_by_the_loaded_model(
     assert not torch.equal(model.render(1.5, seen["c2w"].numpy())["hdr"], seen[1.5])
 
 
+def test_the_trained_model_keeps_the_reflected_colour_direction(
+    tiny_clip_realistic, tmp_path, monkeypatch, short_training
+):
+    """Beyond the paper (tonemap.color_direction = "reflected"): the model loaded from final.pt
+    feeds its colour MLP the reflected direction and renders exactly what stage 2 rendered."""
+    from m4dgs.model.trained import load_model
+    from m4dgs.training import pipeline
+
+    seen = {}
+    real = pipeline.train_stage2
+
+    def recording(stage, *args, **kw):
+        real(stage, *args, **kw)
+        seen["c2w"] = stage.cameras().detach()[1].clone()
+        with torch.no_grad():
+            seen["hdr"] = stage.render_at(1.5, seen["c2w"]).hdr.clone()
+
+    monkeypatch.setattr(pipeline, "train_stage2", recording)
+    over = {
+        **short_training,
+        "tonemap.color_view_dependent": True,
+        "tonemap.color_direction": "reflected",
+    }
+    run = train(
+        tiny_clip_realistic, tmp_path / "run", preset="tiny", overrides=over, progress=False
+    )
+    model = load_model(run)
+    assert model.color.view_dependent and model.color.direction == "reflected"
+    assert torch.equal(model.render(1.5, seen["c2w"].numpy())["hdr"], seen["hdr"])
+    model.color.direction = "view"  # the other direction renders something else
+    assert not torch.equal(model.render(1.5, seen["c2w"].numpy())["hdr"], seen["hdr"])
+
+
 def test_a_run_of_the_older_config_layout_is_accepted(tiny_clip_realistic, tmp_path):
     """An older run's config.yaml (loss weights directly under stage1 / stage2, since-removed
     never-read keys) with the same settings is taken as this run's and rewritten in the current
