@@ -9,10 +9,15 @@ so that stage-2 world Gaussians can inherit the same weights).
 Beyond the paper, the direction fed to the MLP can be the view direction mirrored about each
 Gaussian's normal (``direction="reflected"``, the reflected direction of Ref-NeRF): a mirror-like
 surface shows a fixed light where that direction meets it, so the MLP can tie a highlight to it
-(`color_directions`). A Gaussian's normal is the axis of its smallest scale."""
+(`color_directions`). A Gaussian's normal is the axis of its smallest scale. With ``specular=True``
+(beyond the paper) each Gaussian also has a lobe over that direction, read from its feature by a
+linear head: ``e += a * exp(kappa * (d . mu - 1))`` (a spherical Gaussian: RGB amplitude
+a = 2 ** (...), unit axis mu, sharpness kappa = exp(...)), which can flare as the direction sweeps
+past mu; the lobe is absent where there is no direction (stage 1's orthographic camera)."""
 
 from __future__ import annotations
 
+import math
 from typing import Optional
 
 import torch
@@ -22,6 +27,11 @@ import torch.nn.functional as F
 FEATURE_DIM = 36  # paper appendix: 36-d colour features
 HIDDEN_DIM = 36  # paper appendix: colour MLP hidden width 36
 DIRECTIONS = ("view", "reflected")  # what `direction` may name (ToneMapConfig.color_direction)
+# the specular lobe's start (beyond the paper; no source): amplitude 2^-8 (dark against the scene's
+# HDR values of order 1) and sharpness 2 (broad: a half-width of about 50 degrees, so that every
+# Gaussian's axis gets a gradient from the start; the head may sharpen it)
+SPEC_LOG2_AMPLITUDE0 = -8.0
+SPEC_SHARPNESS0 = 2.0
 
 
 class ColorMLP(nn.Module):
@@ -34,6 +44,7 @@ class ColorMLP(nn.Module):
         view_dependent: bool = True,
         max_log2: float | None = None,
         direction: str = "view",
+        specular: bool = False,
     ):
         """
         Args:
@@ -42,7 +53,8 @@ class ColorMLP(nn.Module):
             optional clamp of the MLP output before 2 ** (None = authors' choice, no clamp).
             direction: which direction the renders feed when view dependent (`color_directions`):
             "view" (camera centre -> Gaussian, the authors') or "reflected" (that direction
-            mirrored about the Gaussian's normal; beyond the paper).
+            mirrored about the Gaussian's normal; beyond the paper). specular: add each
+            Gaussian's lobe over the direction (beyond the paper; module docstring).
         """
         super().__init__()
         if direction not in DIRECTIONS:
@@ -53,6 +65,18 @@ class ColorMLP(nn.Module):
         self.max_log2 = max_log2
         self.fc1 = nn.Linear(self.feature_dim + 3, hidden)
         self.fc2 = nn.Linear(hidden, 3)
+        self.specular = bool(specular)
+        if self.specular:
+            # feature -> log2 RGB amplitude (3), lobe axis (3, normalised), ln sharpness (1); the
+            # axis rows keep the default random start (a different axis per feature), the others
+            # start at the constants above for every Gaussian
+            self.spec = nn.Linear(self.feature_dim, 7)
+            with torch.no_grad():
+                self.spec.weight[:3].zero_()
+                self.spec.weight[6:].zero_()
+                self.spec.bias[:3].fill_(SPEC_LOG2_AMPLITUDE0)
+                self.spec.bias[3:6].zero_()
+                self.spec.bias[6:].fill_(math.log(SPEC_SHARPNESS0))
 
     def log2_irradiance(
         self, features: torch.Tensor, view_dirs: torch.Tensor | None = None
@@ -75,7 +99,19 @@ class ColorMLP(nn.Module):
         Returns:
             [..., 3] HDR irradiance, strictly positive.
         """
-        return torch.exp2(self.log2_irradiance(features, view_dirs))
+        e = torch.exp2(self.log2_irradiance(features, view_dirs))
+        if self.specular and self.view_dependent and view_dirs is not None:
+            e = e + self.specular_lobe(features, view_dirs)
+        return e
+
+    def specular_lobe(self, features: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
+        """Each Gaussian's lobe (module docstring): [..., F], [..., 3] unit -> [..., 3] >= 0."""
+        out = self.spec(features)
+        amp = torch.exp2(out[..., :3])
+        axis = F.normalize(out[..., 3:6], dim=-1)
+        sharp = torch.exp(out[..., 6:])
+        cos = (dirs.to(axis.dtype) * axis).sum(-1, keepdim=True)
+        return amp * torch.exp(sharp * (cos - 1.0))
 
 
 def view_directions(means: torch.Tensor, cam_center: torch.Tensor) -> torch.Tensor:

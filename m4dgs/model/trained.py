@@ -50,6 +50,7 @@ class TrainedModel:
             hidden=cfg["tonemap"]["color_hidden"],
             view_dependent=cfg["tonemap"].get("color_view_dependent", False),
             direction=cfg["tonemap"].get("color_direction", "view"),
+            specular=cfg["tonemap"].get("color_specular", False),
         ).to(self.device)
         self.color.load_state_dict(sd["color"])
         self.tm = ToneMapper(

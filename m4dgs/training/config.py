@@ -403,6 +403,10 @@ class ToneMapConfig:
     # axis of its smallest scale, turning with it), so that a mirror-like surface can show a fixed
     # light where that direction meets it (m4dgs.model.color.color_directions)
     color_direction: ColorDirection = "view"
+    # a lobe per Gaussian over that direction, read from its feature (beyond the paper; needs
+    # color_view_dependent): e += a exp(kappa (d . mu - 1)), so that a colour can flare as a
+    # surface turns through the mirror angle (m4dgs.model.color.ColorMLP.specular_lobe)
+    color_specular: bool = False
     pretrain_steps: int = 1_000
     pretrain_monotonic_weight: float = 10.0  # ReLU of the negative slope over ln x in [-10, 10]
     lambda_monotonic: float = (
@@ -950,12 +954,16 @@ def validate(cfg: Any, prefix: str = "") -> None:
     if isinstance(cfg, ToneMapConfig):
         from m4dgs.core.crf import available_crfs
 
-        if cfg.color_direction != "view" and not cfg.color_view_dependent:
-            raise ConfigError(
-                f"config key '{prefix}color_direction' = {cfg.color_direction!r} needs "
-                f"'{prefix}color_view_dependent' = true (without it the colour MLP sees no "
-                "direction)"
-            )
+        for key, on in (
+            ("color_direction", cfg.color_direction != "view"),
+            ("color_specular", cfg.color_specular),
+        ):
+            if on and not cfg.color_view_dependent:
+                raise ConfigError(
+                    f"config key '{prefix}{key}' = {getattr(cfg, key)!r} needs "
+                    f"'{prefix}color_view_dependent' = true (without it the colour MLP sees no "
+                    "direction)"
+                )
 
         known = ("log-logistic", "reinhard-c0", "auto", *available_crfs())
         if cfg.pretrain_crf not in known:

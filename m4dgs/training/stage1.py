@@ -53,6 +53,7 @@ def build_appearance(cfg: TrainConfig, c0: float, device, pretrain: bool = True)
         hidden=cfg.tonemap.color_hidden,
         view_dependent=cfg.tonemap.color_view_dependent,
         direction=cfg.tonemap.color_direction,
+        specular=cfg.tonemap.color_specular,
     ).to(device)
     tm = ToneMapper(hidden=cfg.tonemap.tonemap_hidden, lut_size=cfg.tonemap.lut_size).to(device)
     if pretrain and cfg.tonemap.pretrain_steps > 0:

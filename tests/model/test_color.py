@@ -237,3 +237,45 @@ def test_colour_direction_names_are_checked():
 
     with pytest.raises(ValueError, match="reflected"):
         ColorMLP(direction="mirror")
+
+
+def test_specular_lobe_against_its_formula():
+    """The lobe a exp(kappa (d . mu - 1)) from a numpy evaluation of the head; its start (amplitude
+    2^-8, sharpness 2); its peak a along mu; added only where a direction is given."""
+    from m4dgs.model.color import SPEC_LOG2_AMPLITUDE0, SPEC_SHARPNESS0
+
+    torch.manual_seed(2)
+    mlp = ColorMLP(view_dependent=True, direction="reflected", specular=True).double()
+    feat = torch.randn(40, 36, dtype=torch.float64)
+    dirs = torch.nn.functional.normalize(torch.randn(40, 3, dtype=torch.float64), dim=-1)
+    with torch.no_grad():
+        mlp.spec.weight.normal_(0.0, 0.3)  # away from the start: every row in play
+        mlp.spec.bias.normal_(0.0, 0.3)
+        lobe = mlp.specular_lobe(feat, dirs)
+        full = mlp(feat, dirs)
+    w, b = mlp.spec.weight.detach().numpy(), mlp.spec.bias.detach().numpy()
+    out = feat.numpy() @ w.T + b
+    mu = out[:, 3:6] / np.linalg.norm(out[:, 3:6], axis=1, keepdims=True)
+    ref = 2.0 ** out[:, :3] * np.exp(
+        np.exp(out[:, 6:]) * ((dirs.numpy() * mu).sum(1, keepdims=True) - 1)
+    )
+    np.testing.assert_allclose(lobe.numpy(), ref, rtol=1e-12)
+    base = _numpy_reference(mlp, feat.numpy(), dirs.numpy())
+    np.testing.assert_allclose(full.numpy(), base + ref, rtol=1e-12)
+    # along its own axis a Gaussian shows the amplitude itself
+    with torch.no_grad():
+        np.testing.assert_allclose(
+            mlp.specular_lobe(feat, torch.from_numpy(mu)).numpy(), 2.0 ** out[:, :3], rtol=1e-12
+        )
+    # no direction (stage 1's orthographic camera), or not view dependent: no lobe
+    torch.testing.assert_close(
+        mlp(feat), torch.from_numpy(_numpy_reference(mlp, feat.numpy(), np.zeros((40, 3))))
+    )
+    mlp.view_dependent = False
+    torch.testing.assert_close(mlp(feat, dirs), mlp(feat))
+    # the start: the same dim, broad lobe for every Gaussian
+    fresh = ColorMLP(view_dependent=True, specular=True)
+    o = fresh.spec(torch.randn(5, 36))
+    torch.testing.assert_close(o[:, :3], torch.full((5, 3), SPEC_LOG2_AMPLITUDE0))
+    torch.testing.assert_close(o[:, 6], torch.full((5,), float(np.log(SPEC_SHARPNESS0))))
+    assert o[:, 3:6].std() > 0.05  # axes differ between features

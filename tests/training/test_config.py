@@ -372,8 +372,9 @@ def test_a_word_for_a_number_still_names_the_key():
 
 
 def test_colour_direction_needs_a_view_dependent_mlp():
-    """tonemap.color_direction: "reflected" is accepted with a view-dependent colour MLP, refused
-    without one (naming both keys), and a name outside the choices is refused."""
+    """tonemap.color_direction: "reflected" and tonemap.color_specular are accepted with a
+    view-dependent colour MLP, refused without one (naming both keys), and a direction outside the
+    choices is refused."""
     cfg = apply_overrides(
         preset("tiny"),
         {"tonemap.color_view_dependent": True, "tonemap.color_direction": "reflected"},
@@ -382,6 +383,8 @@ def test_colour_direction_needs_a_view_dependent_mlp():
     with pytest.raises(ValueError, match=r"'tonemap.color_direction' = 'reflected' needs "
                        r"'tonemap.color_view_dependent' = true"):  # fmt: skip
         apply_overrides(preset("tiny"), {"tonemap.color_direction": "reflected"})
+    with pytest.raises(ValueError, match=r"'tonemap.color_specular' = True needs "):
+        apply_overrides(preset("tiny"), {"tonemap.color_specular": True})
     with pytest.raises(ValueError, match=r"tonemap.color_direction"):
         apply_overrides(
             preset("tiny"),

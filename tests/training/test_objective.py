@@ -602,6 +602,14 @@ def test_view_dependent_colour_option_reaches_the_stages(data):
     assert ws.color.direction == video_stage(data, **kw).color.direction == "reflected"
     g = torch.autograd.grad(ws.losses(10).terms["rgb"], ws.color.fc1.weight)[0]
     assert g[:, -3:].abs().max() > 0
+    # with the specular lobe (beyond the paper) its head learns in stage 2 only
+    kw["tonemap.color_specular"] = True
+    st = video_stage(data, **kw)
+    g = torch.autograd.grad(st.losses(10_000).terms["rgb"], st.color.spec.weight, allow_unused=True)
+    assert g[0] is None or g[0].abs().max() == 0
+    ws = world_stage(data, **kw)
+    g = torch.autograd.grad(ws.losses(10).terms["rgb"], ws.color.spec.weight)[0]
+    assert g.abs().max() > 0
 
 
 def test_a_non_finite_loss_stops_training_naming_stage_step_and_term(data):

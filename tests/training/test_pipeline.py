@@ -198,8 +198,10 @@ def test_a_gain_over_time_is_handed_over_saved_and_rendered_by_the_loaded_model(
 def test_the_trained_model_keeps_the_reflected_colour_direction(
     tiny_clip_realistic, tmp_path, monkeypatch, short_training
 ):
-    """Beyond the paper (tonemap.color_direction = "reflected"): the model loaded from final.pt
-    feeds its colour MLP the reflected direction and renders exactly what stage 2 rendered."""
+    """Beyond the paper (tonemap.color_direction = "reflected", tonemap.color_specular): the model
+    loaded from final.pt feeds its colour MLP the reflected direction, has the specular lobe, and
+    renders exactly what stage 2 rendered."""
+    from m4dgs.model.color import SPEC_LOG2_AMPLITUDE0
     from m4dgs.model.trained import load_model
     from m4dgs.training import pipeline
 
@@ -217,12 +219,15 @@ def test_the_trained_model_keeps_the_reflected_colour_direction(
         **short_training,
         "tonemap.color_view_dependent": True,
         "tonemap.color_direction": "reflected",
+        "tonemap.color_specular": True,
     }
     run = train(
         tiny_clip_realistic, tmp_path / "run", preset="tiny", overrides=over, progress=False
     )
     model = load_model(run)
     assert model.color.view_dependent and model.color.direction == "reflected"
+    assert model.color.specular  # and its head trained away from the start:
+    assert (model.color.spec.bias[:3] != SPEC_LOG2_AMPLITUDE0).any()
     assert torch.equal(model.render(1.5, seen["c2w"].numpy())["hdr"], seen["hdr"])
     model.color.direction = "view"  # the other direction renders something else
     assert not torch.equal(model.render(1.5, seen["c2w"].numpy())["hdr"], seen["hdr"])
