@@ -185,6 +185,10 @@ class LossConfig:
     # (authors 1.0), scale standard deviation (authors 10.0)
     lambda_opacity: float = 0.0
     lambda_scale_std: float = 0.0
+    # beyond the paper (0 = off): the mean over Gaussians of smallest scale / largest scale, which
+    # flattens each Gaussian into a disc so that its smallest-scale axis is a surface normal
+    # (the direction tonemap.color_direction = "reflected" mirrors about); no source for a weight
+    lambda_flat: float = 0.0
     arap_k: int = 5  # k nearest neighbours of the ARAP loss (appendix "Rigidity Constraint")
     # per-iteration probability of flow (vs track) supervision (appendix "Flow/Track Loss")
     flow_prob: float = 0.5

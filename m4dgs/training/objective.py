@@ -312,6 +312,13 @@ def scale_std_term(gauss) -> Term:
     return "scale_std", gauss.scales().std(dim=-1).mean()
 
 
+def flat_term(gauss) -> Term:
+    """Beyond the paper (loss.lambda_flat): the mean over Gaussians of smallest / largest scale, in
+    [0, 1] (0 for a disc, 1 for a ball)."""
+    s = gauss.scales()
+    return "flat", (s.min(dim=-1).values / s.max(dim=-1).values.clamp_min(1e-12)).mean()
+
+
 def gain_smooth_term(values: Tensor) -> Term:
     """Beyond the paper (loss.lambda_gain_smooth): the mean over Gaussians and inner knots of the
     squared second differences of the log2-gain knot values [N, K] (stops^2; zero for K < 3,
@@ -343,6 +350,7 @@ def loss_weights(
         "mono": tonemap.lambda_monotonic,
         "opacity": loss.lambda_opacity,
         "scale_std": loss.lambda_scale_std,
+        "flat": loss.lambda_flat,
         "gain_smooth": loss.lambda_gain_smooth,
     }
 
@@ -355,7 +363,8 @@ def total_loss(terms: Dict[str, Tensor], weights: Dict[str, float]) -> Tensor:
 def assemble(stage, it: int) -> LossOutput:
     """One iteration's loss terms for `stage` (m4dgs.training.stage.Stage): sample the frames,
     render the query frame with the destination maps the terms need, then add in this order rgb,
-    ue, dep, track, arap, vel, acc, tlr, the stage's own terms, mono, opacity, scale_std and, when
+    ue, dep, track, arap, vel, acc, tlr, the stage's own terms, mono, opacity, scale_std, flat
+    (beyond the paper) and, when
     the Gaussians carry a gain over time (beyond the paper), gain_smooth (each only when its weight
     is > 0 and its ablation switch is on; rgb and ue always).
 
@@ -452,6 +461,8 @@ def assemble(stage, it: int) -> LossOutput:
         add(opacity_term(stage.gauss))
     if lc.lambda_scale_std > 0:
         add(scale_std_term(stage.gauss))
+    if lc.lambda_flat > 0:
+        add(flat_term(stage.gauss))
     gains = stage.gauss.gain_values()
     if gains is not None and lc.lambda_gain_smooth > 0:
         add(gain_smooth_term(gains))

@@ -159,10 +159,11 @@ def test_stage1_terms_follow_weights_and_ablations(data):
         **{
             "stage1.loss.lambda_opacity": 1.0,
             "stage1.loss.lambda_scale_std": 1.0,
+            "stage1.loss.lambda_flat": 1.0,
             "tonemap.lambda_monotonic": 1.0,
         },
     ).losses(late)
-    assert list(extra.terms)[-3:] == ["mono", "opacity", "scale_std"]
+    assert list(extra.terms)[-4:] == ["mono", "opacity", "scale_std", "flat"]
     # stage 2's own term is not a stage-1 term, and the weights follow the config
     w = video_stage(data, **{"stage1.loss.lambda_dep": 0.25}).weights()
     assert "pr" not in w and w["dep"] == 0.25 and w["ue"] == 10.0
@@ -874,3 +875,35 @@ def test_gaussians_of_another_gain_setting_are_refused(data):
     cfg = tiny_config(**{"model.appearance_knots": 3})
     with pytest.raises(ValueError, match="stage 1: the Gaussians carry a gain with 0 knots"):
         VideoStage(data, cfg, "cpu", BACKEND, init=False)._setup(st.gauss, st.color, st.tm, st.bg)
+
+
+def test_flat_term_is_smallest_over_largest_scale():
+    """loss.lambda_flat's term (beyond the paper): a disc 0, a ball 1, a mean over Gaussians; its
+    gradient against a central finite difference, and a step down it flattens every Gaussian."""
+    from m4dgs.training.objective import flat_term
+
+    class _G:
+        def __init__(self, s):
+            self.s = s
+
+        def scales(self):
+            return self.s
+
+    s = torch.tensor([[1.0, 2.0, 4.0], [3.0, 3.0, 3.0], [0.0, 1.0, 2.0]], dtype=torch.float64)
+    name, v = flat_term(_G(s))
+    assert name == "flat"
+    torch.testing.assert_close(v, torch.tensor((0.25 + 1.0 + 0.0) / 3, dtype=torch.float64))
+    x = torch.tensor([[0.5, 0.9, 1.7], [1.1, 0.4, 0.6]], dtype=torch.float64, requires_grad=True)
+    flat_term(_G(x))[1].backward()
+    num = torch.zeros_like(x)
+    with torch.no_grad():
+        for i in range(2):
+            for j in range(3):
+                e = torch.zeros_like(x)
+                e[i, j] = 1e-6
+                num[i, j] = (flat_term(_G(x + e))[1] - flat_term(_G(x - e))[1]) / 2e-6
+    torch.testing.assert_close(x.grad, num, rtol=1e-6, atol=1e-9)
+    with torch.no_grad():
+        y = x - 0.1 * x.grad
+        ratio = lambda a: a.min(-1).values / a.max(-1).values  # noqa: E731
+        assert (ratio(y) < ratio(x)).all()
