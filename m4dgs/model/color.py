@@ -27,10 +27,11 @@ import torch.nn.functional as F
 FEATURE_DIM = 36  # paper appendix: 36-d colour features
 HIDDEN_DIM = 36  # paper appendix: colour MLP hidden width 36
 DIRECTIONS = ("view", "reflected")  # what `direction` may name (ToneMapConfig.color_direction)
-# the specular lobe's start (beyond the paper; no source): amplitude 2^-8 (dark against the scene's
-# HDR values of order 1) and sharpness 2 (broad: a half-width of about 50 degrees, so that every
-# Gaussian's axis gets a gradient from the start; the head may sharpen it)
-SPEC_LOG2_AMPLITUDE0 = -8.0
+# the specular lobe's start (beyond the paper; no source), for a feature of zeros: amplitude 2^-4
+# (dim against the scene's HDR values of order 1, yet within the stops a feature's learning rate
+# can add in one stage: at 2^-8 the lobes of a glint probe never left it) and sharpness 2 (broad: a
+# half-width of about 50 degrees, so that every Gaussian's axis gets a gradient from the start)
+SPEC_LOG2_AMPLITUDE0 = -4.0
 SPEC_SHARPNESS0 = 2.0
 
 
@@ -67,13 +68,12 @@ class ColorMLP(nn.Module):
         self.fc2 = nn.Linear(hidden, 3)
         self.specular = bool(specular)
         if self.specular:
-            # feature -> log2 RGB amplitude (3), lobe axis (3, normalised), ln sharpness (1); the
-            # axis rows keep the default random start (a different axis per feature), the others
-            # start at the constants above for every Gaussian
+            # feature -> log2 RGB amplitude (3), lobe axis (3, normalised), ln sharpness (1). Every
+            # row keeps its random start, so that each Gaussian's feature moves its own lobe from
+            # the first step (a row of zeros passes no gradient to the features); the biases start
+            # at the constants above
             self.spec = nn.Linear(self.feature_dim, 7)
             with torch.no_grad():
-                self.spec.weight[:3].zero_()
-                self.spec.weight[6:].zero_()
                 self.spec.bias[:3].fill_(SPEC_LOG2_AMPLITUDE0)
                 self.spec.bias[3:6].zero_()
                 self.spec.bias[6:].fill_(math.log(SPEC_SHARPNESS0))
