@@ -36,7 +36,8 @@ SPEC_SHARPNESS0 = 2.0
 
 
 class ColorMLP(nn.Module):
-    """features [N, F] (+ view directions [N, 3]) -> HDR irradiance [N, 3] = 2 ** MLP(...) > 0."""
+    """features [N, F] (+ view directions [N, 3]) -> HDR irradiance [N, 3] = 2 ** MLP(...) > 0
+    (+ each Gaussian's lobe over the direction with `specular`)."""
 
     def __init__(
         self,
@@ -81,7 +82,8 @@ class ColorMLP(nn.Module):
     def log2_irradiance(
         self, features: torch.Tensor, view_dirs: torch.Tensor | None = None
     ) -> torch.Tensor:
-        """MLP output before exponentiation: [..., F] (+ [..., 3]) -> [..., 3]."""
+        """MLP output before exponentiation (without the specular lobe): [..., F] (+ [..., 3]) ->
+        [..., 3]."""
         if view_dirs is None or not self.view_dependent:
             view_dirs = features.new_zeros(*features.shape[:-1], 3)
         x = self.fc2(F.relu(self.fc1(torch.cat([features, view_dirs.to(features.dtype)], dim=-1))))

@@ -364,9 +364,9 @@ def assemble(stage, it: int) -> LossOutput:
     """One iteration's loss terms for `stage` (m4dgs.training.stage.Stage): sample the frames,
     render the query frame with the destination maps the terms need, then add in this order rgb,
     ue, dep, track, arap, vel, acc, tlr, the stage's own terms, mono, opacity, scale_std, flat
-    (beyond the paper) and, when
-    the Gaussians carry a gain over time (beyond the paper), gain_smooth (each only when its weight
-    is > 0 and its ablation switch is on; rgb and ue always).
+    (beyond the paper) and, when the Gaussians carry a gain over time (beyond the paper),
+    gain_smooth (each only when its weight is > 0 and its ablation switch is on; rgb and ue
+    always).
 
     The stage's generator draws, in this order: i, the flow-vs-track coin (when frame i has prior
     flows), j, and, when the moving set holds more than arap_k Gaussians, the motion subset and
