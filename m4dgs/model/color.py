@@ -24,6 +24,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from m4dgs.core.camera import quat_to_rotmat
+
 FEATURE_DIM = 36  # paper appendix: 36-d colour features
 HIDDEN_DIM = 36  # paper appendix: colour MLP hidden width 36
 DIRECTIONS = ("view", "reflected")  # what `direction` may name (ToneMapConfig.color_direction)
@@ -136,8 +138,6 @@ def gaussian_normals(quats: torch.Tensor, scales: torch.Tensor) -> torch.Tensor:
     Returns:
         [N, 3] unit normals; their sign is arbitrary (`reflect` does not depend on it).
     """
-    from m4dgs.core.camera import quat_to_rotmat
-
     R = quat_to_rotmat(quats)  # [N, 3, 3], columns = the local axes in world space
     idx = scales.argmin(dim=-1)  # [N]
     return R.gather(-1, idx[:, None, None].expand(-1, 3, 1))[..., 0]
@@ -175,5 +175,5 @@ def color_directions(
         return None
     d = view_directions(means, cam_center)
     if color.direction == "reflected":
-        d = reflect(d, gaussian_normals(quats, scales.to(d.dtype)))
+        d = reflect(d, gaussian_normals(quats, scales))
     return d
