@@ -2,7 +2,7 @@
 
     python bench/train_bench.py CLIP [--preset small] [--variant full] [--iters1 N] [--iters2 N]
                                      [--profile-steps 20] [--threads 2] [--out DIR] [--no-score]
-                                     [--device cuda] [--seed N]
+                                     [--device cuda] [--seed N] [--set KEY=VALUE ...] [--share DIR]
 
 Trains `variant` on `CLIP` into a fresh run folder (default: a temporary one), timing each phase of
 the pipeline (camera_init, stage1, v2w, stage2, render) and the scoring (`eval score`), then prints:
@@ -31,6 +31,7 @@ from torch.profiler import ProfilerActivity, profile, schedule  # noqa: E402
 
 from m4dgs.core.threads import kernel_threads, use_threads  # noqa: E402
 from m4dgs.run import RunDir  # noqa: E402
+from m4dgs.training.phases import SHARED_PHASES  # noqa: E402
 from m4dgs.training.pipeline import Trainer  # noqa: E402
 
 PHASES = ("camera_init", "stage1", "v2w", "stage2", "render")
@@ -100,6 +101,22 @@ def main() -> None:
     )
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--seed", type=int, default=None, help="trainer seed (default: the preset's)")
+    ap.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="config override, as `m4dgs train --set` takes it (repeatable)",
+    )
+    ap.add_argument(
+        "--share",
+        default=None,
+        metavar="DIR",
+        help="share folder of identical phases (m4dgs.training.phases): a later run of the same "
+        "clip takes, e.g., the camera initialisation from it instead of computing it again (that "
+        "phase's seconds then are the copy's)",
+    )
     ap.add_argument("--out", default=None, help="run folder (default: a temporary one, deleted)")
     ap.add_argument("--no-score", action="store_true", help="skip timing `eval score`")
     a = ap.parse_args()
@@ -108,6 +125,11 @@ def main() -> None:
     else:
         use_threads(a.threads, a.device)
     overrides = {}
+    for kv in a.sets:
+        if "=" not in kv:
+            ap.error(f"--set: expected KEY=VALUE, got {kv!r}")
+        k, v = kv.split("=", 1)
+        overrides[k.strip()] = v.strip()
     if a.iters1 is not None:
         overrides["stage1.iterations"] = a.iters1
     if a.iters2 is not None:
@@ -130,13 +152,18 @@ def main() -> None:
     wall = {}
     t_all = time.perf_counter()
     t0 = time.perf_counter()
-    tr = Trainer(a.clip, out, a.preset, a.variant, overrides, a.device, progress=False)
+    tr = Trainer(
+        a.clip, out, a.preset, a.variant, overrides, a.device, progress=False, share_dir=a.share
+    )
     wall["set-up (config, data)"] = time.perf_counter() - t0
     for phase in PHASES:
         if phase == "stage1" and not tr.cfg.ablation.use_video_init:
             continue
         t0 = time.perf_counter()
-        tr.run_phase(phase)  # seeded as `m4dgs train` seeds it: the same run, timed by phase
+        # seeded as `m4dgs train` seeds it: the same run, timed by phase; through the share folder
+        # as `m4dgs train` does it when one is given
+        shared = a.share is not None and phase in SHARED_PHASES
+        tr.run_phase(phase, (lambda p=phase: tr._shared(p, getattr(tr, p))) if shared else None)  # noqa: SLF001
         if phase in ("stage1", "stage2"):
             prof.close()
         wall[phase] = time.perf_counter() - t0
