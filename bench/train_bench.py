@@ -162,8 +162,13 @@ def main() -> None:
         t0 = time.perf_counter()
         # seeded as `m4dgs train` seeds it: the same run, timed by phase; through the share folder
         # as `m4dgs train` does it when one is given
-        shared = a.share is not None and phase in SHARED_PHASES
-        tr.run_phase(phase, (lambda p=phase: tr._shared(p, getattr(tr, p))) if shared else None)  # noqa: SLF001
+        compute = None
+        if a.share is not None and phase in SHARED_PHASES:
+
+            def compute(p=phase):
+                tr._shared(p, getattr(tr, p))  # noqa: SLF001
+
+        tr.run_phase(phase, compute)
         if phase in ("stage1", "stage2"):
             prof.close()
         wall[phase] = time.perf_counter() - t0

@@ -21,6 +21,10 @@ def _bench(clip, out, share, *extra):
     return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
 
 
+def _lambda_flat(run):
+    return yaml.safe_load((run / "config.yaml").read_text())["stage2"]["loss"]["lambda_flat"]
+
+
 def test_set_and_share(tiny_clip_realistic, tmp_path):
     share = tmp_path / "share"
     first = _bench(tiny_clip_realistic, tmp_path / "a", share)
@@ -34,14 +38,7 @@ def test_set_and_share(tiny_clip_realistic, tmp_path):
     status = json.loads((tmp_path / "b" / "status.json").read_text())
     assert status["stage"] == "done"
     assert set(status["shared_phases"]) == {"camera_init", "stage1", "v2w"}
-    cfg = yaml.safe_load((tmp_path / "b" / "config.yaml").read_text())
-    assert cfg["stage2"]["loss"]["lambda_flat"] == 0.25
-    assert (
-        yaml.safe_load((tmp_path / "a" / "config.yaml").read_text())["stage2"]["loss"][
-            "lambda_flat"
-        ]
-        == 0.0
-    )
+    assert _lambda_flat(tmp_path / "b") == 0.25 and _lambda_flat(tmp_path / "a") == 0.0
     # a malformed override is refused before any work, naming the option
     bad = _bench(tiny_clip_realistic, tmp_path / "c", share, "--set", "stage2.loss.lambda_flat")
     assert bad.returncode == 2 and "--set" in bad.stderr
