@@ -302,8 +302,9 @@ def model_gaussians_at(
     """Activated Gaussians of a TrainedModel at time t with tone-mapped colours.
 
     Returns dict: means [N,3], quats [N,4] (wxyz, unit), scales [N,3], opacities [N], hdr [N,3] (the
-    colour MLP's HDR irradiance, view-independent, times the Gaussian's gain at t when the model has
-    a gain over time), rgb [N,3] = tm(hdr, log2 dt) in [0, 1] (dt =
+    colour MLP's HDR irradiance, view-independent: a view-dependent MLP is evaluated at the zero
+    direction, as stage 1 trains it, without specular lobes; times the Gaussian's gain at t when the
+    model has a gain over time), rgb [N,3] = tm(hdr, log2 dt) in [0, 1] (dt =
     exposure, default 1), is_dynamic [N]."""
     dt = 1.0 if exposure is None else float(exposure)
     if not dt > 0:

@@ -87,9 +87,11 @@ def run(tmp_path_factory):
     return _write_run(tmp_path_factory.mktemp("m4dgs_export"))
 
 
-def _write_run(root, gain=None):
+def _write_run(root, gain=None, reflected=False):
     """The hand-built run in root/run (its clip in root/clip); `gain` [5, K]: log2 gains over
-    time of its Gaussians (beyond the paper), static first. Returns (run folder, loaded model)."""
+    time of its Gaussians (beyond the paper), static first; `reflected`: a view-dependent colour
+    over the reflected direction with bright specular lobes (beyond the paper). Returns (run
+    folder, loaded model)."""
     clip_dir, run_dir = root / "clip", root / "run"
     test = [g for g in range(G) if g not in TRAIN]
     dts = [0.25 if i % 2 == 0 else 2.0 for i in range(T)]
@@ -113,7 +115,12 @@ def _write_run(root, gain=None):
         state = gauss.to_state()
         state["static"]["log2_gain"], state["dynamic"]["log2_gain"] = gain[:3], gain[3:]
         gauss = WorldGaussians.from_state(state)
-    color = ColorMLP(FEAT, 36, view_dependent=False)
+    color = ColorMLP(FEAT, 36, view_dependent=reflected, direction="reflected", specular=reflected)
+    tonemap = {"color_hidden": 36, "tonemap_hidden": 128}
+    if reflected:
+        with torch.no_grad():
+            color.spec.bias[:3] += 6.0  # lobes of amplitude about 2^2, which the export must drop
+        tonemap.update(color_view_dependent=True, color_direction="reflected", color_specular=True)
     tm = ToneMapper(hidden=128, generator=torch.Generator().manual_seed(1))
     bg = Background()
     K, c2w = _cameras()
@@ -128,7 +135,7 @@ def _write_run(root, gain=None):
             "c2w": torch.tensor(c2w, dtype=torch.float32),
             "frames": TRAIN,
             "log2_dt": torch.log2(torch.tensor(dts)),
-            "config": {"tonemap": {"color_hidden": 36, "tonemap_hidden": 128}},
+            "config": {"tonemap": tonemap},
             "variant": "full",
             "feature_dim": FEAT,
         },
@@ -372,6 +379,32 @@ def test_a_model_with_a_gain_over_time_loads_renders_and_exports_it(relit_run, t
     # and not what the model without the gain exports
     plain = np.clip(_np_tonemap(model, _np_color(model, feats), 0.0), 0, 1)
     assert np.abs(rgb - plain).max() > 1e-2
+
+
+def test_a_view_dependent_colour_exports_its_direction_free_colour(tmp_path):
+    """A run whose colour depends on the reflected direction and has specular lobes: the .ply
+    (view-independent) bakes the colour at the zero direction, as stage 1 trains it, without the
+    lobes (numpy reference), not the colour a camera of the clip sees."""
+    from m4dgs.model.color import color_directions
+
+    run_dir, model = _write_run(tmp_path, reflected=True)
+    assert model.color.view_dependent and model.color.specular
+    g = 2
+    t = model.time_of(g)
+    gauss, feats = model.gauss, model.gauss.features().detach()
+    _, c2w = model.camera(g)
+    with torch.no_grad():
+        dirs = color_directions(
+            model.color, gauss.positions(t), gauss.quats(t), gauss.scales(),
+            torch.tensor(c2w[:3, 3], dtype=torch.float32),
+        )  # fmt: skip
+        seen, free = model.color(feats, dirs), model.color(feats)
+    assert (seen / free).max() > 1.5  # the camera's colour (lobes included) is another
+    out = export_run_ply(run_dir, g, tmp_path / "refl.ply", model=model)
+    arr = read_ply(out)
+    ref = np.clip(_np_tonemap(model, _np_color(model, feats.double().numpy()), 0.0), 0, 1)
+    rgb = 0.5 + SH_C0 * np.stack([arr[f"f_dc_{i}"] for i in range(3)], 1).astype(np.float64)
+    np.testing.assert_allclose(rgb, ref, atol=2e-6)
 
 
 def test_export_cli(run, tmp_path):
