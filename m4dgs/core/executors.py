@@ -345,6 +345,7 @@ class RayExecutor(Executor):
         self.max_retries = int(max_retries)
         self._env_before: Dict[str, Optional[str]] = {}
         self._own_temp = None
+        self._cluster_switch: Optional[bool] = None  # Ray's multi-machine switch, as it was
         self.started = address is None
         if self.started and "RAY_AUTH_MODE" not in os.environ and _ray_version_has_tokens():
             # a fresh token for this cluster, through the environment its processes inherit (no
@@ -369,6 +370,7 @@ class RayExecutor(Executor):
         if self.started:
             if "RAY_USAGE_STATS_ENABLED" not in os.environ:
                 self._set_env("RAY_USAGE_STATS_ENABLED", "0")  # no reports to Ray's servers
+            self._one_machine()
             if temp_dir is None:
                 # short: Ray's Unix socket paths live under it (a 107-byte limit)
                 temp_dir = self._own_temp = tempfile.mkdtemp(prefix="m4ray-")
@@ -394,8 +396,26 @@ class RayExecutor(Executor):
                 ray.init(address=address, log_to_driver=False, configure_logging=False)
         return ray
 
+    def _one_machine(self) -> None:
+        """Keep the cluster's node address at 127.0.0.1. Ray swaps a node address of 127.0.0.1
+        for the machine's reachable one (its servers then listen there and on every interface)
+        unless its multi-machine switch is off (its default on macOS and Windows): off here, in
+        this process (Ray read it when imported) and in the processes the cluster starts (they
+        read it from the environment), until the executor closes."""
+        from ray._private import ray_constants
+
+        self._set_env(ray_constants.ENABLE_RAY_CLUSTERS_ENV_VAR, "0")
+        self._cluster_switch = ray_constants.ENABLE_RAY_CLUSTER
+        ray_constants.ENABLE_RAY_CLUSTER = False
+
     def _restore(self) -> None:
-        """The environment variables this executor set back as they were; its own temp dir gone."""
+        """The environment variables this executor set back as they were, and Ray's multi-machine
+        switch; its own temp dir gone."""
+        if self._cluster_switch is not None:
+            from ray._private import ray_constants
+
+            ray_constants.ENABLE_RAY_CLUSTER = self._cluster_switch
+            self._cluster_switch = None
         for k, v in self._env_before.items():
             if v is None:
                 os.environ.pop(k, None)

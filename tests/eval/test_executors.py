@@ -216,13 +216,18 @@ def test_ray_cluster_of_its_own(tiny1, tmp_path):
     """--executor ray without --address: the executor starts a cluster on this machine (its own
     temp dir, every port on 127.0.0.1, token authentication where this Ray has it), runs the
     suite to the local metrics, and leaves nothing behind (slow: Ray's start-up on a busy 2-core
-    machine takes 20-40 s)."""
+    machine takes 20-40 s). On a machine with a network address, a Ray that swaps 127.0.0.1 for
+    that address listens there unless the executor keeps it to one machine."""
     ray = pytest.importorskip("ray")
+    from ray._private import ray_constants
+
     from m4dgs.core.executors import RayExecutor
 
     suite, local = tiny1
     keys = ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_USAGE_STATS_ENABLED")
+    keys += (ray_constants.ENABLE_RAY_CLUSTERS_ENV_VAR,)
     before = {k: os.environ.get(k) for k in keys}
+    switch = ray_constants.ENABLE_RAY_CLUSTER
     with RayExecutor(threads=1, num_cpus=2) as ex:
         temp = Path(ex._own_temp)
         assert temp.is_dir()
@@ -240,6 +245,7 @@ def test_ray_cluster_of_its_own(tiny1, tmp_path):
     assert metrics(tmp_path / "root") == local
     assert not temp.exists()
     assert {k: os.environ.get(k) for k in keys} == before
+    assert ray_constants.ENABLE_RAY_CLUSTER == switch
     # its processes are gone (they may take a moment to exit)
     deadline = time.monotonic() + 20
     while [p for p in descendants(os.getpid()) if "ray" in cmdline(p)]:
