@@ -401,11 +401,15 @@ class RayExecutor(Executor):
         for the machine's reachable one (its servers then listen there and on every interface)
         unless its multi-machine switch is off (its default on macOS and Windows): off here, in
         this process (Ray read it when imported) and in the processes the cluster starts (they
-        read it from the environment), until the executor closes."""
-        from ray._private import ray_constants
+        read it from the environment), until the executor closes. A Ray without these names (a
+        private module) gets the environment variable alone."""
+        self._set_env("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+        try:
+            from ray._private import ray_constants
 
-        self._set_env(ray_constants.ENABLE_RAY_CLUSTERS_ENV_VAR, "0")
-        self._cluster_switch = ray_constants.ENABLE_RAY_CLUSTER
+            self._cluster_switch = bool(ray_constants.ENABLE_RAY_CLUSTER)
+        except (ImportError, AttributeError):
+            return
         ray_constants.ENABLE_RAY_CLUSTER = False
 
     def _restore(self) -> None:
