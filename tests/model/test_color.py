@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from m4dgs.model.color import ColorMLP, view_directions
+from m4dgs.raster.gsplat_backend import gsplat_available
 
 
 def _numpy_reference(mlp: ColorMLP, feat: np.ndarray, dirs: np.ndarray) -> np.ndarray:
@@ -307,18 +308,8 @@ class _LeafGaussians:
         return self.feats
 
 
-def _cuda_and_gsplat() -> bool:
-    if not torch.cuda.is_available():
-        return False
-    try:
-        import gsplat  # noqa: F401
-    except Exception:
-        return False
-    return True
-
-
 @pytest.mark.gpu
-@pytest.mark.skipif(not _cuda_and_gsplat(), reason="needs CUDA and gsplat")
+@pytest.mark.skipif(not gsplat_available(), reason="needs CUDA and gsplat")
 def test_reflected_specular_render_on_cuda_matches_the_cpu():
     """The reflected direction and the lobe on CUDA through gsplat give the values and gradients
     (Gaussians' parameters and the MLP's weights) of the torch rasterizer on the CPU."""

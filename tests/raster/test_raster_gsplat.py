@@ -6,22 +6,13 @@ import pytest
 import torch
 
 from m4dgs.raster import cpu_available, intrinsics_ortho, render
+from m4dgs.raster.gsplat_backend import gsplat_available
 
 pytestmark = pytest.mark.gpu
 
 
-def _gsplat_ready() -> bool:
-    if not torch.cuda.is_available():
-        return False
-    try:
-        import gsplat  # noqa: F401
-    except Exception:
-        return False
-    return True
-
-
 requires = pytest.mark.skipif(
-    not (_gsplat_ready() and cpu_available()), reason="needs CUDA, gsplat and the cpu op"
+    not (gsplat_available() and cpu_available()), reason="needs CUDA, gsplat and the cpu op"
 )
 
 
