@@ -31,7 +31,6 @@ from torch.profiler import ProfilerActivity, profile, schedule  # noqa: E402
 
 from m4dgs.core.threads import kernel_threads, use_threads  # noqa: E402
 from m4dgs.run import RunDir  # noqa: E402
-from m4dgs.training.phases import SHARED_PHASES  # noqa: E402
 from m4dgs.training.pipeline import Trainer  # noqa: E402
 
 PHASES = ("camera_init", "stage1", "v2w", "stage2", "render")
@@ -160,15 +159,9 @@ def main() -> None:
         if phase == "stage1" and not tr.cfg.ablation.use_video_init:
             continue
         t0 = time.perf_counter()
-        # seeded as `m4dgs train` seeds it: the same run, timed by phase; through the share folder
-        # as `m4dgs train` does it when one is given
-        compute = None
-        if a.share is not None and phase in SHARED_PHASES:
-
-            def compute(p=phase):
-                tr._shared(p, getattr(tr, p))  # noqa: SLF001
-
-        tr.run_phase(phase, compute)
+        # seeded as `m4dgs train` seeds it, through the share folder when one is given: the same
+        # run, timed by phase
+        tr.run_phase(phase)
         if phase in ("stage1", "stage2"):
             prof.close()
         wall[phase] = time.perf_counter() - t0

@@ -547,13 +547,19 @@ class Trainer:
 
     # -- all
     # ----------------------------------------------------------------------------------------------
-    def run_phase(self, phase: str, compute=None) -> None:
-        """Run one phase (`compute`, default the method of that name) from the trainer seed's
-        generator state, whatever ran before it in this process: a phase computes the same
-        whether it follows the phases before it here, in another process (a resumed run) or in
-        another run (a shared phase). Tools that time phases one by one call this too."""
+    def run_phase(self, phase: str) -> None:
+        """Run one phase (the method of that name) from the trainer seed's generator state,
+        whatever ran before it in this process: a phase computes the same whether it follows the
+        phases before it here, in another process (a resumed run) or in another run (a shared
+        phase). With a share folder, a shared phase (SHARED_PHASES) is copied from it when there,
+        else computed and published (`_shared`). `train` runs every phase through this; tools
+        that run or time phases one by one call it too."""
         torch.manual_seed(self.cfg.seed)
-        (compute or getattr(self, phase))()
+        compute = getattr(self, phase)
+        if self.share is not None and phase in SHARED_PHASES:
+            self._shared(phase, compute)
+        else:
+            compute()
 
     def _load_rasterizer(self) -> None:
         """Load (on its first use: compile, with a message) the rasterizer before any phase, so
@@ -570,21 +576,11 @@ class Trainer:
             return self.run.root
         first = _phase_index(status)
         self._load_rasterizer()
-        steps = {
-            "camera_init": self.camera_init,
-            "stage1": self.stage1,
-            "v2w": self.v2w,
-            "stage2": self.stage2,
-            "render": self.render,
-        }
         for phase in PHASES[first:-1]:
             if phase == "stage1" and not self.cfg.ablation.use_video_init:
                 self._finish("stage1", 0.0)
                 continue
-            if self.share is not None and phase in SHARED_PHASES:
-                self.run_phase(phase, lambda p=phase: self._shared(p, steps[p]))
-            else:
-                self.run_phase(phase)
+            self.run_phase(phase)
         for p in (self.run.ckpt_path, self.run.prev_ckpt_path):  # a finished run needs neither
             if p.exists():
                 p.unlink()

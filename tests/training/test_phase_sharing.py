@@ -225,3 +225,19 @@ def test_shared_phases_give_the_run_what_it_would_compute(
     monkeypatch.setattr(pipeline, "cpu_capability", lambda: "AVX512-elsewhere")
     avx = run("other-cpu", "full")
     assert "shared_phases" not in avx.status()
+
+
+def test_a_phase_run_alone_goes_through_the_share(tiny_clip_realistic, tmp_path, one_thread):
+    """Trainer.run_phase with a share folder, as the DIBR calibration rows run the camera
+    initialisation (eval.experiments.dibr_views.camera_initialisation): the first caller computes
+    and publishes it, the second copies it, with the same result."""
+    from eval.experiments.dibr_views import camera_initialisation
+
+    share = tmp_path / "share"
+    a = camera_initialisation(tiny_clip_realistic, tmp_path / "a", "tiny", share_dir=share)
+    assert "shared_phases" not in RunDir(tmp_path / "a").status()
+    assert (share / "camera_init").is_dir()
+    b = camera_initialisation(tiny_clip_realistic, tmp_path / "b", "tiny", share_dir=share)
+    assert set(RunDir(tmp_path / "b").status()["shared_phases"]) == {"camera_init"}
+    for k in ("K", "c2w", "depth"):
+        assert (a[k] == b[k]).all(), k
